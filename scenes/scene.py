@@ -1,0 +1,133 @@
+"""The scene: meshes grouped by material, tags, and the metadata every later stage needs.
+
+A :class:`Scene` is the contract between ``scenes`` (which builds or loads it),
+``propagation`` (which ray-traces it) and ``pipeline`` (which drives a robot in it).
+Sionna assigns one radio material per shape, so a scene holds exactly one
+triangle mesh per material.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+__all__ = ["Scene", "TagSet"]
+
+
+@dataclass(frozen=True)
+class TagSet:
+    """Passive UHF tags placed in a scene.
+
+    Attributes
+    ----------
+    ids : numpy.ndarray
+        Tag identifiers, shape (n_tags,), dtype str (unique).
+    positions_m : numpy.ndarray
+        Tag centres, shape (n_tags, 3), float64, metres, world frame (z up).
+    normals : numpy.ndarray
+        Unit normals of the surface each tag is stuck on, pointing into free space,
+        shape (n_tags, 3), float64.
+    """
+
+    ids: np.ndarray
+    positions_m: np.ndarray
+    normals: np.ndarray
+
+    def __post_init__(self) -> None:
+        ids = np.asarray(self.ids, dtype=str).reshape(-1)
+        pos = np.asarray(self.positions_m, dtype=float).reshape(-1, 3)
+        nrm = np.asarray(self.normals, dtype=float).reshape(-1, 3)
+        if not (len(ids) == len(pos) == len(nrm)):
+            raise ValueError(
+                f"TagSet: ids ({len(ids)}), positions_m ({len(pos)}) and normals ({len(nrm)}) "
+                "must have the same length"
+            )
+        if len(set(ids.tolist())) != len(ids):
+            dup = sorted({i for i in ids.tolist() if ids.tolist().count(i) > 1})
+            raise ValueError(f"TagSet: duplicate tag ids {dup}")
+        if not np.all(np.isfinite(pos)):
+            raise ValueError("TagSet: positions_m contains NaN or inf")
+        norms = np.linalg.norm(nrm, axis=1)
+        if np.any(norms < 1e-9):
+            bad = ids[norms < 1e-9].tolist()
+            raise ValueError(f"TagSet: zero normal for tags {bad}")
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "positions_m", pos)
+        object.__setattr__(self, "normals", nrm / norms[:, None])
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def subset(self, index: np.ndarray) -> TagSet:
+        """Tags selected by an integer or boolean index."""
+        return TagSet(self.ids[index], self.positions_m[index], self.normals[index])
+
+
+@dataclass
+class Scene:
+    """A radio scene: one triangle mesh per material, plus tags.
+
+    Attributes
+    ----------
+    name : str
+        Scene name (bundled name or file stem).
+    meshes : dict[str, trimesh.Trimesh]
+        Material name (a key of the UHF material library, see
+        :func:`scenes.materials.material`) to the mesh of every surface made of it.
+        World frame, metres, z up; the floor is at z = 0.
+    tags : TagSet
+        Tags in the scene.
+    source : str
+        Where the scene came from (file path or ``"generated"``), for error messages.
+    metadata : dict
+        Free-form JSON-able description (generator parameters, spec); enters the hash.
+    """
+
+    name: str
+    meshes: dict[str, trimesh.Trimesh]
+    tags: TagSet
+    source: str = "generated"
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def materials(self) -> list[str]:
+        """Material names used by the scene, sorted."""
+        return sorted(self.meshes)
+
+    @property
+    def bounds_m(self) -> np.ndarray:
+        """Axis-aligned bounds of all meshes, shape (2, 3): [min xyz, max xyz], metres."""
+        lo = np.min([m.bounds[0] for m in self.meshes.values()], axis=0)
+        hi = np.max([m.bounds[1] for m in self.meshes.values()], axis=0)
+        return np.stack([lo, hi])
+
+    def combined_mesh(self) -> trimesh.Trimesh:
+        """All meshes concatenated (for ray casting and containment queries)."""
+        return trimesh.util.concatenate(list(self.meshes.values()))
+
+    def content_hash(self) -> str:
+        """SHA-256 of geometry, materials and tags: the cache key of everything traced here."""
+        h = hashlib.sha256()
+        for name in self.materials:
+            mesh = self.meshes[name]
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(np.round(mesh.vertices, 6), dtype=np.float64).tobytes())
+            h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+        h.update("\n".join(self.tags.ids.tolist()).encode())
+        h.update(np.round(self.tags.positions_m, 6).tobytes())
+        h.update(json.dumps(self.metadata.get("material_overrides", {}), sort_keys=True).encode())
+        return h.hexdigest()
+
+    def export_mitsuba(self, directory: str | Path, frequency_hz: float) -> Path:
+        """Write a Sionna-loadable Mitsuba XML scene plus one PLY per material.
+
+        See :func:`scenes.export.export_mitsuba`.
+        """
+        from scenes.export import export_mitsuba
+
+        return export_mitsuba(self, directory, frequency_hz)
