@@ -86,6 +86,10 @@ class Scene:
         Where the scene came from (file path or ``"generated"``), for error messages.
     metadata : dict
         Free-form JSON-able description (generator parameters, spec); enters the hash.
+    route_m : numpy.ndarray or None
+        Centre line of the walkable corridor as a polyline, shape (n_points, 2), float64,
+        metres (x, y); guided robot tours follow it. ``None`` when unknown (imported meshes
+        without a route), in which case tours need a route given explicitly.
     """
 
     name: str
@@ -93,6 +97,7 @@ class Scene:
     tags: TagSet
     source: str = "generated"
     metadata: dict = field(default_factory=dict)
+    route_m: np.ndarray | None = None
 
     @property
     def materials(self) -> list[str]:
