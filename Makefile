@@ -1,0 +1,29 @@
+# The two quick-start commands: `make demo` (set up, run the default study) and
+# `make test` (set up, run the test suite). Both create .venv/ at the repository root.
+.PHONY: setup demo test test-all bench lint clean
+
+OUT ?= runs/default
+PYTEST_ARGS ?= -m "not slow and not gpu"
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	.venv/bin/rfidstudy run --out $(OUT)
+
+test: setup
+	.venv/bin/python -m pytest $(PYTEST_ARGS)
+
+test-all: setup
+	.venv/bin/python -m pytest -m "not gpu"
+
+bench: setup
+	.venv/bin/python bench/trace.py
+	.venv/bin/python bench/acquire.py
+	.venv/bin/python bench/anfis.py
+
+lint: setup
+	.venv/bin/ruff check scenes propagation fuzzymodel pipeline tests bench
+
+clean:
+	rm -rf .venv runs .cache
