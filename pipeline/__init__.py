@@ -1,0 +1,3 @@
+"""Pipeline: robot and localisation, reader acquisition, evaluation, figures and orchestration."""
+
+__all__ = []

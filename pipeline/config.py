@@ -1,0 +1,351 @@
+"""The study configuration: a typed TOML tree, every field documented and defaulted.
+
+``load_config(path)`` reads a study TOML; unknown keys are rejected by name with the
+file path, wrong types by key, expected type and value. ``reference_config_toml()``
+writes every key with its default and documentation; the shipped
+``configs/reference.toml`` is that text (a test keeps them equal).
+
+Angles in TOML carry their unit (``yaw_deg``); the orchestration converts them to
+radians before calling the packages, which work in SI.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+from pipeline.configschema import ConfigError, from_dict, option, reference_toml, section, to_dict
+
+__all__ = [
+    "AntennaMountConfig",
+    "ConfigError",
+    "EvaluationConfig",
+    "LocalisationConfig",
+    "ReaderConfigSection",
+    "RobotConfig",
+    "StudyConfig",
+    "TourConfig",
+    "TracingConfig",
+    "TrainingConfig",
+    "config_from_mapping",
+    "config_to_dict",
+    "config_to_toml",
+    "load_config",
+    "reference_config_toml",
+    "replace_path",
+]
+
+
+def _positive(obj, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        if not v > 0:
+            raise ConfigError(f"{n} must be > 0, got {v!r}")
+
+
+def _nonneg(obj, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        if not v >= 0:
+            raise ConfigError(f"{n} must be >= 0, got {v!r}")
+
+
+@section
+class AntennaMountConfig:
+    """One reader antenna mounted on the robot (robot frame: x forward, y left, z up)."""
+
+    name: str = option("antenna", "Antenna name (unique), used in tables and figures.")
+    x_m: float = option(0.0, "Mount position along the robot's forward axis [m].")
+    y_m: float = option(0.0, "Mount position along the robot's left axis [m].")
+    z_m: float = option(0.6, "Mount height above the floor [m].")
+    yaw_deg: float = option(0.0, "Boresight yaw relative to the robot heading, counter-clockwise [deg].")
+    tilt_deg: float = option(0.0, "Boresight tilt (pitch), positive up [deg].")
+
+    def __post_init__(self):
+        if not self.name:
+            raise ConfigError("name must not be empty")
+        _positive(self, "z_m")
+
+
+def _default_antennas() -> tuple[AntennaMountConfig, ...]:
+    # Two antennas as on the chapter's Pioneer P3-AT: at the front, one looking to each
+    # side of the corridor, boresight yawed +-45 deg from the heading (pipeline.robot's
+    # default mounts).
+    return (
+        AntennaMountConfig(name="left", x_m=0.15, y_m=0.12, z_m=0.6, yaw_deg=45.0),
+        AntennaMountConfig(name="right", x_m=0.15, y_m=-0.12, z_m=0.6, yaw_deg=-45.0),
+    )
+
+
+@section
+class RobotConfig:
+    """The mobile robot: reader antenna mounts and motion limits."""
+
+    antennas: tuple[AntennaMountConfig, ...] = option(
+        doc="Reader antennas mounted on the robot ([[robot.antennas]] tables).",
+        factory=_default_antennas,
+    )
+    max_speed_m_s: float = option(0.3, "Cruise speed along the tour [m/s].")
+    max_turn_rate_deg_s: float = option(45.0, "Turn-rate limit [deg/s].")
+
+    def __post_init__(self):
+        if not self.antennas:
+            raise ConfigError("robot.antennas must list at least one antenna")
+        names = [a.name for a in self.antennas]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"antenna names must be unique, got {names}")
+        _positive(self, "max_speed_m_s", "max_turn_rate_deg_s")
+
+
+@section
+class TourConfig:
+    """The guided training tour and the held-out evaluation path."""
+
+    n_passes: int = option(2, "Corridor passes of the training tour (1 = one way, 2 = there and back).")
+    lateral_offsets_m: tuple[float, ...] = option(
+        (0.0,),
+        "Lateral offsets from the corridor centre line, one pass set per offset [m].",
+    )
+    sample_period_s: float = option(0.5, "Pose sampling period of the tour (one read cycle per sample) [s].")
+    max_length_m: float = option(
+        0.0, "Use only the first max_length_m metres of the corridor route (0 = whole route) [m]."
+    )
+    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path.")
+
+    def __post_init__(self):
+        _positive(self, "n_passes", "sample_period_s", "n_eval_poses")
+        _nonneg(self, "max_length_m")
+        if not self.lateral_offsets_m:
+            raise ConfigError("lateral_offsets_m must hold at least one offset")
+
+
+@section
+class LocalisationConfig:
+    """Odometry noise, the laser scanner and Monte Carlo Localization."""
+
+    enabled: bool = option(True, "Run MCL; if false the estimated poses equal the true poses.")
+    n_particles: int = option(300, "MCL particles.")
+    laser_beams: int = option(181, "Laser beams over the field of view.")
+    laser_fov_deg: float = option(180.0, "Laser field of view [deg].")
+    laser_max_range_m: float = option(8.0, "Laser maximum range [m].")
+    laser_noise_m: float = option(0.01, "Laser range noise standard deviation [m].")
+    odometry_noise: tuple[float, ...] = option(
+        (0.05, 0.01, 0.05, 0.01),
+        "Odometry noise alphas (a1..a4 of the odometry motion model, Thrun et al. 2005).",
+    )
+    map_resolution_m: float = option(0.05, "Occupancy/likelihood-field grid resolution [m].")
+
+    def __post_init__(self):
+        _positive(self, "n_particles", "laser_beams", "laser_fov_deg", "laser_max_range_m",
+                  "map_resolution_m")
+        _nonneg(self, "laser_noise_m")
+        if len(self.odometry_noise) != 4 or min(self.odometry_noise) < 0:
+            raise ConfigError(f"odometry_noise must be 4 values >= 0, got {self.odometry_noise}")
+
+
+@section
+class ReaderConfigSection:
+    """The UHF reader and the backscatter link budget (DESIGN.md, 'The backscatter link')."""
+
+    read_rate_hz: float = option(2.0, "Read cycles per second, each cycle inventories every antenna.")
+    rssi_noise_db: float = option(1.0, "Reader RSSI noise standard deviation [dB].")
+    rssi_resolution_db: float = option(0.5, "Reader RSSI quantisation step [dB].")
+    anticollision_miss_probability: float = option(
+        0.05, "Probability that a powered, audible tag is still missed in a cycle."
+    )
+    tx_power_dbm: float = option(
+        27.15, "Conducted reader power [dBm] (2 W ERP = 35.15 dBm EIRP with the 8 dBi antenna)."
+    )
+    tag_sensitivity_dbm: float = option(-18.0, "Tag chip sensitivity [dBm] (Monza-4 class).")
+    reader_sensitivity_dbm: float = option(-80.0, "Reader receiver sensitivity [dBm].")
+    polarization_loss_db: float = option(3.0, "Polarisation mismatch loss per way [dB] (circular to linear).")
+    modulation_loss_db: float = option(-6.0, "Backscatter modulation factor M [dB].")
+
+    def __post_init__(self):
+        _positive(self, "read_rate_hz")
+        _nonneg(self, "rssi_noise_db", "rssi_resolution_db", "polarization_loss_db")
+        if not 0.0 <= self.anticollision_miss_probability < 1.0:
+            raise ConfigError("anticollision_miss_probability must be in [0, 1)")
+
+
+@section
+class TracingConfig:
+    """Ray tracing with Sionna RT (propagation package)."""
+
+    backend: str = option("auto", "Dr.Jit variant: 'auto' (CUDA if usable, else LLVM), 'cuda' or 'llvm'.")
+    max_depth: int = option(3, "Maximum number of interactions (reflections) per path.")
+    samples_per_src: int = option(100_000, "Rays shot per source (convergence: SIONNA_NOTES.md).")
+    memory_budget_mb: float = option(4096.0, "Memory budget for one tracing chunk [MiB].")
+    cache_dir: str = option(
+        "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
+    )
+    field_cell_m: float = option(0.1, "Cell size of the planar RSSI field [m].")
+    field_samples_per_tx: int = option(1_000_000, "Rays per transmitter for the RSSI field.")
+
+    def __post_init__(self):
+        if self.backend not in ("auto", "cuda", "llvm"):
+            raise ConfigError(f"backend must be 'auto', 'cuda' or 'llvm', got {self.backend!r}")
+        _positive(self, "max_depth", "samples_per_src", "memory_budget_mb", "field_cell_m",
+                  "field_samples_per_tx")
+
+
+@section
+class TrainingConfig:
+    """Training sets and the FCM + ANFIS sensor models (RSSI model fs, detection model fT)."""
+
+    pose_source: str = option("est", "Poses the training set uses: 'est' (MCL, as on a robot) or 'true'.")
+    d_max_m: float = option(3.0, "Largest antenna-tag distance kept in the training sets [m].")
+    rssi_range_dbm: tuple[float, ...] = option(
+        (-80.0, -30.0), "RSSI range mapped to fs in [0, 1] (lo, hi) [dBm]."
+    )
+    d_bin_m: float = option(0.25, "Distance bin of the detection-model cells [m].")
+    alpha_bin_deg: float = option(10.0, "Bearing bin of the detection-model cells [deg].")
+    n_clusters: int = option(3, "FCM clusters = Takagi-Sugeno rules per model.")
+    fcm_exponent: float = option(2.0, "FCM fuzziness exponent m (Bezdek 1981).")
+    epochs: int = option(30, "ANFIS hybrid-learning epochs (Jang 1993).")
+    step_size: float = option(0.01, "Initial ANFIS gradient step size (adapted per Jang 1993).")
+    check_fraction: float = option(0.2, "Fraction of training samples held out as checking data.")
+    max_samples: int = option(0, "Subsample the SSM training set to at most this many (0 = all).")
+
+    def __post_init__(self):
+        if self.pose_source not in ("est", "true"):
+            raise ConfigError(f"pose_source must be 'est' or 'true', got {self.pose_source!r}")
+        _positive(self, "d_max_m", "d_bin_m", "alpha_bin_deg", "n_clusters", "fcm_exponent",
+                  "epochs", "step_size")
+        _nonneg(self, "max_samples")
+        if not 0.0 <= self.check_fraction < 1.0:
+            raise ConfigError("check_fraction must be in [0, 1)")
+        if len(self.rssi_range_dbm) != 2 or not self.rssi_range_dbm[0] < self.rssi_range_dbm[1]:
+            raise ConfigError(f"rssi_range_dbm must be (lo, hi) with lo < hi, got {self.rssi_range_dbm}")
+
+
+@section
+class EvaluationConfig:
+    """Truth grids and comparison of the learned model with the propagation truth."""
+
+    grid_d_max_m: float = option(3.0, "Fig. 6 (d, alpha) grid: largest distance [m].")
+    grid_n_d: int = option(13, "Fig. 6 grid: distance samples.")
+    grid_n_alpha: int = option(19, "Fig. 6 grid: bearing samples over [-90, 90] deg.")
+    n_sample_poses: int = option(4, "Antenna poses around which Fig. 6 truth points are traced.")
+    fig7_radius_m: float = option(0.1, "Fig. 7: radius of the neighbourhood averaged around a tag [m].")
+    field_height_m: float = option(1.0, "Height of the planar RSSI field (tag height) [m].")
+
+    def __post_init__(self):
+        _positive(self, "grid_d_max_m", "grid_n_d", "grid_n_alpha", "n_sample_poses",
+                  "fig7_radius_m", "field_height_m")
+
+
+@section
+class StudyConfig:
+    """A whole study: scene, robot, tour, reader, tracing, training and evaluation."""
+
+    scene: str = option("corridor_lab", "Bundled scene name, or a scene.toml / Mitsuba XML path.")
+    seed: int = option(2011, "Seed of every random generator in the study (bit-reproducible runs).")
+    frequency_hz: float = option(865e6, "Carrier frequency [Hz] (ETSI UHF RFID band).")
+    robot: RobotConfig = option(doc="Robot and antenna mounts.", factory=RobotConfig)
+    tour: TourConfig = option(doc="Training tour and evaluation path.", factory=TourConfig)
+    localisation: LocalisationConfig = option(doc="Odometry, laser and MCL.", factory=LocalisationConfig)
+    reader: ReaderConfigSection = option(doc="Reader and link budget.", factory=ReaderConfigSection)
+    tracing: TracingConfig = option(doc="Ray tracing.", factory=TracingConfig)
+    training: TrainingConfig = option(doc="Training sets and models.", factory=TrainingConfig)
+    evaluation: EvaluationConfig = option(doc="Evaluation.", factory=EvaluationConfig)
+
+    def __post_init__(self):
+        if not self.scene:
+            raise ConfigError("scene must not be empty")
+        if not 1e8 <= self.frequency_hz <= 1e10:
+            raise ConfigError(f"frequency_hz must be in [1e8, 1e10] Hz, got {self.frequency_hz!r}")
+
+
+def config_from_mapping(data: dict, source: str = "<config>", base_dir: Path | None = None) -> StudyConfig:
+    """Build a :class:`StudyConfig` from a nested dict (parsed TOML).
+
+    A relative ``scene`` path (one that is not a bundled name) and a relative
+    ``tracing.cache_dir`` are resolved against ``base_dir``.
+    """
+    cfg = from_dict(StudyConfig, data, source=source)
+    if base_dir is not None:
+        cfg = _resolve_paths(cfg, Path(base_dir))
+    return cfg
+
+
+def _resolve_paths(cfg: StudyConfig, base_dir: Path) -> StudyConfig:
+    scene = cfg.scene
+    if ("/" in scene or scene.endswith((".toml", ".xml"))) and not Path(scene).is_absolute():
+        scene = str((base_dir / scene).resolve())
+    tracing = cfg.tracing
+    if tracing.cache_dir and not Path(tracing.cache_dir).expanduser().is_absolute():
+        tracing = dataclasses.replace(tracing, cache_dir=str((base_dir / tracing.cache_dir).resolve()))
+    return dataclasses.replace(cfg, scene=scene, tracing=tracing)
+
+
+def load_config(path: str | Path) -> StudyConfig:
+    """Read a study TOML file.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, is not valid TOML, holds an unknown key or a value of
+        the wrong type or range; the message names the file and the key.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    return config_from_mapping(data, source=str(path), base_dir=path.parent)
+
+
+def config_to_dict(cfg: StudyConfig) -> dict:
+    """Nested dict of the resolved config (TOML-able)."""
+    return to_dict(cfg)
+
+
+def config_to_toml(cfg: StudyConfig) -> str:
+    """The fully resolved config as TOML text (reads back to an equal config)."""
+    import tomli_w
+
+    return tomli_w.dumps(to_dict(cfg))
+
+
+REFERENCE_HEADER = """\
+rfidstudy reference configuration: every key with its default value.
+Generated by pipeline.config.reference_config_toml(); do not edit by hand
+(tests/pipeline/test_config_study.py checks that this file equals the generated text).
+A study TOML may set any subset of these keys; the rest keep these defaults.
+Units are in the key names (_m, _hz, _dbm, _deg, _s)."""
+
+
+def reference_config_toml() -> str:
+    """The reference TOML (``configs/reference.toml``): every key, default and doc."""
+    return reference_toml(StudyConfig(), header=REFERENCE_HEADER)
+
+
+def replace_path(cfg, dotted: str, value):
+    """Return a copy of ``cfg`` with the field at the dotted path replaced.
+
+    ``robot.antennas[*].z_m`` sets the field in every antenna; ``robot.antennas[1].z_m``
+    in one. Used by sweeps.
+    """
+    head, _, rest = dotted.partition(".")
+    idx = None
+    if head.endswith("]"):
+        head, _, sel = head[:-1].partition("[")
+        idx = sel
+    if not any(f.name == head for f in dataclasses.fields(cfg)):
+        raise ConfigError(f"unknown config key {head!r} in {dotted!r}")
+    current = getattr(cfg, head)
+    if idx is not None:
+        items = list(current)
+        targets = range(len(items)) if idx == "*" else [int(idx)]
+        for i in targets:
+            items[i] = replace_path(items[i], rest, value) if rest else value
+        return dataclasses.replace(cfg, **{head: tuple(items)})
+    if rest:
+        return dataclasses.replace(cfg, **{head: replace_path(current, rest, value)})
+    return dataclasses.replace(cfg, **{head: value})

@@ -1,0 +1,268 @@
+"""Typed configuration machinery: dataclass trees read from and written to TOML.
+
+A configuration section is a dataclass whose every field is declared with
+:func:`option`, which carries the field's one-line documentation. From that one
+source this module
+
+* builds each section's numpydoc ``Attributes`` docstring (:func:`section`);
+* reads a nested dict (parsed TOML) into the dataclass tree, rejecting unknown keys
+  by name and wrong types by key, expected type and received value
+  (:func:`from_dict`), every message prefixed with the file it came from;
+* writes the tree back to a dict (:func:`to_dict`) and to a commented reference
+  TOML with every key, its default and its documentation (:func:`reference_toml`).
+
+Supported field types: ``bool``, ``int``, ``float`` (an int is accepted),
+``str``, ``X | None`` (TOML has no null: a missing key means the default, and the
+string ``""`` stands for ``None`` where a string-like option may be absent),
+``list[T]`` / ``tuple[T, ...]`` of those, nested sections and ``list[Section]``
+(TOML arrays of tables).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from typing import Any
+
+__all__ = [
+    "ConfigError",
+    "from_dict",
+    "option",
+    "reference_toml",
+    "section",
+    "to_dict",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is invalid; the message names file and key."""
+
+
+def option(default: Any = dataclasses.MISSING, doc: str = "", *, factory: Any = None):
+    """Declare a configuration field with its documentation.
+
+    Parameters
+    ----------
+    default : object
+        Default value (immutable); use ``factory`` for lists and sections.
+    doc : str
+        One-line description, with the unit; shown in ``--help`` and reference.toml.
+    factory : callable, optional
+        Default factory (for mutable defaults).
+    """
+    meta = {"doc": doc}
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in typing.get_args(tp))
+    if origin in (list, tuple):
+        args = [a for a in typing.get_args(tp) if a is not Ellipsis]
+        return f"list of {_type_name(args[0])}" if args else "list"
+    if tp is type(None):
+        return "None"
+    if dataclasses.is_dataclass(tp):
+        return f"table [{tp.__name__}]"
+    return getattr(tp, "__name__", str(tp))
+
+
+def section(cls):
+    """Class decorator: a frozen dataclass whose docstring lists every field's doc."""
+    cls = dataclasses.dataclass(frozen=True)(cls)
+    hints = typing.get_type_hints(cls)
+    lines = [(cls.__doc__ or "").rstrip(), "", "Attributes", "----------"]
+    for f in dataclasses.fields(cls):
+        lines.append(f"{f.name} : {_type_name(hints[f.name])}")
+        lines.append(f"    {f.metadata.get('doc', '')}")
+    cls.__doc__ = "\n".join(lines) + "\n"
+    return cls
+
+
+def _fail(source: str, key: str, msg: str) -> ConfigError:
+    return ConfigError(f"{source}: {key}: {msg}")
+
+
+def _convert(value: Any, tp: Any, key: str, source: str) -> Any:
+    """Check ``value`` against the annotation ``tp`` and convert it (lists -> tuples)."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        non_none = [a for a in args if a is not type(None)]
+        if value == "" and type(None) in args and str not in non_none:
+            return None
+        errors = []
+        for a in non_none:
+            try:
+                return _convert(value, a, key, source)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise _fail(source, key, f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}")
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise _fail(source, key, f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}")
+        args = [a for a in typing.get_args(tp) if a is not Ellipsis]
+        inner = args[0] if args else Any
+        return tuple(_convert(v, inner, f"{key}[{i}]", source) for i, v in enumerate(value))
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, dict):
+            raise _fail(source, key, f"expected a table, got {type(value).__name__} {value!r}")
+        return from_dict(tp, value, source=source, prefix=key)
+    if tp is Any:
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise _fail(source, key, f"expected bool, got {type(value).__name__} {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _fail(source, key, f"expected int, got {type(value).__name__} {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _fail(source, key, f"expected float, got {type(value).__name__} {value!r}")
+        if not math.isfinite(float(value)):
+            raise _fail(source, key, f"expected a finite float, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise _fail(source, key, f"expected str, got {type(value).__name__} {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp!r} for {key}")  # programming error
+
+
+def from_dict(cls, data: dict, source: str = "<config>", prefix: str = ""):
+    """Build a section dataclass from a nested dict, validating keys and types.
+
+    Parameters
+    ----------
+    cls : type
+        A :func:`section` dataclass.
+    data : dict
+        Parsed TOML (missing keys take their defaults).
+    source : str
+        File name (or description) prefixed to every error message.
+    prefix : str
+        Dotted key of this section inside the file (for messages).
+
+    Raises
+    ------
+    ConfigError
+        On an unknown key (named, with the known keys listed), a wrong type, or a
+        value the section's ``__post_init__`` rejects.
+    """
+    if not isinstance(data, dict):
+        raise _fail(source, prefix or "<root>", f"expected a table, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    kwargs = {}
+    for key, value in data.items():
+        dotted = f"{prefix}.{key}" if prefix else key
+        if key not in names:
+            where = f"section [{prefix}]" if prefix else "the top level"
+            raise _fail(source, dotted, f"unknown key {key!r} in {where}; known keys: {', '.join(names)}")
+        tp = hints[key]
+        origin = typing.get_origin(tp)
+        if origin in (list, tuple):
+            args = [a for a in typing.get_args(tp) if a is not Ellipsis]
+            if args and dataclasses.is_dataclass(args[0]):
+                if not isinstance(value, (list, tuple)):
+                    raise _fail(source, dotted, f"expected an array of tables, got {value!r}")
+                kwargs[key] = tuple(
+                    from_dict(args[0], v, source, f"{dotted}[{i}]") for i, v in enumerate(value)
+                )
+                continue
+        kwargs[key] = _convert(value, tp, dotted, source)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:
+        raise _fail(source, prefix or "<root>", str(exc)) from None
+    except (TypeError, ValueError) as exc:
+        raise _fail(source, prefix or "<root>", str(exc)) from None
+
+
+def to_dict(obj) -> dict:
+    """Section dataclass tree -> nested dict of TOML-able values (``None`` dropped)."""
+    out = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if v is None:
+            continue
+        if dataclasses.is_dataclass(v):
+            out[f.name] = to_dict(v)
+        elif isinstance(v, (list, tuple)):
+            out[f.name] = [to_dict(x) if dataclasses.is_dataclass(x) else x for x in v]
+        else:
+            out[f.name] = v
+    return out
+
+
+def _toml_value(v: Any) -> str:
+    import tomli_w
+
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return tomli_w.dumps({"x": v}).split("=", 1)[1].strip()
+
+
+def reference_toml(obj, header: str = "") -> str:
+    """A commented TOML document listing every key of ``obj`` with its value and doc.
+
+    Parameters
+    ----------
+    obj : dataclass instance
+        The section tree (normally the defaults).
+    header : str
+        Comment lines put on top (without ``#``).
+
+    Returns
+    -------
+    str
+        TOML text that :func:`from_dict` reads back to ``obj``. Keys whose value is
+        ``None`` are written commented out.
+    """
+    lines = [f"# {h}".rstrip() for h in header.splitlines()] if header else []
+
+    def emit(o, table: str | None, array: bool = False):
+        scalars, subs = [], []
+        for f in dataclasses.fields(o):
+            v = getattr(o, f.name)
+            doc = f.metadata.get("doc", "")
+            is_tables = isinstance(v, (list, tuple)) and v and dataclasses.is_dataclass(v[0])
+            if dataclasses.is_dataclass(v) or is_tables:
+                subs.append((f, v))
+            else:
+                scalars.append((f, v, doc))
+        if table is not None:
+            if lines and lines[-1] != "" and not (array and lines[-1].startswith("# ")):
+                lines.append("")
+            lines.append(f"[[{table}]]" if array else f"[{table}]")
+            if not array and o.__doc__:
+                lines.insert(len(lines) - 1, f"# {o.__doc__.strip().splitlines()[0]}")
+        for f, v, doc in scalars:
+            lines.append(f"# {doc}")
+            if v is None:
+                lines.append(f"# {f.name} =  (unset)")
+            else:
+                lines.append(f"{f.name} = {_toml_value(v)}")
+        for f, v in subs:
+            name = f"{table}.{f.name}" if table else f.name
+            if dataclasses.is_dataclass(v):
+                emit(v, name)
+            else:
+                lines.append("")
+                lines.append(f"# {f.metadata.get('doc', '')}")
+                for item in v:
+                    emit(item, name, array=True)
+
+    emit(obj, None)
+    return "\n".join(lines).rstrip() + "\n"

@@ -1,0 +1,345 @@
+"""Run a study: an ordered list of cached, resumable stages writing one run directory.
+
+Each :class:`Stage` names the config keys and upstream stages it depends on. Its
+inputs hash is the SHA-256 of (stage name, stage version, the values of those config
+keys, the output digests of its upstream stages). :func:`run_study` skips a stage
+whose record in ``<run>/stages/`` carries the same inputs hash and whose outputs
+are unchanged on disk; everything else runs, in order, writing through a staging
+directory (see :mod:`pipeline.runstore`). So a second run of the same config runs
+nothing, a changed ANFIS epoch count re-runs model fitting and what follows, and an
+interrupted run resumes at the stage that did not finish.
+
+Orchestration only: the stages call ``scenes``, ``propagation``, ``fuzzymodel`` and
+the ``pipeline`` sub-packages (see :mod:`pipeline.stages`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import logging
+import resource
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.config import StudyConfig, config_to_dict, config_to_toml
+from pipeline.runstore import RunStore, StageRecord, atomic_write_json, atomic_write_text, json_hash
+
+__all__ = [
+    "Stage",
+    "StageContext",
+    "StageError",
+    "StageInputError",
+    "StudyResult",
+    "config_slice",
+    "peak_rss_mib",
+    "run_study",
+]
+
+log = logging.getLogger(__name__)
+
+
+class StageError(RuntimeError):
+    """A stage failed; earlier stages' outputs are intact and the run is resumable."""
+
+
+class StageInputError(StageError):
+    """A stage's input file is missing or unreadable; the message names the file."""
+
+
+def peak_rss_mib() -> float:
+    """Peak resident set size of this process so far [MiB] (``getrusage``)."""
+    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kib / 1024.0 if sys.platform != "darwin" else kib / 2**20
+
+
+def _get(cfg_dict: dict, dotted: str):
+    cur: Any = cfg_dict
+    for part in dotted.split("."):
+        if not isinstance(cur, dict) or part not in cur:
+            return None
+        cur = cur[part]
+    return cur
+
+
+def config_slice(cfg: StudyConfig, keys: Sequence[str]) -> dict:
+    """Values of the dotted ``keys`` of ``cfg`` (what a stage's cache key depends on)."""
+    d = config_to_dict(cfg)
+    return {k: _get(d, k) for k in keys}
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One step of the study.
+
+    Attributes
+    ----------
+    name : str
+        Stage name (also the record file name).
+    func : callable
+        ``func(ctx: StageContext) -> dict | None``; writes outputs with ``ctx.out(rel)``
+        and returns a small JSON-able summary.
+    config_keys : tuple of str
+        Dotted config keys (``"training.epochs"``, or a whole section ``"robot"``)
+        whose values enter the inputs hash.
+    upstream : tuple of str
+        Stages whose outputs this stage reads.
+    version : int
+        Bump to invalidate cached results when the stage's code changes meaning.
+    description : str
+        One line shown in progress output.
+    """
+
+    name: str
+    func: Callable[[StageContext], dict | None]
+    config_keys: tuple[str, ...] = ()
+    upstream: tuple[str, ...] = ()
+    version: int = 1
+    description: str = ""
+
+
+class StageContext:
+    """What a running stage sees: config, run directory, staging area, progress, memo.
+
+    Attributes
+    ----------
+    config : StudyConfig
+        The resolved study config.
+    store : RunStore
+        The run directory.
+    stage : str
+        Name of the running stage.
+    memo : dict
+        In-memory objects shared by stages of one run (a loaded scene), never on disk.
+    """
+
+    def __init__(self, config: StudyConfig, store: RunStore, stage: str, staged: Path,
+                 progress, memo: dict):
+        self.config = config
+        self.store = store
+        self.stage = stage
+        self._staged = staged
+        self._progress = progress
+        self.memo = memo
+
+    def out(self, rel: str) -> Path:
+        """Path to write output ``rel`` to (inside the staging area; parents created)."""
+        p = self._staged / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        return p
+
+    def input(self, rel: str) -> Path:
+        """Path of an upstream output in the run directory; error naming it if missing."""
+        p = self.store.path(rel)
+        if not p.exists():
+            raise StageInputError(f"stage {self.stage!r}: input file {p} is missing")
+        return p
+
+    def progress(self, description: str, total: float | None = None) -> Callable[..., None]:
+        """A progress callback ``update(completed=None, total=None, advance=None)``.
+
+        Draws a rich progress bar when the study runs with progress on; a no-op otherwise.
+        """
+        if self._progress is None:
+            return lambda *a, **k: None
+        task = self._progress.add_task(f"{self.stage}: {description}", total=total)
+
+        def update(completed=None, total=None, advance=None):
+            kw = {}
+            if completed is not None:
+                kw["completed"] = completed
+            if total is not None:
+                kw["total"] = total
+            if advance is not None:
+                kw["advance"] = advance
+            self._progress.update(task, **kw)
+
+        return update
+
+    def track(self, iterable: Iterable, total: int | None = None, description: str = "") -> Iterable:
+        """Iterate with a progress bar."""
+        if total is None and hasattr(iterable, "__len__"):
+            total = len(iterable)  # type: ignore[arg-type]
+        update = self.progress(description, total)
+        for item in iterable:
+            yield item
+            update(advance=1)
+
+
+@dataclass
+class StudyResult:
+    """Outcome of :func:`run_study`.
+
+    Attributes
+    ----------
+    run_dir : pathlib.Path
+        The run directory.
+    ran : list of str
+        Stages executed in this call.
+    cached : list of str
+        Stages skipped because their record matched.
+    records : dict[str, StageRecord]
+        The record of every stage.
+    elapsed_s : float
+        Wall-clock time of the call [s].
+    peak_rss_mib : float
+        Peak resident memory of the process [MiB].
+    """
+
+    run_dir: Path
+    ran: list[str] = field(default_factory=list)
+    cached: list[str] = field(default_factory=list)
+    records: dict[str, StageRecord] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    peak_rss_mib: float = 0.0
+
+
+def _utc_now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+@contextlib.contextmanager
+def _progress_bars(enabled: bool):
+    if not enabled:
+        yield None
+        return
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TimeRemainingColumn(), transient=False) as prog:
+        yield prog
+
+
+def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stage] | None = None,
+              progress: bool = False, force: Sequence[str] = (),
+              command_line: Sequence[str] | None = None,
+              manifest_extra: Callable[[StudyConfig], dict] | None = None) -> StudyResult:
+    """Run (or resume) a study into ``run_dir``.
+
+    Parameters
+    ----------
+    config : StudyConfig
+        The resolved study configuration.
+    run_dir : path
+        Run directory; created if missing. ``config.toml`` and ``manifest.json`` are
+        (re)written there.
+    stages : sequence of Stage, optional
+        Stage list (default: :data:`pipeline.stages.STAGES`, the full study).
+    progress : bool
+        Draw rich progress bars on stderr.
+    force : sequence of str
+        Stage names to re-run even if cached (downstream stages follow by hash).
+    command_line : sequence of str, optional
+        Recorded in the manifest (default ``sys.argv``).
+    manifest_extra : callable, optional
+        ``f(config) -> dict`` merged into the manifest (default: package versions and
+        the Dr.Jit backend, see :func:`pipeline.stages.manifest_info`).
+
+    Returns
+    -------
+    StudyResult
+
+    Raises
+    ------
+    StageError
+        When a stage fails; the message names the stage and the cause, outputs of the
+        stages before it are intact and the manifest records the failure.
+    """
+    if stages is None:
+        from pipeline.stages import STAGES, manifest_info
+
+        stages = STAGES
+        manifest_extra = manifest_extra or manifest_info
+    store = RunStore(run_dir)
+    t0 = time.perf_counter()
+    started = _utc_now()
+    atomic_write_text(store.path("config.toml"), config_to_toml(config))
+    result = StudyResult(run_dir=store.root)
+    memo: dict = {}
+    digests: dict[str, str] = {}
+    failure: dict | None = None
+    known = {s.name for s in stages}
+    unknown = [f for f in force if f not in known]
+    if unknown:
+        raise ValueError(f"unknown stage(s) {unknown} in force; stages are {sorted(known)}")
+    with _progress_bars(progress) as prog:
+        for st in stages:
+            missing = [u for u in st.upstream if u not in digests]
+            if missing:
+                raise ValueError(f"stage {st.name!r} needs {missing} to run before it")
+            inputs = {
+                "stage": st.name,
+                "version": st.version,
+                "config": config_slice(config, st.config_keys),
+                "upstream": {u: digests[u] for u in st.upstream},
+            }
+            inputs_hash = json_hash(inputs)
+            rec, reason = (None, "forced") if st.name in force else store.check_record(st.name, inputs_hash)
+            if rec is not None:
+                log.info("stage %s: up to date, skipped", st.name)
+                result.cached.append(st.name)
+            else:
+                log.info("stage %s: running (%s)", st.name, reason)
+                staged = store.staging(st.name)
+                ctx = StageContext(config, store, st.name, staged, prog, memo)
+                ts = time.perf_counter()
+                try:
+                    info = st.func(ctx) or {}
+                except Exception as exc:
+                    store.discard(st.name)
+                    failure = {"stage": st.name, "error": f"{type(exc).__name__}: {exc}"}
+                    _write_manifest(store, config, result, started, t0, command_line,
+                                    manifest_extra, failure)
+                    raise StageError(f"stage {st.name!r} failed: {type(exc).__name__}: {exc} "
+                                     f"(earlier stages' outputs in {store.root} are intact; "
+                                     "fix the cause and rerun to resume)") from exc
+                rec = store.commit(st.name, inputs_hash, staged, time.perf_counter() - ts,
+                                   peak_rss_mib(), _utc_now(), info)
+                result.ran.append(st.name)
+            result.records[st.name] = rec
+            digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
+    _write_manifest(store, config, result, started, t0, command_line, manifest_extra, None)
+    return result
+
+
+def _write_manifest(store, config, result, started, t0, command_line, manifest_extra, failure):
+    result.elapsed_s = time.perf_counter() - t0
+    result.peak_rss_mib = peak_rss_mib()
+    manifest = {
+        "seed": config.seed,
+        "scene": config.scene,
+        "command_line": list(command_line if command_line is not None else sys.argv),
+        "started_utc": started,
+        "finished_utc": _utc_now(),
+        "elapsed_s": round(result.elapsed_s, 3),
+        "peak_rss_mib": round(result.peak_rss_mib, 1),
+        "status": "failed" if failure else "complete",
+        "failure": failure,
+        "stages": {
+            name: {
+                "status": "ran" if name in result.ran else "cached",
+                "elapsed_s": rec.elapsed_s,
+                "peak_rss_mib": rec.peak_rss_mib,
+                "finished_utc": rec.finished_utc,
+                "info": rec.info,
+            }
+            for name, rec in result.records.items()
+        },
+    }
+    if manifest_extra is not None:
+        try:
+            manifest.update(manifest_extra(config))
+        except Exception as exc:  # the manifest must not hide the real result
+            log.warning("manifest: could not collect environment info: %s", exc)
+    atomic_write_json(store.path("manifest.json"), manifest)
