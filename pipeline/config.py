@@ -12,8 +12,9 @@ radians before calling the packages, which work in SI.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 from pipeline.configschema import ConfigError, from_dict, option, reference_toml, section, to_dict
 
