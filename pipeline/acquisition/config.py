@@ -1,0 +1,268 @@
+"""Typed configuration of the simulated reader and of the acquisition stage.
+
+Both dataclasses reject unknown keys by name (``from_dict``) and validate their
+values on construction, naming the offending key, value and source file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover
+    from propagation import LinkBudget
+
+__all__ = ["ANTENNA_MODES", "POSE_SOURCES", "AcquisitionConfig", "ReaderConfig", "check_keys"]
+
+#: How the reader multiplexes its antenna ports, see :class:`ReaderConfig`.
+ANTENNA_MODES = ("round_robin", "all")
+#: Which antenna poses the training sets use: MCL estimates or ground truth.
+POSE_SOURCES = ("est", "true")
+
+
+def check_keys(d: dict, allowed: set[str] | list[str], what: str, source: str) -> None:
+    """Raise ``KeyError`` naming every key of ``d`` not in ``allowed``.
+
+    Parameters
+    ----------
+    d : dict
+        The mapping read from a config file.
+    allowed : set of str
+        Accepted keys.
+    what : str
+        Name of the table, for the message (e.g. ``"acquisition.reader"``).
+    source : str
+        File the mapping came from, for the message.
+    """
+    if not isinstance(d, dict):
+        raise TypeError(f"{source}: [{what}] must be a table, got {type(d).__name__}")
+    unknown = sorted(set(d) - set(allowed))
+    if unknown:
+        raise KeyError(
+            f"{source}: unknown key(s) {unknown} in [{what}]; accepted keys: {sorted(allowed)}"
+        )
+
+
+def _default_budget() -> LinkBudget:
+    from propagation import LinkBudget
+
+    return LinkBudget()
+
+
+def _budget_from_dict(d: dict, source: str) -> LinkBudget:
+    from propagation import LinkBudget
+
+    names = {f.name for f in dataclasses.fields(LinkBudget)}
+    check_keys(d, names, "acquisition.reader.budget", source)
+    return LinkBudget(**d)
+
+
+@dataclass(frozen=True)
+class ReaderConfig:
+    """A UHF RFID reader as the acquisition stage simulates it.
+
+    Attributes
+    ----------
+    read_rate_hz : float
+        Read cycles (inventory rounds) per second. Default 10 Hz: an EPC Gen2 inventory
+        round over a few tens of tags in a dense-reader mode lasts tens of milliseconds,
+        and robot-mounted readers in the literature report a few to ~20 reads per tag per
+        second; 10 Hz at 0.2-0.3 m/s gives a read every 2-3 cm of travel, finer than the
+        half-wavelength (17 cm) scale of multipath fading. Must be > 0.
+    antenna_mode : {"round_robin", "all"}
+        ``"round_robin"`` (default, how multi-port readers such as the Alien ALR-8800 or
+        Impinj Speedway switch ports): cycle ``k`` uses antenna ``k mod n_antennas`` only,
+        so each antenna is read at ``read_rate_hz / n_antennas``. ``"all"``: every cycle
+        reads every antenna in turn, antenna ``a`` dwelling in the slot starting at
+        ``t_k + a / (read_rate_hz * n_antennas)``.
+    rssi_noise_db : float
+        Standard deviation of zero-mean Gaussian noise added to the reported RSSI, dB.
+        Default 1.0 dB: commercial readers quote RSSI repeatability of about +-1 dB for
+        a static tag (Impinj Speedway Revolution application note "Low Level User Data
+        Support", rev. 3.0, 2013), below the several-dB small-scale fading the ray
+        tracer itself produces. >= 0.
+    rssi_resolution_db : float
+        Quantisation step of the reported RSSI, dB; values are rounded to the nearest
+        multiple. Default 0.5 dB, the step Impinj Speedway readers report RSSI in (same
+        note). 0 disables quantisation. >= 0.
+    anticollision_miss_probability : float
+        Probability that a tag that is powered and heard is still not reported in a
+        cycle (slot collisions and lost replies in the Gen2 Q algorithm), independent
+        per attempt. Default 0.05. In [0, 1).
+    budget : propagation.LinkBudget
+        Link budget (transmit power, sensitivities, polarisation and modulation losses)
+        turning one-way channel gains into tag power and reader RSSI.
+    range_margin_db : float
+        Margin added to the free-space link budget (maximum pattern gains) when deciding
+        which antenna-tag pairs could possibly be read and so need tracing. Default 6 dB
+        = 20 log10(2): the largest excess of a direct path plus one in-phase reflection
+        of unit magnitude over free space (the two-ray bound); corridor path-loss
+        exponents near 1.6-1.8 stay below it out to ~20 m. >= 0.
+    """
+
+    read_rate_hz: float = 10.0
+    antenna_mode: str = "round_robin"
+    rssi_noise_db: float = 1.0
+    rssi_resolution_db: float = 0.5
+    anticollision_miss_probability: float = 0.05
+    budget: LinkBudget = field(default_factory=_default_budget)
+    range_margin_db: float = 6.0
+
+    def __post_init__(self) -> None:
+        r = self.read_rate_hz
+        if not (isinstance(r, (int, float)) and math.isfinite(r) and r > 0):
+            raise ValueError(f"ReaderConfig: read_rate_hz must be a finite number > 0, got {r!r}")
+        if self.antenna_mode not in ANTENNA_MODES:
+            raise ValueError(
+                f"ReaderConfig: antenna_mode must be one of {ANTENNA_MODES}, "
+                f"got {self.antenna_mode!r}"
+            )
+        for name in ("rssi_noise_db", "rssi_resolution_db", "range_margin_db"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"ReaderConfig: {name} must be a finite number >= 0, got {v!r}")
+        p = self.anticollision_miss_probability
+        if not (isinstance(p, (int, float)) and 0.0 <= p < 1.0):
+            raise ValueError(
+                f"ReaderConfig: anticollision_miss_probability must be in [0, 1), got {p!r}"
+            )
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>") -> ReaderConfig:
+        """Build from a TOML table; ``budget`` is a sub-table of LinkBudget fields.
+
+        Raises
+        ------
+        KeyError
+            Naming an unknown key and the source.
+        ValueError
+            Naming a key with a bad value and the source.
+        """
+        names = {f.name for f in dataclasses.fields(cls)}
+        check_keys(d, names, "acquisition.reader", source)
+        kw = dict(d)
+        if "budget" in kw:
+            kw["budget"] = _budget_from_dict(kw["budget"], source)
+        try:
+            return cls(**kw)
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from exc
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON/TOML-able dict that :meth:`from_dict` reads back."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out["budget"] = dataclasses.asdict(self.budget)
+        return out
+
+
+@dataclass(frozen=True)
+class AcquisitionConfig:
+    """What the acquisition stage does: reader, tour and training-set binning.
+
+    Attributes
+    ----------
+    reader : ReaderConfig
+        The simulated reader.
+    tour : dict
+        Keyword arguments of ``pipeline.robot.guided_tour`` (e.g. ``passes``,
+        ``speed_m_s``); kept as a table here and validated by the robot package.
+    d_max_m : float
+        Largest antenna-tag distance entering the training sets, metres. Default 3.0 m
+        (the range of the chapter's model). > 0.
+    d_bin_m : float
+        Distance bin of the detection-model grid, metres. Default 0.25 m. > 0.
+    alpha_bin_deg : float
+        Bearing bin of the detection-model grid, degrees. Default 10 deg. > 0, divides
+        360 into a whole number of bins.
+    min_attempts : int
+        Detection-model cells with fewer read attempts are dropped. Default 5. >= 1.
+    pose : {"est", "true"}
+        Antenna poses the training sets use: MCL estimates (default, as on a real robot)
+        or ground truth (for the localisation-error split).
+    rssi_range_dbm : tuple of float or None
+        Fixed RSSI normalisation range (lo, hi) in dBm for the RSSI model; ``None`` uses
+        (reader sensitivity, maximum reported RSSI rounded up to 1 dB).
+    """
+
+    reader: ReaderConfig = field(default_factory=ReaderConfig)
+    tour: dict = field(default_factory=dict)
+    d_max_m: float = 3.0
+    d_bin_m: float = 0.25
+    alpha_bin_deg: float = 10.0
+    min_attempts: int = 5
+    pose: str = "est"
+    rssi_range_dbm: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("d_max_m", "d_bin_m", "alpha_bin_deg"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(
+                    f"AcquisitionConfig: {name} must be a finite number > 0, got {v!r}"
+                )
+        n_alpha = 360.0 / self.alpha_bin_deg
+        if abs(n_alpha - round(n_alpha)) > 1e-9:
+            raise ValueError(
+                f"AcquisitionConfig: alpha_bin_deg must divide 360, got {self.alpha_bin_deg!r}"
+            )
+        if not (isinstance(self.min_attempts, int) and self.min_attempts >= 1):
+            raise ValueError(
+                f"AcquisitionConfig: min_attempts must be an integer >= 1, got {self.min_attempts!r}"
+            )
+        if self.pose not in POSE_SOURCES:
+            raise ValueError(
+                f"AcquisitionConfig: pose must be one of {POSE_SOURCES}, got {self.pose!r}"
+            )
+        if not isinstance(self.tour, dict):
+            raise ValueError(f"AcquisitionConfig: tour must be a table, got {self.tour!r}")
+        if self.rssi_range_dbm is not None:
+            lo, hi = (float(v) for v in self.rssi_range_dbm)
+            if not hi > lo:
+                raise ValueError(
+                    f"AcquisitionConfig: rssi_range_dbm must be (lo, hi) with hi > lo, "
+                    f"got {self.rssi_range_dbm!r}"
+                )
+            object.__setattr__(self, "rssi_range_dbm", (lo, hi))
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>") -> AcquisitionConfig:
+        """Build from the ``[acquisition]`` TOML table (``reader`` and ``tour`` sub-tables).
+
+        Raises
+        ------
+        KeyError
+            Naming an unknown key and the source.
+        ValueError
+            Naming a key with a bad value and the source.
+        """
+        names = {f.name for f in dataclasses.fields(cls)}
+        check_keys(d, names, "acquisition", source)
+        kw = dict(d)
+        if "reader" in kw:
+            kw["reader"] = ReaderConfig.from_dict(kw["reader"], source)
+        if "tour" in kw:
+            check_keys(kw["tour"], set(kw["tour"]), "acquisition.tour", source)
+            kw["tour"] = dict(kw["tour"])
+        if kw.get("rssi_range_dbm") is not None:
+            kw["rssi_range_dbm"] = tuple(kw["rssi_range_dbm"])
+        try:
+            return cls(**kw)
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from exc
+
+    def to_dict(self) -> dict[str, Any]:
+        """TOML-able dict that :meth:`from_dict` reads back (``None`` entries dropped)."""
+        out: dict[str, Any] = {
+            "reader": self.reader.to_dict(),
+            "tour": dict(self.tour),
+            "d_max_m": self.d_max_m,
+            "d_bin_m": self.d_bin_m,
+            "alpha_bin_deg": self.alpha_bin_deg,
+            "min_attempts": self.min_attempts,
+            "pose": self.pose,
+        }
+        if self.rssi_range_dbm is not None:
+            out["rssi_range_dbm"] = list(self.rssi_range_dbm)
+        return out
