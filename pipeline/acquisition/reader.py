@@ -320,7 +320,7 @@ def simulate_reads(
         "scene": scene.name,
         "scene_hash": scene.content_hash(),
         "antennas": [getattr(a, "name", str(i)) for i, a in enumerate(mounts)],
-        "tag_ids": list(tags.ids),
+        "tag_ids": [str(i) for i in tags.ids],
         "reader": reader.to_dict(),
         "trace": {k: v for k, v in trace.items() if k not in ("cache_dir", "progress")},
         "n_attempts": int(n),
