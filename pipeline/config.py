@@ -70,25 +70,22 @@ class AntennaMountConfig:
 
 
 def _default_antennas() -> tuple[AntennaMountConfig, ...]:
-    # Two antennas as on the chapter's Pioneer P3-AT: at the front, one looking to each
-    # side of the corridor, boresight yawed +-45 deg from the heading (pipeline.robot's
-    # default mounts).
+    # pipeline.robot.default_antennas(): the chapter's two panels at the front corners of
+    # a mast 0.70 m above the floor, yawed +-45 deg (see that function for why).
     return (
-        AntennaMountConfig(name="left", x_m=0.15, y_m=0.12, z_m=0.6, yaw_deg=45.0),
-        AntennaMountConfig(name="right", x_m=0.15, y_m=-0.12, z_m=0.6, yaw_deg=-45.0),
+        AntennaMountConfig(name="left", x_m=0.20, y_m=0.15, z_m=0.70, yaw_deg=45.0),
+        AntennaMountConfig(name="right", x_m=0.20, y_m=-0.15, z_m=0.70, yaw_deg=-45.0),
     )
 
 
 @section
 class RobotConfig:
-    """The mobile robot: reader antenna mounts and motion limits."""
+    """The mobile robot (a Pioneer P3-AT, pipeline.robot.Robot) and its reader antennas."""
 
     antennas: tuple[AntennaMountConfig, ...] = option(
         doc="Reader antennas mounted on the robot ([[robot.antennas]] tables).",
         factory=_default_antennas,
     )
-    max_speed_m_s: float = option(0.3, "Cruise speed along the tour [m/s].")
-    max_turn_rate_deg_s: float = option(45.0, "Turn-rate limit [deg/s].")
 
     def __post_init__(self):
         if not self.antennas:
@@ -96,29 +93,32 @@ class RobotConfig:
         names = [a.name for a in self.antennas]
         if len(set(names)) != len(names):
             raise ConfigError(f"antenna names must be unique, got {names}")
-        _positive(self, "max_speed_m_s", "max_turn_rate_deg_s")
 
 
 @section
 class TourConfig:
-    """The guided training tour and the held-out evaluation path."""
+    """The guided training tour and the held-out evaluation path (pipeline.robot)."""
 
-    n_passes: int = option(2, "Corridor passes of the training tour (1 = one way, 2 = there and back).")
-    lateral_offsets_m: tuple[float, ...] = option(
-        (0.0,),
-        "Lateral offsets from the corridor centre line, one pass set per offset [m].",
+    n_passes: int = option(2, "Passes along the corridor route, alternating direction (2 = up and back).")
+    lane_fractions: tuple[float, ...] = option(
+        (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
     )
-    sample_period_s: float = option(0.5, "Pose sampling period of the tour (one read cycle per sample) [s].")
+    lane_changes_per_pass: int = option(1, "Lane changes inside each pass.")
+    stops_per_pass: int = option(1, "Stops inside each pass.")
+    speed_m_per_s: float = option(0.3, "Cruise speed [m/s] (the chapter's robot: about 0.3 m/s).")
+    dt_s: float = option(0.1, "Pose sampling period (one laser scan / MCL update per pose) [s].")
     max_length_m: float = option(
-        0.0, "Use only the first max_length_m metres of the corridor route (0 = whole route) [m]."
+        0.0, "Drive only the first max_length_m metres of the scene's route (0 = whole route) [m]."
     )
-    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path.")
+    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path (chapter Fig. 7: 200).")
 
     def __post_init__(self):
-        _positive(self, "n_passes", "sample_period_s", "n_eval_poses")
-        _nonneg(self, "max_length_m")
-        if not self.lateral_offsets_m:
-            raise ConfigError("lateral_offsets_m must hold at least one offset")
+        _positive(self, "n_passes", "speed_m_per_s", "dt_s", "n_eval_poses")
+        _nonneg(self, "max_length_m", "lane_changes_per_pass", "stops_per_pass")
+        if not self.lane_fractions or any(abs(f) > 1 for f in self.lane_fractions):
+            raise ConfigError(f"lane_fractions must be non-empty and in [-1, 1], got {self.lane_fractions}")
+        if self.n_eval_poses < 2:
+            raise ConfigError(f"n_eval_poses must be >= 2, got {self.n_eval_poses}")
 
 
 @section
@@ -149,7 +149,10 @@ class LocalisationConfig:
 class ReaderConfigSection:
     """The UHF reader and the backscatter link budget (DESIGN.md, 'The backscatter link')."""
 
-    read_rate_hz: float = option(2.0, "Read cycles per second, each cycle inventories every antenna.")
+    read_rate_hz: float = option(10.0, "Read cycles (inventory rounds) per second.")
+    antenna_mode: str = option(
+        "round_robin", "Antenna multiplexing: 'round_robin' (one port per cycle) or 'all'."
+    )
     rssi_noise_db: float = option(1.0, "Reader RSSI noise standard deviation [dB].")
     rssi_resolution_db: float = option(0.5, "Reader RSSI quantisation step [dB].")
     anticollision_miss_probability: float = option(
@@ -162,10 +165,15 @@ class ReaderConfigSection:
     reader_sensitivity_dbm: float = option(-80.0, "Reader receiver sensitivity [dBm].")
     polarization_loss_db: float = option(3.0, "Polarisation mismatch loss per way [dB] (circular to linear).")
     modulation_loss_db: float = option(-6.0, "Backscatter modulation factor M [dB].")
+    range_margin_db: float = option(
+        6.0, "Margin over the free-space budget when choosing which links can be read and are traced [dB]."
+    )
 
     def __post_init__(self):
         _positive(self, "read_rate_hz")
-        _nonneg(self, "rssi_noise_db", "rssi_resolution_db", "polarization_loss_db")
+        _nonneg(self, "rssi_noise_db", "rssi_resolution_db", "polarization_loss_db", "range_margin_db")
+        if self.antenna_mode not in ("round_robin", "all"):
+            raise ConfigError(f"antenna_mode must be 'round_robin' or 'all', got {self.antenna_mode!r}")
         if not 0.0 <= self.anticollision_miss_probability < 1.0:
             raise ConfigError("anticollision_miss_probability must be in [0, 1)")
 
@@ -174,6 +182,8 @@ class ReaderConfigSection:
 class TracingConfig:
     """Ray tracing with Sionna RT (propagation package)."""
 
+    reader_pattern: str = option("tr38901", "Reader antenna pattern (Sionna name; 8 dBi patch-like).")
+    tag_pattern: str = option("hw_dipole", "Tag antenna pattern (Sionna name; half-wave dipole).")
     backend: str = option("auto", "Dr.Jit variant: 'auto' (CUDA if usable, else LLVM), 'cuda' or 'llvm'.")
     max_depth: int = option(3, "Maximum number of interactions (reflections) per path.")
     samples_per_src: int = option(100_000, "Rays shot per source (convergence: SIONNA_NOTES.md).")
@@ -197,9 +207,10 @@ class TrainingConfig:
 
     pose_source: str = option("est", "Poses the training set uses: 'est' (MCL, as on a robot) or 'true'.")
     d_max_m: float = option(3.0, "Largest antenna-tag distance kept in the training sets [m].")
-    rssi_range_dbm: tuple[float, ...] = option(
-        (-80.0, -30.0), "RSSI range mapped to fs in [0, 1] (lo, hi) [dBm]."
+    rssi_range_dbm: tuple[float, ...] | None = option(
+        None, "RSSI range mapped to fs in [0, 1], [lo, hi] [dBm]; unset = (reader sensitivity, max RSSI read)."
     )
+    min_attempts: int = option(5, "Detection-model cells with fewer read attempts are dropped.")
     d_bin_m: float = option(0.25, "Distance bin of the detection-model cells [m].")
     alpha_bin_deg: float = option(10.0, "Bearing bin of the detection-model cells [deg].")
     n_clusters: int = option(3, "FCM clusters = Takagi-Sugeno rules per model.")
@@ -217,7 +228,10 @@ class TrainingConfig:
         _nonneg(self, "max_samples")
         if not 0.0 <= self.check_fraction < 1.0:
             raise ConfigError("check_fraction must be in [0, 1)")
-        if len(self.rssi_range_dbm) != 2 or not self.rssi_range_dbm[0] < self.rssi_range_dbm[1]:
+        _positive(self, "min_attempts")
+        if self.rssi_range_dbm is not None and (
+            len(self.rssi_range_dbm) != 2 or not self.rssi_range_dbm[0] < self.rssi_range_dbm[1]
+        ):
             raise ConfigError(f"rssi_range_dbm must be (lo, hi) with lo < hi, got {self.rssi_range_dbm}")
 
 

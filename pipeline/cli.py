@@ -1,0 +1,275 @@
+"""The ``rfidstudy`` command line (typer).
+
+::
+
+    rfidstudy run [CONFIG.toml | SCENE] --out runs/x   # the whole study, cached and resumable
+    rfidstudy figures RUN_DIR                          # redraw figures + report from saved files
+    rfidstudy report RUN_DIR                           # rewrite report.html only
+    rfidstudy sweep SWEEP.toml --out sweeps/x [--scheduler tcp://host:8786] [--workers N]
+    rfidstudy scenes list | show NAME [--png top.png]
+    rfidstudy config [CONFIG.toml]                     # print the resolved (or reference) config
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import tomllib
+import typer
+
+from pipeline.config import (
+    ConfigError,
+    StudyConfig,
+    config_from_mapping,
+    config_to_toml,
+    reference_config_toml,
+)
+
+__all__ = ["app", "resolve_target"]
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="Ray-traced UHF RFID sensor-model study (Cicirelli, Milella & Di Paola 2011).")
+scenes_app = typer.Typer(no_args_is_help=True, help="Bundled scenes.")
+app.add_typer(scenes_app, name="scenes")
+
+log = logging.getLogger("pipeline.cli")
+
+_STUDY_KEYS = set(StudyConfig.__dataclass_fields__)
+
+
+def _setup_logging(verbose: bool) -> None:
+    from rich.logging import RichHandler
+
+    root = logging.getLogger()
+    if not any(isinstance(h, RichHandler) for h in root.handlers):
+        handler = RichHandler(show_path=False, rich_tracebacks=False)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        root.addHandler(handler)
+    root.setLevel(logging.WARNING)
+    for name in ("pipeline", "scenes", "propagation", "fuzzymodel"):
+        logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.INFO)
+
+
+def _fail(msg: str, code: int = 2):
+    typer.echo(f"error: {msg}", err=True)
+    raise typer.Exit(code)
+
+
+def _parse_value(text: str):
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def resolve_target(target: str | None, overrides: list[str] | None = None,
+                   backend: str | None = None) -> StudyConfig:
+    """Turn ``run``'s argument into a study config.
+
+    Parameters
+    ----------
+    target : str or None
+        ``None``: the default study; a study TOML (a file whose top-level keys are study
+        keys); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
+    overrides : list of str
+        ``KEY=VALUE`` with dotted study keys (``training.epochs=10``); VALUE in TOML syntax.
+    backend : str, optional
+        Overrides ``tracing.backend``.
+    """
+    data: dict = {}
+    source, base_dir = "<default>", None
+    if target:
+        p = Path(target)
+        if p.suffix == ".toml" and p.is_file():
+            try:
+                parsed = tomllib.loads(p.read_text(encoding="utf-8"))
+            except tomllib.TOMLDecodeError as exc:
+                raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+            if set(parsed) & _STUDY_KEYS:
+                data, source, base_dir = parsed, str(p), p.parent
+            else:
+                data = {"scene": str(p.resolve())}
+        elif p.suffix in (".toml", ".xml") and not p.exists():
+            raise ConfigError(f"{p}: no such file")
+        else:
+            data = {"scene": str(p.resolve()) if p.exists() else target}
+    for ov in overrides or []:
+        key, eq, val = ov.partition("=")
+        if not eq:
+            raise ConfigError(f"--set {ov!r}: expected KEY=VALUE")
+        cur = data
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            cur = cur.setdefault(part, {})
+            if not isinstance(cur, dict):
+                raise ConfigError(f"--set {ov!r}: {part} is not a table")
+        cur[parts[-1]] = _parse_value(val.strip())
+    if backend:
+        data.setdefault("tracing", {})["backend"] = backend
+    return config_from_mapping(data, source=source, base_dir=base_dir)
+
+
+@app.command()
+def run(
+    target: Annotated[str | None, typer.Argument(
+        help="Study TOML, or a scene (bundled name, scene.toml, Mitsuba XML). "
+             "Default: the default study on the bundled 'corridor_lab' scene.")] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Run directory.")] = Path("runs/default"),
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", "-s", help="Override a config key, e.g. --set training.epochs=10 (repeatable).")] = None,
+    backend: Annotated[str | None, typer.Option(
+        help="Dr.Jit variant: auto (CUDA if a GPU is usable, else LLVM), cuda or llvm. "
+             "Default: tracing.backend of the config ('auto').")] = None,
+    force: Annotated[list[str] | None, typer.Option(
+        help="Re-run this stage even if cached (repeatable).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
+):
+    """Run (or resume) the whole study into a run directory.
+
+    Stages: scene -> tour (robot, MCL) -> reads (ray-traced, train tour and the held-out
+    evaluation path) -> training sets -> models (FCM + ANFIS; MCL-pose and true-pose;
+    baselines) -> truth -> evaluation -> figures -> report. Each stage is cached in the
+    run directory and skipped when its inputs are unchanged; ray traces are cached in
+    the shared propagation cache (tracing.cache_dir).
+
+    Every config key and its default: configs/reference.toml (or `rfidstudy config`).
+    """
+    _setup_logging(verbose)
+    from pipeline.study import StageError, run_study
+
+    try:
+        cfg = resolve_target(target, set_, backend)
+    except ConfigError as exc:
+        _fail(str(exc))
+    t0 = time.perf_counter()
+    try:
+        res = run_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv)
+    except StageError as exc:
+        _fail(str(exc), code=1)
+    except ValueError as exc:
+        _fail(str(exc))
+    typer.echo(f"run directory: {res.run_dir}")
+    typer.echo(f"stages run: {', '.join(res.ran) or 'none'}; cached: {', '.join(res.cached) or 'none'}")
+    typer.echo(f"elapsed {time.perf_counter() - t0:.1f} s, peak memory {res.peak_rss_mib:.0f} MiB")
+    typer.echo(f"report: {res.run_dir / 'report.html'}")
+
+
+@app.command()
+def figures(
+    run_dir: Annotated[Path, typer.Argument(help="A run directory.")],
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+):
+    """Redraw every figure from a run directory's files alone, then rewrite report.html."""
+    _setup_logging(verbose)
+    from pipeline.report import write_report
+    from pipeline.stages import draw_figures
+
+    if not run_dir.is_dir():
+        _fail(f"{run_dir}: not a directory")
+    t0 = time.perf_counter()
+    try:
+        paths = draw_figures(run_dir, run_dir / "figures")
+        report = write_report(run_dir)
+    except (FileNotFoundError, ValueError, KeyError) as exc:
+        _fail(str(exc), code=1)
+    typer.echo(f"{len(paths)} figure files in {run_dir / 'figures'}; report {report} "
+               f"({time.perf_counter() - t0:.1f} s)")
+
+
+@app.command()
+def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
+    """Rewrite report.html from a run directory's files."""
+    from pipeline.report import write_report
+
+    try:
+        typer.echo(str(write_report(run_dir)))
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc), code=1)
+
+
+@app.command()
+def config(
+    target: Annotated[str | None, typer.Argument(help="Study TOML or scene (as for `run`).")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-s", help="KEY=VALUE override.")] = None,
+    reference: Annotated[bool, typer.Option(help="Print the commented reference config.")] = False,
+):
+    """Print the fully resolved study config (or the commented reference with every default)."""
+    if reference:
+        typer.echo(reference_config_toml(), nl=False)
+        return
+    try:
+        typer.echo(config_to_toml(resolve_target(target, set_)), nl=False)
+    except ConfigError as exc:
+        _fail(str(exc))
+
+
+@app.command()
+def sweep(
+    sweep_file: Annotated[Path, typer.Argument(help="Sweep TOML (see configs/sweep_example.toml).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Sweep directory.")] = Path("runs/sweep"),
+    scheduler: Annotated[str | None, typer.Option(
+        help="Dask scheduler address (tcp://host:8786); default: local worker processes.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Local worker processes (default: min(points, 2)).")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+):
+    """Run a what-if grid (antenna height/yaw/tilt/count, power, tag sensitivity, scene)."""
+    _setup_logging(verbose)
+    from pipeline.sweep import load_sweep, run_sweep
+
+    try:
+        plan = load_sweep(sweep_file)
+    except ConfigError as exc:
+        _fail(str(exc))
+    typer.echo(f"{len(plan.configs)} runs: {', '.join(plan.names)}")
+
+    def done(i, row):
+        typer.echo(f"  [{i + 1}/{len(plan.configs)}] {plan.names[i]}: {row.get('status')} "
+                   f"{row.get('error') or ''}")
+
+    res = run_sweep(plan, out, scheduler=scheduler, workers=workers, on_done=done)
+    typer.echo(res.summary.to_string(index=False, max_colwidth=40))
+    typer.echo(f"summary: {res.out_dir / 'summary.csv'}")
+    if (res.summary["status"] != "complete").any():
+        raise typer.Exit(1)
+
+
+@scenes_app.command("list")
+def scenes_list():
+    """List the bundled scenes."""
+    import scenes
+
+    for name in scenes.list_bundled():
+        typer.echo(name)
+
+
+@scenes_app.command("show")
+def scenes_show(
+    name: Annotated[str, typer.Argument(help="Bundled scene name or scene path.")],
+    png: Annotated[Path | None, typer.Option(help="Write a top-view picture here.")] = None,
+):
+    """Describe a scene (size, materials, tags) and optionally draw its top view."""
+    import scenes
+
+    try:
+        sc = scenes.load(name)
+    except (FileNotFoundError, KeyError, ValueError) as exc:
+        _fail(str(exc))
+    lo, hi = sc.bounds_m
+    typer.echo(f"scene {sc.name} ({sc.source})")
+    typer.echo(f"  bounds: x {lo[0]:.2f}..{hi[0]:.2f} m, y {lo[1]:.2f}..{hi[1]:.2f} m, "
+               f"z {lo[2]:.2f}..{hi[2]:.2f} m")
+    typer.echo(f"  materials: {', '.join(sc.materials)}")
+    typer.echo(f"  tags: {len(sc.tags)}")
+    if sc.route_m is not None:
+        typer.echo(f"  route: {len(sc.route_m)} points")
+    typer.echo(f"  content hash: {sc.content_hash()[:16]}")
+    if png is not None:
+        from pipeline.stages import draw_scene_top_view
+
+        typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")

@@ -1,0 +1,216 @@
+"""A self-contained HTML report made from a run directory's files alone.
+
+Reads ``config.toml``, ``manifest.json``, ``metrics.json`` and ``figures/*.png``
+(images embedded as base64, so the HTML file can be mailed on its own) and writes
+``report.html`` atomically. Metrics tables are laid out from the JSON's nesting:
+a mapping of mappings of numbers becomes one table (rows = outer keys), so new
+metrics show up without changes here.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import json
+import logging
+from pathlib import Path
+
+import tomllib
+
+from pipeline.runstore import atomic_write_text
+
+__all__ = ["figure_captions", "metrics_tables", "write_report"]
+
+log = logging.getLogger(__name__)
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
+padding:0 1em;color:#222}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0 1.2em;font-size:.9em}
+th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right}th{background:#f3f3f3}
+td:first-child,th:first-child{text-align:left}
+figure{margin:1.2em 0;text-align:center}figure img{max-width:100%;border:1px solid #eee}
+figcaption{font-size:.9em;color:#444;margin-top:.4em;text-align:left}
+pre{background:#f7f7f7;padding:.8em;overflow:auto;font-size:.8em;max-height:30em}
+.muted{color:#777;font-size:.85em}
+"""
+
+
+def _load_json(path: Path) -> dict | None:
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+
+
+def _fmt(v) -> str:
+    if isinstance(v, bool) or v is None:
+        return html.escape(str(v))
+    if isinstance(v, int):
+        return f"{v:d}"
+    if isinstance(v, float):
+        if v != v:
+            return "–"
+        return f"{v:.4g}"
+    return html.escape(str(v))
+
+
+def _is_scalar(v) -> bool:
+    return v is None or isinstance(v, (int, float, str, bool))
+
+
+def metrics_tables(metrics: dict, prefix: str = "") -> list[tuple[str, list[str], list[list]]]:
+    """Lay out nested metrics as tables.
+
+    Parameters
+    ----------
+    metrics : dict
+        Parsed ``metrics.json``.
+    prefix : str
+        Dotted name of ``metrics`` inside the whole document.
+
+    Returns
+    -------
+    list of (title, column names, rows)
+        A mapping whose values are all mappings of scalars becomes one table (rows =
+        outer keys); a mapping's scalar entries become a two-column table; deeper
+        nesting recurses with dotted titles.
+    """
+    tables = []
+    scalars = [(k, v) for k, v in metrics.items() if _is_scalar(v)]
+    subs = [(k, v) for k, v in metrics.items() if isinstance(v, dict)]
+    if scalars:
+        tables.append((prefix or "summary", ["quantity", "value"], [[k, v] for k, v in scalars]))
+    for k, v in subs:
+        name = f"{prefix}.{k}" if prefix else k
+        rows_are_tables = v and all(
+            isinstance(x, dict) and x and all(_is_scalar(y) for y in x.values()) for x in v.values()
+        )
+        if rows_are_tables:
+            cols: list[str] = []
+            for x in v.values():
+                cols += [c for c in x if c not in cols]
+            rows = [[rk] + [x.get(c) for c in cols] for rk, x in v.items()]
+            tables.append((name, [""] + cols, rows))
+        else:
+            tables.extend(metrics_tables(v, name))
+    return tables
+
+
+def figure_captions(run_dir: Path) -> dict[str, str]:
+    """Captions by figure stem: ``figures/captions.json`` if present, else pipeline.figures'."""
+    p = run_dir / "figures" / "captions.json"
+    caps = _load_json(p) if p.exists() else None
+    if isinstance(caps, dict):
+        return {str(k): str(v) for k, v in caps.items()}
+    try:
+        from pipeline import figures
+
+        caps = getattr(figures, "CAPTIONS", None)
+        return dict(caps) if isinstance(caps, dict) else {}
+    except ImportError:
+        return {}
+
+
+def _table_html(title: str, cols: list[str], rows: list[list]) -> str:
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in cols)
+    body = "".join("<tr>" + "".join(f"<td>{_fmt(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<h3>{html.escape(title)}</h3><table><tr>{head}</tr>{body}</table>"
+
+
+def write_report(run_dir: str | Path, embed: bool = True) -> Path:
+    """Write ``<run_dir>/report.html`` from the run directory's files alone.
+
+    Parameters
+    ----------
+    run_dir : path
+        A run directory (``config.toml``, ``manifest.json``, ``metrics.json``,
+        ``figures/*.png``; missing pieces are reported as missing, not fatal).
+    embed : bool
+        Embed the PNGs as base64 (self-contained file) or link them relatively.
+
+    Returns
+    -------
+    pathlib.Path
+        The report's path.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``run_dir`` is not a directory.
+    ValueError
+        If ``metrics.json`` or ``manifest.json`` is not valid JSON (names the file).
+    """
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise FileNotFoundError(f"{run}: not a run directory")
+    manifest = _load_json(run / "manifest.json") or {}
+    metrics = _load_json(run / "metrics.json")
+    cfg_path = run / "config.toml"
+    cfg_text = cfg_path.read_text(encoding="utf-8") if cfg_path.exists() else ""
+    cfg = tomllib.loads(cfg_text) if cfg_text else {}
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>rfidstudy report: {html.escape(str(cfg.get('scene', run.name)))}</title>",
+        f"<style>{_CSS}</style></head><body>",
+        f"<h1>RFID sensor-model study: {html.escape(str(cfg.get('scene', '?')))}</h1>",
+        "<p>Ray-traced UHF RFID sensor model (Cicirelli, Milella &amp; Di Paola 2011): "
+        "RSSI model f<sub>s</sub>(d, &alpha;) and detection model f<sub>T</sub>(d, &alpha;), "
+        "FCM-initialised Takagi-Sugeno systems trained by ANFIS (Jang 1993), "
+        "&rho; = f<sub>s</sub> f<sub>T</sub>.</p>",
+        f"<p class='muted'>Run directory <code>{html.escape(str(run.resolve()))}</code>; "
+        f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}.</p>",
+    ]
+    # summary
+    parts.append("<h2>Run summary</h2>")
+    summary = [
+        ["scene", cfg.get("scene")],
+        ["seed", manifest.get("seed", cfg.get("seed"))],
+        ["frequency_hz", cfg.get("frequency_hz")],
+        ["status", manifest.get("status", "unknown")],
+        ["elapsed_s", manifest.get("elapsed_s")],
+        ["peak_rss_mib", manifest.get("peak_rss_mib")],
+    ]
+    backend = manifest.get("backend") or {}
+    if isinstance(backend, dict) and backend:
+        summary.append(["Dr.Jit variant", backend.get("variant")])
+    parts.append(_table_html("run", ["item", "value"], summary))
+    stages = manifest.get("stages") or {}
+    if stages:
+        rows = [[n, s.get("status"), s.get("elapsed_s"), s.get("peak_rss_mib")] for n, s in stages.items()]
+        parts.append(_table_html("stages", ["stage", "status", "elapsed_s", "peak_rss_mib"], rows))
+    # metrics
+    parts.append("<h2>Metrics</h2>")
+    if metrics is None:
+        parts.append("<p>metrics.json is missing (evaluation did not run).</p>")
+    else:
+        for title, cols, rows in metrics_tables(metrics):
+            parts.append(_table_html(title, cols, rows))
+    # figures
+    parts.append("<h2>Figures</h2>")
+    captions = figure_captions(run)
+    pngs = sorted((run / "figures").glob("*.png")) if (run / "figures").is_dir() else []
+    if not pngs:
+        parts.append("<p>No figures in figures/.</p>")
+    for png in pngs:
+        if embed:
+            src = "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
+        else:
+            src = png.relative_to(run).as_posix()
+        cap = captions.get(png.stem, png.stem.replace("_", " "))
+        parts.append(f"<figure><img src='{src}' alt='{html.escape(png.stem)}'>"
+                     f"<figcaption><b>{html.escape(png.stem)}</b>: {html.escape(cap)}</figcaption></figure>")
+    # config & manifest
+    parts.append("<h2>Configuration (resolved)</h2>")
+    parts.append(f"<pre>{html.escape(cfg_text or '(config.toml missing)')}</pre>")
+    parts.append("<h2>Manifest</h2>")
+    parts.append(f"<pre>{html.escape(json.dumps(manifest, indent=2, sort_keys=True))}</pre>")
+    parts.append("</body></html>\n")
+    out = run / "report.html"
+    atomic_write_text(out, "\n".join(parts))
+    log.info("report written to %s", out)
+    return out
