@@ -1,0 +1,362 @@
+"""Learned model against the propagation truth: RSSI, detection probability, rho.
+
+Definitions (errors are ``model - truth``; see :mod:`.metrics`):
+
+RSSI (:func:`rssi_vs_truth`)
+    On read attempts whose noise-free link closes and whose true distance is
+    below ``d_max_m``: ``sensor.fs_dbm(d_true, alpha_true)`` against the
+    noise-free ``budget.reader_rssi_dbm(gain_db)`` [dB]: MAE, RMSE, bias, ...
+
+Detection (:func:`detection_vs_truth`)
+    Per (d, alpha) cell with at least ``min_attempts`` attempts:
+    ``sensor.fT(cell centre)`` against :attr:`TruthGrid.p_detect` (MAE, RMSE,
+    bias; cells weigh equally). Brier score of ``sensor.fT(d_true, alpha_true)``
+    on the actual read outcomes of the attempts inside the grid, beside two
+    references on the same attempts: the truth's own Brier score (p_detect of
+    the attempt's cell; the floor set by the reader's randomness and the cell
+    size) and the climatological one (the base read rate).
+
+rho, the chapter's Fig. 6 (:func:`rho_points_truth`, :func:`rho_vs_truth`)
+    At world points around an antenna pose with ray-traced gains,
+    ``rho_true = fs_true * p_true`` with fs_true the noise-free RSSI normalised
+    by the model's range (0 where the link does not close) and
+    ``p_true = closed * (1 - miss_probability)``; the model's
+    ``sensor.rho(d, alpha)`` at the points' (d, alpha) in the TRUE antenna
+    frame. MAE, RMSE, Pearson correlation.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from fuzzymodel import normalise_rssi
+
+from .cells import CellGrid
+from .geometry import antenna_frame_geometry
+from .interface import check_sensor
+from .metrics import ErrorStats, brier_score, error_stats, nan_to_none
+from .tables import require_columns
+from .truth import TruthGrid, true_detected, true_rssi_dbm
+
+__all__ = [
+    "DetectionComparison",
+    "RhoComparison",
+    "RhoPoints",
+    "RssiComparison",
+    "detection_vs_truth",
+    "rho_points_truth",
+    "rho_vs_truth",
+    "rssi_vs_truth",
+]
+
+
+@dataclass(frozen=True)
+class RssiComparison:
+    """Learned RSSI [dBm] against the noise-free ray-traced RSSI at the true poses.
+
+    Attributes
+    ----------
+    stats : ErrorStats
+        Of ``fs_dbm(d_true, alpha_true) - rssi_true_dbm`` [dB].
+    n_rows : int
+        Attempts compared (closed links with d_true < d_max_m).
+    d_max_m : float
+        Distance limit used [m].
+    """
+
+    stats: ErrorStats
+    n_rows: int
+    d_max_m: float
+
+    def to_dict(self) -> dict:
+        """JSON-able dict; NaN -> None."""
+        return nan_to_none({**self.stats.to_dict(), "n_rows": self.n_rows,
+                            "d_max_m": self.d_max_m, "unit": "dB"})
+
+
+def rssi_vs_truth(reads: pd.DataFrame, sensor, budget, d_max_m: float = 3.0) -> RssiComparison:
+    """Compare ``sensor.fs_dbm`` with the noise-free RSSI (see module doc).
+
+    Parameters
+    ----------
+    reads : pandas.DataFrame
+        reads.parquet-format table (d_true_m, alpha_true_rad, gain_db).
+    sensor : SensorLike
+    budget : propagation.LinkBudget
+    d_max_m : float
+        Only attempts with d_true_m < d_max_m (the models' training domain).
+
+    Returns
+    -------
+    RssiComparison
+    """
+    sensor = check_sensor(sensor)
+    require_columns(reads, ("d_true_m", "alpha_true_rad", "gain_db"), "reads")
+    g = reads["gain_db"].to_numpy(np.float64)
+    d = reads["d_true_m"].to_numpy(np.float64)
+    keep = true_detected(g, budget) & (d < float(d_max_m))
+    truth = true_rssi_dbm(g[keep], budget)
+    pred = np.asarray(sensor.fs_dbm(d[keep], reads["alpha_true_rad"].to_numpy(np.float64)[keep]),
+                      dtype=np.float64)
+    return RssiComparison(error_stats(pred, truth), int(keep.sum()), float(d_max_m))
+
+
+@dataclass(frozen=True)
+class DetectionComparison:
+    """Learned fT against the true detection probability.
+
+    Attributes
+    ----------
+    cells : ErrorStats
+        Of ``fT(centre) - p_detect`` over cells with >= min_attempts attempts.
+    n_cells : int
+        Cells compared.
+    min_attempts : int
+        Threshold used.
+    brier : float
+        Brier score of fT at the true geometry on the read outcomes.
+    brier_truth : float
+        Brier score of the cell's true p_detect on the same outcomes.
+    brier_climatology : float
+        Brier score of the constant base rate on the same outcomes.
+    n_attempts : int
+        Attempts inside the grid used by the Brier scores.
+    """
+
+    cells: ErrorStats
+    n_cells: int
+    min_attempts: int
+    brier: float
+    brier_truth: float
+    brier_climatology: float
+    n_attempts: int
+
+    def to_dict(self) -> dict:
+        """JSON-able dict; NaN -> None."""
+        return nan_to_none({**self.cells.to_dict(), "n_cells": self.n_cells,
+                            "min_attempts": self.min_attempts, "brier": self.brier,
+                            "brier_truth": self.brier_truth,
+                            "brier_climatology": self.brier_climatology,
+                            "n_attempts": self.n_attempts})
+
+
+def detection_vs_truth(
+    reads: pd.DataFrame, sensor, truth: TruthGrid, min_attempts: int = 20
+) -> DetectionComparison:
+    """Compare ``sensor.fT`` with the true detection probability (see module doc).
+
+    Parameters
+    ----------
+    reads : pandas.DataFrame
+        The table `truth` was built from (read, d_true_m, alpha_true_rad).
+    sensor : SensorLike
+    truth : TruthGrid
+        From :func:`~.truth.detection_truth`.
+    min_attempts : int
+        Cells with fewer attempts are not compared.
+
+    Returns
+    -------
+    DetectionComparison
+    """
+    sensor = check_sensor(sensor)
+    require_columns(reads, ("read", "d_true_m", "alpha_true_rad"), "reads")
+    if int(min_attempts) < 1:
+        raise ValueError(f"min_attempts must be >= 1, got {min_attempts!r}")
+    grid: CellGrid = truth.grid
+    D, A = grid.centre_mesh()
+    ok = truth.n_attempts >= int(min_attempts)
+    ft_cells = np.asarray(sensor.fT(D[ok], A[ok]), dtype=np.float64)
+    cells = error_stats(ft_cells, truth.p_detect[ok])
+    d = reads["d_true_m"].to_numpy(np.float64)
+    a = reads["alpha_true_rad"].to_numpy(np.float64)
+    idx = grid.index(d, a)
+    outcome = reads["read"].to_numpy(bool)[idx.valid]
+    ft_rows = np.asarray(sensor.fT(d[idx.valid], a[idx.valid]), dtype=np.float64)
+    p_rows = truth.p_detect.ravel()[idx.flat[idx.valid]]
+    base = float(outcome.mean()) if outcome.size else float("nan")
+    return DetectionComparison(
+        cells=cells, n_cells=int(ok.sum()), min_attempts=int(min_attempts),
+        brier=brier_score(ft_rows, outcome), brier_truth=brier_score(p_rows, outcome),
+        brier_climatology=brier_score(np.full(outcome.shape, base), outcome),
+        n_attempts=int(outcome.size),
+    )
+
+
+@dataclass(frozen=True)
+class RhoPoints:
+    """Truth at world points around one antenna pose (the chapter's Fig. 6).
+
+    Attributes
+    ----------
+    antenna_pose : numpy.ndarray, shape (6,)
+        True antenna pose [x, y, z, yaw, pitch, roll] (m, rad).
+    points_m : numpy.ndarray, shape (k, 3)
+        World points [m].
+    d_m, alpha_rad : numpy.ndarray, shape (k,)
+        Points in the antenna frame [m], [rad].
+    gain_db : numpy.ndarray, shape (k,)
+        Ray-traced one-way gain [dB] (-inf: not traced).
+    fs_true : numpy.ndarray, shape (k,)
+        Noise-free RSSI normalised by `rssi_range_dbm`, 0 where the link does not close.
+    p_true : numpy.ndarray, shape (k,)
+        ``closed * (1 - miss_probability)``.
+    rho_true : numpy.ndarray, shape (k,)
+        ``fs_true * p_true``.
+    rssi_range_dbm : tuple of float
+        Normalisation range [dBm].
+    grid_shape : tuple of int or None
+        (n_d, n_alpha) if the points are a polar grid (row-major), else None.
+    """
+
+    antenna_pose: np.ndarray
+    points_m: np.ndarray
+    d_m: np.ndarray
+    alpha_rad: np.ndarray
+    gain_db: np.ndarray
+    fs_true: np.ndarray
+    p_true: np.ndarray
+    rho_true: np.ndarray
+    rssi_range_dbm: tuple
+    grid_shape: tuple | None = None
+
+    def save(self, path, sensors: dict | None = None) -> Path:
+        """Write ``truth/rho_pose_<i>.npz`` atomically: every attribute, plus
+        ``model_names`` and, per model, ``<name>__rho`` (k,) = sensor.rho(d, alpha)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        extra = {}
+        for name, s in (sensors or {}).items():
+            s = check_sensor(s, f"sensor {name!r}")
+            extra[f"{name}__rho"] = np.asarray(s.rho(self.d_m, self.alpha_rad), dtype=np.float64)
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+        np.savez(tmp, antenna_pose=self.antenna_pose, points_m=self.points_m, d_m=self.d_m,
+                 alpha_rad=self.alpha_rad, gain_db=self.gain_db, fs_true=self.fs_true,
+                 p_true=self.p_true, rho_true=self.rho_true,
+                 rssi_range_dbm=np.asarray(self.rssi_range_dbm, dtype=np.float64),
+                 grid_shape=np.asarray(self.grid_shape or (0, 0), dtype=np.int64),
+                 model_names=np.array(sorted(sensors or {}), dtype=str), **extra)
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path) -> RhoPoints:
+        """Read the truth part of a file written by :meth:`save`."""
+        path = Path(path)
+        with np.load(path, allow_pickle=False) as z:
+            need = {"antenna_pose", "points_m", "d_m", "alpha_rad", "gain_db", "fs_true",
+                    "p_true", "rho_true", "rssi_range_dbm", "grid_shape"}
+            missing = sorted(need - set(z.files))
+            if missing:
+                raise ValueError(f"{path}: missing key(s) {missing}")
+            shape = tuple(int(v) for v in z["grid_shape"])
+            return cls(**{k: z[k] for k in need - {"rssi_range_dbm", "grid_shape"}},
+                       rssi_range_dbm=tuple(float(v) for v in z["rssi_range_dbm"]),
+                       grid_shape=shape if all(shape) else None)
+
+
+def rho_points_truth(
+    antenna_pose,
+    points_m,
+    gain_db,
+    budget,
+    rssi_range_dbm,
+    miss_probability: float = 0.0,
+    grid_shape: tuple | None = None,
+) -> RhoPoints:
+    """True rho at `points_m` seen from `antenna_pose` (see module doc).
+
+    Parameters
+    ----------
+    antenna_pose : array_like, shape (4,) or (6,)
+        True antenna pose [x, y, z, yaw(, pitch, roll)].
+    points_m : array_like, shape (k, 3)
+        World points [m] (e.g. tag-like points traced with propagation.trace_links).
+    gain_db : array_like, shape (k,)
+        Their one-way gains [dB] from that pose (-inf: not traced).
+    budget : propagation.LinkBudget
+    rssi_range_dbm : (float, float)
+        Normalisation range; use the sensor model's.
+    miss_probability : float
+        Anti-collision miss probability in [0, 1).
+    grid_shape : (int, int), optional
+        (n_d, n_alpha) when the points are a row-major polar grid (for the figure).
+
+    Returns
+    -------
+    RhoPoints
+    """
+    pose = np.asarray(antenna_pose, dtype=np.float64).ravel()
+    if pose.size == 4:
+        pose = np.concatenate([pose, [0.0, 0.0]])
+    if pose.size != 6:
+        raise ValueError(f"antenna_pose must have 4 or 6 entries, got {pose.size}")
+    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    g = np.asarray(gain_db, dtype=np.float64).ravel()
+    if g.shape[0] != pts.shape[0]:
+        raise ValueError(f"gain_db has {g.shape[0]} entries for {pts.shape[0]} points")
+    if grid_shape is not None and int(np.prod(grid_shape)) != pts.shape[0]:
+        raise ValueError(f"grid_shape {grid_shape} does not match {pts.shape[0]} points")
+    q = float(miss_probability)
+    if not 0.0 <= q < 1.0:
+        raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+    geo = antenna_frame_geometry(pose[None], pts)
+    closed = true_detected(g, budget)
+    rssi = true_rssi_dbm(np.where(closed, g, 0.0), budget)
+    fs = np.where(closed, normalise_rssi(rssi, rssi_range_dbm), 0.0)
+    p = closed * (1.0 - q)
+    return RhoPoints(antenna_pose=pose, points_m=pts, d_m=geo.d_m[0], alpha_rad=geo.alpha_rad[0],
+                     gain_db=g, fs_true=fs, p_true=p.astype(np.float64), rho_true=fs * p,
+                     rssi_range_dbm=tuple(float(v) for v in rssi_range_dbm),
+                     grid_shape=None if grid_shape is None else tuple(int(v) for v in grid_shape))
+
+
+@dataclass(frozen=True)
+class RhoComparison:
+    """Learned rho against true rho over the Fig. 6 points.
+
+    Attributes
+    ----------
+    stats : ErrorStats
+        Of ``rho_model - rho_true`` over all points of all poses (correlation included).
+    per_pose : list of ErrorStats
+        The same per antenna pose, in input order.
+    """
+
+    stats: ErrorStats
+    per_pose: list
+
+    def to_dict(self) -> dict:
+        """JSON-able dict; NaN -> None."""
+        return nan_to_none({**self.stats.to_dict(),
+                            "per_pose": [s.to_dict() for s in self.per_pose]})
+
+
+def rho_vs_truth(rho_points, sensor) -> RhoComparison:
+    """Compare ``sensor.rho`` with :attr:`RhoPoints.rho_true` over one or more poses.
+
+    Parameters
+    ----------
+    rho_points : RhoPoints or sequence of RhoPoints
+    sensor : SensorLike
+
+    Returns
+    -------
+    RhoComparison
+    """
+    sensor = check_sensor(sensor)
+    items = [rho_points] if isinstance(rho_points, RhoPoints) else list(rho_points)
+    preds, truths, per = [], [], []
+    for rp in items:
+        pred = np.asarray(sensor.rho(rp.d_m, rp.alpha_rad), dtype=np.float64)
+        preds.append(pred)
+        truths.append(rp.rho_true)
+        per.append(error_stats(pred, rp.rho_true))
+    if not items:
+        return RhoComparison(error_stats([], []), [])
+    return RhoComparison(error_stats(np.concatenate(preds), np.concatenate(truths)), per)
