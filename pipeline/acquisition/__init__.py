@@ -15,6 +15,7 @@ from pipeline.acquisition.reader import (
     in_range_mask,
     read_attempts,
     reader_response,
+    reads_from_gains,
     simulate_reads,
 )
 from pipeline.acquisition.readlog import (
@@ -50,6 +51,7 @@ __all__ = [
     "read_attempts",
     "read_table",
     "reader_response",
+    "reads_from_gains",
     "rssi_range_from_data",
     "simulate_reads",
     "ssm_samples",

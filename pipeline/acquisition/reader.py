@@ -38,6 +38,7 @@ __all__ = [
     "in_range_mask",
     "read_attempts",
     "reader_response",
+    "reads_from_gains",
     "simulate_reads",
 ]
 
@@ -234,6 +235,68 @@ def _poses_frame(track: PoseTrack) -> pd.DataFrame:
     return pd.DataFrame(cols, columns=list(POSE_COLUMNS)).astype(POSE_COLUMNS)
 
 
+def reads_from_gains(
+    attempts: ReadAttempts,
+    tags,
+    gain_db: np.ndarray,
+    traced: np.ndarray,
+    reader: ReaderConfig,
+    rng: np.random.Generator,
+) -> pd.DataFrame:
+    """The read table of a schedule whose gains are known (traced or from a cache).
+
+    Parameters
+    ----------
+    attempts : ReadAttempts
+        Schedule and antenna poses, n attempts.
+    tags : scenes.TagSet
+        m tags.
+    gain_db : numpy.ndarray
+        One-way gains (n, m), dB; -inf where not traced.
+    traced : numpy.ndarray
+        bool (n, m), pairs that were traced (``in_range`` column).
+    reader : ReaderConfig
+    rng : numpy.random.Generator
+        Passed to :func:`reader_response`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        n * m rows, attempt-major, columns :data:`READ_COLUMNS`.
+    """
+    att = attempts
+    n, m = len(att.time_s), len(tags)
+    geo_t = antenna_frame_angles(att.true_antenna, tags.positions_m)
+    geo_e = antenna_frame_angles(att.est_antenna, tags.positions_m)
+    resp = reader_response(np.asarray(gain_db, dtype=float).reshape(-1), reader, rng)
+    rep = np.repeat
+    cols = {
+        "time_s": rep(att.time_s, m),
+        "cycle": rep(att.cycle, m),
+        "antenna": rep(att.antenna, m),
+        "tag_id": pd.Categorical.from_codes(
+            np.tile(np.arange(m), n), categories=[str(i) for i in tags.ids]
+        ),
+        "read": resp.read,
+        "rssi_dbm": resp.rssi_dbm,
+    }
+    for prefix, p in (("true", att.true_antenna), ("est", att.est_antenna)):
+        for j, name in enumerate(("x_m", "y_m", "z_m", "yaw_rad")):
+            cols[f"{prefix}_ant_{name}"] = rep(p[:, j], m)
+    cols.update(
+        d_true_m=geo_t.d_m.reshape(-1),
+        alpha_true_rad=geo_t.alpha_rad.reshape(-1),
+        d_est_m=geo_e.d_m.reshape(-1),
+        alpha_est_rad=geo_e.alpha_rad.reshape(-1),
+        gain_db=np.asarray(gain_db).reshape(-1),
+        tag_power_dbm=resp.tag_power_dbm,
+        rx_power_dbm=resp.rx_power_dbm,
+        powered=resp.powered,
+        in_range=np.asarray(traced, dtype=bool).reshape(-1),
+    )
+    return pd.DataFrame(cols, columns=list(READ_COLUMNS)).astype(READ_COLUMNS)
+
+
 def simulate_reads(
     scene,
     robot,
@@ -285,37 +348,11 @@ def simulate_reads(
     att = read_attempts(trk, mounts, reader)
     tags = scene.tags
     n, m = len(att.time_s), len(tags)
-    geo_t = antenna_frame_angles(att.true_antenna, tags.positions_m)
-    geo_e = antenna_frame_angles(att.est_antenna, tags.positions_m)
-    mask = in_range_mask(geo_t.d_m, reader)
+    d_true = antenna_frame_angles(att.true_antenna, tags.positions_m).d_m
+    mask = in_range_mask(d_true, reader)
     gain_db, traced, n_traced = _trace_gains(scene, att.true_antenna, mask, reader, trace)
-    resp = reader_response(gain_db.reshape(-1), reader, rng)
-    _check_margin(gain_db, traced, geo_t.d_m, reader)
-
-    rep = np.repeat
-    cols = {
-        "time_s": rep(att.time_s, m),
-        "cycle": rep(att.cycle, m),
-        "antenna": rep(att.antenna, m),
-        "tag_id": pd.Categorical.from_codes(np.tile(np.arange(m), n), categories=list(tags.ids)),
-        "read": resp.read,
-        "rssi_dbm": resp.rssi_dbm,
-    }
-    for prefix, p in (("true", att.true_antenna), ("est", att.est_antenna)):
-        for j, name in enumerate(("x_m", "y_m", "z_m", "yaw_rad")):
-            cols[f"{prefix}_ant_{name}"] = rep(p[:, j], m)
-    cols.update(
-        d_true_m=geo_t.d_m.reshape(-1),
-        alpha_true_rad=geo_t.alpha_rad.reshape(-1),
-        d_est_m=geo_e.d_m.reshape(-1),
-        alpha_est_rad=geo_e.alpha_rad.reshape(-1),
-        gain_db=gain_db.reshape(-1),
-        tag_power_dbm=resp.tag_power_dbm,
-        rx_power_dbm=resp.rx_power_dbm,
-        powered=resp.powered,
-        in_range=traced.reshape(-1),
-    )
-    reads = pd.DataFrame(cols, columns=list(READ_COLUMNS)).astype(READ_COLUMNS)
+    reads = reads_from_gains(att, tags, gain_db, traced, reader, rng)
+    _check_margin(gain_db, traced, d_true, reader)
     meta = {
         "scene": scene.name,
         "scene_hash": scene.content_hash(),
@@ -335,7 +372,7 @@ def simulate_reads(
         m,
         int(mask.sum()),
         n_traced,
-        int(resp.read.sum()),
+        int(reads["read"].sum()),
     )
     return ReadLog(reads=reads, poses=_poses_frame(trk), metadata=meta)
 
