@@ -1,22 +1,106 @@
-"""Scenes: UHF material library, corridor generator, scene specs, import and export."""
+"""Scenes: UHF material library, corridor generator, scene specs, import and export.
 
+Public entry points::
+
+    scenes.load("corridor_lab")          # bundled name, scene TOML, Mitsuba XML or mesh file
+    scenes.list_bundled()
+    scenes.corridor(length_m=25, width_m=2.4, height_m=3.0, doors=[...], tags=[...])
+    scenes.load_spec(path) / scenes.build(spec) / scenes.save_spec(spec, path)
+    scenes.import_mesh(path, material=... | material_map={...}, tags=[...])
+    scenes.load_mitsuba_xml(path, tags=[...])
+    scenes.is_free(scene, points) / scenes.floor_plan_segments(scene, z_m) / scenes.raycast(...)
+    scenes.material("concrete", 865e6) -> (relative_permittivity, conductivity_s_per_m)
+"""
+
+from scenes.catalog import build, bundled_path, list_bundled, load
+from scenes.export import export_mitsuba
+from scenes.generator import build_corridor, corridor, corridor_route
+from scenes.geometry import (
+    SurfaceQuery,
+    closest_surface,
+    floor_plan_segments,
+    in_free_space,
+    inside_solid,
+    is_free,
+    raycast,
+    solid_material_at,
+)
+from scenes.importers import import_mesh, load_mitsuba_xml, read_sidecar
 from scenes.materials import (
+    ITU_NAME_MAP,
     MATERIALS,
     FrequencyRangeWarning,
     Material,
     UnknownMaterialError,
     get_material,
     material,
+    resolve_material_name,
 )
 from scenes.scene import Scene, TagSet
+from scenes.spec import (
+    BoxSpec,
+    CabinetSpec,
+    CorridorSpec,
+    DoorSpec,
+    MeshSpec,
+    MitsubaSpec,
+    PanelSpec,
+    SceneSpec,
+    SegmentSpec,
+    SpecError,
+    TagSpec,
+    load_spec,
+    save_spec,
+    spec_from_dict,
+    spec_to_dict,
+)
+from scenes.tags import make_tags, validate_tags
 
 __all__ = [
+    "ITU_NAME_MAP",
     "MATERIALS",
+    "BoxSpec",
+    "CabinetSpec",
+    "CorridorSpec",
+    "DoorSpec",
     "FrequencyRangeWarning",
     "Material",
+    "MeshSpec",
+    "MitsubaSpec",
+    "PanelSpec",
     "Scene",
+    "SceneSpec",
+    "SegmentSpec",
+    "SpecError",
+    "SurfaceQuery",
     "TagSet",
+    "TagSpec",
     "UnknownMaterialError",
+    "build",
+    "build_corridor",
+    "bundled_path",
+    "closest_surface",
+    "corridor",
+    "corridor_route",
+    "export_mitsuba",
+    "floor_plan_segments",
     "get_material",
+    "import_mesh",
+    "in_free_space",
+    "inside_solid",
+    "is_free",
+    "list_bundled",
+    "load",
+    "load_mitsuba_xml",
+    "load_spec",
+    "make_tags",
     "material",
+    "raycast",
+    "read_sidecar",
+    "resolve_material_name",
+    "save_spec",
+    "solid_material_at",
+    "spec_from_dict",
+    "spec_to_dict",
+    "validate_tags",
 ]

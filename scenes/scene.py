@@ -90,6 +90,12 @@ class Scene:
         Centre line of the walkable corridor as a polyline, shape (n_points, 2), float64,
         metres (x, y); guided robot tours follow it. ``None`` when unknown (imported meshes
         without a route), in which case tours need a route given explicitly.
+    free_space_m : numpy.ndarray or None
+        The free (walkable) volume as a union of axis-aligned boxes, shape (k, 2, 3),
+        float64, metres: ``[[x_min, y_min, z_min], [x_max, y_max, z_max]]`` per box.
+        Generated scenes set it; ``None`` means "the scene's bounding box" (imported
+        meshes). Solids inside it (boxes, cabinets) are not free: see
+        :func:`scenes.geometry.is_free`.
     """
 
     name: str
@@ -98,6 +104,7 @@ class Scene:
     source: str = "generated"
     metadata: dict = field(default_factory=dict)
     route_m: np.ndarray | None = None
+    free_space_m: np.ndarray | None = None
 
     @property
     def materials(self) -> list[str]:
@@ -121,10 +128,11 @@ class Scene:
         for name in self.materials:
             mesh = self.meshes[name]
             h.update(name.encode())
-            h.update(np.ascontiguousarray(np.round(mesh.vertices, 6), dtype=np.float64).tobytes())
+            h.update(np.ascontiguousarray(np.round(mesh.vertices, 6) + 0.0, dtype=np.float64).tobytes())
             h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
         h.update("\n".join(self.tags.ids.tolist()).encode())
-        h.update(np.round(self.tags.positions_m, 6).tobytes())
+        h.update((np.round(self.tags.positions_m, 6) + 0.0).tobytes())
+        h.update((np.round(self.tags.normals, 6) + 0.0).tobytes())  # +0.0: -0.0 -> 0.0
         h.update(json.dumps(self.metadata.get("material_overrides", {}), sort_keys=True).encode())
         return h.hexdigest()
 
