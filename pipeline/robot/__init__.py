@@ -1,0 +1,73 @@
+"""Robot, trajectories, odometry, laser and Monte Carlo Localization.
+
+A Pioneer-like differential-drive robot with reader antennas drives guided tours up
+and down a corridor; its wheel odometry drifts, a 2-D laser scanner is ray-cast
+against the scene, and a particle filter (MCL) estimates the pose a real robot would
+record (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005).
+"""
+
+from pipeline.robot.kinematics import (
+    AntennaMount,
+    Robot,
+    antenna_poses,
+    compose_poses,
+    default_antennas,
+    footprint_points,
+    wrap_angle,
+)
+from pipeline.robot.laser import LaserScanner, ray_cast
+from pipeline.robot.mcl import (
+    LocalizationResult,
+    MCLConfig,
+    MonteCarloLocalization,
+    PoseEstimate,
+    low_variance_resample,
+    run_mcl,
+)
+from pipeline.robot.occupancy import OccupancyMap, section_segments
+from pipeline.robot.odometry import (
+    OdometryNoise,
+    sample_motion_model_odometry,
+    simulate_odometry,
+)
+from pipeline.robot.simulate import LocalizationConfig, laser_map, simulate_localisation
+from pipeline.robot.trajectory import (
+    TourConfig,
+    Trajectory,
+    check_trajectory,
+    collision_map,
+    evaluation_path,
+    guided_tour,
+)
+
+__all__ = [
+    "AntennaMount",
+    "LaserScanner",
+    "LocalizationConfig",
+    "LocalizationResult",
+    "MCLConfig",
+    "MonteCarloLocalization",
+    "OccupancyMap",
+    "OdometryNoise",
+    "PoseEstimate",
+    "Robot",
+    "TourConfig",
+    "Trajectory",
+    "antenna_poses",
+    "check_trajectory",
+    "collision_map",
+    "compose_poses",
+    "default_antennas",
+    "evaluation_path",
+    "footprint_points",
+    "guided_tour",
+    "laser_map",
+    "low_variance_resample",
+    "ray_cast",
+    "run_mcl",
+    "sample_motion_model_odometry",
+    "section_segments",
+    "simulate_localisation",
+    "simulate_odometry",
+    "wrap_angle",
+]

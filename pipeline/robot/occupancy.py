@@ -1,0 +1,298 @@
+"""Occupancy grid and likelihood field cut from the scene meshes.
+
+The grid is the planar map a robot navigates and localises in: the meshes are sliced
+by horizontal planes (trimesh), the cut segments are rasterised, and every cell not
+reachable from the walkable route (wall interiors, the outside of the building, the
+inside of cabinets) is marked occupied. Euclidean distance transforms (scipy.ndimage)
+give the clearance field used for collision checks and the likelihood field of the
+laser model (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005, sec. 6.4).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+from scipy import ndimage
+
+__all__ = ["OccupancyMap", "section_segments"]
+
+logger = logging.getLogger(__name__)
+
+
+def section_segments(scene, z_m: float) -> np.ndarray:
+    """Cut every mesh of ``scene`` with the horizontal plane z = ``z_m``.
+
+    Parameters
+    ----------
+    scene : scenes.Scene
+        The scene (meshes in metres, z up).
+    z_m : float
+        Height of the cutting plane [m].
+
+    Returns
+    -------
+    numpy.ndarray
+        Segments (n_segments, 2, 2) float64: [[x0, y0], [x1, y1]] [m]; degenerate
+        (zero-length) segments removed.
+    """
+    parts = []
+    for name in scene.materials:
+        mesh = scene.meshes[name]
+        if len(mesh.faces) == 0:
+            continue
+        lo, hi = mesh.bounds[:, 2]
+        if not (lo <= z_m <= hi):
+            continue
+        seg = trimesh.intersections.mesh_plane(mesh, [0.0, 0.0, 1.0], [0.0, 0.0, float(z_m)])
+        if len(seg):
+            parts.append(np.asarray(seg, dtype=float)[:, :, :2])
+    if not parts:
+        return np.zeros((0, 2, 2))
+    seg = np.concatenate(parts)
+    keep = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1) > 1e-9
+    return seg[keep]
+
+
+def _rasterise(segments: np.ndarray, origin: np.ndarray, res: float, shape) -> np.ndarray:
+    """Boolean grid (ny, nx) with every cell touched by a segment set (sampled at res/4)."""
+    grid = np.zeros(shape, dtype=bool)
+    if len(segments) == 0:
+        return grid
+    a, b = segments[:, 0], segments[:, 1]
+    n = np.maximum(2, np.ceil(np.linalg.norm(b - a, axis=1) / (res / 4)).astype(int) + 1)
+    idx = np.repeat(np.arange(len(segments)), n)
+    starts = np.cumsum(n) - n
+    frac = (np.arange(n.sum()) - np.repeat(starts, n)) / np.repeat(n - 1, n)
+    pts = a[idx] + frac[:, None] * (b[idx] - a[idx])
+    col = np.floor((pts[:, 0] - origin[0]) / res).astype(int)
+    row = np.floor((pts[:, 1] - origin[1]) / res).astype(int)
+    ok = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+    grid[row[ok], col[ok]] = True
+    return grid
+
+
+@dataclass(frozen=True)
+class OccupancyMap:
+    """A 2-D occupancy grid with its clearance and likelihood fields.
+
+    Cell (row, col) covers x in [origin_x + col*res, origin_x + (col+1)*res) and
+    y in [origin_y + row*res, ...). Points outside the grid count as occupied.
+
+    Attributes
+    ----------
+    origin_m : numpy.ndarray
+        World (x, y) of the grid's lower-left corner, shape (2,) [m].
+    resolution_m : float
+        Cell size [m].
+    occupied : numpy.ndarray
+        (ny, nx) bool, True where an obstacle (or unreachable space) is.
+    distance_m : numpy.ndarray
+        (ny, nx) float64: distance from each cell centre to the nearest occupied cell
+        centre [m] (0 on occupied cells).
+    boundary_distance_m : numpy.ndarray
+        (ny, nx) float64: exact distance from each cell centre to the nearest cut
+        segment (an obstacle surface) [m], capped at 2 m: the likelihood field of the
+        laser model, interpolated bilinearly by :meth:`surface_distance_m`.
+    z_range_m : tuple[float, float]
+        Heights between which the meshes were sliced [m].
+    """
+
+    origin_m: np.ndarray
+    resolution_m: float
+    occupied: np.ndarray
+    distance_m: np.ndarray
+    boundary_distance_m: np.ndarray
+    z_range_m: tuple[float, float]
+
+    @classmethod
+    def from_scene(
+        cls,
+        scene,
+        resolution_m: float = 0.05,
+        z_range: tuple[float, float] = (0.05, 1.0),
+        n_slices: int = 5,
+        route_m: np.ndarray | None = None,
+        margin_m: float = 0.5,
+    ) -> OccupancyMap:
+        """Build the map from the scene meshes.
+
+        Parameters
+        ----------
+        scene : scenes.Scene
+        resolution_m : float
+            Cell size [m].
+        z_range : tuple[float, float]
+            Heights [m] between which obstacles matter (low: above the floor; high: the
+            robot's height for collision maps; a single height ``(h, h)`` for a laser map).
+        n_slices : int
+            Number of cutting planes spread over ``z_range`` (1 when the range is a point).
+        route_m : numpy.ndarray, optional
+            Polyline (k, 2) in walkable space; default ``scene.route_m``. Free space is the
+            set of cells 4-connected to it; everything else is occupied. Without a route
+            the largest free component not touching the grid border is used.
+        margin_m : float
+            Extra border around the scene bounds [m].
+
+        Raises
+        ------
+        ValueError
+            On a non-positive resolution, an empty or inverted ``z_range``, or when no
+            route point lies in free space.
+        """
+        if not resolution_m > 0:
+            raise ValueError(f"OccupancyMap: resolution_m={resolution_m} must be > 0")
+        z0, z1 = (float(v) for v in z_range)
+        if not z1 >= z0:
+            raise ValueError(
+                f"OccupancyMap: z_range={z_range} must be (low, high) with low <= high"
+            )
+        heights = [z0] if z1 - z0 < 1e-9 else np.linspace(z0, z1, max(2, int(n_slices)))
+        heights = [h + 1e-6 for h in heights]  # keep planes off exactly-horizontal faces
+        bounds = scene.bounds_m
+        origin = bounds[0, :2] - margin_m
+        extent = bounds[1, :2] + margin_m - origin
+        shape = (int(np.ceil(extent[1] / resolution_m)), int(np.ceil(extent[0] / resolution_m)))
+        walls = np.zeros(shape, dtype=bool)
+        cut = [section_segments(scene, h) for h in heights]
+        for seg in cut:
+            walls |= _rasterise(seg, origin, resolution_m, shape)
+        labels, n_labels = ndimage.label(~walls)  # 4-connectivity: diagonal gaps do not leak
+        route = scene.route_m if route_m is None else route_m
+        if route is not None and len(route):
+            pts = _densify(np.asarray(route, dtype=float), resolution_m / 2)
+            col = np.floor((pts[:, 0] - origin[0]) / resolution_m).astype(int)
+            row = np.floor((pts[:, 1] - origin[1]) / resolution_m).astype(int)
+            ok = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+            seeds = np.unique(labels[row[ok], col[ok]])
+            seeds = seeds[seeds > 0]
+            if len(seeds) == 0:
+                raise ValueError(
+                    f"OccupancyMap: no point of the route of scene {scene.name!r} lies in "
+                    f"free space at z in {z_range}"
+                )
+        else:
+            border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+            sizes = ndimage.sum_labels(np.ones(shape), labels, np.arange(1, n_labels + 1))
+            sizes[np.isin(np.arange(1, n_labels + 1), border)] = 0
+            if not np.any(sizes > 0):
+                raise ValueError(f"OccupancyMap: scene {scene.name!r} has no enclosed free space")
+            seeds = np.array([int(np.argmax(sizes)) + 1])
+        free = np.isin(labels, seeds)
+        occupied = ~free
+        distance = ndimage.distance_transform_edt(free) * resolution_m
+        boundary = _segment_distance_field(np.concatenate(cut), origin, resolution_m, shape)
+        logger.debug("OccupancyMap %s: %s cells, %.1f%% free", scene.name, shape, 100 * free.mean())
+        return cls(origin, float(resolution_m), occupied, distance, boundary, (z0, z1))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Grid shape (ny, nx)."""
+        return self.occupied.shape
+
+    def cell_index(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Row and column of the cell holding each point, and whether it is inside the grid.
+
+        ``points`` is (..., 2) [m]; returns three arrays of shape (...): row, col (int,
+        clipped into the grid) and inside (bool).
+        """
+        p = np.asarray(points, dtype=float)
+        col = np.floor((p[..., 0] - self.origin_m[0]) / self.resolution_m).astype(np.int64)
+        row = np.floor((p[..., 1] - self.origin_m[1]) / self.resolution_m).astype(np.int64)
+        ny, nx = self.shape
+        inside = (row >= 0) & (row < ny) & (col >= 0) & (col < nx)
+        return np.clip(row, 0, ny - 1), np.clip(col, 0, nx - 1), inside
+
+    def is_occupied(self, points: np.ndarray) -> np.ndarray:
+        """True where a point (..., 2) [m] lies in an occupied cell or outside the grid."""
+        row, col, inside = self.cell_index(points)
+        return self.occupied[row, col] | ~inside
+
+    def clearance_m(self, points: np.ndarray) -> np.ndarray:
+        """Approximate distance from each point (..., 2) to the nearest obstacle [m].
+
+        Nearest-cell lookup of ``distance_m`` minus half a cell (the obstacle cell's edge);
+        accurate to about one cell. Negative inside obstacles and outside the grid.
+        """
+        row, col, inside = self.cell_index(points)
+        d = self.distance_m[row, col] - self.resolution_m / 2
+        return np.where(inside, d, -self.resolution_m / 2)
+
+    def surface_distance_m(self, points: np.ndarray, max_distance_m: float = 2.0) -> np.ndarray:
+        """Likelihood-field lookup: distance to the nearest obstacle surface [m], capped.
+
+        Bilinear interpolation of ``boundary_distance_m`` between cell centres (the
+        field is 1-Lipschitz, so the error is well below a cell). Points outside the
+        grid get ``max_distance_m``.
+        """
+        p = np.asarray(points, dtype=float)
+        fx = (p[..., 0] - self.origin_m[0]) / self.resolution_m - 0.5
+        fy = (p[..., 1] - self.origin_m[1]) / self.resolution_m - 0.5
+        ny, nx = self.shape
+        inside = (fx >= -0.5) & (fx <= nx - 0.5) & (fy >= -0.5) & (fy <= ny - 0.5)
+        fx, fy = np.clip(fx, 0, nx - 1), np.clip(fy, 0, ny - 1)
+        x0 = np.minimum(fx.astype(np.int64), nx - 2) if nx > 1 else np.zeros_like(fx, int)
+        y0 = np.minimum(fy.astype(np.int64), ny - 2) if ny > 1 else np.zeros_like(fy, int)
+        x1, y1 = np.minimum(x0 + 1, nx - 1), np.minimum(y0 + 1, ny - 1)
+        tx, ty = fx - x0, fy - y0
+        f = self.boundary_distance_m
+        d = (
+            f[y0, x0] * (1 - tx) * (1 - ty)
+            + f[y0, x1] * tx * (1 - ty)
+            + f[y1, x0] * (1 - tx) * ty
+            + f[y1, x1] * tx * ty
+        )
+        return np.where(inside, np.minimum(d, max_distance_m), max_distance_m)
+
+    def free_cell_centres(self) -> np.ndarray:
+        """World coordinates (n_free, 2) [m] of the centres of all free cells."""
+        row, col = np.nonzero(~self.occupied)
+        return self.origin_m + (np.stack([col, row], 1) + 0.5) * self.resolution_m
+
+
+def _segment_distance_field(
+    segments: np.ndarray, origin: np.ndarray, res: float, shape, cap_m: float = 2.0
+) -> np.ndarray:
+    """Exact distance (ny, nx) from every cell centre to the nearest segment, capped [m]."""
+    ny, nx = shape
+    out = np.full(shape, cap_m)
+    if len(segments) == 0:
+        return out
+    xs = origin[0] + (np.arange(nx) + 0.5) * res
+    ys = origin[1] + (np.arange(ny) + 0.5) * res
+    a = segments[:, 0]
+    e = segments[:, 1] - segments[:, 0]
+    ee = np.maximum(np.sum(e * e, axis=1), 1e-300)
+    rows = max(1, 4_000_000 // max(1, nx * len(segments)))
+    for r0 in range(0, ny, rows):
+        gx, gy = np.meshgrid(xs, ys[r0 : r0 + rows])
+        c = np.stack([gx.ravel(), gy.ravel()], 1)
+        # prune to segments whose bounding box is within the cap of this strip
+        lo, hi = c.min(0) - cap_m, c.max(0) + cap_m
+        near = np.all((segments.max(1) >= lo) & (segments.min(1) <= hi), axis=1)
+        if not near.any():
+            continue
+        ac, ec, eec = a[near], e[near], ee[near]
+        d2 = np.full(len(c), cap_m**2)
+        step = max(1, 4_000_000 // len(ac))
+        for i in range(0, len(c), step):
+            cc = c[i : i + step, None, :] - ac[None]
+            t = np.clip(np.sum(cc * ec[None], axis=2) / eec[None], 0.0, 1.0)
+            diff = cc - t[..., None] * ec[None]
+            d2[i : i + step] = np.minimum(d2[i : i + step], np.min(np.sum(diff**2, axis=2), 1))
+        out[r0 : r0 + rows] = np.sqrt(d2).reshape(-1, nx)
+    return out
+
+
+def _densify(polyline: np.ndarray, step_m: float) -> np.ndarray:
+    """Points along a polyline (k, 2) spaced at most ``step_m`` apart (vertices kept)."""
+    if len(polyline) < 2:
+        return polyline
+    out = [polyline[:1]]
+    for a, b in zip(polyline[:-1], polyline[1:], strict=True):
+        n = max(1, int(np.ceil(np.linalg.norm(b - a) / step_m)))
+        t = np.arange(1, n + 1)[:, None] / n
+        out.append(a + t * (b - a))
+    return np.concatenate(out)
