@@ -69,7 +69,7 @@ def validate_tags(scene, max_surface_distance_m: float = DEFAULT_MAX_SURFACE_DIS
 
     def where(i: int) -> str:
         x, y, z = pos[i]
-        return f"{scene.name}: tag {tags.ids[i]!r} at ({x:.4g}, {y:.4g}, {z:.4g}) m"
+        return f"{scene.name}: tag {str(tags.ids[i])!r} at ({x:.4g}, {y:.4g}, {z:.4g}) m"
 
     lo, hi = scene.bounds_m
     outside = np.flatnonzero(np.any((pos < lo - 1e-9) | (pos > hi + 1e-9), axis=1))
@@ -81,7 +81,7 @@ def validate_tags(scene, max_surface_distance_m: float = DEFAULT_MAX_SURFACE_DIS
     inside = np.flatnonzero(mats != "")
     if len(inside):
         i = inside[0]
-        raise ValueError(f"{where(i)} lies inside solid geometry (material {mats[i]!r}); a tag "
+        raise ValueError(f"{where(i)} lies inside solid geometry (material {str(mats[i])!r}); a tag "
                          "must sit in free space, offset from the surface along its normal")
     free = in_free_space(scene, pos)
     if not np.all(free):
