@@ -333,8 +333,8 @@ class ANFIS:
         return model
 
     # ---------------------------------------------------------------- forward
-    def _normalise(self, X) -> np.ndarray:
-        X = check_matrix(X, "X", self.n_inputs)
+    def _normalise(self, X, name: str = "X") -> np.ndarray:
+        X = check_matrix(X, name, self.n_inputs)
         return (X - self.input_offset) / self.input_scale
 
     def _log_mu(self, U: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
@@ -458,7 +458,7 @@ class ANFIS:
             raise FuzzyModelError("give both X_check and y_check, or neither")
         has_check = X_check is not None
         if has_check:
-            Uc = self._normalise(X_check)
+            Uc = self._normalise(X_check, "X_check")
             yc = check_target(y_check, Uc.shape[0], "y_check")
         if int(epochs) < 1:
             raise FuzzyModelError(f"epochs must be >= 1, got {epochs}")

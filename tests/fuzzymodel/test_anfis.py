@@ -129,6 +129,8 @@ def test_bad_input_raises_named_errors():
         model.fit(X, y[:-1])
     with pytest.raises(FuzzyModelError, match="3 features"):
         model.predict(np.ones((4, 3)))
+    with pytest.raises(FuzzyModelError, match="X_check has 1 features"):
+        model.fit(X, y, X_check=X[:, :1], y_check=y)
     with pytest.raises(FuzzyModelError, match="both X_check and y_check"):
         model.fit(X, y, X_check=X)
     big = ANFIS.from_grid(X, 4)  # 16 rules: 24 + 48 = 72 parameters
