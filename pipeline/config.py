@@ -123,23 +123,24 @@ class TourConfig:
 
 @section
 class LocalisationConfig:
-    """Odometry noise, the laser scanner and Monte Carlo Localization."""
+    """Odometry noise, the laser scanner and Monte Carlo Localization (pipeline.robot)."""
 
     enabled: bool = option(True, "Run MCL; if false the estimated poses equal the true poses.")
-    n_particles: int = option(300, "MCL particles.")
-    laser_beams: int = option(181, "Laser beams over the field of view.")
+    n_particles: int = option(500, "MCL particles.")
+    n_beams_used: int = option(30, "Laser beams per scan used by the likelihood field.")
+    laser_beams: int = option(181, "Laser beams over the field of view (SICK LMS-200: 181).")
     laser_fov_deg: float = option(180.0, "Laser field of view [deg].")
     laser_max_range_m: float = option(8.0, "Laser maximum range [m].")
     laser_noise_m: float = option(0.01, "Laser range noise standard deviation [m].")
     odometry_noise: tuple[float, ...] = option(
-        (0.05, 0.01, 0.05, 0.01),
-        "Odometry noise alphas (a1..a4 of the odometry motion model, Thrun et al. 2005).",
+        (0.02, 0.02, 0.02, 0.002),
+        "Robot odometry noise alpha1..alpha4 (Thrun et al. 2005, Table 5.6).",
     )
-    map_resolution_m: float = option(0.05, "Occupancy/likelihood-field grid resolution [m].")
+    map_resolution_m: float = option(0.05, "Likelihood-field grid resolution [m].")
 
     def __post_init__(self):
-        _positive(self, "n_particles", "laser_beams", "laser_fov_deg", "laser_max_range_m",
-                  "map_resolution_m")
+        _positive(self, "n_particles", "n_beams_used", "laser_beams", "laser_fov_deg",
+                  "laser_max_range_m", "map_resolution_m")
         _nonneg(self, "laser_noise_m")
         if len(self.odometry_noise) != 4 or min(self.odometry_noise) < 0:
             raise ConfigError(f"odometry_noise must be 4 values >= 0, got {self.odometry_noise}")

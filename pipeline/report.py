@@ -122,7 +122,7 @@ def _table_html(title: str, cols: list[str], rows: list[list]) -> str:
     return f"<h3>{html.escape(title)}</h3><table><tr>{head}</tr>{body}</table>"
 
 
-def write_report(run_dir: str | Path, embed: bool = True) -> Path:
+def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None = None) -> Path:
     """Write ``<run_dir>/report.html`` from the run directory's files alone.
 
     Parameters
@@ -132,6 +132,8 @@ def write_report(run_dir: str | Path, embed: bool = True) -> Path:
         ``figures/*.png``; missing pieces are reported as missing, not fatal).
     embed : bool
         Embed the PNGs as base64 (self-contained file) or link them relatively.
+    out : path, optional
+        Where to write (default ``<run_dir>/report.html``).
 
     Returns
     -------
@@ -210,7 +212,7 @@ def write_report(run_dir: str | Path, embed: bool = True) -> Path:
     parts.append("<h2>Manifest</h2>")
     parts.append(f"<pre>{html.escape(json.dumps(manifest, indent=2, sort_keys=True))}</pre>")
     parts.append("</body></html>\n")
-    out = run / "report.html"
+    out = run / "report.html" if out is None else Path(out)
     atomic_write_text(out, "\n".join(parts))
     log.info("report written to %s", out)
     return out

@@ -92,6 +92,10 @@ class Stage:
         Bump to invalidate cached results when the stage's code changes meaning.
     description : str
         One line shown in progress output.
+    always : bool
+        Run even when the record matches (cheap stages whose outputs depend on files
+        outside the config, such as the scene); downstream stages still skip when the
+        outputs come out identical.
     """
 
     name: str
@@ -100,6 +104,7 @@ class Stage:
     upstream: tuple[str, ...] = ()
     version: int = 1
     description: str = ""
+    always: bool = False
 
 
 class StageContext:
@@ -125,6 +130,11 @@ class StageContext:
         self._staged = staged
         self._progress = progress
         self.memo = memo
+
+    @property
+    def staging_dir(self) -> Path:
+        """Root of this stage's staging area (mirrors the run directory)."""
+        return self._staged
 
     def out(self, rel: str) -> Path:
         """Path to write output ``rel`` to (inside the staging area; parents created)."""
@@ -285,12 +295,18 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
                 "upstream": {u: digests[u] for u in st.upstream},
             }
             inputs_hash = json_hash(inputs)
-            rec, reason = (None, "forced") if st.name in force else store.check_record(st.name, inputs_hash)
+            if st.name in force:
+                rec, reason = None, "forced"
+            elif st.always:
+                rec, reason = None, "always runs"
+            else:
+                rec, reason = store.check_record(st.name, inputs_hash)
             if rec is not None:
                 log.info("stage %s: up to date, skipped", st.name)
                 result.cached.append(st.name)
             else:
-                log.info("stage %s: running (%s)", st.name, reason)
+                log.log(logging.DEBUG if st.always else logging.INFO, "stage %s: running (%s)",
+                        st.name, reason)
                 staged = store.staging(st.name)
                 ctx = StageContext(config, store, st.name, staged, prog, memo)
                 ts = time.perf_counter()
@@ -304,9 +320,13 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
                     raise StageError(f"stage {st.name!r} failed: {type(exc).__name__}: {exc} "
                                      f"(earlier stages' outputs in {store.root} are intact; "
                                      "fix the cause and rerun to resume)") from exc
+                prev = store.read_record(st.name) if st.always else None
                 rec = store.commit(st.name, inputs_hash, staged, time.perf_counter() - ts,
                                    peak_rss_mib(), _utc_now(), info)
-                result.ran.append(st.name)
+                if prev is not None and prev.inputs_hash == inputs_hash and prev.outputs == rec.outputs:
+                    result.cached.append(st.name)  # re-checked, outputs unchanged
+                else:
+                    result.ran.append(st.name)
             result.records[st.name] = rec
             digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
     _write_manifest(store, config, result, started, t0, command_line, manifest_extra, None)

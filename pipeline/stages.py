@@ -1,0 +1,197 @@
+"""The study's stage list, and what the CLI and sweeps need around it.
+
+Stages, in order (inputs in brackets; each also depends on its upstream stages)::
+
+    scene         load the scene, write scene/ (summary, tags, floor plan)   [scene]
+    tour          guided tour + evaluation path, odometry, laser, MCL        [robot, tour, localisation]
+    reads         ray-traced reader simulation -> reads/poses Parquet         [reader, tracing]
+    training_sets SSM / TDM samples (MCL and true poses)                       [training bins]
+    models        FCM + ANFIS (SSM, TDM; MCL and true poses), baselines        [training fit]
+    truth         detection truth grid, Fig. 6 traced points, RSSI fields      [evaluation]
+    evaluation    metrics.json                                                 [evaluation]
+    figures       figures/*.png (pipeline.figures.draw_all)
+    report        report.html
+
+The scene stage always runs (it is cheap) so an edited scene file changes its
+outputs' digest and everything downstream re-runs.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as _md
+import logging
+import platform
+from pathlib import Path
+
+from pipeline.config import StudyConfig
+from pipeline.stages_data import resolve_cache_dir, stage_reads, stage_scene, stage_tour
+from pipeline.stages_model import stage_evaluation, stage_models, stage_training_sets, stage_truth
+from pipeline.study import Stage
+
+__all__ = [
+    "STAGES",
+    "draw_figures",
+    "draw_scene_top_view",
+    "manifest_info",
+    "resolve_cache_dir",
+    "run_summary",
+    "stage_names",
+]
+
+log = logging.getLogger(__name__)
+
+_TRACING = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src", "tracing.reader_pattern",
+            "tracing.tag_pattern", "tracing.backend")
+
+
+def _stage_figures(ctx) -> dict:
+    paths = draw_figures(ctx.store.root, ctx.staging_dir / "figures")
+    return {"n_files": len(paths)}
+
+
+def _stage_report(ctx) -> dict:
+    from pipeline.report import write_report
+
+    write_report(ctx.store.root, out=ctx.out("report.html"))
+    return {}
+
+
+STAGES: tuple[Stage, ...] = (
+    Stage("scene", stage_scene, ("scene", "tour.max_length_m"), (), version=1,
+          description="load the scene", always=True),
+    Stage("tour", stage_tour, ("seed", "robot", "tour", "localisation"), ("scene",),
+          description="robot tours and MCL"),
+    Stage("reads", stage_reads, ("seed", "robot", "reader") + _TRACING, ("scene", "tour"),
+          description="ray-traced reader simulation"),
+    Stage("training_sets", stage_training_sets,
+          ("training.d_max_m", "training.rssi_range_dbm", "training.d_bin_m",
+           "training.alpha_bin_deg", "training.min_attempts", "training.n_clusters"),
+          ("reads",), description="training sets"),
+    Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
+          description="FCM + ANFIS"),
+    Stage("truth", stage_truth,
+          ("seed", "reader", "evaluation", "training.d_max_m", "training.d_bin_m",
+           "training.alpha_bin_deg", "tracing.field_cell_m", "tracing.field_samples_per_tx")
+          + _TRACING,
+          ("scene", "reads", "models"), description="propagation truth"),
+    Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
+          ("scene", "reads", "models", "truth"), description="metrics"),
+    Stage("figures", _stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
+          description="figures"),
+    Stage("report", _stage_report, (), ("figures", "evaluation"), description="report.html"),
+)
+
+
+def stage_names() -> list[str]:
+    """Names of the study's stages, in order."""
+    return [s.name for s in STAGES]
+
+
+def draw_figures(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
+    """Every figure of a run, from the run directory's files alone (pipeline.figures.draw_all).
+
+    Returns
+    -------
+    list of pathlib.Path
+        Files written under ``out_dir``.
+    """
+    from pipeline.figures import draw_all
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    res = draw_all(Path(run_dir), out_dir=out)
+    if isinstance(res, dict):
+        res = [p for v in res.values() for p in (v if isinstance(v, (list, tuple)) else [v])]
+    return [Path(p) for p in (res or [])]
+
+
+def draw_scene_top_view(scene, png: str | Path) -> Path:
+    """Top view of a scene (walls at laser height, tags, route) as PNG, via pipeline.figures."""
+    from pipeline.figures import scene_top_view
+
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    return Path(scene_top_view(scene, png))
+
+
+def _version(dist: str) -> str | None:
+    try:
+        return _md.version(dist)
+    except _md.PackageNotFoundError:
+        return None
+
+
+def manifest_info(cfg: StudyConfig) -> dict:
+    """Package versions, platform and the Dr.Jit backend for ``manifest.json``."""
+    dists = ["rfidstudy", "sionna-rt", "mitsuba", "drjit", "numpy", "scipy", "scikit-fuzzy",
+             "trimesh", "pandas", "pyarrow", "matplotlib", "dask", "distributed"]
+    info = {
+        "versions": {d: _version(d) for d in dists},
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cache_dir": str(resolve_cache_dir(cfg)),
+    }
+    try:
+        import propagation
+
+        info["backend"] = propagation.backend_info()
+    except Exception as exc:  # the manifest must not fail the study
+        info["backend"] = {"error": f"{type(exc).__name__}: {exc}"}
+    return info
+
+
+def run_summary(run_dir: str | Path) -> dict:
+    """One sweep-summary row from a finished run directory's files.
+
+    Read rate, tag coverage and corridor coverage come from ``metrics.json`` where the
+    evaluation wrote them, else they are counted from ``reads.parquet`` (reads over
+    in-range attempts; tags read at least once over all tags). Model errors are taken
+    from ``metrics.json``.
+    """
+    import json
+
+    import pandas as pd
+
+    run = Path(run_dir)
+    row: dict = {}
+    reads = pd.read_parquet(run / "reads.parquet", columns=["tag_id", "read", "in_range"])
+    n_tags = json.loads((run / "scene" / "scene.json").read_text())["n_tags"]
+    in_range = reads["in_range"].to_numpy(bool)
+    read = reads["read"].to_numpy(bool)
+    row["n_attempts_in_range"] = int(in_range.sum())
+    row["n_reads"] = int(read.sum())
+    row["read_rate"] = float(read.sum() / max(in_range.sum(), 1))
+    row["tag_coverage"] = float(reads.loc[read, "tag_id"].nunique() / max(n_tags, 1))
+    mpath = run / "metrics.json"
+    if mpath.exists():
+        metrics = json.loads(mpath.read_text())
+        row.update(_metric_columns(metrics))
+    return row
+
+
+def _find(d, *path):
+    for p in path:
+        if not isinstance(d, dict) or p not in d:
+            return None
+        d = d[p]
+    return d if isinstance(d, (int, float)) else None
+
+
+def _metric_columns(metrics: dict) -> dict:
+    m = metrics.get("evaluation", metrics)
+    out = {}
+    models = m.get("models", {})
+    anfis = models.get("anfis", {})
+    for key, path in {
+        "ssm_rmse_db": ("rssi", "error", "rmse"),
+        "tdm_rmse": ("detection", "error", "rmse"),
+        "rho_rmse": ("rho", "error", "rmse"),
+        "fig7_median_pct": ("fig7", "median_pct"),
+    }.items():
+        v = _find(anfis, *path)
+        if v is not None:
+            out[key] = float(v)
+    cov = _find(m, "coverage", "corridor_fraction_p_gt_0_5")
+    if cov is not None:
+        out["corridor_coverage"] = float(cov)
+    return out
