@@ -1,0 +1,38 @@
+"""Figures from a run directory's files alone: one function per figure, PNG + PDF each.
+
+Every ``fig_*(run_dir, out_dir=None) -> list[Path]`` reads only files in
+`run_dir` (see each module's doc for the exact files) and writes
+``<out_dir or run_dir/figures>/<name>.png`` and ``.pdf`` atomically; it raises
+:class:`MissingInput` when an input is absent, which :func:`draw_all` turns
+into a logged warning. No statistics are computed here: model surfaces are
+evaluated from the saved models, errors come from :mod:`pipeline.evaluation`.
+"""
+
+from .common import DPI, MissingInput
+from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
+from .drawall import FIGURES, draw_all
+from .scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
+from .surfaces import (
+    fig_learned_vs_truth_detection,
+    fig_learned_vs_truth_rssi,
+    fig_ssm_surface,
+    fig_tdm_surface,
+)
+
+__all__ = [
+    "DPI",
+    "FIGURES",
+    "MissingInput",
+    "draw_all",
+    "fig_baselines",
+    "fig_fields",
+    "fig_fig7_error",
+    "fig_learned_vs_truth_detection",
+    "fig_learned_vs_truth_rssi",
+    "fig_mcl_error",
+    "fig_rho_vs_truth",
+    "fig_scene_top_view",
+    "fig_ssm_surface",
+    "fig_tdm_surface",
+    "scene_top_view",
+]

@@ -1,0 +1,119 @@
+"""Shared plumbing of the figure functions: run-directory inputs, Figure objects, atomic saving.
+
+Figures use :class:`matplotlib.figure.Figure` directly (no pyplot, no global
+state, Agg canvas), and are written as ``figures/<name>.png`` (120 dpi) and
+``figures/<name>.pdf`` via a temporary name and :func:`os.replace`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+__all__ = [
+    "DPI",
+    "MissingInput",
+    "find_first",
+    "load_sensor",
+    "model_metrics",
+    "new_figure",
+    "require",
+    "save_figure",
+]
+
+#: Resolution of the PNG figures (for the HTML report).
+DPI = 120
+
+
+class MissingInput(FileNotFoundError):
+    """A figure's input file is not in the run directory (draw_all skips the figure)."""
+
+
+def require(run_dir, *relpaths: str) -> Path:
+    """First existing ``run_dir / p`` among `relpaths`; MissingInput naming all of them if none."""
+    run_dir = Path(run_dir)
+    for p in relpaths:
+        if (run_dir / p).is_file():
+            return run_dir / p
+    raise MissingInput(f"{run_dir}: none of {list(relpaths)} exists")
+
+
+def find_first(run_dir, *relpaths: str) -> Path | None:
+    """Like :func:`require` but returns None."""
+    try:
+        return require(run_dir, *relpaths)
+    except MissingInput:
+        return None
+
+
+def new_figure(width_in: float = 6.4, height_in: float = 4.8) -> Figure:
+    """A Figure attached to an Agg canvas (headless, no pyplot state)."""
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
+    """Write ``out_dir/name.png`` (DPI) and ``out_dir/name.pdf`` atomically; returns both paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for ext in ("png", "pdf"):
+        path = out_dir / f"{name}.{ext}"
+        tmp = out_dir / f".{name}.{os.getpid()}.tmp.{ext}"
+        fig.savefig(tmp, format=ext, dpi=DPI)
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths
+
+
+def load_sensor(run_dir, name: str = "anfis"):
+    """Load a model of the run by its metrics name.
+
+    "anfis" -> ``models/sensor.json``, "anfis_truepose" -> ``models/sensor_truepose.json``
+    (``fuzzymodel.SensorModel``); "baselines" -> ``models/baselines.json``,
+    "baselines_truepose" -> ``models/baselines_truepose.json``
+    (:class:`pipeline.evaluation.BaselineSensorModel`). Raises MissingInput.
+    """
+    files = {"anfis": "models/sensor.json", "anfis_truepose": "models/sensor_truepose.json",
+             "baselines": "models/baselines.json",
+             "baselines_truepose": "models/baselines_truepose.json"}
+    if name not in files:
+        raise ValueError(f"unknown model name {name!r}; known {sorted(files)}")
+    path = require(run_dir, files[name])
+    if name.startswith("anfis"):
+        from fuzzymodel import SensorModel
+
+        return SensorModel.load(path)
+    from pipeline.evaluation.baselines import BaselineSensorModel
+
+    return BaselineSensorModel.load(path)
+
+
+def model_metrics(run_dir) -> dict:
+    """``{model name: metrics dict}`` from ``metrics.json`` (top level or under "evaluation")."""
+    path = require(run_dir, "metrics.json")
+    try:
+        m = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(m, dict) and "evaluation" in m and isinstance(m["evaluation"], dict):
+        m = m["evaluation"]
+    if not isinstance(m, dict) or not isinstance(m.get("models"), dict):
+        raise ValueError(f"{path}: no 'models' section")
+    return m["models"]
+
+
+def finite_or_nan(v) -> float:
+    """JSON null -> NaN."""
+    return float("nan") if v is None else float(v)
+
+
+def deg(x) -> np.ndarray:
+    """Radians to degrees."""
+    return np.degrees(np.asarray(x, dtype=np.float64))

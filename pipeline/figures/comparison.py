@@ -1,0 +1,160 @@
+"""Comparison figures: chapter Fig. 6 (rho), Fig. 7 (percentage error), baselines beside ANFIS.
+
+Inputs (run directory):
+
+- Fig. 6: ``truth/rho_points_*.npz`` (:meth:`pipeline.evaluation.RhoPoints.save`)
+  and ``models/sensor.json`` (the learned rho is evaluated at the saved (d, alpha)
+  unless the file carries ``anfis__rho``);
+- Fig. 7: ``truth/fig7_errors.parquet`` (:meth:`pipeline.evaluation.Fig7Result.write_table`);
+  if absent, computed with :func:`pipeline.evaluation.fig7_errors` from
+  ``eval_reads.parquet``, ``eval_poses.parquet``, ``scene/tags.parquet`` (or
+  ``truth/tags.parquet``) and ``models/sensor.json`` (antenna tilt 0);
+- baselines: ``metrics.json`` (:meth:`pipeline.evaluation.StudyMetrics.to_dict`,
+  top level or under "evaluation").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .common import (
+    finite_or_nan,
+    load_sensor,
+    model_metrics,
+    new_figure,
+    require,
+    save_figure,
+)
+
+__all__ = ["fig_baselines", "fig_fig7_error", "fig_rho_vs_truth"]
+
+_MAX_POSES = 4
+
+
+def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
+    """Chapter Fig. 6: true and learned rho around sample antenna poses (top view, world x-y).
+
+    One row per pose (at most 4): true rho, learned rho, difference.
+    """
+    from pipeline.evaluation.comparison import RhoPoints
+
+    run_dir = Path(run_dir)
+    files = sorted((run_dir / "truth").glob("rho_points_*.npz"))
+    if not files:
+        require(run_dir, "truth/rho_points_00.npz")
+    files = files[:_MAX_POSES]
+    sensor = None
+    fig = new_figure(12.0, 3.2 * len(files))
+    axes = np.atleast_2d(fig.subplots(len(files), 3))
+    for row, f in zip(axes, files, strict=True):
+        rp = RhoPoints.load(f)
+        with np.load(f, allow_pickle=False) as z:
+            learned = np.array(z["anfis__rho"], float) if "anfis__rho" in z.files else None
+        if learned is None:
+            sensor = sensor or load_sensor(run_dir, "anfis")
+            learned = np.asarray(sensor.rho(rp.d_m, rp.alpha_rad), dtype=float)
+        x, y = rp.points_m[:, 0], rp.points_m[:, 1]
+        for ax, val, title, cmap, lim in (
+            (row[0], rp.rho_true, "true rho", "viridis", (0, 1)),
+            (row[1], learned, "learned rho = fs * fT", "viridis", (0, 1)),
+            (row[2], learned - rp.rho_true, "learned - true", "RdBu_r", (-1, 1)),
+        ):
+            if rp.grid_shape is not None:
+                m = ax.pcolormesh(x.reshape(rp.grid_shape), y.reshape(rp.grid_shape),
+                                  val.reshape(rp.grid_shape), shading="gouraud", cmap=cmap,
+                                  vmin=lim[0], vmax=lim[1], rasterized=True)
+            else:
+                m = ax.scatter(x, y, c=val, s=12, cmap=cmap, vmin=lim[0], vmax=lim[1])
+            p = rp.antenna_pose
+            ax.plot(p[0], p[1], "k^", ms=7)
+            ax.annotate("", xy=(p[0] + 0.5 * np.cos(p[3]), p[1] + 0.5 * np.sin(p[3])),
+                        xytext=(p[0], p[1]), arrowprops={"arrowstyle": "->"})
+            ax.set_aspect("equal")
+            ax.set_title(f"{f.stem}: {title}", fontsize=9)
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel("y [m]")
+            fig.colorbar(m, ax=ax, label="rho [-]")
+    fig.suptitle("Fig. 6: sensor likelihood rho around sample antenna poses")
+    return save_figure(fig, out_dir or run_dir / "figures", "rho_vs_truth")
+
+
+def _fig7_table(run_dir: Path) -> pd.DataFrame:
+    from pipeline.evaluation.fig7 import fig7_errors, read_fig7_table
+    from pipeline.evaluation.tables import read_tags
+
+    p = run_dir / "truth" / "fig7_errors.parquet"
+    if p.is_file():
+        return read_fig7_table(p)
+    reads = pd.read_parquet(require(run_dir, "eval_reads.parquet"))
+    poses = pd.read_parquet(require(run_dir, "eval_poses.parquet"))
+    tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
+    res = fig7_errors(reads, tags, load_sensor(run_dir, "anfis"),
+                      pose_times_s=poses["time_s"].to_numpy(float))
+    return res.table
+
+
+def fig_fig7_error(run_dir, out_dir=None) -> list[Path]:
+    """Chapter Fig. 7: percentage error |fs_model - fs_meas| / fs_meas along the evaluation path.
+
+    Points: per (pose, antenna, tag); lines: the mean per pose and antenna; dashed:
+    the chapter's 20 % mark.
+    """
+    run_dir = Path(run_dir)
+    t = _fig7_table(run_dir)
+    t = t.loc[~t["excluded"].astype(bool)]
+    fig = new_figure(8.0, 4.0)
+    ax = fig.subplots()
+    for i, (ant, sub) in enumerate(t.groupby("antenna", sort=True)):
+        c = f"C{i}"
+        ax.plot(sub["pose"], sub["pct_error"], ".", color=c, alpha=0.35, ms=4)
+        mean = sub.groupby("pose")["pct_error"].mean()
+        ax.plot(mean.index, mean.to_numpy(), "-", color=c, lw=1.2, label=f"antenna {ant}")
+    ax.axhline(20.0, color="k", ls="--", lw=0.8, label="20 % (chapter)")
+    ax.set_xlabel("evaluation pose [index]")
+    ax.set_ylabel("percentage error of fs [%]")
+    if len(t):
+        ax.set_ylim(0, max(25.0, float(np.nanpercentile(t["pct_error"], 98)) * 1.1))
+    ax.legend(loc="upper right", fontsize=8)
+    med = float(np.nanmedian(t["pct_error"])) if len(t) else float("nan")
+    ax.set_title(f"Fig. 7: RSSI model error along the evaluation path (median {med:.1f} %)")
+    return save_figure(fig, out_dir or run_dir / "figures", "fig7_error")
+
+
+# (label, section, key, sub-key or None)
+_BARS = (
+    ("RSSI MAE [dB]", "rssi_dbm", "mae", None),
+    ("RSSI |bias| [dB]", "rssi_dbm", "bias", None),
+    ("detection MAE [-] x10", "detection", "mae", None),
+    ("Brier [-] x10", "detection", "brier", None),
+    ("rho MAE [-] x10", "rho", "mae", None),
+    ("Fig. 7 median [%] /10", "fig7", "pct_error", "median"),
+)
+_SCALE = {"detection": 10.0, "rho": 10.0, "fig7": 0.1}
+
+
+def fig_baselines(run_dir, out_dir=None) -> list[Path]:
+    """Baselines beside ANFIS: headline metrics per model from metrics.json (grouped bars)."""
+    run_dir = Path(run_dir)
+    models = model_metrics(run_dir)
+    names = list(models)
+    fig = new_figure(9.0, 4.0)
+    ax = fig.subplots()
+    width = 0.8 / max(len(names), 1)
+    x = np.arange(len(_BARS))
+    for i, name in enumerate(names):
+        vals = []
+        for _, sec, key, sub in _BARS:
+            s = models[name].get(sec) or {}
+            v = s.get(key)
+            v = v.get(sub) if isinstance(v, dict) and sub else v
+            v = abs(finite_or_nan(v)) * _SCALE.get(sec, 1.0)
+            vals.append(v)
+        ax.bar(x + (i - (len(names) - 1) / 2) * width, vals, width, label=name)
+    ax.set_xticks(x, [b[0] for b in _BARS], rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("metric value (scaled as labelled)")
+    ax.legend(fontsize=8)
+    ax.set_title("ANFIS and baselines against the ray-traced truth (lower is better)")
+    return save_figure(fig, out_dir or run_dir / "figures", "baselines")

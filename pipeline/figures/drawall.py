@@ -1,0 +1,69 @@
+"""Every figure of a run directory, skipping those whose inputs are missing."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from .common import MissingInput
+from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
+from .scene import fig_fields, fig_mcl_error, fig_scene_top_view
+from .surfaces import (
+    fig_learned_vs_truth_detection,
+    fig_learned_vs_truth_rssi,
+    fig_ssm_surface,
+    fig_tdm_surface,
+)
+
+__all__ = ["FIGURES", "draw_all"]
+
+log = logging.getLogger(__name__)
+
+#: name -> figure function ``f(run_dir, out_dir=None) -> list[Path]``.
+FIGURES = {
+    "ssm_surface": fig_ssm_surface,
+    "tdm_surface": fig_tdm_surface,
+    "rho_vs_truth": fig_rho_vs_truth,
+    "fig7_error": fig_fig7_error,
+    "learned_vs_truth_rssi": fig_learned_vs_truth_rssi,
+    "learned_vs_truth_detection": fig_learned_vs_truth_detection,
+    "scene_top_view": fig_scene_top_view,
+    "fields": fig_fields,
+    "mcl_error": fig_mcl_error,
+    "baselines": fig_baselines,
+}
+
+
+def draw_all(run_dir, out_dir=None, names=None) -> list[Path]:
+    """Draw every figure (or those in `names`) from the run directory's files.
+
+    Parameters
+    ----------
+    run_dir : path
+        The run directory (read only).
+    out_dir : path, optional
+        Where to write; default ``run_dir/figures``.
+    names : iterable of str, optional
+        Subset of :data:`FIGURES`.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The PNG and PDF files written. A figure whose input files are missing is
+        skipped with a logged warning naming them; other errors propagate.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run directory {run_dir} does not exist")
+    out_dir = Path(out_dir) if out_dir is not None else run_dir / "figures"
+    names = list(FIGURES) if names is None else list(names)
+    unknown = sorted(set(names) - set(FIGURES))
+    if unknown:
+        raise ValueError(f"unknown figure(s) {unknown}; known {sorted(FIGURES)}")
+    written: list[Path] = []
+    for name in names:
+        try:
+            written.extend(FIGURES[name](run_dir, out_dir))
+        except MissingInput as exc:
+            log.warning("figure %s skipped: %s", name, exc)
+    return written

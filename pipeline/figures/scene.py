@@ -1,0 +1,198 @@
+"""Scene and robot figures: top view with trajectories, MCL error, ray-traced RSSI fields.
+
+Inputs (run directory):
+
+- top view: ``scene/floorplan.npz`` (or ``fields/floorplan.npz``): wall segments
+  under keys ``segments*`` (k, 2, 2) [m] (the highest cut is drawn), optional
+  ``route_m`` (n, 2); ``scene/tags.parquet`` (or ``truth/tags.parquet``);
+  ``poses.parquet`` (true and MCL poses); optional ``eval_poses.parquet``;
+- MCL error: ``poses.parquet`` (and ``eval_poses.parquet`` if present);
+- fields: ``fields/field_*.npz`` (``propagation.RssiField.save``; a 2-D gain
+  grid ``gain_db`` with coordinates, see :func:`_field_arrays`).
+
+:func:`scene_top_view` draws a Scene object directly (``rfidstudy scenes show``).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.collections import LineCollection
+
+from .common import find_first, new_figure, require, save_figure
+
+__all__ = ["fig_fields", "fig_mcl_error", "fig_scene_top_view", "scene_top_view"]
+
+log = logging.getLogger(__name__)
+_MAX_FIELDS = 4
+
+
+def _segments(z) -> np.ndarray | None:
+    keys = sorted(k for k in z.files if k.startswith("segments"))
+    if not keys:
+        return None
+    return np.asarray(z[keys[-1]], dtype=float).reshape(-1, 2, 2)
+
+
+def _draw_plan(ax, segments, tags_xy, tag_ids=None, route=None):
+    if segments is not None and len(segments):
+        ax.add_collection(LineCollection(segments, colors="0.2", linewidths=1.0, label="walls"))
+    if route is not None and len(route):
+        ax.plot(route[:, 0], route[:, 1], ":", color="0.5", lw=0.8, label="route")
+    if tags_xy is not None and len(tags_xy):
+        ax.plot(tags_xy[:, 0], tags_xy[:, 1], "s", color="C3", ms=4, label="tags")
+        if tag_ids is not None and len(tag_ids) <= 40:
+            for (x, y), t in zip(tags_xy, tag_ids, strict=True):
+                ax.annotate(str(t), (x, y), fontsize=5, xytext=(2, 2), textcoords="offset points")
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+
+
+def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
+    """Top view: walls, tags, route, true and MCL trajectories (training tour and evaluation path)."""
+    from pipeline.evaluation.tables import read_tags
+
+    run_dir = Path(run_dir)
+    plan = require(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
+    with np.load(plan, allow_pickle=False) as z:
+        segs = _segments(z)
+        route = np.asarray(z["route_m"], float) if "route_m" in z.files else None
+    tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
+    poses = pd.read_parquet(require(run_dir, "poses.parquet"))
+    fig = new_figure(10.0, 4.5)
+    ax = fig.subplots()
+    _draw_plan(ax, segs, tags[["x_m", "y_m"]].to_numpy(float), tags["tag_id"].tolist(), route)
+    ax.plot(poses["true_x_m"], poses["true_y_m"], "-", color="C0", lw=0.8, label="true (tour)")
+    ax.plot(poses["est_x_m"], poses["est_y_m"], "-", color="C1", lw=0.6, alpha=0.8,
+            label="MCL (tour)")
+    ev = find_first(run_dir, "eval_poses.parquet")
+    if ev is not None:
+        e = pd.read_parquet(ev)
+        ax.plot(e["true_x_m"], e["true_y_m"], ".", color="C2", ms=2, label="evaluation path")
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title("Scene top view: walls, tags and robot trajectories")
+    return save_figure(fig, out_dir or run_dir / "figures", "scene_top_view")
+
+
+def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
+    """Top view of a ``scenes.Scene`` (walls cut at `z_m`, tags, route) written to `png`.
+
+    Used by ``rfidstudy scenes show``; writes the PNG (and a PDF beside it).
+    """
+    from scenes.geometry import floor_plan_segments
+
+    png = Path(png)
+    fig = new_figure(10.0, 4.5)
+    ax = fig.subplots()
+    segs = floor_plan_segments(scene, z_m)
+    _draw_plan(ax, segs, np.asarray(scene.tags.positions_m)[:, :2], list(scene.tags.ids),
+               None if scene.route_m is None else np.asarray(scene.route_m)[:, :2])
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title(f"{scene.name}: walls at z = {z_m:.2f} m, {len(scene.tags)} tags")
+    return save_figure(fig, png.parent, png.stem)[0]
+
+
+def fig_mcl_error(run_dir, out_dir=None) -> list[Path]:
+    """MCL position and heading error over time (tour, and evaluation path if present)."""
+    from pipeline.evaluation.localisation import localisation_errors
+
+    run_dir = Path(run_dir)
+    tables = {"tour": pd.read_parquet(require(run_dir, "poses.parquet"))}
+    ev = find_first(run_dir, "eval_poses.parquet")
+    if ev is not None:
+        tables["evaluation path"] = pd.read_parquet(ev)
+    fig = new_figure(8.0, 5.0)
+    ax_p, ax_h = fig.subplots(2, 1, sharex=False)
+    for i, (name, df) in enumerate(tables.items()):
+        err = localisation_errors(df, "est")
+        odo = localisation_errors(df, "odom")
+        s = err.position_summary
+        ax_p.plot(err.time_s, err.position_m, color=f"C{i}", lw=0.8,
+                  label=f"MCL, {name} (median {s.median:.3f} m)")
+        ax_p.plot(odo.time_s, odo.position_m, color=f"C{i}", lw=0.6, ls=":",
+                  label=f"odometry, {name}")
+        ax_h.plot(err.time_s, np.degrees(err.heading_rad), color=f"C{i}", lw=0.8, label=name)
+    ax_p.set_ylabel("position error [m]")
+    ax_p.set_xlabel("time [s]")
+    ax_p.legend(fontsize=7)
+    ax_h.set_ylabel("heading error [deg]")
+    ax_h.set_xlabel("time [s]")
+    ax_h.legend(fontsize=7)
+    fig.suptitle("Localisation error (Monte Carlo Localization vs ground truth)")
+    return save_figure(fig, out_dir or run_dir / "figures", "mcl_error")
+
+
+def _field_arrays(path: Path) -> dict:
+    """Plane gain grid of a saved RssiField: x (nx,), y (ny,), gain_db (ny, nx) [dB], pose or None.
+
+    Accepts the keys ``x_m``/``y_m`` (1-D axes or 2-D meshes) with a 2-D
+    ``gain_db`` (any of ``plane_gain_db``, ``grid_gain_db``, ``gain_db``), or
+    ``points_m`` (n, 3) with a 1-D gain (scatter).
+    """
+    with np.load(path, allow_pickle=False) as z:
+        files = set(z.files)
+        gkey = next((k for k in ("plane_gain_db", "grid_gain_db", "gain_db") if k in files), None)
+        if gkey is None:
+            raise ValueError(f"{path}: no gain_db array (keys {sorted(files)})")
+        out = {"gain_db": np.array(z[gkey], float), "pose": None}
+        for k in ("antenna_pose", "pose"):
+            if k in files:
+                out["pose"] = np.array(z[k], float).ravel()
+        xk = next((k for k in ("x_m", "grid_x_m", "plane_x_m") if k in files), None)
+        yk = next((k for k in ("y_m", "grid_y_m", "plane_y_m") if k in files), None)
+        if xk and yk:
+            out["x"], out["y"] = np.array(z[xk], float), np.array(z[yk], float)
+        else:
+            pk = next((k for k in ("points_m", "grid_points_m", "plane_points_m") if k in files),
+                      None)
+            if pk is None:
+                raise ValueError(f"{path}: no coordinates (x_m/y_m or points_m; keys "
+                                 f"{sorted(files)})")
+            pts = np.array(z[pk], float).reshape(-1, 3)
+            out["x"], out["y"] = pts[:, 0], pts[:, 1]
+    return out
+
+
+def fig_fields(run_dir, out_dir=None) -> list[Path]:
+    """Ray-traced one-way gain over the field plane for the sample antenna poses (up to 4)."""
+    run_dir = Path(run_dir)
+    files = sorted((run_dir / "fields").glob("field_*.npz"))[:_MAX_FIELDS]
+    if not files:
+        require(run_dir, "fields/field_00.npz")
+    plan = find_first(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
+    segs = None
+    if plan is not None:
+        with np.load(plan, allow_pickle=False) as z:
+            segs = _segments(z)
+    fig = new_figure(10.0, 2.6 * len(files))
+    axes = np.atleast_1d(fig.subplots(len(files), 1))
+    for ax, f in zip(axes, files, strict=True):
+        a = _field_arrays(f)
+        g = np.where(np.isfinite(a["gain_db"]), a["gain_db"], np.nan)
+        fin = g[np.isfinite(g)]
+        vmax = float(fin.max()) if fin.size else 0.0
+        kw = {"cmap": "inferno", "vmin": vmax - 60.0, "vmax": vmax, "rasterized": True}
+        if g.ndim == 2:
+            x, y = a["x"], a["y"]
+            if x.ndim == 1 and g.shape == (x.size, y.size):
+                g = g.T
+            m = ax.pcolormesh(x, y, np.ma.masked_invalid(g), shading="auto", **kw)
+        else:
+            m = ax.scatter(a["x"], a["y"], c=g, s=4, **kw)
+        if segs is not None and len(segs):
+            ax.add_collection(LineCollection(segs, colors="w", linewidths=0.6))
+        if a["pose"] is not None and a["pose"].size >= 4:
+            p = a["pose"]
+            ax.plot(p[0], p[1], "c^", ms=6)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(f"{f.stem}: one-way channel gain", fontsize=9)
+        fig.colorbar(m, ax=ax, label="gain [dB]")
+    fig.suptitle("Ray-traced field of sample antenna poses (Sionna RT, 865 MHz)")
+    return save_figure(fig, out_dir or run_dir / "figures", "fields")
