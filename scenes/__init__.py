@@ -12,7 +12,7 @@ Public entry points::
     scenes.material("concrete", 865e6) -> (relative_permittivity, conductivity_s_per_m)
 """
 
-from scenes.catalog import build, bundled_path, list_bundled, load
+from scenes.catalog import SceneSummary, build, bundled_path, list_bundled, load, summarize
 from scenes.export import export_mitsuba
 from scenes.generator import build_corridor, corridor, corridor_route
 from scenes.geometry import (
@@ -42,6 +42,7 @@ from scenes.spec import (
     CabinetSpec,
     CorridorSpec,
     DoorSpec,
+    MaterialOverride,
     MeshSpec,
     MitsubaSpec,
     PanelSpec,
@@ -65,11 +66,13 @@ __all__ = [
     "DoorSpec",
     "FrequencyRangeWarning",
     "Material",
+    "MaterialOverride",
     "MeshSpec",
     "MitsubaSpec",
     "PanelSpec",
     "Scene",
     "SceneSpec",
+    "SceneSummary",
     "SegmentSpec",
     "SpecError",
     "SurfaceQuery",
@@ -102,5 +105,6 @@ __all__ = [
     "solid_material_at",
     "spec_from_dict",
     "spec_to_dict",
+    "summarize",
     "validate_tags",
 ]

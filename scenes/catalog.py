@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+
+import numpy as np
 
 from scenes.generator import build_corridor
 from scenes.importers import MESH_SUFFIXES, import_mesh, load_mitsuba_xml
 from scenes.scene import Scene
-from scenes.spec import SceneSpec, load_spec
+from scenes.spec import SceneSpec, load_spec, overrides_metadata, spec_to_dict
 
-__all__ = ["build", "load", "list_bundled", "bundled_path"]
+__all__ = ["SceneSummary", "build", "load", "list_bundled", "bundled_path", "summarize"]
 
 
 def _data_dir() -> Path:
@@ -48,10 +51,14 @@ def build(spec: SceneSpec) -> Scene:
     base = Path(spec.base_dir)
     route = spec.route_m
     if spec.mesh is not None:
-        return import_mesh(base / spec.mesh.path, material=spec.mesh.material,
-                           material_map=spec.mesh.material_map, tags=spec.tags, name=spec.name,
-                           route_m=route)
-    return load_mitsuba_xml(base / spec.mitsuba.path, tags=spec.tags, route_m=route, name=spec.name)
+        scene = import_mesh(base / spec.mesh.path, material=spec.mesh.material,
+                            material_map=spec.mesh.material_map, tags=spec.tags, name=spec.name,
+                            route_m=route)
+    else:
+        scene = load_mitsuba_xml(base / spec.mitsuba.path, tags=spec.tags, route_m=route,
+                                 name=spec.name)
+    scene.metadata.update({"spec": spec_to_dict(spec), **overrides_metadata(spec)})
+    return scene
 
 
 def load(name_or_path: str | Path, **kwargs) -> Scene:
@@ -90,3 +97,50 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
         return import_mesh(path, **kwargs)
     raise ValueError(f"{text}: unsupported scene file type {suffix!r} (.toml, .xml, "
                      f"{', '.join(MESH_SUFFIXES)})")
+
+
+@dataclass(frozen=True)
+class SceneSummary:
+    """A scene at a glance (for ``rfidstudy scenes list/show`` and reports).
+
+    Attributes
+    ----------
+    name : str
+        Scene name.
+    source : str
+        Where it came from.
+    size_m : tuple of float
+        Extent of all meshes along x, y, z, metres.
+    n_tags : int
+        Number of tags.
+    n_triangles : int
+        Triangles over all meshes.
+    triangles_per_material : dict of str to int
+        Triangles per material.
+    route_length_m : float
+        Length of the robot route, metres (0 if none).
+    tag_height_range_m : tuple of float
+        Lowest and highest tag centre, metres (NaN if no tags).
+    """
+
+    name: str
+    source: str
+    size_m: tuple[float, float, float]
+    n_tags: int
+    n_triangles: int
+    triangles_per_material: dict[str, int]
+    route_length_m: float
+    tag_height_range_m: tuple[float, float]
+
+
+def summarize(scene: Scene) -> SceneSummary:
+    """The :class:`SceneSummary` of ``scene``."""
+    lo, hi = scene.bounds_m
+    tri = {name: len(scene.meshes[name].faces) for name in scene.materials}
+    route = 0.0
+    if scene.route_m is not None and len(scene.route_m) > 1:
+        route = float(np.linalg.norm(np.diff(scene.route_m, axis=0), axis=1).sum())
+    z = scene.tags.positions_m[:, 2]
+    heights = (float(z.min()), float(z.max())) if len(z) else (float("nan"), float("nan"))
+    return SceneSummary(scene.name, scene.source, tuple(float(v) for v in hi - lo), len(scene.tags),
+                        sum(tri.values()), tri, route, heights)

@@ -53,18 +53,29 @@ def export_mitsuba(scene, directory: str | Path, frequency_hz: float) -> Path:
     Path
         Path of the XML file, loadable by ``sionna.rt.load_scene(path, merge_shapes=False)``.
         Each shape's id is ``mesh-<material>``.
+
+    Notes
+    -----
+    ``scene.metadata["material_overrides"]`` (``{name: {"thickness_m": ...,
+    "relative_permittivity": ..., "conductivity_s_per_m": ...}}``, any subset) replaces
+    the library values for that scene (set from a spec's ``[material_overrides.<name>]``).
     """
     directory = Path(directory)
     (directory / "meshes").mkdir(parents=True, exist_ok=True)
     lines = ['<scene version="2.1.0">']
+    overrides = scene.metadata.get("material_overrides", {})
     for name in scene.materials:
         eps_r, sigma = material(name, frequency_hz)
-        mat = get_material(name)
+        thickness = get_material(name).thickness_m
+        ov = overrides.get(get_material(name).name, {})
+        eps_r = ov.get("relative_permittivity", eps_r)
+        sigma = ov.get("conductivity_s_per_m", sigma)
+        thickness = ov.get("thickness_m", thickness)
         lines += [
             f'  <bsdf type="radio-material" id={quoteattr(material_bsdf_id(name))}>',
             f'    <float name="relative_permittivity" value="{eps_r:.9g}"/>',
             f'    <float name="conductivity" value="{sigma:.9g}"/>',
-            f'    <float name="thickness" value="{mat.thickness_m:.9g}"/>',
+            f'    <float name="thickness" value="{thickness:.9g}"/>',
             "  </bsdf>",
         ]
     for name in scene.materials:

@@ -31,6 +31,7 @@ from scenes.spec import (
     SegmentSpec,
     TagSpec,
     check_spec,
+    overrides_metadata,
     parse_item,
     spec_to_dict,
 )
@@ -210,7 +211,7 @@ def build_corridor(spec: SceneSpec) -> Scene:
         solid or away from every surface, a route through solid geometry.
     """
     c: CorridorSpec = spec.corridor
-    src = spec.name
+    src = spec.source or spec.name
     rooms = _rooms(spec)
     t, H = c.wall_thickness_m, c.height_m
     edges = _boundary_edges(rooms)
@@ -303,8 +304,9 @@ def build_corridor(spec: SceneSpec) -> Scene:
         name=spec.name,
         meshes=meshes,
         tags=TagSet(np.zeros(0, dtype=str), np.zeros((0, 3)), np.zeros((0, 3))),
-        source=spec.base_dir if spec.base_dir != "." else "generated",
-        metadata={"generator": "scenes.generator.build_corridor", "spec": spec_to_dict(spec)},
+        source=spec.source or "generated",
+        metadata={"generator": "scenes.generator.build_corridor", "spec": spec_to_dict(spec),
+                  **overrides_metadata(spec)},
         route_m=route,
         free_space_m=free_space,
     )

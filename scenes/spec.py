@@ -58,6 +58,7 @@ __all__ = [
     "TagSpec",
     "MeshSpec",
     "MitsubaSpec",
+    "MaterialOverride",
     "SceneSpec",
     "SpecError",
     "load_spec",
@@ -66,6 +67,7 @@ __all__ = [
     "spec_from_dict",
     "parse_item",
     "check_spec",
+    "overrides_metadata",
 ]
 
 
@@ -265,6 +267,26 @@ class MitsubaSpec:
 
 
 @dataclass(frozen=True)
+class MaterialOverride:
+    """Replacement radio properties of one library material in one scene (what-if runs).
+
+    Attributes
+    ----------
+    thickness_m : float or None
+        Slab thickness used by Sionna's layered-slab model, metres. Note that a ray
+        crossing a generated wall passes two faces, each modelled as a slab.
+    relative_permittivity : float or None
+        Replaces P.2040's ``a * f_GHz ** b``.
+    conductivity_s_per_m : float or None
+        Replaces P.2040's ``c * f_GHz ** d``, S/m.
+    """
+
+    thickness_m: float | None = None
+    relative_permittivity: float | None = None
+    conductivity_s_per_m: float | None = None
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """A whole scene description (see the module docstring for the TOML layout).
 
@@ -282,8 +304,13 @@ class SceneSpec:
         Items of each kind.
     route_m : tuple of (x, y) or None
         Robot route polyline, metres; ``None``: the generated corridor's centre line.
+    material_overrides : dict of str to MaterialOverride
+        Per-material replacement properties (TOML ``[material_overrides.<name>]``);
+        stored in ``Scene.metadata["material_overrides"]`` and used by the export.
     base_dir : str
         Folder relative paths resolve against (the TOML's folder); not written to TOML.
+    source : str
+        The TOML file the spec was read from (``""`` if none); not written to TOML.
     """
 
     name: str
@@ -298,7 +325,9 @@ class SceneSpec:
     cabinets: tuple[CabinetSpec, ...] = ()
     tags: tuple[TagSpec, ...] = ()
     route_m: tuple[tuple[float, float], ...] | None = None
+    material_overrides: dict[str, MaterialOverride] = field(default_factory=dict)
     base_dir: str = "."
+    source: str = ""
 
 
 #: TOML array-of-tables names for the item tuples of SceneSpec.
@@ -312,8 +341,9 @@ _ITEM_TABLES = {
 }
 _SOURCE_TABLES = {"corridor": CorridorSpec, "mesh": MeshSpec, "mitsuba": MitsubaSpec}
 _POSITIVE_KEYS = {"length_m", "width_m", "height_m", "wall_thickness_m", "floor_thickness_m",
-                  "ceiling_thickness_m", "leaf_thickness_m", "size_m"}
-_NONNEGATIVE_KEYS = {"offset_m", "recess_m", "sill_m"}
+                  "ceiling_thickness_m", "leaf_thickness_m", "size_m", "thickness_m",
+                  "relative_permittivity"}
+_NONNEGATIVE_KEYS = {"offset_m", "recess_m", "sill_m", "conductivity_s_per_m"}
 _MATERIAL_KEYS = {"material", "wall_material", "floor_material", "ceiling_material", "leaf_material"}
 
 
@@ -420,14 +450,15 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
     """Build a :class:`SceneSpec` from the parsed TOML mapping (see :func:`load_spec`)."""
     if not isinstance(data, dict):
         raise SpecError(f"{source}: expected a table at top level")
-    top_known = {"name", "description", "route_m", *_SOURCE_TABLES, *_ITEM_TABLES}
+    top_known = {"name", "description", "route_m", "material_overrides", *_SOURCE_TABLES,
+                 *_ITEM_TABLES}
     unknown = sorted(set(data) - top_known)
     if unknown:
         raise SpecError(
             f"{source}: unknown key {unknown[0]!r} at top level; known keys: "
             f"{', '.join(sorted(top_known))}"
         )
-    kwargs: dict = {"base_dir": str(base_dir)}
+    kwargs: dict = {"base_dir": str(base_dir), "source": source if source != "<dict>" else ""}
     kwargs["name"] = _convert(data.get("name", Path(source).stem), str, source, "name")
     kwargs["description"] = _convert(data.get("description", ""), str, source, "description")
     if "route_m" in data:
@@ -435,6 +466,17 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
         if len(route) < 2:
             raise SpecError(f"{source}: key 'route_m' needs at least 2 points, got {route!r}")
         kwargs["route_m"] = route
+    overrides = data.get("material_overrides", {})
+    if not isinstance(overrides, dict):
+        raise SpecError(f"{source}: [material_overrides] must be a table, got {overrides!r}")
+    kwargs["material_overrides"] = {}
+    for mat, values in overrides.items():
+        try:
+            key = resolve_material_name(mat)
+        except UnknownMaterialError as exc:
+            raise UnknownMaterialError(f"{source}: [material_overrides.{mat}]: {exc}") from None
+        kwargs["material_overrides"][key] = parse_item(
+            MaterialOverride, values, f"{source}: [material_overrides.{mat}]")
     for table, cls in _SOURCE_TABLES.items():
         if table in data:
             kwargs[table] = parse_item(cls, data[table], f"{source}: [{table}]")
@@ -520,6 +562,8 @@ def spec_to_dict(spec: SceneSpec) -> dict:
         out["description"] = spec.description
     if spec.route_m is not None:
         out["route_m"] = clean(spec.route_m)
+    if spec.material_overrides:
+        out["material_overrides"] = {k: clean(v) for k, v in spec.material_overrides.items()}
     for table in _SOURCE_TABLES:
         value = getattr(spec, table)
         if value is not None:
@@ -545,3 +589,12 @@ def save_spec(spec: SceneSpec, path: str | Path) -> Path:
             os.unlink(tmp)
         raise
     return path
+
+
+def overrides_metadata(spec: SceneSpec) -> dict:
+    """``{"material_overrides": {name: {key: value}}}`` for ``Scene.metadata`` (empty if none)."""
+    if not spec.material_overrides:
+        return {}
+    return {"material_overrides": {
+        name: {k: v for k, v in dataclasses.asdict(ov).items() if v is not None}
+        for name, ov in sorted(spec.material_overrides.items())}}

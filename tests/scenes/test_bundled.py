@@ -53,3 +53,11 @@ def test_content_hash_stable_and_sensitive():
     d = scenes.load("corridor_lab")
     d.meshes["marble"] = d.meshes.pop("glass")  # same geometry, other material
     assert a.content_hash() != d.content_hash()
+
+
+def test_summary_numbers():
+    sm = scenes.summarize(scenes.load("corridor_lab"))
+    assert sm.size_m == pytest.approx((25.24, 2.64, 3.22))  # free space + 0.12 walls, 0.2 + 0.02 slabs
+    assert sm.route_length_m == pytest.approx(23.8)  # 0.6 m short of each end wall
+    assert sm.n_tags == 24 and sm.n_triangles == sum(sm.triangles_per_material.values())
+    assert sm.tag_height_range_m == pytest.approx((0.25, 1.5))

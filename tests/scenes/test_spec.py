@@ -28,7 +28,7 @@ def test_toml_round_trip(tmp_path, name):
     spec = scenes.load_spec(scenes.bundled_path(name))
     out = scenes.save_spec(spec, tmp_path / f"{name}.toml")
     again = scenes.load_spec(out)
-    assert dataclasses.replace(again, base_dir=spec.base_dir) == spec
+    assert dataclasses.replace(again, base_dir=spec.base_dir, source=spec.source) == spec
     assert scenes.build(again).content_hash() == scenes.build(spec).content_hash()
 
 
@@ -87,3 +87,19 @@ def test_layout_errors(tmp_path):
 def test_missing_spec_file_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="nothere.toml"):
         scenes.load_spec(tmp_path / "nothere.toml")
+
+
+@pytest.mark.filterwarnings("ignore::scenes.FrequencyRangeWarning")
+def test_material_overrides_reach_export_and_hash(tmp_path):
+    plain = scenes.load(_write(tmp_path, MINIMAL, "plain.toml"))
+    text = MINIMAL + "\n[material_overrides.itu_concrete]\nthickness_m = 0.1\nconductivity_s_per_m = 0.05\n"
+    over = scenes.load(_write(tmp_path, text, "over.toml"))
+    assert over.metadata["material_overrides"] == {
+        "concrete": {"thickness_m": 0.1, "conductivity_s_per_m": 0.05}}
+    assert over.content_hash() != plain.content_hash()
+    xml = over.export_mitsuba(tmp_path / "x", 865e6).read_text()
+    block = xml.split('id="uhf-concrete">')[1].split("</bsdf>")[0]
+    assert 'name="conductivity" value="0.05"' in block and 'name="thickness" value="0.1"' in block
+    assert 'name="relative_permittivity" value="5.24"' in block  # not overridden
+    with pytest.raises(scenes.SpecError, match=r"\[material_overrides.itu_concrete\]: unknown key 'thick'"):
+        scenes.load_spec(_write(tmp_path, MINIMAL + "\n[material_overrides.itu_concrete]\nthick = 1.0\n"))
