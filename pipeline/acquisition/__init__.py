@@ -8,7 +8,6 @@ and quantisation, and d and alpha are recorded from both the true and the estima
 """
 
 from pipeline.acquisition.config import AcquisitionConfig, ReaderConfig
-from pipeline.acquisition.geometry import AntennaFrameAngles, antenna_frame_angles, wrap_angle
 from pipeline.acquisition.reader import (
     ReadAttempts,
     ReaderResponse,
@@ -37,14 +36,12 @@ __all__ = [
     "POSE_COLUMNS",
     "READ_COLUMNS",
     "AcquisitionConfig",
-    "AntennaFrameAngles",
     "PoseTrack",
     "ReadAttempts",
     "ReadLog",
     "ReaderConfig",
     "ReaderResponse",
     "TrainingSet",
-    "antenna_frame_angles",
     "as_pose_track",
     "in_range_mask",
     "interpolate_poses",
@@ -56,6 +53,5 @@ __all__ = [
     "simulate_reads",
     "ssm_samples",
     "tdm_samples",
-    "wrap_angle",
     "write_table",
 ]

@@ -28,9 +28,9 @@ import numpy as np
 import pandas as pd
 
 from pipeline.acquisition.config import ReaderConfig
-from pipeline.acquisition.geometry import antenna_frame_angles
 from pipeline.acquisition.readlog import POSE_COLUMNS, READ_COLUMNS, ReadLog
 from pipeline.acquisition.track import PoseTrack, as_pose_track, interpolate_poses
+from propagation import antenna_frame_angles
 
 __all__ = [
     "ReadAttempts",

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.acquisition.geometry import wrap_angle
+from pipeline.robot.kinematics import wrap_angle
 
 __all__ = ["PoseTrack", "as_pose_track", "interpolate_poses"]
 

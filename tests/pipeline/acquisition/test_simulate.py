@@ -1,0 +1,139 @@
+"""simulate_reads on a small real scene with real (low-ray-count) Sionna traces."""
+
+import numpy as np
+import pytest
+
+import scenes
+from pipeline.acquisition import (
+    PoseTrack,
+    ReaderConfig,
+    ReadLog,
+    read_attempts,
+    simulate_reads,
+    ssm_samples,
+    tdm_samples,
+)
+from pipeline.robot.kinematics import Robot, antenna_poses
+from propagation import LinkBudget, antenna_frame_angles
+
+# Low ray count and depth: these tests check bookkeeping, not path convergence.
+TRACE = {"max_depth": 2, "samples_per_src": 2000}
+# 8 dBm conducted: free-space maximum range with both maximum pattern gains and the
+# 6 dB margin is lambda / (4 pi) * 10^((8 + 8 + 2.15 - 3 + 18 + 6) / 20) = 2.5 m.
+SHORT_BUDGET = LinkBudget(tx_power_dbm=8.0)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return scenes.corridor(
+        length_m=6.0,
+        width_m=2.4,
+        height_m=2.5,
+        tags=[
+            {"id": "near_left", "position_m": (2.2, 2.4, 1.0)},
+            {"id": "near_right", "position_m": (2.0, 0.0, 0.7)},
+            {"id": "far", "position_m": (5.5, 2.4, 1.0)},
+        ],
+        name="acq_test",
+    )
+
+
+@pytest.fixture(scope="module")
+def track():
+    t = np.linspace(0.0, 2.0, 21)
+    true = np.column_stack([np.linspace(0.8, 1.6, 21), np.full(21, 1.2), np.zeros(21)])
+    est = true + np.array([0.05, -0.03, 0.02])  # a localisation error
+    return PoseTrack(t, true, est, np.full_like(true, np.nan))
+
+
+def _reader(**kw):
+    base = dict(rssi_noise_db=1.0, rssi_resolution_db=0.5, anticollision_miss_probability=0.05)
+    return ReaderConfig(**{**base, **kw})
+
+
+def test_out_of_range_tags_are_not_traced(scene, track, tmp_path):
+    reader = _reader(budget=SHORT_BUDGET)
+    assert reader.budget.max_range_m(margin_db=6.0) == pytest.approx(2.5, rel=0.01)
+    log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(0), trace=TRACE)
+    r = log.reads
+    far = r["tag_id"] == "far"
+    # The far tag is >= 3.4 m from every antenna pose: no pair of it is traced.
+    assert r.loc[far, "d_true_m"].min() > 3.4
+    assert not r.loc[far, "in_range"].any() and not r.loc[far, "read"].any()
+    assert np.all(np.isneginf(r.loc[far, "gain_db"]))
+    # Traced pairs are exactly those within the maximum range (all 21 poses distinct).
+    within = r["d_true_m"] <= reader.budget.max_range_m(margin_db=6.0)
+    np.testing.assert_array_equal(r["in_range"], within)
+    assert log.metadata["n_pairs_traced"] == int(within.sum())
+    assert log.metadata["n_pairs_traced"] < log.metadata["n_pairs"]
+
+
+def test_reads_consistent_and_geometry(scene, track):
+    reader = _reader()
+    log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(1), trace=TRACE)
+    r = log.reads
+    assert len(r) == 21 * 3  # round robin: one antenna per cycle, every tag
+    np.testing.assert_array_equal(r["antenna"].to_numpy()[::3], np.arange(21) % 2)
+    assert not (r["read"] & ~(r["powered"] & r["in_range"])).any()
+    np.testing.assert_array_equal(r["rssi_dbm"].isna(), ~r["read"])
+    assert r["read"].sum() > 0  # near tags at 1-2 m are read by a 27 dBm reader
+    # Every read satisfies both thresholds of the budget (before RSSI noise).
+    rd = r[r["read"]]
+    assert (rd["tag_power_dbm"] >= reader.budget.tag_sensitivity_dbm).all()
+    assert (rd["rx_power_dbm"] >= reader.budget.reader_sensitivity_dbm).all()
+    # Geometry columns equal the antenna-frame geometry of the composed antenna poses.
+    ant = antenna_poses(track.true_poses, Robot().antennas)[np.arange(21), np.arange(21) % 2]
+    g = antenna_frame_angles(ant, scene.tags.positions_m)
+    # float32 storage: 1e-5 relative.
+    np.testing.assert_allclose(r["d_true_m"], g.d_m.reshape(-1), rtol=1e-5)
+    np.testing.assert_allclose(r["alpha_true_rad"], g.alpha_rad.reshape(-1), atol=1e-5)
+    # The localisation error moves the estimated geometry.
+    assert np.abs(r["d_est_m"] - r["d_true_m"]).max() > 0.01
+    # Training sets come out of the log.
+    ss = ssm_samples(r, d_max_m=3.0, pose="est")
+    assert len(ss) == int((r["read"] & (r["d_est_m"] < 3.0)).sum())
+    td = tdm_samples(r, d_max_m=3.0, pose="true")
+    assert td.n_pos.sum() == int((r["read"] & (r["d_true_m"] < 3.0)).sum())
+
+
+def test_same_seed_identical_files_and_cache(scene, track, tmp_path):
+    reader = _reader()
+    cache = tmp_path / "cache"
+    runs = []
+    for k in range(2):
+        log = simulate_reads(
+            scene, Robot(), track, reader, np.random.default_rng(7), trace=TRACE, cache_dir=cache
+        )
+        log.write(tmp_path / f"run{k}")
+        runs.append(log)
+    for name in ("reads.parquet", "poses.parquet"):
+        a = (tmp_path / "run0" / name).read_bytes()
+        b = (tmp_path / "run1" / name).read_bytes()
+        assert a == b, name
+    back = ReadLog.read(tmp_path / "run0")
+    np.testing.assert_array_equal(back.reads["read"], runs[0].reads["read"])
+    other = simulate_reads(
+        scene, Robot(), track, reader, np.random.default_rng(8), trace=TRACE, cache_dir=cache
+    )
+    # A different seed changes the RSSI noise of at least one read.
+    assert not np.array_equal(
+        other.reads["rssi_dbm"].fillna(0).to_numpy(), runs[0].reads["rssi_dbm"].fillna(0).to_numpy()
+    )
+
+
+def test_all_antennas_mode_schedule(track):
+    reader = _reader(antenna_mode="all", read_rate_hz=5.0)
+    att = read_attempts(track, Robot().antennas, reader)
+    # 2 s at 5 Hz: cycles at 0, 0.2, ..., 2.0 s; the second antenna's slot at +0.1 s
+    # falls after the track's end for the last cycle.
+    assert att.cycle.max() == 10
+    np.testing.assert_array_equal(att.antenna[:4], [0, 1, 0, 1])
+    np.testing.assert_allclose(att.time_s[:4], [0.0, 0.1, 0.2, 0.3], atol=1e-12)
+    assert len(att.time_s) == 21
+
+
+def test_trace_keys_owned_by_reader(scene, track):
+    with pytest.raises(ValueError, match="frequency_hz"):
+        simulate_reads(
+            scene, Robot(), track, _reader(), np.random.default_rng(0), trace={"frequency_hz": 1e9}
+        )
