@@ -186,8 +186,11 @@ class TracingConfig:
     reader_pattern: str = option("tr38901", "Reader antenna pattern (Sionna name; 8 dBi patch-like).")
     tag_pattern: str = option("hw_dipole", "Tag antenna pattern (Sionna name; half-wave dipole).")
     backend: str = option("auto", "Dr.Jit variant: 'auto' (CUDA if usable, else LLVM), 'cuda' or 'llvm'.")
-    max_depth: int = option(3, "Maximum number of interactions (reflections) per path.")
-    samples_per_src: int = option(100_000, "Rays shot per source (convergence: SIONNA_NOTES.md).")
+    reader_polarization: str = option(
+        "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
+    )
+    max_depth: int = option(4, "Maximum number of interactions (reflections) per path (bench/trace.py).")
+    samples_per_src: int = option(30_000, "Rays shot per antenna position (convergence check: bench/trace.py).")
     memory_budget_mb: float = option(4096.0, "Memory budget for one tracing chunk [MiB].")
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
@@ -244,12 +247,14 @@ class EvaluationConfig:
     grid_n_d: int = option(13, "Fig. 6 grid: distance samples.")
     grid_n_alpha: int = option(19, "Fig. 6 grid: bearing samples over [-90, 90] deg.")
     n_sample_poses: int = option(4, "Antenna poses around which Fig. 6 truth points are traced.")
+    n_field_poses: int = option(1, "Of those, how many also get a ray-traced RSSI field (plane + walls).")
     fig7_radius_m: float = option(0.1, "Fig. 7: radius of the neighbourhood averaged around a tag [m].")
     field_height_m: float = option(1.0, "Height of the planar RSSI field (tag height) [m].")
 
     def __post_init__(self):
         _positive(self, "grid_d_max_m", "grid_n_d", "grid_n_alpha", "n_sample_poses",
                   "fig7_radius_m", "field_height_m")
+        _nonneg(self, "n_field_poses")
 
 
 @section

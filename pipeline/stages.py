@@ -41,7 +41,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _TRACING = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src", "tracing.reader_pattern",
-            "tracing.tag_pattern", "tracing.backend")
+            "tracing.tag_pattern", "tracing.reader_polarization", "tracing.backend")
 
 
 def _stage_figures(ctx) -> dict:

@@ -129,6 +129,7 @@ def trace_options(cfg: StudyConfig) -> dict:
         "samples_per_src": t.samples_per_src,
         "reader_pattern": t.reader_pattern,
         "tag_pattern": t.tag_pattern,
+        "reader_polarization": t.reader_polarization,
         "memory_budget_bytes": int(t.memory_budget_mb * 2**20),
     }
 

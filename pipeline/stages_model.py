@@ -207,11 +207,13 @@ def stage_truth(ctx) -> dict:
                               miss_probability=cfg.reader.anticollision_miss_probability,
                               grid_shape=(len(d), len(a)))
         rp.save(ctx.out(f"truth/rho_points_{i:02d}.npz"))
-        field = propagation.rssi_field(sc, pose, frequency_hz=cfg.frequency_hz,
-                                       height_m=ev.field_height_m, cell_size_m=cfg.tracing.field_cell_m,
-                                       samples_per_tx=cfg.tracing.field_samples_per_tx,
-                                       max_depth=cfg.tracing.max_depth, cache_dir=cache)
-        field.save(ctx.out(f"fields/field_{i:02d}.npz"))
+        if i < ev.n_field_poses:
+            field = propagation.rssi_field(
+                sc, pose, frequency_hz=cfg.frequency_hz, cell_size_m=cfg.tracing.field_cell_m,
+                plane_height_m=ev.field_height_m, samples_per_tx=cfg.tracing.field_samples_per_tx,
+                max_depth=cfg.tracing.max_depth, reader_pattern=cfg.tracing.reader_pattern,
+                reader_polarization=cfg.tracing.reader_polarization)
+            field.save(ctx.out(f"fields/field_{i:02d}.npz"))
         update(advance=1)
     return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free,
             "cells_with_attempts": int((truth.n_attempts > 0).sum())}
