@@ -50,11 +50,8 @@ from scenes.spec import (
     SegmentSpec,
     SpecError,
     TagSpec,
-    load_spec,
-    save_spec,
-    spec_from_dict,
-    spec_to_dict,
 )
+from scenes.spec_toml import load_spec, save_spec, spec_from_dict, spec_to_dict
 from scenes.tags import make_tags, validate_tags
 
 __all__ = [

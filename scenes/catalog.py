@@ -11,7 +11,8 @@ import numpy as np
 from scenes.generator import build_corridor
 from scenes.importers import MESH_SUFFIXES, import_mesh, load_mitsuba_xml
 from scenes.scene import Scene
-from scenes.spec import SceneSpec, load_spec, overrides_metadata, spec_to_dict
+from scenes.spec import SceneSpec
+from scenes.spec_toml import load_spec, overrides_metadata, spec_to_dict
 
 __all__ = ["SceneSummary", "build", "load", "list_bundled", "bundled_path", "summarize"]
 

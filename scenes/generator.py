@@ -30,11 +30,9 @@ from scenes.spec import (
     SceneSpec,
     SegmentSpec,
     TagSpec,
-    check_spec,
-    overrides_metadata,
     parse_item,
-    spec_to_dict,
 )
+from scenes.spec_toml import check_spec, overrides_metadata, spec_to_dict
 from scenes.tags import make_tags, validate_tags
 
 __all__ = ["corridor", "build_corridor", "corridor_route"]

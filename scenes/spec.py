@@ -32,19 +32,9 @@ wrong type by key and value, with the file path in the message.
 from __future__ import annotations
 
 import dataclasses
-import os
-import tempfile
 import types
 import typing
 from dataclasses import dataclass, field
-from pathlib import Path
-
-import tomli_w
-
-try:  # Python >= 3.11
-    import tomllib
-except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 from scenes.materials import UnknownMaterialError, resolve_material_name
 
@@ -61,13 +51,8 @@ __all__ = [
     "MaterialOverride",
     "SceneSpec",
     "SpecError",
-    "load_spec",
-    "save_spec",
-    "spec_to_dict",
-    "spec_from_dict",
     "parse_item",
-    "check_spec",
-    "overrides_metadata",
+    "convert_value",
 ]
 
 
@@ -330,16 +315,6 @@ class SceneSpec:
     source: str = ""
 
 
-#: TOML array-of-tables names for the item tuples of SceneSpec.
-_ITEM_TABLES = {
-    "segment": ("segments", SegmentSpec),
-    "door": ("doors", DoorSpec),
-    "panel": ("panels", PanelSpec),
-    "box": ("boxes", BoxSpec),
-    "cabinet": ("cabinets", CabinetSpec),
-    "tag": ("tags", TagSpec),
-}
-_SOURCE_TABLES = {"corridor": CorridorSpec, "mesh": MeshSpec, "mitsuba": MitsubaSpec}
 _POSITIVE_KEYS = {"length_m", "width_m", "height_m", "wall_thickness_m", "floor_thickness_m",
                   "ceiling_thickness_m", "leaf_thickness_m", "size_m", "thickness_m",
                   "relative_permittivity"}
@@ -355,13 +330,13 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _convert(value, tp, where: str, key: str):
+def convert_value(value, tp, where: str, key: str):
     """Check ``value`` against annotation ``tp`` and convert it (lists -> tuples)."""
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if origin in (typing.Union, types.UnionType):
         inner = [a for a in args if a is not type(None)]
-        return _convert(value, inner[0], where, key)
+        return convert_value(value, inner[0], where, key)
     if tp is float:
         if not _is_number(value):
             raise _fail(where, f"key {key!r} must be a number, got {value!r}")
@@ -388,10 +363,10 @@ def _convert(value, tp, where: str, key: str):
         if not isinstance(value, (list, tuple)):
             raise _fail(where, f"key {key!r} must be an array, got {value!r}")
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(v, args[0], where, key) for v in value)
+            return tuple(convert_value(v, args[0], where, key) for v in value)
         if len(value) != len(args):
             raise _fail(where, f"key {key!r} must have {len(args)} elements, got {value!r}")
-        return tuple(_convert(v, a, where, key) for v, a in zip(value, args, strict=True))
+        return tuple(convert_value(v, a, where, key) for v, a in zip(value, args, strict=True))
     raise TypeError(f"unsupported annotation {tp!r}")  # pragma: no cover
 
 
@@ -427,7 +402,7 @@ def parse_item(cls, data, where: str):
                     raise _fail(where, f"key {name!r} must not be empty")
                 kwargs[name] = None
                 continue
-            kwargs[name] = _convert(value, hints[name], where, name)
+            kwargs[name] = convert_value(value, hints[name], where, name)
             if name in _MATERIAL_KEYS:
                 try:
                     kwargs[name] = resolve_material_name(kwargs[name])
@@ -444,157 +419,3 @@ def parse_item(cls, data, where: str):
         if name in _NONNEGATIVE_KEYS and any(v < 0 for v in vals):
             raise _fail(where, f"key {name!r} must not be negative, got {value!r}")
     return cls(**kwargs)
-
-
-def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".") -> SceneSpec:
-    """Build a :class:`SceneSpec` from the parsed TOML mapping (see :func:`load_spec`)."""
-    if not isinstance(data, dict):
-        raise SpecError(f"{source}: expected a table at top level")
-    top_known = {"name", "description", "route_m", "material_overrides", *_SOURCE_TABLES,
-                 *_ITEM_TABLES}
-    unknown = sorted(set(data) - top_known)
-    if unknown:
-        raise SpecError(
-            f"{source}: unknown key {unknown[0]!r} at top level; known keys: "
-            f"{', '.join(sorted(top_known))}"
-        )
-    kwargs: dict = {"base_dir": str(base_dir), "source": source if source != "<dict>" else ""}
-    kwargs["name"] = _convert(data.get("name", Path(source).stem), str, source, "name")
-    kwargs["description"] = _convert(data.get("description", ""), str, source, "description")
-    if "route_m" in data:
-        route = _convert(data["route_m"], tuple[tuple[float, float], ...], source, "route_m")
-        if len(route) < 2:
-            raise SpecError(f"{source}: key 'route_m' needs at least 2 points, got {route!r}")
-        kwargs["route_m"] = route
-    overrides = data.get("material_overrides", {})
-    if not isinstance(overrides, dict):
-        raise SpecError(f"{source}: [material_overrides] must be a table, got {overrides!r}")
-    kwargs["material_overrides"] = {}
-    for mat, values in overrides.items():
-        try:
-            key = resolve_material_name(mat)
-        except UnknownMaterialError as exc:
-            raise UnknownMaterialError(f"{source}: [material_overrides.{mat}]: {exc}") from None
-        kwargs["material_overrides"][key] = parse_item(
-            MaterialOverride, values, f"{source}: [material_overrides.{mat}]")
-    for table, cls in _SOURCE_TABLES.items():
-        if table in data:
-            kwargs[table] = parse_item(cls, data[table], f"{source}: [{table}]")
-    sources = [t for t in _SOURCE_TABLES if t in kwargs]
-    if len(sources) != 1:
-        raise SpecError(
-            f"{source}: exactly one of [corridor], [mesh], [mitsuba] is needed, got "
-            f"{sources or 'none'}"
-        )
-    for table, (attr, cls) in _ITEM_TABLES.items():
-        items = data.get(table, [])
-        if isinstance(items, dict):
-            items = [items]
-        if not isinstance(items, list):
-            raise SpecError(f"{source}: [[{table}]] must be an array of tables, got {items!r}")
-        kwargs[attr] = tuple(
-            parse_item(cls, it, f"{source}: [[{table}]] #{i + 1}") for i, it in enumerate(items)
-        )
-    spec = SceneSpec(**kwargs)
-    check_spec(spec, source)
-    return spec
-
-
-def check_spec(spec: SceneSpec, source: str) -> None:
-    """Cross-field checks of a spec (source exclusivity, segment corners, unique tag ids)."""
-    c = spec.corridor
-    if c is not None:
-        straight = c.length_m is not None or c.width_m is not None
-        if straight and spec.segments:
-            raise SpecError(f"{source}: [corridor] length_m/width_m and [[segment]] exclude each other")
-        if not spec.segments and (c.length_m is None or c.width_m is None):
-            raise SpecError(f"{source}: [corridor] needs length_m and width_m, or [[segment]] tables")
-        for i, s in enumerate(spec.segments):
-            if not (s.min_m[0] < s.max_m[0] and s.min_m[1] < s.max_m[1]):
-                raise SpecError(f"{source}: [[segment]] #{i + 1}: min_m {s.min_m} must be below max_m {s.max_m}")
-    elif spec.segments or spec.doors or spec.panels or spec.boxes or spec.cabinets:
-        raise SpecError(f"{source}: [[segment]], [[door]], [[panel]], [[box]] and [[cabinet]] "
-                        "need a [corridor]")
-    ids = [t.id for t in spec.tags]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise SpecError(f"{source}: duplicate tag ids {dup}")
-
-
-def load_spec(path: str | Path) -> SceneSpec:
-    """Read a scene TOML file into a :class:`SceneSpec`.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    SpecError
-        On an unknown key (named), a value of the wrong type (key and value named),
-        or an inconsistent layout; the message starts with the file name.
-    UnknownMaterialError
-        On a material name that is not in the library.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scene spec {str(path)!r} does not exist")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: invalid TOML: {exc}") from None
-    return spec_from_dict(data, source=str(path), base_dir=path.parent)
-
-
-def spec_to_dict(spec: SceneSpec) -> dict:
-    """The TOML mapping of ``spec`` (``None`` values and ``base_dir`` left out)."""
-
-    def clean(obj):
-        if dataclasses.is_dataclass(obj):
-            return {f.name: clean(getattr(obj, f.name)) for f in dataclasses.fields(obj)
-                    if getattr(obj, f.name) is not None}
-        if isinstance(obj, (tuple, list)):
-            return [clean(v) for v in obj]
-        if isinstance(obj, dict):
-            return {k: clean(v) for k, v in obj.items()}
-        return obj
-
-    out: dict = {"name": spec.name}
-    if spec.description:
-        out["description"] = spec.description
-    if spec.route_m is not None:
-        out["route_m"] = clean(spec.route_m)
-    if spec.material_overrides:
-        out["material_overrides"] = {k: clean(v) for k, v in spec.material_overrides.items()}
-    for table in _SOURCE_TABLES:
-        value = getattr(spec, table)
-        if value is not None:
-            out[table] = clean(value)
-    for table, (attr, _) in _ITEM_TABLES.items():
-        items = getattr(spec, attr)
-        if items:
-            out[table] = [clean(it) for it in items]
-    return out
-
-
-def save_spec(spec: SceneSpec, path: str | Path) -> Path:
-    """Write ``spec`` as TOML (temporary file renamed into place); returns the path."""
-    path = Path(path)
-    data = tomli_w.dumps(spec_to_dict(spec)).encode()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def overrides_metadata(spec: SceneSpec) -> dict:
-    """``{"material_overrides": {name: {key: value}}}`` for ``Scene.metadata`` (empty if none)."""
-    if not spec.material_overrides:
-        return {}
-    return {"material_overrides": {
-        name: {k: v for k, v in dataclasses.asdict(ov).items() if v is not None}
-        for name, ov in sorted(spec.material_overrides.items())}}
