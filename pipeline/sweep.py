@@ -107,15 +107,28 @@ def apply_parameter(cfg: StudyConfig, name: str, value) -> StudyConfig:
         return replace_path(cfg, "reader.tag_sensitivity_dbm", float(value))
     if name == "scene":
         return dataclasses.replace(cfg, scene=str(value))
-    if "." in name:
-        try:
-            new = replace_path(cfg, name, value)
-            # re-validate through the typed loader (types, ranges)
-            return config_from_mapping(config_to_dict(new), source=f"sweep parameter {name}")
-        except ConfigError:
-            pass
+    if "." in name and "[" not in name:
+        data = config_to_dict(cfg)
+        cur = data
+        parts = name.split(".")
+        known = True
+        for part in parts[:-1]:
+            if not isinstance(cur.get(part), dict):
+                known = False
+                break
+            cur = cur[part]
+        if known and parts[-1] in _fields_at(cfg, parts[:-1]):
+            cur[parts[-1]] = value
+            return config_from_mapping(data, source=f"sweep parameter {name} = {value!r}")
     raise ConfigError(f"unknown sweep parameter {name!r}; known parameters: "
                       f"{', '.join(PARAMETERS)} (or a dotted study key such as training.epochs)")
+
+
+def _fields_at(cfg, parts: list[str]) -> set[str]:
+    obj = cfg
+    for p in parts:
+        obj = getattr(obj, p)
+    return {f.name for f in dataclasses.fields(obj)}
 
 
 @dataclass

@@ -1,0 +1,70 @@
+"""Sweep files: expansion into study configs and errors naming the parameter."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pipeline.config import ConfigError, StudyConfig
+from pipeline.sweep import PARAMETERS, apply_parameter, expand_sweep, load_sweep
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_example_sweep_expands():
+    plan = load_sweep(ROOT / "configs" / "sweep_example.toml")
+    assert len(plan.configs) == 4  # 2 heights x 2 powers
+    combos = {(c.robot.antennas[0].z_m, c.robot.antennas[1].z_m, c.reader.tx_power_dbm)
+              for c in plan.configs}
+    assert combos == {(0.5, 0.5, 24.0), (0.5, 0.5, 27.15), (0.9, 0.9, 24.0), (0.9, 0.9, 27.15)}
+    assert all(c.seed == 11 for c in plan.configs)  # [study] override
+    assert all(c.tour.max_length_m == 5.0 for c in plan.configs)  # base = tiny.toml
+    assert len(set(plan.names)) == 4
+
+
+def test_unknown_parameter_named_and_known_listed(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text("[parameters]\nantenna_hight_m = [0.5]\n")
+    with pytest.raises(ConfigError) as exc:
+        load_sweep(p)
+    msg = str(exc.value)
+    assert "antenna_hight_m" in msg and str(p) in msg
+    for known in PARAMETERS:
+        assert known in msg
+
+
+def test_unknown_sweep_key(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text("bse = 'x.toml'\n[parameters]\ntx_power_dbm = [20.0]\n")
+    with pytest.raises(ConfigError, match="unknown key.*bse"):
+        load_sweep(p)
+
+
+def test_yaw_keeps_each_side_sign():
+    cfg = apply_parameter(StudyConfig(), "antenna_yaw_deg", 60.0)
+    assert [a.yaw_deg for a in cfg.robot.antennas] == [60.0, -60.0]
+
+
+def test_antenna_count_and_bounds():
+    cfg = apply_parameter(StudyConfig(), "antenna_count", 1)
+    assert [a.name for a in cfg.robot.antennas] == ["left"]
+    with pytest.raises(ConfigError, match="antenna_count = 3"):
+        apply_parameter(StudyConfig(), "antenna_count", 3)
+
+
+def test_dotted_key_parameter_and_bad_value():
+    plan = expand_sweep(StudyConfig(), {"training.epochs": [2, 4]})
+    assert [c.training.epochs for c in plan.configs] == [2, 4]
+    with pytest.raises(ConfigError, match="training.epochs"):
+        expand_sweep(StudyConfig(), {"training.epochs": ["many"]})
+
+
+def test_zip_mode_needs_equal_lengths():
+    plan = expand_sweep(StudyConfig(), {"tx_power_dbm": [20.0, 25.0], "antenna_tilt_deg": [0.0, 10.0]},
+                        mode="zip")
+    assert [(c.reader.tx_power_dbm, c.robot.antennas[0].tilt_deg) for c in plan.configs] == [
+        (20.0, 0.0), (25.0, 10.0)]
+    with pytest.raises(ConfigError, match="equal-length"):
+        expand_sweep(StudyConfig(), {"tx_power_dbm": [20.0, 25.0], "antenna_tilt_deg": [0.0]},
+                     mode="zip")
