@@ -74,7 +74,7 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     if ev is not None:
         e = pd.read_parquet(ev)
         ax.plot(e["true_x_m"], e["true_y_m"], ".", color="C2", ms=2, label="evaluation path")
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=6)
     ax.set_title("Scene top view: walls, tags and robot trajectories")
     return save_figure(fig, out_dir or run_dir / "figures", "scene_top_view")
 
@@ -92,7 +92,7 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
     segs = floor_plan_segments(scene, z_m)
     _draw_plan(ax, segs, np.asarray(scene.tags.positions_m)[:, :2], list(scene.tags.ids),
                None if scene.route_m is None else np.asarray(scene.route_m)[:, :2])
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=4)
     ax.set_title(f"{scene.name}: walls at z = {z_m:.2f} m, {len(scene.tags)} tags")
     return save_figure(fig, png.parent, png.stem)[0]
 

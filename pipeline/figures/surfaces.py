@@ -38,14 +38,14 @@ def _surface(run_dir, out_dir, name: str, which: str) -> list[Path]:
     a = np.linspace(-np.pi, np.pi, _N)
     D, A = np.meshgrid(d, a, indexing="ij")
     Z = sensor.fs(D, A) if which == "fs" else sensor.fT(D, A)
-    fig = new_figure(9.6, 4.2)
+    fig = new_figure(10.5, 4.2)
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     ax3.plot_surface(D, deg(A), Z, cmap="viridis", linewidth=0, antialiased=False,
                      rasterized=True)
     ax3.set_xlabel("d [m]")
     ax3.set_ylabel("alpha [deg]")
     zlabel = "fs (normalised RSSI) [-]" if which == "fs" else "fT (detection probability) [-]"
-    ax3.set_zlabel(zlabel)
+    ax3.set_zlabel("fs [-]" if which == "fs" else "fT [-]")
     ax = fig.add_subplot(1, 2, 2)
     m = ax.pcolormesh(deg(A), D, Z, shading="gouraud", cmap="viridis", vmin=0, vmax=1,
                       rasterized=True)
