@@ -1,0 +1,118 @@
+"""Loading a :class:`scenes.Scene` into Sionna RT, and checks on where antennas may go.
+
+All Sionna imports are lazy and happen after :func:`propagation.backend.ensure_variant`.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+
+import numpy as np
+
+from propagation.backend import ensure_variant
+
+__all__ = [
+    "check_antenna_positions",
+    "clear_devices",
+    "load_sionna_scene",
+]
+
+logger = logging.getLogger(__name__)
+
+# Loaded Sionna scenes, keyed by (content hash, frequency); the temporary export
+# directory lives as long as the scene. Filled on first use, never at import.
+_SCENES: dict[tuple[str, float], tuple[object, tempfile.TemporaryDirectory]] = {}
+_MAX_CACHED_SCENES = 2
+
+
+def load_sionna_scene(scene, frequency_hz: float):
+    """A Sionna RT scene for ``scene`` at ``frequency_hz`` (exported once, then reused).
+
+    Materials are evaluated at ``frequency_hz`` by :func:`scenes.export.export_mitsuba`;
+    shapes are not merged so object names equal material names. Transmitters and
+    receivers left from an earlier call are removed.
+
+    Raises
+    ------
+    scenes.UnknownMaterialError
+        If a mesh carries a material the library does not know.
+    """
+    ensure_variant()
+    import sionna.rt as rt
+
+    key = (scene.content_hash(), float(frequency_hz))
+    if key not in _SCENES:
+        while len(_SCENES) >= _MAX_CACHED_SCENES:
+            _, (_, tmp) = _SCENES.popitem()
+            tmp.cleanup()
+        tmp = tempfile.TemporaryDirectory(prefix="rfidstudy-scene-")
+        xml = scene.export_mitsuba(tmp.name, frequency_hz)
+        rt_scene = rt.load_scene(str(xml), merge_shapes=False)
+        rt_scene.frequency = float(frequency_hz)
+        _SCENES[key] = (rt_scene, tmp)
+        logger.debug("loaded Sionna scene %s at %.6g Hz", scene.name, frequency_hz)
+    rt_scene = _SCENES[key][0]
+    clear_devices(rt_scene)
+    return rt_scene
+
+
+def clear_devices(rt_scene) -> None:
+    """Remove every transmitter and receiver from a Sionna scene."""
+    for name in list(rt_scene.transmitters) + list(rt_scene.receivers):
+        rt_scene.remove(name)
+
+
+def _solid_bodies(scene) -> list:
+    bodies = []
+    for mesh in scene.meshes.values():
+        try:
+            parts = mesh.split(only_watertight=True)
+        except Exception:  # noqa: BLE001 - no graph engine: treat the mesh whole
+            parts = [mesh] if mesh.is_watertight else []
+        bodies.extend(parts)
+    return bodies
+
+
+def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> None:
+    """Raise if a position is outside the scene's bounds or inside solid geometry.
+
+    Parameters
+    ----------
+    scene : scenes.Scene
+        The scene; solids are its watertight connected mesh bodies (wall slabs, boxes).
+    positions_m : array_like
+        Shape (n, 3), metres. x and y must lie strictly inside ``scene.bounds_m``, z above
+        its lowest point (a point above the top of an open scene is accepted).
+    what : str
+        Name used in the error message ("antenna pose 3 at (x, y, z) ...").
+
+    Raises
+    ------
+    ValueError
+        Naming the first offending index and its coordinates.
+    """
+    pos = np.asarray(positions_m, dtype=float).reshape(-1, 3)
+    lo, hi = scene.bounds_m
+    # x and y strictly inside the bounds, z above the lowest geometry; above the top is
+    # allowed so that open scenes (a bare floor) can be traced.
+    outside = np.any((pos[:, :2] <= lo[:2]) | (pos[:, :2] >= hi[:2]), axis=1) | (pos[:, 2] <= lo[2])
+    if np.any(outside):
+        i = int(np.flatnonzero(outside)[0])
+        raise ValueError(
+            f"{what} {i} at ({pos[i, 0]:.4g}, {pos[i, 1]:.4g}, {pos[i, 2]:.4g}) m lies outside "
+            f"the scene {scene.name!r} bounds {lo.round(3).tolist()} .. {hi.round(3).tolist()}"
+        )
+    for body in _solid_bodies(scene):
+        blo, bhi = body.bounds
+        cand = np.flatnonzero(np.all((pos > blo) & (pos < bhi), axis=1))
+        if len(cand) == 0:
+            continue
+        inside = body.contains(pos[cand])
+        if np.any(inside):
+            i = int(cand[np.flatnonzero(inside)[0]])
+            raise ValueError(
+                f"{what} {i} at ({pos[i, 0]:.4g}, {pos[i, 1]:.4g}, {pos[i, 2]:.4g}) m lies "
+                f"inside solid geometry of scene {scene.name!r} (body with bounds "
+                f"{blo.round(3).tolist()} .. {bhi.round(3).tolist()})"
+            )

@@ -1,0 +1,436 @@
+"""Ray-traced one-way channel gain between reader-antenna poses and tags (Sionna RT).
+
+Design ("Making the truth affordable", ``shared/DESIGN.md``): every antenna *position* is
+traced once with unrotated isotropic dual-polarised (``VH``) antennas at both ends;
+per path the 2x2 polarimetric transfer matrix T, the delay tau and the departure /
+arrival directions are kept (and cached on disk, see :mod:`propagation.pathcache`).
+Patterns, orientations and polarisations are then applied in NumPy::
+
+    h = sum_paths  conj(g_tag(k_r))^T  T  c_reader(k_t)  exp(-j 2 pi f tau)
+    gain = |h|^2
+
+with ``c``/``g`` the antenna patterns rotated into the world spherical basis
+(:func:`propagation.patterns.pattern_field_world`), which is the algebra of Sionna's
+field calculator (``FieldCalculator.compute_channel_coefficients``: ``a = f_rx^H E``).
+The gain is the coherent narrowband one-way channel power gain including both
+patterns; e.g. in free space it equals Friis ``G_t G_r (lambda / 4 pi d)^2``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from propagation.backend import ensure_variant
+from propagation.pathcache import SourcePaths, load_source, save_source, settings_key
+from propagation.patterns import (
+    PATTERNS,
+    POLARIZATIONS,
+    dipole_rotation,
+    pattern_field_world,
+    pose_rotation,
+    unit_vec_from_theta_phi,
+)
+from propagation.sionna_scene import check_antenna_positions, load_sionna_scene
+
+__all__ = [
+    "DEFAULT_MAX_DEPTH",
+    "DEFAULT_SAMPLES_PER_SRC",
+    "LinkSet",
+    "bytes_per_source",
+    "tag_dipole_axes",
+    "trace_links",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Default maximum number of interactions per path (see bench/trace.py convergence check).
+DEFAULT_MAX_DEPTH = 4
+#: Default rays shot per antenna position (see bench/trace.py convergence check).
+DEFAULT_SAMPLES_PER_SRC = 30_000
+_SPEED_OF_LIGHT = 299_792_458.0
+_MAX_SOURCES_PER_CALL = 128
+
+
+@dataclass(frozen=True)
+class LinkSet:
+    """Ray-traced links between antenna poses (rows) and tags (columns).
+
+    Attributes
+    ----------
+    gain : numpy.ndarray
+        One-way coherent channel power gain incl. both antenna patterns, linear,
+        shape (n, m), float64; 0 where not traced.
+    gain_db : numpy.ndarray
+        10 log10(gain), shape (n, m), dB; -inf where not traced or no path.
+    n_paths : numpy.ndarray
+        Number of paths found, shape (n, m), int64.
+    los : numpy.ndarray
+        A line-of-sight path exists, shape (n, m), bool.
+    traced : numpy.ndarray
+        The link was computed (requested through ``pairs``), shape (n, m), bool.
+    frequency_hz : float
+        Carrier frequency, Hz.
+    max_depth : int
+        Maximum interactions per path.
+    samples_per_src : int
+        Rays shot per antenna position.
+    reader_pattern, tag_pattern : str
+        Pattern names (:data:`propagation.patterns.PATTERNS`).
+    reader_polarization : str
+        Reader polarisation (``"V"``, ``"H"``, ``"RHCP"``, ``"LHCP"``).
+    n_traced_sources : int
+        Antenna positions ray-traced by this call (0 when everything came from the cache).
+    n_solver_calls : int
+        Sionna ``PathSolver`` calls made by this call.
+    trace_s : float
+        Wall time spent in Sionna, s.
+    """
+
+    gain: np.ndarray
+    gain_db: np.ndarray
+    n_paths: np.ndarray
+    los: np.ndarray
+    traced: np.ndarray
+    frequency_hz: float
+    max_depth: int
+    samples_per_src: int
+    reader_pattern: str
+    tag_pattern: str
+    reader_polarization: str = "V"
+    n_traced_sources: int = 0
+    n_solver_calls: int = 0
+    trace_s: float = 0.0
+    settings: dict = field(default_factory=dict)
+
+
+def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
+    """Estimated peak memory of one source in a ``PathSolver`` call, bytes.
+
+    Measured on the LLVM backend (sionna-rt 2.2): about ``samples * (150 + 170 * depth)``
+    bytes with ``max_num_paths_per_src = samples * (depth + 1)`` (40 sources x 1e5 rays:
+    2.0 GB at depth 3, 4.1 GB at depth 5).
+    """
+    return int(samples_per_src * (150 + 170 * max(1, max_depth)))
+
+
+def _default_budget() -> int:
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(int(line.split()[1]) * 1024 * 0.25)
+    except OSError:
+        pass
+    return 4 * 1024**3
+
+
+def tag_dipole_axes(tag_normals, m: int) -> np.ndarray:
+    """Dipole axis per tag: world z projected onto the tag plane (vertical on walls).
+
+    Parameters
+    ----------
+    tag_normals : array_like or None
+        Surface normals (m, 3); None means every dipole is vertical.
+    m : int
+        Number of tags.
+
+    Returns
+    -------
+    numpy.ndarray
+        Unit axes (m, 3). For a horizontal tag (normal along z) the axis is world x
+        projected onto the plane.
+    """
+    if tag_normals is None:
+        return np.tile([0.0, 0.0, 1.0], (m, 1))
+    n = np.asarray(tag_normals, dtype=float)
+    if n.shape != (m, 3) or not np.all(np.isfinite(n)):
+        raise ValueError(f"tag_normals must be finite with shape ({m}, 3), got {n.shape}")
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    if np.any(norm < 1e-12):
+        raise ValueError(f"tag_normals has zero rows: {np.flatnonzero(norm[:, 0] < 1e-12).tolist()}")
+    n = n / norm
+    z = np.array([0.0, 0.0, 1.0])
+    axis = z - (n @ z)[:, None] * n
+    flat = np.linalg.norm(axis, axis=1) < 1e-6
+    x = np.array([1.0, 0.0, 0.0])
+    axis[flat] = x - (n[flat] @ x)[:, None] * n[flat]
+    return axis / np.linalg.norm(axis, axis=1, keepdims=True)
+
+
+def _validate(antenna_poses, tag_positions, pairs):
+    poses = np.asarray(antenna_poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] not in (4, 6):
+        raise ValueError(
+            "antenna_poses must have shape (n, 4) [x, y, z, yaw_rad] or (n, 6) "
+            f"[x, y, z, yaw, pitch, roll], got {poses.shape}"
+        )
+    if poses.shape[1] == 4:
+        poses = np.concatenate([poses, np.zeros((len(poses), 2))], axis=1)
+    bad = ~np.all(np.isfinite(poses), axis=1)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"antenna pose {i} is not finite: {poses[i].tolist()}")
+    tags = np.asarray(tag_positions, dtype=float)
+    if tags.ndim != 2 or tags.shape[1] != 3:
+        raise ValueError(f"tag_positions must have shape (m, 3), got {tags.shape}")
+    bad = ~np.all(np.isfinite(tags), axis=1)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"tag position {i} is not finite: {tags[i].tolist()}")
+    if pairs is None:
+        pairs = np.ones((len(poses), len(tags)), dtype=bool)
+    else:
+        pairs = np.asarray(pairs)
+        if pairs.shape != (len(poses), len(tags)) or pairs.dtype != bool:
+            raise ValueError(
+                f"pairs must be a bool mask of shape ({len(poses)}, {len(tags)}), "
+                f"got {pairs.dtype} {pairs.shape}"
+            )
+    return poses, tags, pairs
+
+
+def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed):
+    """One PathSolver call; returns a SourcePaths per source (all receivers)."""
+    import sionna.rt as rt
+
+    from propagation.sionna_scene import clear_devices
+
+    clear_devices(rt_scene)
+    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
+    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
+    for k, p in enumerate(sources):
+        rt_scene.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
+    for k, p in enumerate(receivers):
+        rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+    solver = rt.PathSolver()
+    paths = solver(
+        rt_scene,
+        max_depth=int(max_depth),
+        samples_per_src=int(samples_per_src),
+        max_num_paths_per_src=int(samples_per_src) * (int(max_depth) + 1),
+        synthetic_array=True,
+        los=True,
+        specular_reflection=True,
+        diffuse_reflection=False,
+        refraction=True,
+        diffraction=False,
+        seed=int(seed),
+    )
+    a_re, a_im = (x.numpy() for x in paths.a)  # (n_rx, 2, n_tx, 2, P)
+    n_rx, n_tx = len(receivers), len(sources)
+    n_p = a_re.shape[-1]
+    if n_p == 0:
+        out = []
+        for p in sources:
+            sp = SourcePaths.empty(p)
+            sp.tag_positions_m = np.asarray(receivers, float).copy()
+            sp.offsets = np.zeros(n_rx + 1, np.int64)
+            out.append(sp)
+        clear_devices(rt_scene)
+        return out
+    a = (a_re.astype(np.float64) + 1j * a_im.astype(np.float64)).reshape(n_rx, 2, n_tx, 2, n_p)
+    a = np.transpose(a, (2, 0, 4, 1, 3))  # (n_tx, n_rx, P, rx_pol, tx_pol)
+    valid = paths.valid.numpy().reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    tau = paths.tau.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    th_t = paths.theta_t.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    ph_t = paths.phi_t.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    th_r = paths.theta_r.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    ph_r = paths.phi_r.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    clear_devices(rt_scene)
+    out = []
+    for s, p in enumerate(sources):
+        v = valid[s]  # (n_rx, P); row-major flattening keeps receivers in order
+        counts = v.sum(axis=1)
+        out.append(SourcePaths(
+            source_m=np.asarray(p, float),
+            tag_positions_m=np.asarray(receivers, float).copy(),
+            offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+            transfer=a[s][v],
+            tau_s=tau[s][v],
+            k_tx=unit_vec_from_theta_phi(th_t[s][v], ph_t[s][v]),
+            k_rx=unit_vec_from_theta_phi(th_r[s][v], ph_r[s][v]),
+        ))
+    return out
+
+
+def _apply_patterns(src_paths, pos_index, tag_index, poses, tags, frequency_hz, reader_pattern,
+                    reader_polarization, tag_pattern, tag_axes):
+    """Coherent gain, path count and LOS flag of links (pose_i, tag_j) from cached paths."""
+    n_links = len(pos_index)
+    gain = np.zeros(n_links)
+    n_paths = np.zeros(n_links, np.int64)
+    los = np.zeros(n_links, bool)
+    r_reader = pose_rotation(poses)
+    r_tag = dipole_rotation(tag_axes)
+    for u in np.unique(pos_index):
+        sel = np.flatnonzero(pos_index == u)
+        sp = src_paths[u]
+        rows = sp.index_of(tags[tag_index[sel]])
+        if np.any(rows < 0):
+            raise RuntimeError("internal error: a requested link is missing from the path set")
+        starts, stops = sp.offsets[rows], sp.offsets[rows + 1]
+        counts = stops - starts
+        n_paths[sel] = counts
+        total = int(counts.sum())
+        if total == 0:
+            continue
+        link = np.repeat(np.arange(len(sel)), counts)
+        pidx = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(total)
+        lk = sel[link]
+        c_tx = pattern_field_world(reader_pattern, reader_polarization,
+                                   r_reader[lk], sp.k_tx[pidx])
+        g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[lk]], sp.k_rx[pidx])
+        a = np.einsum("pr,prt,pt->p", np.conj(g_rx), sp.transfer[pidx], c_tx)
+        a = a * np.exp(-2j * np.pi * frequency_hz * sp.tau_s[pidx])
+        h_re = np.bincount(link, weights=a.real, minlength=len(sel))
+        h_im = np.bincount(link, weights=a.imag, minlength=len(sel))
+        gain[sel] = h_re**2 + h_im**2
+        d = np.linalg.norm(tags[tag_index[lk]] - sp.source_m, axis=1)
+        is_los = np.abs(sp.tau_s[pidx] * _SPEED_OF_LIGHT - d) < 1e-3 + 1e-6 * d
+        los[sel] = np.bincount(link, weights=is_los, minlength=len(sel)) > 0
+    return gain, n_paths, los
+
+
+def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6,
+                max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
+                reader_pattern: str = "tr38901", tag_pattern: str = "hw_dipole",
+                tag_normals=None, pairs=None, cache_dir=None, memory_budget_bytes=None,
+                progress=None, reader_polarization: str = "V", seed: int = 42) -> LinkSet:
+    """Ray-trace the one-way channel gain between antenna poses and tags.
+
+    Parameters
+    ----------
+    scene : scenes.Scene
+        The scene (one mesh per material).
+    antenna_poses : array_like
+        (n, 4) [x, y, z, yaw] or (n, 6) [x, y, z, yaw, pitch, roll] [m, rad]; boresight is
+        the local +x axis, positive pitch tilts it up (see :mod:`propagation.patterns`).
+    tag_positions : array_like
+        (m, 3) tag positions [m].
+    frequency_hz : float
+        Carrier frequency [Hz]; materials are evaluated there.
+    max_depth, samples_per_src : int
+        Sionna ``PathSolver`` depth and rays per antenna position. Too few rays miss paths
+        silently; the defaults come from the convergence check in ``bench/trace.py``.
+    reader_pattern, tag_pattern : str
+        Pattern names (``"tr38901"``, ``"hw_dipole"``, ``"dipole"``, ``"iso"``).
+    tag_normals : array_like, optional
+        (m, 3) tag surface normals; the tag dipole lies in the tag plane along the
+        projection of world z (:func:`tag_dipole_axes`). None: vertical dipoles.
+    pairs : array_like of bool, optional
+        (n, m) mask of links to compute; others get gain 0, gain_db -inf, traced False.
+        Each antenna position is traced against the union of tags any of its poses
+        needs, and sources are batched, so a few unrequested links are traced and cached.
+    cache_dir : str or Path, optional
+        Folder of the on-disk path cache (:mod:`propagation.pathcache`); a second call
+        with the same scene, positions, frequency and solver settings traces nothing, even
+        with other orientations, patterns or polarisation.
+    memory_budget_bytes : int, optional
+        Peak memory allowed per ``PathSolver`` call; sources are chunked so that
+        ``n_sources * bytes_per_source(samples_per_src, max_depth)`` stays below it.
+        Default: a quarter of the available RAM.
+    progress : callable, optional
+        ``progress(done, total)`` in antenna positions traced, called after each chunk.
+    reader_polarization : {"V", "H", "RHCP", "LHCP"}
+        Reader antenna polarisation. With a circular reader the 3 dB circular-to-linear
+        mismatch is inside the gain, so set ``LinkBudget.polarization_loss_db = 0``.
+    seed : int
+        Sionna sampling seed.
+
+    Returns
+    -------
+    LinkSet
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes, NaN poses, unknown pattern/polarisation, an antenna outside the
+        scene bounds or inside solid geometry (naming the pose index and coordinates).
+    scenes.UnknownMaterialError
+        If the scene uses a material the library does not know.
+    """
+    poses, tags, pairs = _validate(antenna_poses, tag_positions, pairs)
+    for name in (reader_pattern, tag_pattern):
+        if name not in PATTERNS:
+            raise ValueError(f"unknown antenna pattern {name!r}; known: {', '.join(PATTERNS)}")
+    if reader_polarization not in POLARIZATIONS:
+        raise ValueError(f"unknown reader_polarization {reader_polarization!r}; "
+                         f"known: {', '.join(POLARIZATIONS)}")
+    if not (np.isfinite(frequency_hz) and frequency_hz > 0):
+        raise ValueError(f"frequency_hz must be positive, got {frequency_hz!r}")
+    if int(max_depth) < 0 or int(samples_per_src) < 1:
+        raise ValueError(f"need max_depth >= 0 and samples_per_src >= 1, got {max_depth}, {samples_per_src}")
+    tag_axes = tag_dipole_axes(tag_normals, len(tags))
+    n, m = pairs.shape
+    settings = {"frequency_hz": float(frequency_hz), "max_depth": int(max_depth),
+                "samples_per_src": int(samples_per_src), "seed": int(seed),
+                "los": True, "specular_reflection": True, "refraction": True,
+                "diffuse_reflection": False, "diffraction": False}
+    active = np.flatnonzero(pairs.any(axis=1))
+    if len(active):
+        check_antenna_positions(scene, poses[active, :3])
+
+    uniq, inv = np.unique(poses[:, :3], axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    need = np.zeros((len(uniq), m), dtype=bool)
+    np.logical_or.at(need, inv, pairs)
+
+    cache_sub = Path(cache_dir) / settings_key(scene.content_hash(), settings) if cache_dir else None
+    src_paths: list[SourcePaths] = []
+    missing: list[np.ndarray] = []
+    for u in range(len(uniq)):
+        sp = load_source(cache_sub, uniq[u]) if cache_sub is not None else None
+        sp = sp if sp is not None else SourcePaths.empty(uniq[u])
+        src_paths.append(sp)
+        want = np.flatnonzero(need[u])
+        missing.append(want[sp.index_of(tags[want]) < 0] if len(want) else want)
+    todo = [u for u in range(len(uniq)) if len(missing[u])]
+
+    budget = int(memory_budget_bytes) if memory_budget_bytes else _default_budget()
+    per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
+    n_calls, t_trace = 0, 0.0
+    if todo:
+        ensure_variant()
+        rt_scene = load_sionna_scene(scene, frequency_hz)
+        for c0 in range(0, len(todo), per_chunk):
+            chunk = todo[c0:c0 + per_chunk]
+            rec = np.unique(np.concatenate([missing[u] for u in chunk]))
+            t0 = time.perf_counter()
+            fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed)
+            t_trace += time.perf_counter() - t0
+            n_calls += 1
+            for u, sp in zip(chunk, fresh, strict=True):
+                src_paths[u] = src_paths[u].merged(sp)
+                if cache_sub is not None:
+                    save_source(cache_sub, src_paths[u])
+            if progress is not None:
+                progress(min(c0 + per_chunk, len(todo)), len(todo))
+            logger.info("traced %d/%d antenna positions (%d tags) in %.1f s",
+                        min(c0 + per_chunk, len(todo)), len(todo), len(rec), t_trace)
+    elif progress is not None:
+        progress(0, 0)
+
+    ii, jj = np.nonzero(pairs)
+    gain = np.zeros((n, m))
+    n_paths = np.zeros((n, m), np.int64)
+    los = np.zeros((n, m), bool)
+    if len(ii):
+        g, npth, lo = _apply_patterns(src_paths, inv[ii], jj, poses[ii], tags, float(frequency_hz),
+                                      reader_pattern, reader_polarization, tag_pattern, tag_axes)
+        gain[ii, jj], n_paths[ii, jj], los[ii, jj] = g, npth, lo
+    with np.errstate(divide="ignore"):
+        gain_db = np.where(pairs, 10.0 * np.log10(gain), -np.inf)
+    return LinkSet(
+        gain=gain, gain_db=gain_db, n_paths=n_paths, los=los, traced=pairs.copy(),
+        frequency_hz=float(frequency_hz), max_depth=int(max_depth),
+        samples_per_src=int(samples_per_src), reader_pattern=reader_pattern,
+        tag_pattern=tag_pattern, reader_polarization=reader_polarization,
+        n_traced_sources=len(todo), n_solver_calls=n_calls, trace_s=t_trace,
+        settings={**settings, "memory_budget_bytes": budget, "sources_per_call": per_chunk,
+                  "cache_dir": str(cache_dir) if cache_dir else None},
+    )
