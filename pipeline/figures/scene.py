@@ -7,8 +7,9 @@ Inputs (run directory):
   ``route_m`` (n, 2); ``scene/tags.parquet`` (or ``truth/tags.parquet``);
   ``poses.parquet`` (true and MCL poses); optional ``eval_poses.parquet``;
 - MCL error: ``poses.parquet`` (and ``eval_poses.parquet`` if present);
-- fields: ``fields/field_*.npz`` (``propagation.RssiField.save``; a 2-D gain
-  grid ``gain_db`` with coordinates, see :func:`_field_arrays`).
+- fields: ``fields/field_*.npz`` (``propagation.RssiField.save``: the plane
+  gain ``plane_gain`` with ``plane_centers_m`` and ``antenna_pose``; wall
+  triangles are not drawn).
 
 :func:`scene_top_view` draws a Scene object directly (``rfidstudy scenes show``).
 """
@@ -128,34 +129,25 @@ def fig_mcl_error(run_dir, out_dir=None) -> list[Path]:
 
 
 def _field_arrays(path: Path) -> dict:
-    """Plane gain grid of a saved RssiField: x (nx,), y (ny,), gain_db (ny, nx) [dB], pose or None.
+    """Plane gain of a saved ``propagation.RssiField``: x, y [m], gain_db [dB], pose (6,) or None.
 
-    Accepts the keys ``x_m``/``y_m`` (1-D axes or 2-D meshes) with a 2-D
-    ``gain_db`` (any of ``plane_gain_db``, ``grid_gain_db``, ``gain_db``), or
-    ``points_m`` (n, 3) with a 1-D gain (scatter).
+    ``RssiField.save`` layout: ``plane_gain`` (ny, nx) linear one-way gain (0 where
+    no ray arrived) and ``plane_centers_m`` (ny, nx, 3), ``antenna_pose`` (6,).
+    Also accepted: ``gain_db`` with ``x_m``/``y_m`` axes or meshes.
     """
     with np.load(path, allow_pickle=False) as z:
         files = set(z.files)
-        gkey = next((k for k in ("plane_gain_db", "grid_gain_db", "gain_db") if k in files), None)
-        if gkey is None:
-            raise ValueError(f"{path}: no gain_db array (keys {sorted(files)})")
-        out = {"gain_db": np.array(z[gkey], float), "pose": None}
-        for k in ("antenna_pose", "pose"):
-            if k in files:
-                out["pose"] = np.array(z[k], float).ravel()
-        xk = next((k for k in ("x_m", "grid_x_m", "plane_x_m") if k in files), None)
-        yk = next((k for k in ("y_m", "grid_y_m", "plane_y_m") if k in files), None)
-        if xk and yk:
-            out["x"], out["y"] = np.array(z[xk], float), np.array(z[yk], float)
-        else:
-            pk = next((k for k in ("points_m", "grid_points_m", "plane_points_m") if k in files),
-                      None)
-            if pk is None:
-                raise ValueError(f"{path}: no coordinates (x_m/y_m or points_m; keys "
-                                 f"{sorted(files)})")
-            pts = np.array(z[pk], float).reshape(-1, 3)
-            out["x"], out["y"] = pts[:, 0], pts[:, 1]
-    return out
+        pose = np.array(z["antenna_pose"], float).ravel() if "antenna_pose" in files else None
+        if "plane_gain" in files and "plane_centers_m" in files:
+            g = np.array(z["plane_gain"], float)
+            c = np.array(z["plane_centers_m"], float)
+            with np.errstate(divide="ignore"):
+                gdb = np.where(g > 0, 10.0 * np.log10(np.where(g > 0, g, 1.0)), np.nan)
+            return {"x": c[..., 0], "y": c[..., 1], "gain_db": gdb, "pose": pose}
+        if "gain_db" in files and "x_m" in files and "y_m" in files:
+            return {"x": np.array(z["x_m"], float), "y": np.array(z["y_m"], float),
+                    "gain_db": np.array(z["gain_db"], float), "pose": pose}
+        raise ValueError(f"{path}: not an RssiField file (keys {sorted(files)})")
 
 
 def fig_fields(run_dir, out_dir=None) -> list[Path]:
@@ -177,13 +169,7 @@ def fig_fields(run_dir, out_dir=None) -> list[Path]:
         fin = g[np.isfinite(g)]
         vmax = float(fin.max()) if fin.size else 0.0
         kw = {"cmap": "inferno", "vmin": vmax - 60.0, "vmax": vmax, "rasterized": True}
-        if g.ndim == 2:
-            x, y = a["x"], a["y"]
-            if x.ndim == 1 and g.shape == (x.size, y.size):
-                g = g.T
-            m = ax.pcolormesh(x, y, np.ma.masked_invalid(g), shading="auto", **kw)
-        else:
-            m = ax.scatter(a["x"], a["y"], c=g, s=4, **kw)
+        m = ax.pcolormesh(a["x"], a["y"], np.ma.masked_invalid(g), shading="auto", **kw)
         if segs is not None and len(segs):
             ax.add_collection(LineCollection(segs, colors="w", linewidths=0.6))
         if a["pose"] is not None and a["pose"].size >= 4:

@@ -136,13 +136,19 @@ def run_dir(tmp_path_factory):
                 pose_times_s=eval_poses["time_s"]).write_table(run / "truth" / "fig7_errors.parquet")
     write_json_atomic(_metrics(["anfis", "anfis_truepose", "baselines"]).to_dict(),
                       run / "metrics.json")
-    # a planar field in the documented layout (x_m (nx,), y_m (ny,), gain_db (ny, nx))
-    x = np.linspace(0, 10, 81)
-    y = np.linspace(0, 2.4, 21)
+    # a planar field written by propagation.RssiField.save (values: a closed-form falloff)
+    from propagation import RssiField
+
+    x = np.linspace(0.05, 9.95, 100)
+    y = np.linspace(0.05, 2.35, 24)
     X, Y = np.meshgrid(x, y)
-    g = -40 - 20 * np.log10(np.hypot(X - 2.0, Y - 1.2) + 0.1)
-    (run / "fields").mkdir()
-    np.savez(run / "fields" / "field_00.npz", x_m=x, y_m=y, gain_db=g, antenna_pose=pose)
+    gain = 10 ** ((-40 - 20 * np.log10(np.hypot(X - 2.0, Y - 1.2) + 0.1)) / 10)
+    gain[0, :5] = 0.0  # no ray arrived
+    RssiField(antenna_pose=pose, frequency_hz=865e6, plane_gain=gain,
+              plane_centers_m=np.stack([X, Y, np.ones_like(X)], axis=-1),
+              wall_gain=np.zeros(0), wall_centers_m=np.zeros((0, 3)),
+              wall_normals=np.zeros((0, 3)), cell_size_m=0.1, plane_height_m=1.0,
+              samples_per_tx=1000, max_depth=3).save(run / "fields" / "field_00.npz")
     return run
 
 
