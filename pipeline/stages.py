@@ -30,6 +30,7 @@ from pipeline.study import Stage
 
 __all__ = [
     "STAGES",
+    "corridor_coverage",
     "draw_figures",
     "draw_scene_top_view",
     "manifest_info",
@@ -166,6 +167,9 @@ def run_summary(run_dir: str | Path) -> dict:
     if mpath.exists():
         metrics = json.loads(mpath.read_text())
         row.update(_metric_columns(metrics))
+    cov = corridor_coverage(run)
+    if cov is not None:
+        row["corridor_coverage"] = cov
     return row
 
 
@@ -179,19 +183,53 @@ def _find(d, *path):
 
 def _metric_columns(metrics: dict) -> dict:
     m = metrics.get("evaluation", metrics)
+    anfis = m.get("models", {}).get("anfis", {})
     out = {}
-    models = m.get("models", {})
-    anfis = models.get("anfis", {})
     for key, path in {
-        "ssm_rmse_db": ("rssi", "error", "rmse"),
-        "tdm_rmse": ("detection", "error", "rmse"),
-        "rho_rmse": ("rho", "error", "rmse"),
-        "fig7_median_pct": ("fig7", "median_pct"),
+        "ssm_rmse_db": ("rssi_dbm", "rmse"),
+        "tdm_rmse": ("detection", "rmse"),
+        "rho_rmse": ("rho", "rmse"),
+        "fig7_median_pct": ("fig7", "pct_error", "median"),
     }.items():
         v = _find(anfis, *path)
         if v is not None:
             out[key] = float(v)
-    cov = _find(m, "coverage", "corridor_fraction_p_gt_0_5")
-    if cov is not None:
-        out["corridor_coverage"] = float(cov)
     return out
+
+
+def corridor_coverage(run_dir: str | Path) -> float | None:
+    """Fraction of the RSSI-field plane cells (inside the scene's free space) where a tag
+    would be powered, averaged over the run's field poses; None without fields.
+
+    The field's gain is the reader side only (isotropic receiver); the tag's antenna gain
+    ``reader.tag_antenna_gain_dbi`` of the link budget is added, and
+    ``LinkBudget.detected`` decides (both thresholds) -- detection probability > 0.5
+    where the link closes and the anti-collision miss probability is below 0.5.
+    """
+    import numpy as np
+    import tomllib
+
+    import propagation
+    import scenes
+    from pipeline.config import config_from_mapping
+    from pipeline.stages_data import link_budget
+    from scenes.geometry import is_free
+
+    run = Path(run_dir)
+    files = sorted((run / "fields").glob("field_*.npz"))
+    if not files:
+        return None
+    cfg = config_from_mapping(tomllib.loads((run / "config.toml").read_text()),
+                              source=str(run / "config.toml"))
+    budget = link_budget(cfg)
+    sc = scenes.load(cfg.scene)
+    fracs = []
+    for f in files:
+        field = propagation.RssiField.load(f)
+        pts = field.plane_centers_m.reshape(-1, 3)
+        free = is_free(sc, pts)
+        with np.errstate(divide="ignore"):
+            g = field.plane_gain_db.reshape(-1)[free] + budget.tag_antenna_gain_dbi
+        ok = budget.detected(g) & (cfg.reader.anticollision_miss_probability < 0.5)
+        fracs.append(float(np.mean(ok)) if len(ok) else 0.0)
+    return float(np.mean(fracs))

@@ -194,6 +194,8 @@ def stage_truth(ctx) -> dict:
     cache = resolve_cache_dir(cfg)
     opts = trace_options(cfg)
     update = ctx.progress("Fig. 6 truth + fields", total=len(poses))
+    lo, hi = sc.bounds_m
+    bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
     n_free = 0
     for i, pose in enumerate(poses):
         pts = _polar_points(pose, d, a)
@@ -212,7 +214,8 @@ def stage_truth(ctx) -> dict:
                 sc, pose, frequency_hz=cfg.frequency_hz, cell_size_m=cfg.tracing.field_cell_m,
                 plane_height_m=ev.field_height_m, samples_per_tx=cfg.tracing.field_samples_per_tx,
                 max_depth=cfg.tracing.max_depth, reader_pattern=cfg.tracing.reader_pattern,
-                reader_polarization=cfg.tracing.reader_polarization)
+                reader_polarization=cfg.tracing.reader_polarization,
+                plane_bounds_m=bounds)
             field.save(ctx.out(f"fields/field_{i:02d}.npz"))
         update(advance=1)
     return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free,
