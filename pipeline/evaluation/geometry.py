@@ -8,7 +8,8 @@ to (-pi, pi] [rad].
 
 This module holds the NumPy arithmetic only so that evaluation does not import
 the ray tracer; ``tests/pipeline/evaluation`` checks it against
-``propagation.antenna_frame_angles`` when that is importable.
+``propagation.patterns.antenna_frame_angles``. It differs in taking per-pose
+point sets (n, k, 3), which the Fig. 7 neighbourhoods need.
 """
 
 from __future__ import annotations

@@ -39,17 +39,18 @@ def test_frame_geometry_closed_forms():
     np.testing.assert_allclose(g.elevation_rad, [[-np.radians(30)]], atol=1e-12)
 
 
-def test_frame_geometry_matches_acquisition():
-    acq = pytest.importorskip("pipeline.acquisition.geometry")
+def test_frame_geometry_matches_propagation():
+    prop = pytest.importorskip("propagation.patterns")
     rng = np.random.default_rng(3)
     poses = np.column_stack([rng.uniform(-2, 2, (5, 3)), rng.uniform(-np.pi, np.pi, 5),
                              rng.uniform(-0.5, 0.5, 5), rng.uniform(-0.5, 0.5, 5)])
     pts = rng.uniform(-3, 3, (7, 3))
-    ref = acq.antenna_frame_angles(poses, pts)
+    ref = prop.antenna_frame_angles(poses, pts)
     ours = antenna_frame_geometry(poses, pts)
     # same rotation convention, float64 round-off only
     np.testing.assert_allclose(ours.d_m, ref.d_m, atol=1e-12)
     np.testing.assert_allclose(ours.alpha_rad, ref.alpha_rad, atol=1e-12)
+    np.testing.assert_allclose(ours.elevation_rad, ref.elevation_rad, atol=1e-12)
 
 
 def test_lattice_offsets_symmetric_and_inside():
