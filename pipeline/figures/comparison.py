@@ -8,7 +8,8 @@ Inputs (run directory):
 - Fig. 7: ``truth/fig7_errors.parquet`` (:meth:`pipeline.evaluation.Fig7Result.write_table`);
   if absent, computed with :func:`pipeline.evaluation.fig7_errors` from
   ``eval_reads.parquet``, ``eval_poses.parquet``, ``scene/tags.parquet`` (or
-  ``truth/tags.parquet``) and ``models/sensor.json`` (antenna tilt 0);
+  ``truth/tags.parquet``), ``models/sensor.json`` and the antenna tilts of
+  ``config.toml`` (``[[robot.antennas]] tilt_deg``; 0 without the file);
 - baselines: ``metrics.json`` (:meth:`pipeline.evaluation.StudyMetrics.to_dict`,
   top level or under "evaluation").
 """
@@ -92,8 +93,23 @@ def _fig7_table(run_dir: Path) -> pd.DataFrame:
     poses = pd.read_parquet(require(run_dir, "eval_poses.parquet"))
     tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
     res = fig7_errors(reads, tags, load_sensor(run_dir, "anfis"),
-                      pose_times_s=poses["time_s"].to_numpy(float))
+                      pose_times_s=poses["time_s"].to_numpy(float),
+                      antenna_pitch_rad=_tilts(run_dir))
     return res.table
+
+
+def _tilts(run_dir: Path) -> dict | float:
+    """Antenna index -> tilt [rad] from config.toml ``[[robot.antennas]] tilt_deg``; else 0."""
+    import tomllib
+
+    p = run_dir / "config.toml"
+    if not p.is_file():
+        return 0.0
+    try:
+        ants = tomllib.loads(p.read_text()).get("robot", {}).get("antennas", [])
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    return {i: float(np.radians(a.get("tilt_deg", 0.0))) for i, a in enumerate(ants)} or 0.0
 
 
 def fig_fig7_error(run_dir, out_dir=None) -> list[Path]:
