@@ -80,3 +80,28 @@ def test_as_pose_track_tuple_and_errors():
         PoseTrack(np.arange(3.0), true, np.zeros((2, 3)), true)
     with pytest.raises(TypeError, match="t_s"):
         as_pose_track(object())
+
+
+def test_as_pose_track_from_robot_results():
+    from pipeline.robot.mcl import LocalizationResult
+    from pipeline.robot.trajectory import Trajectory
+
+    t = np.arange(4.0)
+    true = np.column_stack([t, np.ones(4), np.zeros(4)])
+    traj = Trajectory.from_poses(t, true)
+    tr = as_pose_track(traj)
+    np.testing.assert_array_equal(tr.est_poses, true)  # no localisation: est = true
+    fields = dict.fromkeys(LocalizationResult.__dataclass_fields__)
+    fields.update(
+        t_s=t,
+        true_poses=true,
+        odometry_poses=true + 0.2,
+        estimated_poses=true + 0.1,
+        n_updates=0,
+        n_resamples=0,
+        n_injected=0,
+    )
+    res = LocalizationResult(**fields)
+    tr = as_pose_track(res)
+    np.testing.assert_allclose(tr.est_poses - tr.true_poses, 0.1)
+    np.testing.assert_allclose(tr.odom_poses - tr.true_poses, 0.2)
