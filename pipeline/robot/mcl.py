@@ -178,6 +178,7 @@ class MonteCarloLocalization:
         self.n_resamples = 0
         self.n_injected = 0
         self._moved = np.zeros(2)
+        self._fresh = np.zeros(0, dtype=bool)  # injected, not yet weighted by a scan
 
     # -- initialisation --------------------------------------------------------------
     def _uniform_free(self, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -201,6 +202,7 @@ class MonteCarloLocalization:
                 ]
             )
         self.log_weights = np.full(n, -np.log(n))
+        self._fresh = np.zeros(n, dtype=bool)
         self.w_slow = self.w_fast = 0.0
         self._moved = np.array([np.inf, np.inf])  # first scan is always used
 
@@ -263,6 +265,7 @@ class MonteCarloLocalization:
                 self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
                 self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
         self.log_weights = lw - logsumexp(lw)
+        self._fresh[:] = False
         w = np.exp(self.log_weights)
         n_eff = 1.0 / np.sum(w**2)
         if n_eff < cfg.resample_threshold * n:
@@ -290,14 +293,24 @@ class MonteCarloLocalization:
                     ]
                 )
             new = np.concatenate([new, inj])
+        self._fresh = np.arange(n) >= n - n_inj
         self.particles = new
         self.log_weights = np.full(n, -np.log(n))
         self.n_resamples += 1
         self.n_injected += n_inj
 
     def estimate(self) -> PoseEstimate:
-        """Weighted mean pose and spread of the particle set."""
-        w = np.exp(self.log_weights - logsumexp(self.log_weights))
+        """Weighted mean pose and spread of the particle set.
+
+        Particles injected at the last resampling enter only once a scan has weighted
+        them (otherwise their uniform weight would drag the mean towards the proposal).
+        """
+        lw = (
+            np.where(self._fresh, -np.inf, self.log_weights)
+            if (self._fresh.any() and not self._fresh.all())
+            else self.log_weights
+        )
+        w = np.exp(lw - logsumexp(lw))
         xy = w @ self.particles[:, :2]
         c, s = w @ np.cos(self.particles[:, 2]), w @ np.sin(self.particles[:, 2])
         var = w @ np.sum((self.particles[:, :2] - xy) ** 2, axis=1)

@@ -94,8 +94,10 @@ class OccupancyMap:
         centre [m] (0 on occupied cells).
     boundary_distance_m : numpy.ndarray
         (ny, nx) float64: exact distance from each cell centre to the nearest cut
-        segment (an obstacle surface) [m], capped at 2 m: the likelihood field of the
-        laser model, interpolated bilinearly by :meth:`surface_distance_m`.
+        segment that faces free space (an obstacle surface the laser can see; the
+        outer faces of walls are left out so that a beam ending behind a wall is not
+        rewarded) [m], capped at 2 m: the likelihood field of the laser model,
+        interpolated bilinearly by :meth:`surface_distance_m`.
     z_range_m : tuple[float, float]
         Heights between which the meshes were sliced [m].
     """
@@ -183,7 +185,8 @@ class OccupancyMap:
         free = np.isin(labels, seeds)
         occupied = ~free
         distance = ndimage.distance_transform_edt(free) * resolution_m
-        boundary = _segment_distance_field(np.concatenate(cut), origin, resolution_m, shape)
+        faces = _free_facing(np.concatenate(cut), free, origin, resolution_m)
+        boundary = _segment_distance_field(faces, origin, resolution_m, shape)
         logger.debug("OccupancyMap %s: %s cells, %.1f%% free", scene.name, shape, 100 * free.mean())
         return cls(origin, float(resolution_m), occupied, distance, boundary, (z0, z1))
 
@@ -250,6 +253,24 @@ class OccupancyMap:
         """World coordinates (n_free, 2) [m] of the centres of all free cells."""
         row, col = np.nonzero(~self.occupied)
         return self.origin_m + (np.stack([col, row], 1) + 0.5) * self.resolution_m
+
+
+def _free_facing(segments: np.ndarray, free: np.ndarray, origin, res: float) -> np.ndarray:
+    """Segments with free space on at least one side (probed 1.5 cells off, 9 places)."""
+    if len(segments) == 0:
+        return segments
+    a, b = segments[:, 0], segments[:, 1]
+    e = b - a
+    nrm = np.stack([-e[:, 1], e[:, 0]], 1) / np.linalg.norm(e, axis=1, keepdims=True)
+    f = np.linspace(0.1, 0.9, 9)
+    pts = a[:, None] + f[None, :, None] * e[:, None]  # (m, 9, 2)
+    probe = np.concatenate([pts + 1.5 * res * nrm[:, None], pts - 1.5 * res * nrm[:, None]], 1)
+    col = np.floor((probe[..., 0] - origin[0]) / res).astype(int)
+    row = np.floor((probe[..., 1] - origin[1]) / res).astype(int)
+    ok = (row >= 0) & (row < free.shape[0]) & (col >= 0) & (col < free.shape[1])
+    hit = np.zeros(probe.shape[:2], dtype=bool)
+    hit[ok] = free[row[ok], col[ok]]
+    return segments[hit.any(axis=1)]
 
 
 def _segment_distance_field(
