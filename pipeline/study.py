@@ -329,11 +329,15 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
                     result.ran.append(st.name)
             result.records[st.name] = rec
             digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
+            if st.name in result.ran:
+                _write_manifest(store, config, result, started, t0, command_line, None, None,
+                                status="running")
     _write_manifest(store, config, result, started, t0, command_line, manifest_extra, None)
     return result
 
 
-def _write_manifest(store, config, result, started, t0, command_line, manifest_extra, failure):
+def _write_manifest(store, config, result, started, t0, command_line, manifest_extra, failure,
+                    status=None):
     result.elapsed_s = time.perf_counter() - t0
     result.peak_rss_mib = peak_rss_mib()
     manifest = {
@@ -344,7 +348,7 @@ def _write_manifest(store, config, result, started, t0, command_line, manifest_e
         "finished_utc": _utc_now(),
         "elapsed_s": round(result.elapsed_s, 3),
         "peak_rss_mib": round(result.peak_rss_mib, 1),
-        "status": "failed" if failure else "complete",
+        "status": status or ("failed" if failure else "complete"),
         "failure": failure,
         "stages": {
             name: {

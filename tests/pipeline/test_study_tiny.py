@@ -1,0 +1,152 @@
+"""A tiny real study (corridor_lab, 5 m of route, low ray counts, 3 epochs), end to end.
+
+One module-scoped run serves every test: real MCL, real Sionna traces, real Parquet,
+real ANFIS, real figures. Then the cache: a second run skips every stage; changing the
+ANFIS epochs re-runs only the models and what follows; a failing stage keeps the
+earlier outputs and the run resumes; a corrupt output is reported by name.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from pipeline.config import load_config, replace_path
+from pipeline.stages import run_summary, stage_names
+from pipeline.study import StageError, run_study
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    base = tmp_path_factory.mktemp("tiny")
+    cfg = load_config(ROOT / "configs" / "tiny.toml")
+    cfg = replace_path(cfg, "tracing.cache_dir", str(base / "cache"))
+    res = run_study(cfg, base / "run", command_line=["pytest"])
+    return cfg, base, res
+
+
+def test_first_run_produces_the_run_directory(tiny):
+    cfg, base, res = tiny
+    run = base / "run"
+    assert res.ran == stage_names()
+    for rel in ("config.toml", "manifest.json", "reads.parquet", "poses.parquet",
+                "eval_reads.parquet", "eval_poses.parquet", "models/ssm.json", "models/tdm.json",
+                "models/sensor_truepose.json", "models/baselines.json", "metrics.json",
+                "truth/detection_grid.npz", "fields/field_00.npz", "report.html"):
+        assert (run / rel).is_file(), rel
+    reads = pd.read_parquet(run / "reads.parquet")
+    assert reads["read"].any() and {"d_est_m", "alpha_est_rad", "rssi_dbm"} <= set(reads.columns)
+    assert len(pd.read_parquet(run / "eval_poses.parquet")) == cfg.tour.n_eval_poses
+    man = json.loads((run / "manifest.json").read_text())
+    assert man["status"] == "complete" and man["seed"] == cfg.seed
+    assert man["backend"]["variant"].endswith("_ad_mono_polarized")
+    assert set(man["stages"]) == set(stage_names())
+    assert man["versions"]["numpy"] and man["peak_rss_mib"] > 0
+    assert list((run / "figures").glob("*.png"))
+    html = (run / "report.html").read_text()
+    assert "data:image/png;base64," in html and "anfis_truepose" in html
+    assert load_config(run / "config.toml") == cfg  # resolved config reads back
+    # the propagation cache was filled (shared across runs)
+    assert any((base / "cache").rglob("*"))
+
+
+def test_second_run_skips_every_stage(tiny):
+    cfg, base, _ = tiny
+    res = run_study(cfg, base / "run", command_line=["pytest"])
+    assert res.ran == [] and res.cached == stage_names()
+
+
+def test_new_run_dir_traces_nothing(tiny, tmp_path):
+    from pipeline.stages import STAGES
+
+    cfg, base, _ = tiny
+    cache_before = sorted(p.relative_to(base) for p in (base / "cache").rglob("*"))
+    run_study(cfg, tmp_path / "run2", stages=STAGES[:3], manifest_extra=None)
+    # the shared cache answers every link of the same tour: no new cache entry was made
+    assert sorted(p.relative_to(base) for p in (base / "cache").rglob("*")) == cache_before
+    a = pd.read_parquet(tmp_path / "run2" / "reads.parquet")
+    b = pd.read_parquet(base / "run" / "reads.parquet")
+    pd.testing.assert_frame_equal(a, b)  # bit-reproducible from the seed
+
+
+def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path):
+    cfg, base, _ = tiny
+    run = tmp_path / "run"
+    shutil.copytree(base / "run", run)
+    before = (run / "reads.parquet").stat().st_mtime_ns
+    res = run_study(replace_path(cfg, "training.epochs", 4), run, command_line=["pytest"])
+    assert res.cached == ["scene", "tour", "reads", "training_sets"]
+    assert res.ran == ["models", "truth", "evaluation", "figures", "report"]
+    assert (run / "reads.parquet").stat().st_mtime_ns == before
+    hist = json.loads((run / "models" / "training_history.json").read_text())
+    assert len(hist["ssm"]["train_rmse"]) == 4
+
+
+def test_failed_stage_keeps_outputs_and_resumes(tiny, tmp_path):
+    cfg, base, _ = tiny
+    run = tmp_path / "run"
+    shutil.copytree(base / "run", run)
+    # more clusters than training samples: the training_sets stage must fail ...
+    bad = replace_path(cfg, "training.n_clusters", 100000)
+    with pytest.raises(StageError, match="stage 'training_sets' failed"):
+        run_study(bad, run, command_line=["pytest"])
+    assert (run / "reads.parquet").is_file() and (run / "models" / "ssm.json").is_file()
+    man = json.loads((run / "manifest.json").read_text())
+    assert man["status"] == "failed" and man["failure"]["stage"] == "training_sets"
+    # ... and the fixed config resumes from the failed stage without re-tracing
+    res = run_study(cfg, run, command_line=["pytest"])
+    assert "reads" in res.cached and "tour" in res.cached
+    assert json.loads((run / "manifest.json").read_text())["status"] == "complete"
+
+
+def test_corrupt_output_is_named_and_rerun(tiny, tmp_path, caplog):
+    cfg, base, _ = tiny
+    run = tmp_path / "run"
+    shutil.copytree(base / "run", run)
+    (run / "models" / "tdm.json").write_text("{ truncated")
+    with caplog.at_level(logging.WARNING):
+        res = run_study(cfg, run, command_line=["pytest"])
+    assert "tdm.json was modified or is corrupt" in caplog.text
+    assert "models" in res.ran and "reads" in res.cached
+    json.loads((run / "models" / "tdm.json").read_text())
+
+
+def test_corrupt_upstream_input_names_file(tiny, tmp_path):
+    cfg, base, _ = tiny
+    run = tmp_path / "run"
+    shutil.copytree(base / "run", run)
+    (run / "reads.parquet").write_bytes(b"PAR1 not really")
+    # the reads stage notices its output changed and re-creates it from the cache
+    res = run_study(cfg, run, command_line=["pytest"])
+    assert "reads" in res.ran
+    assert len(pd.read_parquet(run / "reads.parquet")) > 0
+
+
+def test_run_summary_row(tiny):
+    _, base, _ = tiny
+    row = run_summary(base / "run")
+    assert 0 < row["read_rate"] <= 1 and 0 < row["tag_coverage"] <= 1
+    assert 0 <= row["corridor_coverage"] <= 1
+    assert row["ssm_rmse_db"] > 0
+
+
+def test_cli_figures_on_a_run_dir(tiny, tmp_path):
+    """Redraw figures + report from a finished run directory (the tiny study's)."""
+    _, base, _ = tiny
+    run = tmp_path / "run"
+    shutil.copytree(base / "run", run, ignore=shutil.ignore_patterns("figures", "report.html"))
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    res = CliRunner().invoke(app, ["figures", str(run)])
+    assert res.exit_code == 0, res.output
+    assert (run / "figures" / "scene_top_view.png").is_file()
+    assert "data:image/png;base64," in (run / "report.html").read_text()
