@@ -205,7 +205,7 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
                                 orientation=[float(v) for v in ori]))
     if plane_bounds_m is None:
         lo, hi = scene.bounds_m
-        x0, y0, x1, y1 = lo[0], lo[1], hi[0], hi[1]
+        x0, y0, x1, y1 = (float(v) for v in (lo[0], lo[1], hi[0], hi[1]))
     else:
         x0, y0, x1, y1 = (float(v) for v in plane_bounds_m)
     solver = rt.RadioMapSolver()
