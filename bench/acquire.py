@@ -1,0 +1,147 @@
+"""Acquisition-side throughput: laser ray casting, MCL updates, tour generation.
+
+One measurement per function, each returning a dict row; main prints a table of the
+numbers from this run (no timed assertions). Scene: bundled ``corridor_lab``.
+The "acquisition" part (read attempts per second) is added by that stage's owner.
+
+Usage: python bench/acquire.py [--scene corridor_lab] [--particles 1000] [--steps 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+
+import scenes
+from pipeline.robot import (
+    LaserScanner,
+    MCLConfig,
+    OdometryNoise,
+    Robot,
+    TourConfig,
+    guided_tour,
+    laser_map,
+    run_mcl,
+    section_segments,
+    simulate_odometry,
+)
+
+
+def _timed(fn, repeat=3):
+    best = np.inf
+    out = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def bench_tour(scene, robot, n_passes=2):
+    """Tour generation (collision map, feasible band, sampling, footprint check)."""
+    cfg = TourConfig(n_passes=n_passes)
+    dt, tour = _timed(lambda: guided_tour(scene, robot, np.random.default_rng(0), cfg), 1)
+    return {
+        "measure": f"guided_tour ({n_passes} passes, {len(tour)} poses)",
+        "value": len(tour) / dt,
+        "unit": "poses/s",
+        "seconds": dt,
+    }, tour
+
+
+def bench_laser(scene, poses, scanner):
+    """Laser rays per second (exact 2-D ray/segment intersection)."""
+    seg = section_segments(scene, scanner.height_m)
+    dt, _ = _timed(lambda: scanner.scan(seg, poses, np.random.default_rng(0)))
+    rays = len(poses) * scanner.n_beams
+    return {
+        "measure": f"laser ray cast ({len(seg)} segments, {rays} rays)",
+        "value": rays / dt,
+        "unit": "rays/s",
+        "seconds": dt,
+    }
+
+
+def bench_map(scene, scanner):
+    """Laser map + exact likelihood field construction."""
+    dt, lm = _timed(lambda: laser_map(scene, scanner), 1)
+    return {
+        "measure": f"laser map + likelihood field {lm.shape}",
+        "value": lm.occupied.size / dt,
+        "unit": "cells/s",
+        "seconds": dt,
+    }, lm
+
+
+def bench_mcl(lmap, scanner, segments, poses, n_particles):
+    """MCL steps per second (predict + update + estimate) at n_particles."""
+    rng = np.random.default_rng(1)
+    odo = simulate_odometry(poses, OdometryNoise(), rng)
+    scans = scanner.scan(segments, poses, rng)
+    cfg = MCLConfig(n_particles=n_particles)
+    dt, res = _timed(
+        lambda: run_mcl(
+            lmap,
+            scanner,
+            odo,
+            scans,
+            poses[0],
+            np.random.default_rng(2),
+            config=cfg,
+            true_poses=poses,
+        ),
+        1,
+    )
+    return {
+        "measure": f"MCL steps, {n_particles} particles, {cfg.n_beams_used} beams "
+        f"({res.n_updates}/{len(poses)} with scan update)",
+        "value": len(poses) / dt,
+        "unit": "steps/s",
+        "seconds": dt,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="corridor_lab")
+    ap.add_argument("--particles", type=int, default=1000)
+    ap.add_argument("--steps", type=int, default=300)
+    args = ap.parse_args()
+    scene = scenes.load(args.scene)
+    robot = Robot()
+    scanner = LaserScanner()
+    segments = section_segments(scene, scanner.height_m)
+    rows = []
+    row, tour = bench_tour(scene, robot)
+    rows.append(row)
+    poses = tour.poses[: args.steps]
+    rows.append(bench_laser(scene, poses, scanner))
+    row, lmap = bench_map(scene, scanner)
+    rows.append(row)
+    rows.append(bench_mcl(lmap, scanner, segments, poses, args.particles))
+    rows.append(bench_mcl(lmap, scanner, segments, poses, 5 * args.particles))
+    print(
+        f"# bench/acquire.py  scene={args.scene}  {platform.processor() or platform.machine()}"
+        f"  cpus={os.cpu_count()}  numpy={np.__version__}"
+    )
+    print(f"{'measure':<72} {'value':>12} {'unit':<8} {'time_s':>8}")
+    for r in rows:
+        print(f"{r['measure']:<72} {r['value']:>12.4g} {r['unit']:<8} {r['seconds']:>8.3f}")
+    mcl1, mcl5 = rows[-2]["value"], rows[-1]["value"]
+    print(
+        f"ratio: MCL steps/s at {args.particles} vs {5 * args.particles} particles = "
+        f"{mcl1 / mcl5:.2f} (5.00 if cost were linear in particles)"
+    )
+    real_time = 1.0 / TourConfig().dt_s
+    print(
+        f"ratio: MCL at {args.particles} particles vs real time ({real_time:.0f} Hz scans) = "
+        f"{mcl1 / real_time:.1f}x"
+    )
+
+
+if __name__ == "__main__":
+    main()
