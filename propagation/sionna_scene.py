@@ -74,6 +74,34 @@ def _solid_bodies(scene) -> list:
     return bodies
 
 
+def _inside_watertight(body, points: np.ndarray) -> np.ndarray:
+    """Ray-parity containment test (Moller-Trumbore, vectorised; no rtree needed).
+
+    A ray from each point along a slightly oblique direction (to avoid hitting edges
+    exactly) crosses a closed surface an odd number of times iff the point is inside.
+    """
+    direction = np.array([0.5773, 0.5774, 0.5773])
+    direction /= np.linalg.norm(direction)
+    tri = body.triangles  # (T, 3, 3)
+    v0 = tri[:, 0]
+    e1 = tri[:, 1] - v0
+    e2 = tri[:, 2] - v0
+    pvec = np.cross(direction, e2)
+    det = np.einsum("tj,tj->t", e1, pvec)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    inside = np.zeros(len(points), bool)
+    for k, p in enumerate(points):
+        tvec = p - v0
+        u = np.einsum("tj,tj->t", tvec, pvec) * inv
+        qvec = np.cross(tvec, e1)
+        v = (qvec @ direction) * inv
+        t = np.einsum("tj,tj->t", e2, qvec) * inv
+        hits = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+        inside[k] = bool(np.count_nonzero(hits) % 2)
+    return inside
+
+
 def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> None:
     """Raise if a position is outside the scene's bounds or inside solid geometry.
 
@@ -108,7 +136,7 @@ def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> N
         cand = np.flatnonzero(np.all((pos > blo) & (pos < bhi), axis=1))
         if len(cand) == 0:
             continue
-        inside = body.contains(pos[cand])
+        inside = _inside_watertight(body, pos[cand])
         if np.any(inside):
             i = int(cand[np.flatnonzero(inside)[0]])
             raise ValueError(
