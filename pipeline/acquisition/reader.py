@@ -360,14 +360,14 @@ def simulate_reads(
         "tag_ids": [str(i) for i in tags.ids],
         "reader": reader.to_dict(),
         "trace": {k: v for k, v in trace.items() if k not in ("cache_dir", "progress")},
-        "n_attempts": int(n),
+        "n_slots": int(n),  # (cycle, active antenna) slots; rows = n_slots * n_tags
         "n_pairs": int(n * m),
         "n_pairs_in_range": int(mask.sum()),
         "n_pairs_traced": int(n_traced),
         "max_range_m": float(reader.budget.max_range_m(margin_db=reader.range_margin_db)),
     }
     logger.info(
-        "simulate_reads: %d attempts x %d tags, %d pairs in range (%d unique traced), %d reads",
+        "simulate_reads: %d antenna slots x %d tags, %d pairs in range (%d unique traced), %d reads",
         n,
         m,
         int(mask.sum()),

@@ -52,7 +52,7 @@ def _reader(**kw):
 
 
 def test_out_of_range_tags_are_not_traced(scene, track, tmp_path):
-    reader = _reader(budget=SHORT_BUDGET)
+    reader = _reader(budget=SHORT_BUDGET, range_margin_db=6.0)
     assert reader.budget.max_range_m(margin_db=6.0) == pytest.approx(2.5, rel=0.01)
     log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(0), trace=TRACE)
     r = log.reads
