@@ -105,6 +105,72 @@ def bench_mcl(lmap, scanner, segments, poses, n_particles):
     }
 
 
+def bench_reads(scene, robot, tour):
+    """Read attempts per second without tracing: schedule, geometry, budget, noise, table.
+
+    An attempt is one (read cycle, active antenna, tag) row of ``reads.parquet``; the gains
+    are synthetic (uniform -70..-20 dB), so this times the reader simulation alone.
+    """
+    from pipeline.acquisition import ReaderConfig, as_pose_track, read_attempts, reads_from_gains
+
+    reader = ReaderConfig()
+    track = as_pose_track(tour)
+    rng = np.random.default_rng(0)
+
+    def run():
+        att = read_attempts(track, robot.antennas, reader)
+        gains = rng.uniform(-70.0, -20.0, size=(len(att.time_s), len(scene.tags)))
+        return reads_from_gains(att, scene.tags, gains, np.ones(gains.shape, bool), reader, rng)
+
+    dt, table = _timed(run)
+    return {
+        "measure": f"read attempts, no tracing ({len(table)} = slots x {len(scene.tags)} tags)",
+        "value": len(table) / dt,
+        "unit": "attempts/s",
+        "seconds": dt,
+    }
+
+
+def bench_reads_traced(scene, robot, tour, seconds=4.0, rays=10_000, depth=3):
+    """simulate_reads end to end on the first ``seconds`` of the tour: cold, then warm cache."""
+    import tempfile
+
+    from pipeline.acquisition import PoseTrack, ReaderConfig, as_pose_track, simulate_reads
+
+    full = as_pose_track(tour)
+    keep = full.t_s <= full.t_s[0] + seconds
+    track = PoseTrack(
+        full.t_s[keep], full.true_poses[keep], full.est_poses[keep], full.odom_poses[keep]
+    )
+    reader = ReaderConfig()
+    trace = {"max_depth": depth, "samples_per_src": rays}
+    rows = []
+    with tempfile.TemporaryDirectory() as cache:
+        for label in ("cold trace cache", "warm trace cache"):
+            dt, log = _timed(
+                lambda: simulate_reads(
+                    scene,
+                    robot,
+                    track,
+                    reader,
+                    np.random.default_rng(0),
+                    trace=trace,
+                    cache_dir=cache,
+                ),
+                1,
+            )
+            rows.append(
+                {
+                    "measure": f"read attempts, simulate_reads, {label} ({log.n_attempts} attempts, "
+                    f"{log.metadata['n_pairs_traced']} pairs, {rays} rays, depth {depth})",
+                    "value": log.n_attempts / dt,
+                    "unit": "attempts/s",
+                    "seconds": dt,
+                }
+            )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="corridor_lab")
@@ -124,6 +190,8 @@ def main() -> None:
     rows.append(row)
     rows.append(bench_mcl(lmap, scanner, segments, poses, args.particles))
     rows.append(bench_mcl(lmap, scanner, segments, poses, 5 * args.particles))
+    rows.append(bench_reads(scene, robot, tour))
+    rows.extend(bench_reads_traced(scene, robot, tour))
     print(
         f"# bench/acquire.py  scene={args.scene}  {platform.processor() or platform.machine()}"
         f"  cpus={os.cpu_count()}  numpy={np.__version__}"
@@ -135,6 +203,11 @@ def main() -> None:
     print(
         f"ratio: MCL steps/s at {args.particles} vs {5 * args.particles} particles = "
         f"{mcl1 / mcl5:.2f} (5.00 if cost were linear in particles)"
+    )
+    cold, warm = rows[-2]["value"], rows[-1]["value"]
+    print(
+        f"ratio: read attempts/s no tracing vs warm cache vs cold cache = "
+        f"{rows[-3]['value'] / warm:.1f} : 1 : {cold / warm:.3f}"
     )
     real_time = 1.0 / TourConfig().dt_s
     print(
