@@ -1,13 +1,12 @@
 """Small scenes for the propagation tests (boxes wrapped in scenes.Scene)."""
 
 import os
-import warnings
 
 import numpy as np
 import pytest
 import trimesh
 
-from scenes import FrequencyRangeWarning, Scene, TagSet
+from scenes import Scene, TagSet
 
 
 def box(lo, hi):
@@ -53,9 +52,7 @@ def make_corridor(length=25.0, width=2.4, height=3.0, t=0.1):
 
 @pytest.fixture(scope="session", autouse=True)
 def _backend():
-    """Pick the Mitsuba variant once (LLVM on these machines) and silence the P.2040
-    below-1-GHz extrapolation warning the material library gives by design."""
-    warnings.filterwarnings("ignore", category=FrequencyRangeWarning)
+    """Pick the Mitsuba variant once (LLVM on these machines)."""
     from propagation import select_variant
 
     select_variant(os.environ.get("RFIDSTUDY_VARIANT", "auto"))

@@ -6,6 +6,9 @@ import pytest
 from propagation import RssiField, rssi_field
 from propagation.patterns import sionna_orientation
 
+# the material library warns (by design) that P.2040 fits are extrapolated below 1 GHz
+pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
+
 F = 865e6
 
 

@@ -14,6 +14,9 @@ from propagation import (
 from propagation.patterns import sionna_orientation
 from scenes import Scene, TagSet, UnknownMaterialError, material
 
+# the material library warns (by design) that P.2040 fits are extrapolated below 1 GHz
+pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
+
 F = 865e6
 
 
