@@ -99,7 +99,9 @@ class RobotConfig:
 class TourConfig:
     """The guided training tour and the held-out evaluation path (pipeline.robot)."""
 
-    n_passes: int = option(2, "Passes along the corridor route, alternating direction (2 = up and back).")
+    n_passes: int = option(
+        1, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 10)."
+    )
     lane_fractions: tuple[float, ...] = option(
         (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
     )
@@ -150,7 +152,9 @@ class LocalisationConfig:
 class ReaderConfigSection:
     """The UHF reader and the backscatter link budget (DESIGN.md, 'The backscatter link')."""
 
-    read_rate_hz: float = option(10.0, "Read cycles (inventory rounds) per second.")
+    read_rate_hz: float = option(
+        4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10)."
+    )
     antenna_mode: str = option(
         "round_robin", "Antenna multiplexing: 'round_robin' (one port per cycle) or 'all'."
     )
@@ -191,7 +195,7 @@ class TracingConfig:
     )
     max_depth: int = option(4, "Maximum number of interactions (reflections) per path (bench/trace.py).")
     samples_per_src: int = option(30_000, "Rays shot per antenna position (convergence check: bench/trace.py).")
-    memory_budget_mb: float = option(4096.0, "Memory budget for one tracing chunk [MiB].")
+    memory_budget_mb: float = option(2048.0, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
     )

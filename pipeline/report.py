@@ -20,7 +20,7 @@ import tomllib
 
 from pipeline.runstore import atomic_write_text
 
-__all__ = ["figure_captions", "metrics_tables", "write_report"]
+__all__ = ["figure_captions", "metrics_tables", "model_comparison_tables", "write_report"]
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +99,42 @@ def metrics_tables(metrics: dict, prefix: str = "") -> list[tuple[str, list[str]
         else:
             tables.extend(metrics_tables(v, name))
     return tables
+
+
+def model_comparison_tables(models: dict) -> list[tuple[str, list[str], list[list]]]:
+    """One table per metric group (rssi_dbm, detection, rho, fig7...): rows = models.
+
+    Parameters
+    ----------
+    models : dict
+        ``metrics.json``'s ``models`` mapping: model name -> group -> statistics.
+    """
+    groups: list[str] = []
+    for m in models.values():
+        if isinstance(m, dict):
+            groups += [g for g, v in m.items() if isinstance(v, dict) and g not in groups]
+    tables = []
+    for g in groups:
+        cols: list[str] = []
+        rows = []
+        for name, m in models.items():
+            stats = _flatten(m.get(g, {})) if isinstance(m, dict) else {}
+            cols += [c for c in stats if c not in cols]
+            rows.append((name, stats))
+        tables.append((f"models: {g}", ["model"] + cols,
+                       [[name] + [st.get(c) for c in cols] for name, st in rows]))
+    return tables
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    """Scalars of a nested mapping with dotted keys (one level deep; lists dropped)."""
+    out = {}
+    for k, v in d.items():
+        if _is_scalar(v):
+            out[f"{prefix}{k}"] = v
+        elif isinstance(v, dict) and not prefix:
+            out.update({kk: vv for kk, vv in _flatten(v, f"{k}.").items()})
+    return out
 
 
 def figure_captions(run_dir: Path) -> dict[str, str]:
@@ -190,7 +226,20 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     if metrics is None:
         parts.append("<p>metrics.json is missing (evaluation did not run).</p>")
     else:
-        for title, cols, rows in metrics_tables(metrics):
+        body = metrics.get("evaluation", metrics)
+        rest = dict(body)
+        if isinstance(body.get("models"), dict):
+            parts.append("<p>ANFIS (trained on MCL poses) against the baselines, and against the "
+                         "same models trained on true poses (the localisation-error split).</p>")
+            for title, cols, rows in model_comparison_tables(rest.pop("models")):
+                parts.append(_table_html(title, cols, rows))
+        split = rest.pop("localisation_split", None)
+        if isinstance(split, dict) and isinstance(split.get("difference"), dict):
+            rows = [[g, *(_flatten(v).get(c) for c in ("rmse", "mae", "bias", "median"))]
+                    for g, v in split["difference"].items() if isinstance(v, dict)]
+            parts.append(_table_html("MCL-pose minus true-pose model", ["metric", "rmse", "mae",
+                                                                        "bias", "median"], rows))
+        for title, cols, rows in metrics_tables(rest):
             parts.append(_table_html(title, cols, rows))
     # figures
     parts.append("<h2>Figures</h2>")
