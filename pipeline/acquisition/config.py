@@ -9,7 +9,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import tomllib
 
 if TYPE_CHECKING:  # pragma: no cover
     from propagation import LinkBudget
@@ -254,6 +257,26 @@ class AcquisitionConfig:
             return cls(**kw)
         except ValueError as exc:
             raise ValueError(f"{source}: {exc}") from exc
+
+    @classmethod
+    def from_toml(cls, path: str | Path, table: str | None = "acquisition") -> AcquisitionConfig:
+        """Read from a TOML file: its ``[acquisition]`` table (``table=None``: the whole file).
+
+        Raises
+        ------
+        FileNotFoundError, KeyError, ValueError
+            Naming the file (and the key).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"no such acquisition config file: {path}")
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+        if table is not None:
+            if table not in data:
+                raise KeyError(f"{path}: no [{table}] table")
+            data = data[table]
+        return cls.from_dict(data, source=str(path))
 
     def to_dict(self) -> dict[str, Any]:
         """TOML-able dict that :meth:`from_dict` reads back (``None`` entries dropped)."""

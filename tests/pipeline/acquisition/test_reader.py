@@ -140,3 +140,18 @@ def test_config_roundtrip():
     assert cfg.reader.budget.tx_power_dbm == 25.0 and cfg.rssi_range_dbm == (-80.0, -20.0)
     again = AcquisitionConfig.from_dict(cfg.to_dict())
     assert again == cfg
+
+
+def test_paper_scale_config_loads_and_tour_keys_exist():
+    from pathlib import Path
+
+    import pipeline
+    from pipeline.robot.trajectory import TourConfig
+
+    path = Path(pipeline.__file__).parent / "data" / "paper_scale_acquisition.toml"
+    cfg = AcquisitionConfig.from_toml(path)
+    assert cfg.reader.read_rate_hz > 0 and cfg.d_max_m == 3.0
+    # The tour table must be valid keyword arguments of the robot's TourConfig.
+    TourConfig(**cfg.tour)
+    with pytest.raises(FileNotFoundError, match="nope.toml"):
+        AcquisitionConfig.from_toml(path.with_name("nope.toml"))
