@@ -11,7 +11,7 @@ laser model (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005, sec. 6.4).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -248,6 +248,37 @@ class OccupancyMap:
             + f[y1, x1] * tx * ty
         )
         return np.where(inside, np.minimum(d, max_distance_m), max_distance_m)
+
+    def with_surface_error(
+        self, rng: np.random.Generator, sigma_m: float, correlation_m: float = 1.0
+    ) -> OccupancyMap:
+        """A copy whose likelihood field has its surfaces displaced by a smooth random field.
+
+        Models the difference between the robot's map and the world (building tolerances,
+        mapping error): a Gaussian random field delta (std ``sigma_m``, Gaussian correlation
+        length ``correlation_m``) shifts every surface, ``field' = |field - delta|``
+        (the field is a distance, so subtracting delta moves its zero set by delta).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+        sigma_m : float
+            Standard deviation of the surface displacement [m]; 0 returns ``self``.
+        correlation_m : float
+            Correlation length of the displacement along the surfaces [m].
+        """
+        if sigma_m < 0 or correlation_m <= 0:
+            raise ValueError(
+                f"with_surface_error: sigma_m={sigma_m} must be >= 0 and "
+                f"correlation_m={correlation_m} > 0"
+            )
+        if sigma_m == 0:
+            return self
+        noise = ndimage.gaussian_filter(
+            rng.standard_normal(self.shape), correlation_m / self.resolution_m, mode="wrap"
+        )
+        noise *= sigma_m / max(float(noise.std()), 1e-300)
+        return replace(self, boundary_distance_m=np.abs(self.boundary_distance_m - noise))
 
     def free_cell_centres(self) -> np.ndarray:
         """World coordinates (n_free, 2) [m] of the centres of all free cells."""

@@ -280,9 +280,10 @@ def _route_band(scene, robot: Robot, cfg: TourConfig, cmap: OccupancyMap, route_
     sizes = ndimage.sum_labels(feas, lab, np.arange(1, n + 1))
     run = np.nonzero(lab == int(np.argmax(sizes)) + 1)[0]
     i0, i1 = int(run[0]), int(run[-1])
-    if s[i1] - s[i0] < 2 * cfg.lane_change_length_m:
+    if s[i1] - s[i0] < 0.5:
         raise ValueError(
-            f"scene {scene.name!r}: usable stretch of the route is only {s[i1] - s[i0]:.2f} m"
+            f"scene {scene.name!r}: usable stretch of the route is only {s[i1] - s[i0]:.2f} m "
+            "(need >= 0.5 m where the robot's turning disc fits)"
         )
     # conservative smooth band: erode (max of lo / min of hi over a window), then smooth
     w = max(3, int(round(cfg.lane_change_length_m / ds)))
