@@ -75,3 +75,16 @@ def test_scanner_rejects_bad_settings():
         LaserScanner(n_beams=0)
     with pytest.raises(ValueError, match="max_range_m"):
         LaserScanner(max_range_m=-1.0)
+
+
+def test_map_surface_error(room):
+    m = OccupancyMap.from_scene(room, 0.05, (0.35, 0.35), n_slices=1)
+    assert m.with_surface_error(np.random.default_rng(0), 0.0) is m
+    e = m.with_surface_error(np.random.default_rng(0), 0.02, correlation_m=1.0)
+    inner = m.boundary_distance_m > 0.2  # away from walls the shift is the field itself
+    shift = m.boundary_distance_m[inner] - e.boundary_distance_m[inner]
+    # the displacement field is normalised to 2 cm std over the grid; the interior part
+    # is a large sample of it (correlation 1 m over a ~5 x 4 m grid: loose 30 %)
+    assert np.std(shift) == pytest.approx(0.02, rel=0.3)
+    with pytest.raises(ValueError, match="sigma_m=-1"):
+        m.with_surface_error(np.random.default_rng(0), -1.0)

@@ -88,3 +88,12 @@ def test_no_route_raises(corridor, robot):
     s = Scene("noroute", corridor.meshes, corridor.tags, route_m=None)
     with pytest.raises(ValueError, match="no route_m"):
         guided_tour(s, robot, np.random.default_rng(0))
+
+
+def test_tour_in_bundled_corridor_lab(robot):
+    import scenes
+
+    lab = scenes.load("corridor_lab")
+    tour = guided_tour(lab, robot, np.random.default_rng(0), TourConfig(n_passes=2))
+    check_trajectory(collision_map(lab, robot), tour, robot)  # cabinets, doors avoided
+    assert np.ptp(tour.poses[:, 0]) > 20.0  # most of the ~25 m corridor
