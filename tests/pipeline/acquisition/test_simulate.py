@@ -98,26 +98,36 @@ def test_reads_consistent_and_geometry(scene, track):
 
 def test_same_seed_identical_files_and_cache(scene, track, tmp_path):
     reader = _reader()
-    cache = tmp_path / "cache"
-    runs = []
-    for k in range(2):
+    # run0 and run1 trace from scratch (separate caches); run2 reuses run0's cache.
+    for k, cache in enumerate(("cache0", "cache1", "cache0")):
         log = simulate_reads(
-            scene, Robot(), track, reader, np.random.default_rng(7), trace=TRACE, cache_dir=cache
+            scene,
+            Robot(),
+            track,
+            reader,
+            np.random.default_rng(7),
+            trace=TRACE,
+            cache_dir=tmp_path / cache,
         )
         log.write(tmp_path / f"run{k}")
-        runs.append(log)
     for name in ("reads.parquet", "poses.parquet"):
         a = (tmp_path / "run0" / name).read_bytes()
-        b = (tmp_path / "run1" / name).read_bytes()
-        assert a == b, name
+        for k in (1, 2):
+            assert a == (tmp_path / f"run{k}" / name).read_bytes(), (name, k)
     back = ReadLog.read(tmp_path / "run0")
-    np.testing.assert_array_equal(back.reads["read"], runs[0].reads["read"])
+    np.testing.assert_array_equal(back.reads["read"], log.reads["read"])
     other = simulate_reads(
-        scene, Robot(), track, reader, np.random.default_rng(8), trace=TRACE, cache_dir=cache
+        scene,
+        Robot(),
+        track,
+        reader,
+        np.random.default_rng(8),
+        trace=TRACE,
+        cache_dir=tmp_path / "cache0",
     )
     # A different seed changes the RSSI noise of at least one read.
     assert not np.array_equal(
-        other.reads["rssi_dbm"].fillna(0).to_numpy(), runs[0].reads["rssi_dbm"].fillna(0).to_numpy()
+        other.reads["rssi_dbm"].fillna(0).to_numpy(), log.reads["rssi_dbm"].fillna(0).to_numpy()
     )
 
 
