@@ -171,7 +171,7 @@ class ReaderConfigSection:
     polarization_loss_db: float = option(3.0, "Polarisation mismatch loss per way [dB] (circular to linear).")
     modulation_loss_db: float = option(-6.0, "Backscatter modulation factor M [dB].")
     range_margin_db: float = option(
-        6.0, "Margin over the free-space budget when choosing which links can be read and are traced [dB]."
+        10.0, "Margin over the free-space budget when choosing which links can be read and are traced [dB]."
     )
 
     def __post_init__(self):
