@@ -47,7 +47,8 @@ def _maxrss_gb():
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="fewer sources, smaller reference")
+    ap.add_argument("--quick", action="store_true", help="8 antenna positions instead of 20")
+    ap.add_argument("--full", action="store_true", help="reference with 1e6 rays/source (~5 min)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
@@ -65,26 +66,43 @@ def main() -> None:
     P.trace_links(scene, poses[:2], tags[:2], max_depth=1, samples_per_src=1000)
 
     # --- convergence check ------------------------------------------------------------
-    ref_depth, ref_spp = (6, 300_000) if args.quick else (6, 1_000_000)
+    ref_depth, ref_spp = (6, 1_000_000) if args.full else (6, 300_000)
     t0 = time.perf_counter()
     ref = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=ref_depth,
                         samples_per_src=ref_spp, memory_budget_bytes=6 * 1024**3)
     t_ref = time.perf_counter() - t0
     print(f"\nreference: depth {ref_depth}, {ref_spp:.0e} rays/source, {t_ref:.1f} s, "
           f"mean paths/link {ref.n_paths.mean():.0f}, maxrss {_maxrss_gb():.2f} GB")
-    print(f"{'depth':>5} {'rays/src':>9} {'time_s':>7} {'links/s':>8} {'p50_dB':>7} {'p95_dB':>7} "
-          f"{'p99_dB':>7} {'max_dB':>7} {'>3dB':>5}")
-    depths = (2, 3, 4, 5)
+    # "relevant" links: reference gain > -55 dB, i.e. within 13 dB of the default tag
+    # threshold (-42.15 dB); elsewhere errors sit in deep multipath fades that decide nothing.
+    # "flips": links whose detection (gain >= -42.15 dB) differs from the reference.
+    rel = ref.gain_db > -55.0
+    thr = P.LinkBudget().min_gain_db()
+
+    def row(label, ls, dt):
+        err = np.abs(ls.gain_db - ref.gain_db).ravel()
+        e_rel = np.abs(ls.gain_db - ref.gain_db)[rel]
+        p50, p95, p99 = np.percentile(err, [50, 95, 99])
+        flips = int(np.sum((ls.gain_db >= thr) != (ref.gain_db >= thr)))
+        rate = ls.gain.size / dt if dt > 0 else float("nan")
+        print(f"{label:>15} {dt:>7.2f} {rate:>8.1f} {p50:>7.2f} {p95:>7.2f} {p99:>7.2f} "
+              f"{np.percentile(e_rel, 50):>7.2f} {np.percentile(e_rel, 95):>7.2f} {e_rel.max():>7.2f} {flips:>5}")
+
+    print(f"relevant links (ref > -55 dB): {rel.sum()} of {rel.size}")
+    print(f"{'depth/rays':>15} {'time_s':>7} {'links/s':>8} {'p50_dB':>7} {'p95_dB':>7} {'p99_dB':>7} "
+          f"{'rel_p50':>7} {'rel_p95':>7} {'rel_max':>7} {'flips':>5}")
+    t0 = time.perf_counter()
+    ref7 = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=ref_depth,
+                         samples_per_src=ref_spp, memory_budget_bytes=6 * 1024**3, seed=7)
+    row("ref, seed 7", ref7, time.perf_counter() - t0)
+    depths = (3, 4, 5, 6)
     spps = (10_000, 30_000, 100_000)
     for depth in depths:
         for spp in spps:
             t0 = time.perf_counter()
             ls = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=depth, samples_per_src=spp)
             dt = time.perf_counter() - t0
-            err = np.abs(ls.gain_db - ref.gain_db).ravel()
-            p50, p95, p99 = np.percentile(err, [50, 95, 99])
-            print(f"{depth:>5} {spp:>9.0e} {dt:>7.2f} {ls.gain.size / dt:>8.1f} {p50:>7.3f} {p95:>7.3f} "
-                  f"{p99:>7.3f} {err.max():>7.2f} {np.sum(err > 3):>5}")
+            row(f"{depth} / {spp:.0e}", ls, dt)
 
     # --- throughput and overhead at the defaults -------------------------------------------
     import sionna.rt as rt
