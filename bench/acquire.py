@@ -190,8 +190,9 @@ def main() -> None:
     rows.append(row)
     rows.append(bench_mcl(lmap, scanner, segments, poses, args.particles))
     rows.append(bench_mcl(lmap, scanner, segments, poses, 5 * args.particles))
-    rows.append(bench_reads(scene, robot, tour))
-    rows.extend(bench_reads_traced(scene, robot, tour))
+    mcl1, mcl5 = rows[-2]["value"], rows[-1]["value"]
+    read_rows = [bench_reads(scene, robot, tour), *bench_reads_traced(scene, robot, tour)]
+    rows.extend(read_rows)
     print(
         f"# bench/acquire.py  scene={args.scene}  {platform.processor() or platform.machine()}"
         f"  cpus={os.cpu_count()}  numpy={np.__version__}"
@@ -199,15 +200,14 @@ def main() -> None:
     print(f"{'measure':<72} {'value':>12} {'unit':<8} {'time_s':>8}")
     for r in rows:
         print(f"{r['measure']:<72} {r['value']:>12.4g} {r['unit']:<8} {r['seconds']:>8.3f}")
-    mcl1, mcl5 = rows[-2]["value"], rows[-1]["value"]
     print(
         f"ratio: MCL steps/s at {args.particles} vs {5 * args.particles} particles = "
         f"{mcl1 / mcl5:.2f} (5.00 if cost were linear in particles)"
     )
-    cold, warm = rows[-2]["value"], rows[-1]["value"]
+    pure, cold, warm = (r["value"] for r in read_rows)
     print(
         f"ratio: read attempts/s no tracing vs warm cache vs cold cache = "
-        f"{rows[-3]['value'] / warm:.1f} : 1 : {cold / warm:.3f}"
+        f"{pure / warm:.1f} : 1 : {cold / warm:.3f}"
     )
     real_time = 1.0 / TourConfig().dt_s
     print(
