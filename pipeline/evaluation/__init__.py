@@ -16,7 +16,7 @@ from .baselines import (
     fit_log_distance,
     tr38901_horizontal_db,
 )
-from .cells import CellGrid, CellIndex, wrap_angle_rad
+from .cells import CellGrid, CellIndex
 from .comparison import (
     DetectionComparison,
     RhoComparison,
@@ -37,7 +37,7 @@ from .evaluate import (
     localisation_split,
 )
 from .fig7 import FIG7_COLUMNS, Fig7Result, fig7_errors, read_fig7_table
-from .geometry import FrameGeometry, antenna_frame_geometry, lattice_offsets
+from .geometry import antenna_frame_geometry, lattice_offsets
 from .interface import SensorLike, check_sensor
 from .localisation import LocalisationErrors, localisation_errors
 from .metrics import (
@@ -70,7 +70,6 @@ __all__ = [
     "EvaluationInputs",
     "FIG7_COLUMNS",
     "Fig7Result",
-    "FrameGeometry",
     "GridCountModel",
     "LocalisationErrors",
     "LocalisationSplit",
@@ -112,7 +111,6 @@ __all__ = [
     "tr38901_horizontal_db",
     "true_detected",
     "true_rssi_dbm",
-    "wrap_angle_rad",
     "write_json_atomic",
     "write_parquet_atomic",
     "write_tags",

@@ -37,9 +37,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fuzzymodel import denormalise_rssi, normalise_rssi
+from fuzzymodel import denormalise_rssi, normalise_rssi, wrap_angle
+from propagation import pattern_gain_db
 
-from .cells import CellGrid, wrap_angle_rad
+from .cells import CellGrid
 from .tables import require_columns, write_json_atomic
 
 __all__ = [
@@ -61,10 +62,12 @@ PATTERNS = ("cosine", "tr38901")
 def tr38901_horizontal_db(alpha_rad) -> np.ndarray:
     """3GPP TR 38.901 Table 7.3-1 element pattern, horizontal cut, relative to boresight [dB].
 
-    ``-min(12 (phi / 65 deg)^2, 30)`` with phi the bearing wrapped to (-180, 180] deg.
+    ``-min(12 (phi / 65 deg)^2, 30)`` with phi the bearing wrapped to (-180, 180] deg:
+    :func:`propagation.pattern_gain_db` ``("tr38901", pi/2, phi)`` less its 8 dBi peak.
     """
-    phi_deg = np.degrees(wrap_angle_rad(alpha_rad))
-    return -np.minimum(12.0 * (phi_deg / 65.0) ** 2, 30.0)
+    phi = wrap_angle(alpha_rad)
+    theta = np.full_like(phi, np.pi / 2)
+    return pattern_gain_db("tr38901", theta, phi) - pattern_gain_db("tr38901", np.pi / 2, 0.0)
 
 
 def _check_keys(d: dict, required: set, where: str, optional: set = frozenset()) -> None:
@@ -154,7 +157,7 @@ class LogDistanceModel:
 
 
 def _pattern_basis(alpha_rad, pattern: str, n_terms: int) -> np.ndarray:
-    a = wrap_angle_rad(np.asarray(alpha_rad, dtype=np.float64).ravel())
+    a = wrap_angle(np.asarray(alpha_rad, dtype=np.float64).ravel())
     if pattern == "tr38901":
         return tr38901_horizontal_db(a)[:, None]
     k = np.arange(1, n_terms + 1)

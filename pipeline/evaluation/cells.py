@@ -12,12 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CellGrid", "CellIndex", "wrap_angle_rad"]
+from fuzzymodel import wrap_angle
 
-
-def wrap_angle_rad(angle_rad) -> np.ndarray:
-    """Wrap angles [rad] to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=np.float64), 2.0 * np.pi)
+__all__ = ["CellGrid", "CellIndex"]
 
 
 @dataclass(frozen=True)
@@ -127,7 +124,7 @@ class CellGrid:
         CellIndex
         """
         d = np.asarray(d_m, dtype=np.float64).ravel()
-        a = wrap_angle_rad(np.asarray(alpha_rad, dtype=np.float64).ravel())
+        a = wrap_angle(np.asarray(alpha_rad, dtype=np.float64).ravel())
         if d.shape != a.shape:
             raise ValueError(f"d_m {d.shape} and alpha_rad {a.shape} differ in shape")
         valid = np.isfinite(d) & np.isfinite(a) & (d >= 0.0) & (d < self.d_max_m)

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from fuzzymodel import wrap_angle
+
 from .metrics import PercentileSummary, nan_to_none, percentile_summary
 from .tables import require_columns
 
@@ -66,7 +68,7 @@ def localisation_errors(poses: pd.DataFrame, estimate: str = "est") -> Localisat
     dx = poses[f"{estimate}_x_m"].to_numpy(float) - poses["true_x_m"].to_numpy(float)
     dy = poses[f"{estimate}_y_m"].to_numpy(float) - poses["true_y_m"].to_numpy(float)
     dth = poses[f"{estimate}_theta_rad"].to_numpy(float) - poses["true_theta_rad"].to_numpy(float)
-    dth = np.abs(np.pi - np.mod(np.pi - dth, 2.0 * np.pi))
+    dth = np.abs(wrap_angle(dth))
     pos = np.hypot(dx, dy)
     return LocalisationErrors(time_s=poses["time_s"].to_numpy(float), position_m=pos,
                               heading_rad=dth, position_summary=percentile_summary(pos),

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuzzymodel import wrap_angle  # re-exported: the one (-pi, pi] wrap
+
 __all__ = [
     "AntennaMount",
     "Robot",
@@ -23,13 +25,6 @@ __all__ = [
     "mounts_to_array",
     "wrap_angle",
 ]
-
-
-def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray:
-    """Wrap angles to (-pi, pi] [rad], element-wise."""
-    a = np.asarray(angle_rad, dtype=float)
-    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w == -np.pi, np.pi, w)
 
 
 def compose_poses(base: np.ndarray, local: np.ndarray) -> np.ndarray:

@@ -63,3 +63,21 @@ def test_lattice_offsets_symmetric_and_inside():
     assert lattice_offsets(0.0).shape == (1, 3)
     with pytest.raises(ValueError, match="shape"):
         lattice_offsets(0.1, "cube")
+
+
+def test_frame_geometry_per_pose_points_match_one_pose_at_a_time():
+    prop = pytest.importorskip("propagation")
+    rng = np.random.default_rng(4)
+    poses = np.column_stack([rng.uniform(-2, 2, (4, 3)), rng.uniform(-np.pi, np.pi, 4),
+                             rng.uniform(-0.5, 0.5, 4), np.zeros(4)])
+    poses = np.concatenate([poses, poses[:2]])  # repeated poses share one call
+    pts = rng.uniform(-3, 3, (6, 5, 3))
+    ours = antenna_frame_geometry(poses, pts)
+    assert ours.d_m.shape == (6, 5)
+    for i in range(6):
+        ref = prop.antenna_frame_angles(poses[i:i + 1], pts[i])
+        # the same function on the same numbers: identical bits
+        np.testing.assert_array_equal(ours.alpha_rad[i], ref.alpha_rad[0])
+        np.testing.assert_array_equal(ours.d_m[i], ref.d_m[0])
+    with pytest.raises(ValueError, match="points must have shape"):
+        antenna_frame_geometry(poses, pts[:3])
