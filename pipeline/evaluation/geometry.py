@@ -9,6 +9,7 @@ sets (n, k, 3), which the Fig. 7 neighbourhoods need, and the neighbourhood latt
 from __future__ import annotations
 
 import numpy as np
+
 from propagation import AntennaFrameAngles, antenna_frame_angles
 
 __all__ = ["antenna_frame_geometry", "lattice_offsets"]
