@@ -26,9 +26,9 @@ from pipeline.robot import (
     guided_tour,
     laser_map,
     run_mcl,
-    section_segments,
     simulate_odometry,
 )
+from scenes import floor_plan_segments
 
 
 def _timed(fn, repeat=3):
@@ -55,7 +55,7 @@ def bench_tour(scene, robot, n_passes=2):
 
 def bench_laser(scene, poses, scanner):
     """Laser rays per second (exact 2-D ray/segment intersection)."""
-    seg = section_segments(scene, scanner.height_m)
+    seg = floor_plan_segments(scene, scanner.height_m)
     dt, _ = _timed(lambda: scanner.scan(seg, poses, np.random.default_rng(0)))
     rays = len(poses) * scanner.n_beams
     return {
@@ -180,7 +180,7 @@ def main() -> None:
     scene = scenes.load(args.scene)
     robot = Robot()
     scanner = LaserScanner()
-    segments = section_segments(scene, scanner.height_m)
+    segments = floor_plan_segments(scene, scanner.height_m)
     rows = []
     row, tour = bench_tour(scene, robot)
     rows.append(row)

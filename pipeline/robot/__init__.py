@@ -24,7 +24,7 @@ from pipeline.robot.mcl import (
     low_variance_resample,
     run_mcl,
 )
-from pipeline.robot.occupancy import OccupancyMap, section_segments
+from pipeline.robot.occupancy import OccupancyMap
 from pipeline.robot.odometry import (
     OdometryNoise,
     sample_motion_model_odometry,
@@ -66,7 +66,6 @@ __all__ = [
     "ray_cast",
     "run_mcl",
     "sample_motion_model_odometry",
-    "section_segments",
     "simulate_localisation",
     "simulate_odometry",
     "wrap_angle",

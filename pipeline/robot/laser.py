@@ -1,7 +1,7 @@
 """2-D laser range finder (SICK LMS-like) ray-cast against the scene's wall segments.
 
 The scan plane is horizontal at the scanner's height; the scene is cut there into
-segments (:func:`pipeline.robot.occupancy.section_segments`) and each beam is
+segments (:func:`scenes.floor_plan_segments`) and each beam is
 intersected exactly with every nearby segment (vectorised 2-D ray/segment test).
 """
 
@@ -148,7 +148,7 @@ class LaserScanner:
         ----------
         segments : numpy.ndarray
             Wall segments (m, 2, 2) at the scan height [m]
-            (:func:`pipeline.robot.occupancy.section_segments`).
+            (:func:`scenes.floor_plan_segments`).
         poses : numpy.ndarray
             Robot poses (n_poses, 3) [x_m, y_m, theta_rad].
         rng : numpy.random.Generator

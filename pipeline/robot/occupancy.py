@@ -1,7 +1,7 @@
 """Occupancy grid and likelihood field cut from the scene meshes.
 
 The grid is the planar map a robot navigates and localises in: the meshes are sliced
-by horizontal planes (trimesh), the cut segments are rasterised, and every cell not
+by horizontal planes (:func:`scenes.floor_plan_segments`), the cut segments are rasterised, and every cell not
 reachable from the walkable route (wall interiors, the outside of the building, the
 inside of cabinets) is marked occupied. Euclidean distance transforms (scipy.ndimage)
 give the clearance field used for collision checks and the likelihood field of the
@@ -14,46 +14,13 @@ import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
-import trimesh
 from scipy import ndimage
 
-__all__ = ["OccupancyMap", "section_segments"]
+from scenes import floor_plan_segments
+
+__all__ = ["OccupancyMap"]
 
 logger = logging.getLogger(__name__)
-
-
-def section_segments(scene, z_m: float) -> np.ndarray:
-    """Cut every mesh of ``scene`` with the horizontal plane z = ``z_m``.
-
-    Parameters
-    ----------
-    scene : scenes.Scene
-        The scene (meshes in metres, z up).
-    z_m : float
-        Height of the cutting plane [m].
-
-    Returns
-    -------
-    numpy.ndarray
-        Segments (n_segments, 2, 2) float64: [[x0, y0], [x1, y1]] [m]; degenerate
-        (zero-length) segments removed.
-    """
-    parts = []
-    for name in scene.materials:
-        mesh = scene.meshes[name]
-        if len(mesh.faces) == 0:
-            continue
-        lo, hi = mesh.bounds[:, 2]
-        if not (lo <= z_m <= hi):
-            continue
-        seg = trimesh.intersections.mesh_plane(mesh, [0.0, 0.0, 1.0], [0.0, 0.0, float(z_m)])
-        if len(seg):
-            parts.append(np.asarray(seg, dtype=float)[:, :, :2])
-    if not parts:
-        return np.zeros((0, 2, 2))
-    seg = np.concatenate(parts)
-    keep = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1) > 1e-9
-    return seg[keep]
 
 
 def _rasterise(segments: np.ndarray, origin: np.ndarray, res: float, shape) -> np.ndarray:
@@ -158,7 +125,7 @@ class OccupancyMap:
         extent = bounds[1, :2] + margin_m - origin
         shape = (int(np.ceil(extent[1] / resolution_m)), int(np.ceil(extent[0] / resolution_m)))
         walls = np.zeros(shape, dtype=bool)
-        cut = [section_segments(scene, h) for h in heights]
+        cut = [floor_plan_segments(scene, h) for h in heights]
         for seg in cut:
             walls |= _rasterise(seg, origin, resolution_m, shape)
         labels, n_labels = ndimage.label(~walls)  # 4-connectivity: diagonal gaps do not leak

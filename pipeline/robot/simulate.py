@@ -12,9 +12,10 @@ from pipeline.robot._config import config_from_dict
 from pipeline.robot.kinematics import Robot
 from pipeline.robot.laser import LaserScanner
 from pipeline.robot.mcl import LocalizationResult, MCLConfig, run_mcl
-from pipeline.robot.occupancy import OccupancyMap, section_segments
+from pipeline.robot.occupancy import OccupancyMap
 from pipeline.robot.odometry import OdometryNoise, simulate_odometry
 from pipeline.robot.trajectory import Trajectory
+from scenes import floor_plan_segments
 
 __all__ = ["LocalizationConfig", "laser_map", "simulate_localisation"]
 
@@ -110,7 +111,7 @@ def simulate_localisation(
     rng_odo, rng_laser, rng_mcl, rng_map = rng.spawn(4)
     truth = np.asarray(trajectory.poses, dtype=float)
     odo = simulate_odometry(truth, cfg.odometry_noise, rng_odo)
-    segments = section_segments(scene, cfg.scanner.height_m)
+    segments = floor_plan_segments(scene, cfg.scanner.height_m)
     scans = cfg.scanner.scan(segments, truth, rng_laser)
     lmap = laser_map(scene, cfg.scanner, cfg.map_resolution_m).with_surface_error(
         rng_map, cfg.map_error_m, cfg.map_error_correlation_m

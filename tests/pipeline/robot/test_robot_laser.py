@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.robot import LaserScanner, OccupancyMap, ray_cast, section_segments
+from pipeline.robot import LaserScanner, OccupancyMap, ray_cast
+from scenes import floor_plan_segments
 
 
 def _room_ranges(sensor_xy, angles, size_x, size_y):
@@ -18,7 +19,7 @@ def _room_ranges(sensor_xy, angles, size_x, size_y):
 
 def test_ranges_match_analytic_box_room(room):
     scanner = LaserScanner(range_noise_m=0.0)
-    seg = section_segments(room, scanner.height_m)
+    seg = floor_plan_segments(room, scanner.height_m)
     poses = np.array([[2.0, 1.5, 0.0], [1.0, 0.8, 0.7], [3.2, 2.1, -2.5]])
     r = scanner.scan(seg, poses, np.random.default_rng(0))
     sp = scanner.sensor_poses(poses)
@@ -34,7 +35,7 @@ def test_noise_statistics_and_max_range(room):
     rng = np.random.default_rng(1)
     scanner = LaserScanner(range_noise_m=0.01)
     exact = LaserScanner(range_noise_m=0.0)
-    seg = section_segments(room, scanner.height_m)
+    seg = floor_plan_segments(room, scanner.height_m)
     poses = np.tile([[2.0, 1.5, 0.3]], (200, 1))
     res = scanner.scan(seg, poses, rng) - exact.scan(seg, poses, rng)
     # 36,200 residuals: the sample std is within ~0.4 % of sigma; 3 % is generous

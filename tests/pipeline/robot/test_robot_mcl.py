@@ -14,10 +14,10 @@ from pipeline.robot import (
     laser_map,
     low_variance_resample,
     run_mcl,
-    section_segments,
     simulate_localisation,
     simulate_odometry,
 )
+from scenes import floor_plan_segments
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +80,7 @@ def test_augmented_mcl_recovers_from_wheel_slip(corridor, robot, tour):
     rng = np.random.default_rng(0)
     odo = simulate_odometry(poses, OdometryNoise(), rng)
     odo[150:, :2] += [0.6, 0.3]  # the wheels slip: odometry jumps 0.67 m at step 150
-    scans = scanner.scan(section_segments(corridor, scanner.height_m), poses, rng)
+    scans = scanner.scan(floor_plan_segments(corridor, scanner.height_m), poses, rng)
     lm = laser_map(corridor, scanner)
     err = {}
     for aug in (True, False):
@@ -107,7 +107,7 @@ def test_global_localisation_converges(corridor, robot, tour):
     scanner = LaserScanner()
     rng = np.random.default_rng(4)
     odo = simulate_odometry(poses, OdometryNoise(), rng)
-    scans = scanner.scan(section_segments(corridor, scanner.height_m), poses, rng)
+    scans = scanner.scan(floor_plan_segments(corridor, scanner.height_m), poses, rng)
     res = run_mcl(
         laser_map(corridor, scanner),
         scanner,
