@@ -8,7 +8,6 @@ pattern is not in these fields (unlike :func:`propagation.trace_links`).
 
 from __future__ import annotations
 
-import os
 import tempfile
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -20,6 +19,7 @@ from propagation.analytic import linear_to_db
 from propagation.backend import ensure_variant
 from propagation.patterns import PATTERNS, POLARIZATIONS, sionna_orientation
 from propagation.sionna_scene import check_antenna_positions, clear_devices, load_sionna_scene
+from scenes.fileio import atomic_save_npz
 
 __all__ = ["RssiField", "rssi_field", "wall_surface_mesh"]
 
@@ -81,19 +81,8 @@ class RssiField:
 
     def save(self, path) -> Path:
         """Write as NPZ (temporary file, then rename); returns the path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         data = {k: np.asarray(v) for k, v in asdict(self).items()}
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, **data)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        return atomic_save_npz(path, compressed=True, **data)
 
     @classmethod
     def load(cls, path) -> RssiField:

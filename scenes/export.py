@@ -9,11 +9,10 @@ study frequency (see ``shared/SIONNA_NOTES.md``).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from scenes.fileio import atomic_write_bytes
 from scenes.materials import get_material, material
 
 __all__ = ["export_mitsuba", "material_bsdf_id"]
@@ -22,18 +21,6 @@ __all__ = ["export_mitsuba", "material_bsdf_id"]
 def material_bsdf_id(name: str) -> str:
     """The Mitsuba ``<bsdf>`` id used for library material ``name``."""
     return f"uhf-{get_material(name).name}"
-
-
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def export_mitsuba(scene, directory: str | Path, frequency_hz: float) -> Path:
@@ -81,7 +68,7 @@ def export_mitsuba(scene, directory: str | Path, frequency_hz: float) -> Path:
     for name in scene.materials:
         mesh = scene.meshes[name]
         ply = directory / "meshes" / f"{get_material(name).name}.ply"
-        _atomic_write_bytes(ply, mesh.export(file_type="ply", encoding="binary"))
+        atomic_write_bytes(ply, mesh.export(file_type="ply", encoding="binary"))
         lines += [
             f'  <shape type="ply" id={quoteattr("mesh-" + get_material(name).name)}>',
             f'    <string name="filename" value={quoteattr("meshes/" + ply.name)}/>',
@@ -91,5 +78,5 @@ def export_mitsuba(scene, directory: str | Path, frequency_hz: float) -> Path:
         ]
     lines.append("</scene>")
     xml = directory / "scene.xml"
-    _atomic_write_bytes(xml, ("\n".join(lines) + "\n").encode())
+    atomic_write_bytes(xml, ("\n".join(lines) + "\n").encode())
     return xml

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
-import os
-import tempfile
 from pathlib import Path
 
 import tomli_w
 
+from scenes.fileio import atomic_write_bytes
 from scenes.materials import UnknownMaterialError, resolve_material_name
 from scenes.spec import (
     BoxSpec,
@@ -186,16 +185,7 @@ def save_spec(spec: SceneSpec, path: str | Path) -> Path:
     """Write ``spec`` as TOML (temporary file renamed into place); returns the path."""
     path = Path(path)
     data = tomli_w.dumps(spec_to_dict(spec)).encode()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_bytes(path, data)
 
 
 def overrides_metadata(spec: SceneSpec) -> dict:
