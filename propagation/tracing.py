@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from propagation.backend import ensure_variant
-from propagation.pathcache import SourcePaths, load_source, save_source, settings_key
+from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import (
     PATTERNS,
     POLARIZATIONS,
@@ -387,12 +387,12 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     need = np.zeros((len(uniq), m), dtype=bool)
     np.logical_or.at(need, inv, pairs)
 
-    cache_sub = Path(cache_dir) / settings_key(scene.content_hash(), settings) if cache_dir else None
+    cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
+    cached = cache.load(uniq) if cache is not None else [None] * len(uniq)
     src_paths: list[SourcePaths] = []
     missing: list[np.ndarray] = []
     for u in range(len(uniq)):
-        sp = load_source(cache_sub, uniq[u]) if cache_sub is not None else None
-        sp = sp if sp is not None else SourcePaths.empty(uniq[u])
+        sp = cached[u] if cached[u] is not None else SourcePaths.empty(uniq[u])
         src_paths.append(sp)
         want = np.flatnonzero(need[u])
         missing.append(want[sp.index_of(tags[want]) < 0] if len(want) else want)
@@ -413,8 +413,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
             n_calls += 1
             for u, sp in zip(chunk, fresh, strict=True):
                 src_paths[u] = src_paths[u].merged(sp)
-                if cache_sub is not None:
-                    save_source(cache_sub, src_paths[u])
+            if cache is not None:
+                cache.save([src_paths[u] for u in chunk])
             if progress is not None:
                 progress(min(c0 + per_chunk, len(todo)), len(todo))
             logger.info("traced %d/%d antenna positions (%d tags) in %.1f s",

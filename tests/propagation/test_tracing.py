@@ -161,12 +161,16 @@ def test_pairs_mask_and_cache(corridor_scene, tmp_path):
     third = trace_links(corridor_scene, rotated, tags, pairs=pairs, reader_pattern="iso", **kw)
     assert third.n_solver_calls == 0
     assert not np.allclose(third.gain[pairs], first.gain[pairs])
-    # a corrupt entry is reported by name and traced again
-    victim = sorted(tmp_path.rglob("*.npz"))[0]
+    # one pack (NPZ + JSON index) per solver call, not one file per position
+    packs = sorted(tmp_path.rglob("pack-*.npz"))
+    assert len(packs) == first.n_solver_calls == 1 and len(list(tmp_path.rglob("pack-*.json"))) == 1
+    # a corrupt pack is reported by name and its positions (both, one solver call) traced again
+    victim = packs[0]
     victim.write_bytes(b"not an npz")
     with pytest.warns(CacheWarning, match=victim.name):
         fourth = trace_links(corridor_scene, poses, tags, pairs=pairs, **kw)
-    assert fourth.n_traced_sources == 1
+    assert fourth.n_traced_sources == 2 and not victim.exists()
+    np.testing.assert_allclose(fourth.gain, first.gain, rtol=1e-5)  # same seed, same paths
     # other solver settings do not hit the cache
     fifth = trace_links(corridor_scene, poses, tags, pairs=pairs, max_depth=1, samples_per_src=5000,
                         cache_dir=tmp_path)
