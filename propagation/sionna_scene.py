@@ -11,6 +11,7 @@ import tempfile
 import numpy as np
 
 from propagation.backend import ensure_variant
+from scenes.geometry import solid_material_at
 
 __all__ = [
     "check_antenna_positions",
@@ -63,52 +64,14 @@ def clear_devices(rt_scene) -> None:
         rt_scene.remove(name)
 
 
-def _solid_bodies(scene) -> list:
-    bodies = []
-    for mesh in scene.meshes.values():
-        try:
-            parts = mesh.split(only_watertight=True)
-        except Exception:  # noqa: BLE001 - no graph engine: treat the mesh whole
-            parts = [mesh] if mesh.is_watertight else []
-        bodies.extend(parts)
-    return bodies
-
-
-def _inside_watertight(body, points: np.ndarray) -> np.ndarray:
-    """Ray-parity containment test (Moller-Trumbore, vectorised; no rtree needed).
-
-    A ray from each point along a slightly oblique direction (to avoid hitting edges
-    exactly) crosses a closed surface an odd number of times iff the point is inside.
-    """
-    direction = np.array([0.5773, 0.5774, 0.5773])
-    direction /= np.linalg.norm(direction)
-    tri = body.triangles  # (T, 3, 3)
-    v0 = tri[:, 0]
-    e1 = tri[:, 1] - v0
-    e2 = tri[:, 2] - v0
-    pvec = np.cross(direction, e2)
-    det = np.einsum("tj,tj->t", e1, pvec)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    inside = np.zeros(len(points), bool)
-    for k, p in enumerate(points):
-        tvec = p - v0
-        u = np.einsum("tj,tj->t", tvec, pvec) * inv
-        qvec = np.cross(tvec, e1)
-        v = (qvec @ direction) * inv
-        t = np.einsum("tj,tj->t", e2, qvec) * inv
-        hits = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
-        inside[k] = bool(np.count_nonzero(hits) % 2)
-    return inside
-
-
 def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> None:
     """Raise if a position is outside the scene's bounds or inside solid geometry.
 
     Parameters
     ----------
     scene : scenes.Scene
-        The scene; solids are its watertight connected mesh bodies (wall slabs, boxes).
+        The scene; solids are its closed mesh bodies (wall slabs, cabinets, boxes), tested
+        with :func:`scenes.solid_material_at` (generalised winding number, pure NumPy).
     positions_m : array_like
         Shape (n, 3), metres. x and y must lie strictly inside ``scene.bounds_m``, z above
         its lowest point (a point above the top of an open scene is accepted).
@@ -131,16 +94,11 @@ def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> N
             f"{what} {i} at ({pos[i, 0]:.4g}, {pos[i, 1]:.4g}, {pos[i, 2]:.4g}) m lies outside "
             f"the scene {scene.name!r} bounds {lo.round(3).tolist()} .. {hi.round(3).tolist()}"
         )
-    for body in _solid_bodies(scene):
-        blo, bhi = body.bounds
-        cand = np.flatnonzero(np.all((pos > blo) & (pos < bhi), axis=1))
-        if len(cand) == 0:
-            continue
-        inside = _inside_watertight(body, pos[cand])
-        if np.any(inside):
-            i = int(cand[np.flatnonzero(inside)[0]])
-            raise ValueError(
-                f"{what} {i} at ({pos[i, 0]:.4g}, {pos[i, 1]:.4g}, {pos[i, 2]:.4g}) m lies "
-                f"inside solid geometry of scene {scene.name!r} (body with bounds "
-                f"{blo.round(3).tolist()} .. {bhi.round(3).tolist()})"
-            )
+    material = solid_material_at(scene, pos)
+    inside = material != ""
+    if np.any(inside):
+        i = int(np.flatnonzero(inside)[0])
+        raise ValueError(
+            f"{what} {i} at ({pos[i, 0]:.4g}, {pos[i, 1]:.4g}, {pos[i, 2]:.4g}) m lies "
+            f"inside solid geometry of scene {scene.name!r} (a closed {material} body)"
+        )

@@ -224,3 +224,15 @@ def test_make_corridor_tags_sit_in_free_space():
     # guard for the fixtures themselves: tags 1 cm off the walls, inside the corridor
     sc = make_corridor()
     assert np.all((sc.tags.positions_m[:, 1] > 0) & (sc.tags.positions_m[:, 1] < 2.4))
+
+
+def test_antenna_inside_corridor_lab_cabinet_raises():
+    """Containment uses scenes.solid_material_at (no rtree): a pose inside cabinet C1
+    (centre (13.0, 2.14), 1.9 m high) is refused by name; one in the corridor is not."""
+    import scenes
+    from propagation.sionna_scene import check_antenna_positions
+
+    lab = scenes.load("corridor_lab")
+    check_antenna_positions(lab, [[13.0, 1.2, 1.0], [13.0, 1.6, 1.0]])  # free space: no error
+    with pytest.raises(ValueError, match=r"antenna pose 1 at \(13, 2.14, 1\) m lies inside solid .*metal"):
+        trace_links(lab, np.array([[13.0, 1.2, 1.0, 0.0], [13.0, 2.14, 1.0, 0.0]]), lab.tags.positions_m[:2])
