@@ -28,6 +28,8 @@ from typing import Any
 
 __all__ = [
     "ConfigError",
+    "UnknownKeyError",
+    "check_keys",
     "from_dict",
     "option",
     "reference_toml",
@@ -38,6 +40,46 @@ __all__ = [
 
 class ConfigError(ValueError):
     """A configuration file or value is invalid; the message names file and key."""
+
+
+class UnknownKeyError(ConfigError, KeyError):
+    """A mapping holds a key its dataclass does not know (a ``ValueError`` and a ``KeyError``)."""
+
+    def __str__(self) -> str:  # the message, not KeyError's quoted repr
+        return ValueError.__str__(self)
+
+
+def check_keys(data, allowed, where: str, required=()) -> None:
+    """Reject keys of ``data`` not in ``allowed``, and missing ``required`` keys.
+
+    Parameters
+    ----------
+    data : Mapping
+        The mapping read from a file (TOML table, JSON object).
+    allowed : iterable of str
+        Accepted keys.
+    where : str
+        File and table, prefixed to the message (e.g. ``"study.toml: [acquisition]"``).
+    required : iterable of str
+        Keys that must be present.
+
+    Raises
+    ------
+    ConfigError
+        ``data`` is not a mapping, or a required key is missing (named).
+    UnknownKeyError
+        Naming every unknown key and listing the accepted ones.
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(data).__name__} {data!r}")
+    unknown = sorted(set(data) - set(allowed))
+    if unknown:
+        raise UnknownKeyError(
+            f"{where}: unknown key(s) {unknown}; known keys: {', '.join(sorted(allowed))}"
+        )
+    missing = sorted(set(required) - set(data))
+    if missing:
+        raise ConfigError(f"{where}: missing key(s) {missing}")
 
 
 def option(default: Any = dataclasses.MISSING, doc: str = "", *, factory: Any = None):
@@ -169,7 +211,9 @@ def from_dict(cls, data: dict, source: str = "<config>", prefix: str = ""):
         dotted = f"{prefix}.{key}" if prefix else key
         if key not in names:
             where = f"section [{prefix}]" if prefix else "the top level"
-            raise _fail(source, dotted, f"unknown key {key!r} in {where}; known keys: {', '.join(names)}")
+            raise UnknownKeyError(
+                f"{source}: {dotted}: unknown key {key!r} in {where}; known keys: {', '.join(names)}"
+            )
         tp = hints[key]
         origin = typing.get_origin(tp)
         if origin in (list, tuple):

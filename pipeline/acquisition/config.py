@@ -14,38 +14,17 @@ from typing import TYPE_CHECKING, Any
 
 import tomllib
 
+from pipeline.configschema import check_keys
+
 if TYPE_CHECKING:  # pragma: no cover
     from propagation import LinkBudget
 
-__all__ = ["ANTENNA_MODES", "POSE_SOURCES", "AcquisitionConfig", "ReaderConfig", "check_keys"]
+__all__ = ["ANTENNA_MODES", "POSE_SOURCES", "AcquisitionConfig", "ReaderConfig"]
 
 #: How the reader multiplexes its antenna ports, see :class:`ReaderConfig`.
 ANTENNA_MODES = ("round_robin", "all")
 #: Which antenna poses the training sets use: MCL estimates or ground truth.
 POSE_SOURCES = ("est", "true")
-
-
-def check_keys(d: dict, allowed: set[str] | list[str], what: str, source: str) -> None:
-    """Raise ``KeyError`` naming every key of ``d`` not in ``allowed``.
-
-    Parameters
-    ----------
-    d : dict
-        The mapping read from a config file.
-    allowed : set of str
-        Accepted keys.
-    what : str
-        Name of the table, for the message (e.g. ``"acquisition.reader"``).
-    source : str
-        File the mapping came from, for the message.
-    """
-    if not isinstance(d, dict):
-        raise TypeError(f"{source}: [{what}] must be a table, got {type(d).__name__}")
-    unknown = sorted(set(d) - set(allowed))
-    if unknown:
-        raise KeyError(
-            f"{source}: unknown key(s) {unknown} in [{what}]; accepted keys: {sorted(allowed)}"
-        )
 
 
 def _default_budget() -> LinkBudget:
@@ -58,7 +37,7 @@ def _budget_from_dict(d: dict, source: str) -> LinkBudget:
     from propagation import LinkBudget
 
     names = {f.name for f in dataclasses.fields(LinkBudget)}
-    check_keys(d, names, "acquisition.reader.budget", source)
+    check_keys(d, names, f"{source}: [acquisition.reader.budget]")
     return LinkBudget(**d)
 
 
@@ -147,7 +126,7 @@ class ReaderConfig:
             Naming a key with a bad value and the source.
         """
         names = {f.name for f in dataclasses.fields(cls)}
-        check_keys(d, names, "acquisition.reader", source)
+        check_keys(d, names, f"{source}: [acquisition.reader]")
         kw = dict(d)
         if "budget" in kw:
             kw["budget"] = _budget_from_dict(kw["budget"], source)
@@ -244,12 +223,12 @@ class AcquisitionConfig:
             Naming a key with a bad value and the source.
         """
         names = {f.name for f in dataclasses.fields(cls)}
-        check_keys(d, names, "acquisition", source)
+        check_keys(d, names, f"{source}: [acquisition]")
         kw = dict(d)
         if "reader" in kw:
             kw["reader"] = ReaderConfig.from_dict(kw["reader"], source)
         if "tour" in kw:
-            check_keys(kw["tour"], set(kw["tour"]), "acquisition.tour", source)
+            check_keys(kw["tour"], set(kw["tour"]), f"{source}: [acquisition.tour]")
             kw["tour"] = dict(kw["tour"])
         if kw.get("rssi_range_dbm") is not None:
             kw["rssi_range_dbm"] = tuple(kw["rssi_range_dbm"])

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import denormalise_rssi, normalise_rssi, wrap_angle
+from pipeline.configschema import check_keys
 from propagation import pattern_gain_db
 
 from .cells import CellGrid
@@ -68,15 +69,6 @@ def tr38901_horizontal_db(alpha_rad) -> np.ndarray:
     phi = wrap_angle(alpha_rad)
     theta = np.full_like(phi, np.pi / 2)
     return pattern_gain_db("tr38901", theta, phi) - pattern_gain_db("tr38901", np.pi / 2, 0.0)
-
-
-def _check_keys(d: dict, required: set, where: str, optional: set = frozenset()) -> None:
-    unknown = sorted(set(d) - required - set(optional))
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}")
-    missing = sorted(required - set(d))
-    if missing:
-        raise ValueError(f"{where}: missing key(s) {missing}")
 
 
 @dataclass(frozen=True)
@@ -147,8 +139,8 @@ class LogDistanceModel:
     @classmethod
     def from_dict(cls, d: dict, where: str = "log_distance") -> LogDistanceModel:
         """Inverse of :meth:`to_dict`; errors name `where` and the key."""
-        _check_keys(d, {"p0_dbm", "n", "d0_m", "pattern", "coefficients"}, where,
-                    {"rmse_db", "n_samples"})
+        req = {"p0_dbm", "n", "d0_m", "pattern", "coefficients"}
+        check_keys(d, req | {"rmse_db", "n_samples"}, where, required=req)
         rmse = d.get("rmse_db")
         return cls(p0_dbm=float(d["p0_dbm"]), n=float(d["n"]), d0_m=float(d["d0_m"]),
                    pattern=str(d["pattern"]), coefficients=tuple(d["coefficients"]),
@@ -279,7 +271,8 @@ class GridCountModel:
     @classmethod
     def from_dict(cls, d: dict, where: str = "grid_count") -> GridCountModel:
         """Inverse of :meth:`to_dict`; errors name `where` and the key."""
-        _check_keys(d, {"grid", "n_reads", "n_attempts", "fallback"}, where)
+        req = {"grid", "n_reads", "n_attempts", "fallback"}
+        check_keys(d, req, where, required=req)
         return cls(grid=CellGrid.from_dict(d["grid"], f"{where}: grid"),
                    n_reads=np.asarray(d["n_reads"], dtype=np.int64),
                    n_attempts=np.asarray(d["n_attempts"], dtype=np.int64),
@@ -364,8 +357,8 @@ class BaselineSensorModel:
     @classmethod
     def from_dict(cls, d: dict, where: str = "baselines") -> BaselineSensorModel:
         """Inverse of :meth:`to_dict`."""
-        _check_keys(d, {"format", "rssi_range_dbm", "log_distance", "grid_count"}, where,
-                    {"description"})
+        req = {"format", "rssi_range_dbm", "log_distance", "grid_count"}
+        check_keys(d, req | {"description"}, where, required=req)
         if d["format"] != BASELINES_FORMAT:
             raise ValueError(f"{where}: format {d['format']!r}, expected {BASELINES_FORMAT!r}")
         return cls(LogDistanceModel.from_dict(d["log_distance"], f"{where}: log_distance"),

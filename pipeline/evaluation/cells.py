@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fuzzymodel import wrap_angle
+from pipeline.configschema import check_keys
 
 __all__ = ["CellGrid", "CellIndex"]
 
@@ -155,10 +156,5 @@ class CellGrid:
     def from_dict(cls, d: dict, where: str = "CellGrid") -> CellGrid:
         """Inverse of :meth:`to_dict`; unknown or missing keys raise naming the key."""
         allowed = {"d_max_m", "d_bin_m", "alpha_bin_deg"}
-        unknown = sorted(set(d) - allowed)
-        if unknown:
-            raise ValueError(f"{where}: unknown key(s) {unknown}; allowed {sorted(allowed)}")
-        missing = sorted(allowed - set(d))
-        if missing:
-            raise ValueError(f"{where}: missing key(s) {missing}")
+        check_keys(d, allowed, where, required=allowed)
         return cls(**{k: float(d[k]) for k in allowed})

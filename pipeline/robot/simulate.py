@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.robot._config import config_from_dict
+from pipeline.configschema import from_dict
 from pipeline.robot.kinematics import Robot
 from pipeline.robot.laser import LaserScanner
 from pipeline.robot.mcl import LocalizationResult, MCLConfig, run_mcl
@@ -55,19 +55,11 @@ class LocalizationConfig:
     def from_dict(cls, data: Mapping[str, Any], where: str = "") -> LocalizationConfig:
         """Build from a (TOML-like) mapping; nested tables for the sub-configs.
 
-        Unknown keys raise ValueError naming the key (and ``where``).
+        Unknown keys and wrong types raise :class:`pipeline.configschema.ConfigError`
+        (a ValueError) naming ``where``, the dotted key and the value
+        (:func:`pipeline.configschema.from_dict`).
         """
-        data = dict(data)
-        sub = {"odometry_noise": OdometryNoise, "scanner": LaserScanner, "mcl": MCLConfig}
-        for k, kind in sub.items():
-            if k in data and isinstance(data[k], Mapping):
-                inner = dict(data[k])
-                if kind is MCLConfig and isinstance(inner.get("motion_noise"), Mapping):
-                    inner["motion_noise"] = config_from_dict(
-                        OdometryNoise, inner["motion_noise"], f"{where}.mcl.motion_noise"
-                    )
-                data[k] = config_from_dict(kind, inner, f"{where}.{k}" if where else k)
-        return config_from_dict(cls, data, where)
+        return from_dict(cls, dict(data), source=where or "<dict>")
 
 
 def laser_map(scene, scanner: LaserScanner, resolution_m: float = 0.05, route_m=None):

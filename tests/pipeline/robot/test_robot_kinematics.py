@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from pipeline.configschema import from_dict
 from pipeline.robot import AntennaMount, Robot, antenna_poses, compose_poses, wrap_angle
-from pipeline.robot._config import config_from_dict
 from pipeline.robot.trajectory import TourConfig
 
 
@@ -69,8 +69,8 @@ def test_compose_and_wrap():
 
 
 def test_config_rejects_unknown_key_by_name():
-    with pytest.raises(ValueError, match="speed_mps"):
-        config_from_dict(TourConfig, {"speed_mps": 0.3}, where="study.toml [tour]")
+    with pytest.raises(ValueError, match=r"study.toml: tour.speed_mps: unknown key"):
+        from_dict(TourConfig, {"speed_mps": 0.3}, source="study.toml", prefix="tour")
 
 
 def test_tour_faster_than_robot_raises_naming_key():
