@@ -8,7 +8,10 @@ pattern is not in these fields (unlike :func:`propagation.trace_links`).
 
 from __future__ import annotations
 
+import hashlib
+import json
 import tempfile
+import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -17,6 +20,7 @@ import trimesh
 
 from propagation.analytic import linear_to_db
 from propagation.backend import ensure_variant
+from propagation.pathcache import CacheWarning
 from propagation.patterns import PATTERNS, POLARIZATIONS, sionna_orientation
 from propagation.sionna_scene import check_antenna_positions, clear_devices, load_sionna_scene
 from scenes.fileio import atomic_save_npz
@@ -105,14 +109,63 @@ class RssiField:
         return cls(**kw)
 
 
+def _grid_over_faces(tri: np.ndarray, normal: np.ndarray, max_edge_m: float, offset_m: float) -> np.ndarray:
+    """Regular grid of square-ish cells over coplanar vertical triangles ``tri`` (k, 3, 3).
+
+    Cells span the faces' bounding rectangle in the plane (u horizontal, v = z) with edges
+    of at most ``max_edge_m``; a cell is kept when its centre lies in one of the triangles.
+    Returns triangles (2 per cell) moved ``offset_m`` along ``normal``, shape (c, 3, 3),
+    wound counter-clockwise about ``normal``.
+    """
+    v_ax = np.array([0.0, 0.0, 1.0])
+    u_ax = np.cross(v_ax, normal)
+    u_ax /= np.linalg.norm(u_ax)
+    origin = tri[0, 0] + offset_m * normal
+    uv = np.stack([(tri - tri[0, 0]) @ u_ax, (tri - tri[0, 0]) @ v_ax], axis=-1)  # (k, 3, 2)
+    lo, hi = uv.reshape(-1, 2).min(0), uv.reshape(-1, 2).max(0)
+    nu, nv = (max(1, int(np.ceil((b - a) / max_edge_m - 1e-9))) for a, b in zip(lo, hi, strict=True))
+    us, vs = np.linspace(lo[0], hi[0], nu + 1), np.linspace(lo[1], hi[1], nv + 1)
+    cu, cv = np.meshgrid((us[:-1] + us[1:]) / 2, (vs[:-1] + vs[1:]) / 2, indexing="ij")
+    c = np.stack([cu.ravel(), cv.ravel()], axis=1)
+    # barycentric point-in-triangle test, cells x triangles
+    a, b, d = uv[:, 0], uv[:, 1], uv[:, 2]
+    det = (b[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    ok = np.abs(det) > 1e-12
+    det = np.where(ok, det, 1.0)
+    px, py = c[:, None, 0] - a[None, :, 0], c[:, None, 1] - a[None, :, 1]
+    l1 = (px * (d[:, 1] - a[:, 1]) - py * (d[:, 0] - a[:, 0])) / det
+    l2 = (py * (b[:, 0] - a[:, 0]) - px * (b[:, 1] - a[:, 1])) / det
+    inside = (ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)).any(axis=1)
+    iu, iv = np.unravel_index(np.flatnonzero(inside), (nu, nv))
+    u0, u1, v0, v1 = us[iu], us[iu + 1], vs[iv], vs[iv + 1]
+
+    def pt(u, v):
+        return origin + u[:, None] * u_ax + v[:, None] * v_ax
+
+    p00, p10, p11, p01 = pt(u0, v0), pt(u1, v0), pt(u1, v1), pt(u0, v1)
+    # u x v = normal, so (p00, p10, p11) is counter-clockwise seen from the normal side
+    return np.concatenate([np.stack([p00, p10, p11], 1), np.stack([p00, p11, p01], 1)])
+
+
 def wall_surface_mesh(scene, max_edge_m: float = 0.1, offset_m: float = 0.01) -> trimesh.Trimesh:
-    """Measurement surface over the walls where tags sit.
+    """Measurement surface over the walls where tags sit: a regular grid per wall face.
 
     Vertical faces (|n_z| < 0.1) of every mesh whose face centre, moved ``offset_m`` along
     the face normal, stays inside the scene bounds (inner faces of the corridor walls,
-    cabinet and box sides; not the outside of the outer walls), subdivided to edges of at
-    most ``max_edge_m`` and moved ``offset_m`` into free space.
+    cabinet and box sides; not the outside of the outer walls) are grouped by plane; each
+    plane gets a regular grid of cells with edges of at most ``max_edge_m`` (two triangles
+    per cell, kept where the cell centre lies on a face), moved ``offset_m`` into free
+    space. Coplanar faces of different meshes share one grid (no double triangles).
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Unmerged triangles (3 vertices each), normals pointing into free space; for
+        ``corridor_lab`` at 0.1 m about 39k triangles (subdividing the faces, which also
+        splits the short edges of long triangles, gave 174k).
     """
+    if not max_edge_m > 0:
+        raise ValueError(f"wall_max_edge_m must be > 0, got {max_edge_m!r}")
     mesh = scene.combined_mesh()
     n = mesh.face_normals
     c = mesh.triangles_center + offset_m * n
@@ -120,11 +173,16 @@ def wall_surface_mesh(scene, max_edge_m: float = 0.1, offset_m: float = 0.01) ->
     keep = (np.abs(n[:, 2]) < 0.1) & np.all((c > lo) & (c < hi), axis=1)
     if not np.any(keep):
         raise ValueError(f"scene {scene.name!r} has no inner vertical wall faces")
-    sub = mesh.submesh([np.flatnonzero(keep)], append=True)
-    v, f = trimesh.remesh.subdivide_to_size(sub.vertices, sub.faces, max_edge=max_edge_m)
-    out = trimesh.Trimesh(v, f, process=False)
-    # move each face along its own normal (vertices duplicated per face)
-    tri = out.triangles + offset_m * out.face_normals[:, None, :]
+    tri_all = mesh.triangles[keep]
+    n_h = n[keep].copy()
+    n_h[:, 2] = 0.0
+    n_h /= np.linalg.norm(n_h, axis=1, keepdims=True)
+    plane = np.column_stack([n_h[:, :2], np.einsum("ij,ij->i", n_h, tri_all[:, 0])])
+    _, group = np.unique(np.round(plane, 6), axis=0, return_inverse=True)
+    parts = [_grid_over_faces(tri_all[group.reshape(-1) == g], n_h[group.reshape(-1) == g][0],
+                              max_edge_m, offset_m)
+             for g in range(int(group.max()) + 1)]
+    tri = np.concatenate(parts)
     return trimesh.Trimesh(tri.reshape(-1, 3), np.arange(len(tri) * 3).reshape(-1, 3), process=False)
 
 
@@ -133,7 +191,7 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
                include_walls: bool = True, wall_samples_per_tx: int | None = None,
                wall_max_edge_m: float = 0.1, plane_bounds_m=None,
                reader_pattern: str = "tr38901", reader_polarization: str = "V",
-               seed: int = 42) -> RssiField:
+               seed: int = 42, cache_dir=None) -> RssiField:
     """Radio maps of one reader-antenna pose: a horizontal plane and the wall surfaces.
 
     Parameters
@@ -162,6 +220,12 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
         Reader antenna (Sionna patterns; circular is not available in radio maps).
     seed : int
         Sionna sampling seed.
+    cache_dir : str or Path, optional
+        Folder of an on-disk cache: the field is stored as
+        ``<cache_dir>/rssi_field-<key>.npz`` (:meth:`RssiField.save`), ``key`` hashing the
+        scene's content hash, the pose and every setting above; a second call traces
+        nothing. An unreadable file gives a :class:`~propagation.CacheWarning` naming it
+        and is computed again.
 
     Returns
     -------
@@ -181,6 +245,35 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     if not cell_size_m > 0:
         raise ValueError(f"cell_size_m must be > 0, got {cell_size_m!r}")
     check_antenna_positions(scene, pose[None, :3])
+    if plane_bounds_m is None:
+        lo, hi = scene.bounds_m
+        x0, y0, x1, y1 = (float(v) for v in (lo[0], lo[1], hi[0], hi[1]))
+    else:
+        bounds = np.asarray(plane_bounds_m, dtype=float).reshape(-1)
+        if bounds.shape != (4,) or not np.all(np.isfinite(bounds)) or not (
+                bounds[2] > bounds[0] and bounds[3] > bounds[1]):
+            raise ValueError(f"plane_bounds_m must be finite (xmin, ymin, xmax, ymax) with "
+                             f"xmax > xmin and ymax > ymin, got {plane_bounds_m!r}")
+        x0, y0, x1, y1 = (float(v) for v in bounds)
+    wall_spp = int(wall_samples_per_tx or 10 * samples_per_tx)
+    cache_file = None
+    if cache_dir is not None:
+        key = {"format": 1, "scene": scene.content_hash(), "pose": pose.tobytes().hex(),
+               "frequency_hz": float(frequency_hz), "cell_size_m": float(cell_size_m),
+               "plane_height_m": float(plane_height_m), "samples_per_tx": int(samples_per_tx),
+               "max_depth": int(max_depth), "include_walls": bool(include_walls),
+               "wall_samples_per_tx": wall_spp, "wall_max_edge_m": float(wall_max_edge_m),
+               "plane_bounds_m": [x0, y0, x1, y1], "reader_pattern": reader_pattern,
+               "reader_polarization": reader_polarization, "seed": int(seed)}
+        digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:32]
+        cache_file = Path(cache_dir) / f"rssi_field-{digest}.npz"
+        if cache_file.exists():
+            try:
+                return RssiField.load(cache_file)
+            except Exception as exc:  # noqa: BLE001 - any damage means "recompute"
+                warnings.warn(f"unreadable field cache file {cache_file} ({exc}); computing it again",
+                              CacheWarning, stacklevel=2)
+                cache_file.unlink(missing_ok=True)
     ensure_variant()
     import mitsuba as mi
     import sionna.rt as rt
@@ -192,11 +285,6 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     ori = sionna_orientation(pose[3], pose[4], pose[5])
     rt_scene.add(rt.Transmitter("reader", position=[float(v) for v in pose[:3]],
                                 orientation=[float(v) for v in ori]))
-    if plane_bounds_m is None:
-        lo, hi = scene.bounds_m
-        x0, y0, x1, y1 = (float(v) for v in (lo[0], lo[1], hi[0], hi[1]))
-    else:
-        x0, y0, x1, y1 = (float(v) for v in plane_bounds_m)
     solver = rt.RadioMapSolver()
     common = dict(max_depth=int(max_depth), los=True, specular_reflection=True,
                   diffuse_reflection=False, refraction=True, diffraction=False, seed=int(seed))
@@ -216,12 +304,12 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
             ply.write_bytes(surf.export(file_type="ply", encoding="binary"))
             mi_mesh = rt.load_mesh(str(ply))
             wm = solver(rt_scene, measurement_surface=mi_mesh,
-                        samples_per_tx=int(wall_samples_per_tx or 10 * samples_per_tx), **common)
+                        samples_per_tx=wall_spp, **common)
             wall_gain = wm.path_gain.numpy()[0].astype(np.float64)
         wall_centers = surf.triangles_center
         wall_normals = surf.face_normals
     clear_devices(rt_scene)
-    return RssiField(
+    out = RssiField(
         antenna_pose=pose, frequency_hz=float(frequency_hz), plane_gain=plane_gain,
         plane_centers_m=plane_centers, wall_gain=wall_gain, wall_centers_m=wall_centers,
         wall_normals=wall_normals, cell_size_m=float(cell_size_m),
@@ -229,3 +317,6 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
         max_depth=int(max_depth), reader_pattern=reader_pattern,
         reader_polarization=reader_polarization,
     )
+    if cache_file is not None:
+        out.save(cache_file)
+    return out

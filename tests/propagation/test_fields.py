@@ -1,9 +1,12 @@
 """Radio maps (rssi_field) against PathSolver, and their NPZ round trip."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from propagation import RssiField, rssi_field
+from propagation import CacheWarning, RssiField, rssi_field
+from propagation.fields import wall_surface_mesh
 from propagation.patterns import sionna_orientation
 
 # the material library warns (by design) that P.2040 fits are extrapolated below 1 GHz
@@ -81,3 +84,44 @@ def test_rssi_field_bad_pose(corridor_scene):
         rssi_field(corridor_scene, [-3.0, 1.2, 1.0, 0.0], include_walls=False)
     with pytest.raises(ValueError, match="4 or 6"):
         rssi_field(corridor_scene, [3.0, 1.2, 1.0], include_walls=False)
+
+
+def test_default_plane_bounds_and_field_cache(corridor_scene, tmp_path):
+    # no plane_bounds_m: the plane spans the scene bounds (this call used to fail inside mi.Point3f)
+    kw = dict(cell_size_m=0.5, samples_per_tx=100_000, max_depth=1, include_walls=False, cache_dir=tmp_path)
+    f = rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], **kw)
+    lo, hi = corridor_scene.bounds_m
+    c = f.plane_centers_m.reshape(-1, 3)
+    # cells of 0.5 m cover the bounds: centres within half a cell of them
+    assert c[:, 0].min() < lo[0] + 0.5 and c[:, 0].max() > hi[0] - 0.5
+    assert c[:, 1].min() < lo[1] + 0.5 and c[:, 1].max() > hi[1] - 0.5
+    assert np.mean(f.plane_gain > 0) > 0.5
+    (cached,) = tmp_path.glob("rssi_field-*.npz")
+    # the second call reads the file and traces nothing: a doctored file comes back as is
+    dataclasses.replace(f, plane_gain=f.plane_gain * 2).save(cached)
+    again = rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], **kw)
+    np.testing.assert_array_equal(again.plane_gain, 2 * f.plane_gain)
+    # another setting is another key; a damaged file is reported by name and recomputed
+    other = rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], **{**kw, "seed": 1})
+    assert len(list(tmp_path.glob("rssi_field-*.npz"))) == 2 and not np.array_equal(other.plane_gain, f.plane_gain)
+    cached.write_bytes(b"junk")
+    with pytest.warns(CacheWarning, match=cached.name):
+        fixed = rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], **kw)
+    # same seed, same rays; the float32 atomic accumulation order differs between runs (1e-6)
+    np.testing.assert_allclose(fixed.plane_gain, f.plane_gain, rtol=1e-5)
+
+
+def test_wall_surface_is_a_regular_grid(corridor_scene):
+    """One grid per wall plane: cells of at most max_edge_m, area equal to the faces'."""
+    surf = wall_surface_mesh(corridor_scene, max_edge_m=0.25)
+    tri = surf.triangles
+    edges = np.sort(np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2), axis=1)
+    assert edges[:, :2].max() <= 0.25 + 1e-9  # the right-angle legs are the cell edges
+    # inner faces of the corridor: two long walls 25.2 x 3 m (the slabs run over the corners,
+    # x in [-0.1, 25.1]), two end walls 2.4 x 3 m; floor and ceiling are not vertical. A grid
+    # over a rectangular face covers it exactly
+    assert surf.area == pytest.approx(2 * 25.2 * 3 + 2 * 2.4 * 3, rel=1e-9)
+    # cells per long wall ceil(25.2 / 0.25) = 101 by 3 / 0.25 = 12; per end wall 10 by 12
+    assert len(surf.faces) == 2 * (2 * 101 * 12 + 2 * 10 * 12)
+    with pytest.raises(ValueError, match="wall_max_edge_m"):
+        wall_surface_mesh(corridor_scene, max_edge_m=0.0)
