@@ -76,7 +76,8 @@ STAGES: tuple[Stage, ...] = (
           + _TRACING,
           ("scene", "reads", "models"), description="propagation truth"),
     Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
-          ("scene", "reads", "models", "truth"), description="metrics"),
+          ("scene", "reads", "models", "truth"), version=2,  # 2: coverage, fig7 table
+          description="metrics"),
     Stage("figures", _stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
           description="figures"),
     Stage("report", _stage_report, (), ("figures", "evaluation"), description="report.html"),
@@ -199,37 +200,31 @@ def _metric_columns(metrics: dict) -> dict:
 
 def corridor_coverage(run_dir: str | Path) -> float | None:
     """Fraction of the RSSI-field plane cells (inside the scene's free space) where a tag
-    would be powered, averaged over the run's field poses; None without fields.
+    would be read with probability > 0.5, averaged over the run's field poses; None
+    without fields.
 
-    The field's gain is the reader side only (isotropic receiver); the tag's antenna gain
-    ``reader.tag_antenna_gain_dbi`` of the link budget is added, and
-    ``LinkBudget.detected`` decides (both thresholds) -- detection probability > 0.5
-    where the link closes and the anti-collision miss probability is below 0.5.
+    Read from ``metrics.json`` (``coverage.corridor_fraction``, written by the evaluation
+    stage with :func:`pipeline.evaluation.detection_coverage`); computed from
+    ``fields/*.npz`` the same way for runs whose metrics predate it.
     """
-    import numpy as np
+    import json
+
     import tomllib
 
-    import propagation
     import scenes
     from pipeline.config import config_from_mapping
-    from pipeline.stages_data import link_budget
-    from scenes.geometry import is_free
+    from pipeline.stages_model import field_coverage
 
     run = Path(run_dir)
+    mpath = run / "metrics.json"
+    if mpath.exists():
+        cov = json.loads(mpath.read_text()).get("coverage")
+        if isinstance(cov, dict) and "corridor_fraction" in cov:
+            return float(cov["corridor_fraction"])
     files = sorted((run / "fields").glob("field_*.npz"))
     if not files:
         return None
     cfg = config_from_mapping(tomllib.loads((run / "config.toml").read_text()),
                               source=str(run / "config.toml"))
-    budget = link_budget(cfg)
-    sc = scenes.load(cfg.scene)
-    fracs = []
-    for f in files:
-        field = propagation.RssiField.load(f)
-        pts = field.plane_centers_m.reshape(-1, 3)
-        free = is_free(sc, pts)
-        with np.errstate(divide="ignore"):
-            g = field.plane_gain_db.reshape(-1)[free] + budget.tag_antenna_gain_dbi
-        ok = budget.detected(g) & (cfg.reader.anticollision_miss_probability < 0.5)
-        fracs.append(float(np.mean(ok)) if len(ok) else 0.0)
-    return float(np.mean(fracs))
+    cov = field_coverage(cfg, scenes.load(cfg.scene), files)
+    return None if cov is None else cov["corridor_fraction"]

@@ -24,6 +24,7 @@ from pipeline.stages_data import (
 
 __all__ = [
     "POSE_SOURCES",
+    "field_coverage",
     "stage_evaluation",
     "stage_models",
     "stage_training_sets",
@@ -222,8 +223,33 @@ def stage_truth(ctx) -> dict:
             "cells_with_attempts": int((truth.n_attempts > 0).sum())}
 
 
+def field_coverage(cfg, scene, field_paths) -> dict | None:
+    """Corridor coverage of the saved RSSI fields (pipeline.evaluation.detection_coverage).
+
+    Cells outside the scene's free space are left out. Returns None without fields, else
+    ``{"corridor_fraction": mean over fields, "fields": [CoverageResult dicts]}``.
+    """
+    import propagation
+    from pipeline.evaluation.coverage import detection_coverage
+    from scenes.geometry import is_free
+
+    if not field_paths:
+        return None
+    budget = link_budget(cfg)
+    per_field = []
+    for path in field_paths:
+        field = propagation.RssiField.load(path)
+        free = is_free(scene, field.plane_centers_m.reshape(-1, 3))
+        per_field.append(detection_coverage(
+            field.plane_gain_db, budget, free,
+            miss_probability=cfg.reader.anticollision_miss_probability).to_dict())
+    return {"corridor_fraction": float(np.mean([c["fraction"] for c in per_field])),
+            "fields": per_field}
+
+
 def stage_evaluation(ctx) -> dict:
-    """Every model against the truth (pipeline.evaluation.evaluate_all); write metrics.json."""
+    """Every model against the truth (pipeline.evaluation.evaluate_all); write metrics.json
+    (with the field coverage) and truth/fig7_errors.parquet."""
     from fuzzymodel import SensorModel
     from pipeline.evaluation.baselines import BaselineSensorModel
     from pipeline.evaluation.comparison import RhoPoints
@@ -252,6 +278,14 @@ def stage_evaluation(ctx) -> dict:
         min_attempts=cfg.training.min_attempts, fig7_radius_m=cfg.evaluation.fig7_radius_m,
         antenna_pitch_rad=_tilts(cfg),
     )
-    metrics = evaluate_all(sensors, inputs).to_dict()
+    result = evaluate_all(sensors, inputs)
+    fig7 = result.models["anfis"].fig7
+    if fig7 is not None:  # the Fig. 7 figure reads it instead of recomputing
+        fig7.write_table(ctx.out("truth/fig7_errors.parquet"))
+    metrics = result.to_dict()
+    fields = sorted(ctx.store.path("fields").glob("field_*.npz"))
+    coverage = field_coverage(cfg, load_scene(ctx), fields)
+    if coverage is not None:
+        metrics["coverage"] = coverage
     atomic_write_json(ctx.out("metrics.json"), metrics)
     return {"models": sorted(sensors)}

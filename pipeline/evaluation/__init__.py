@@ -27,6 +27,7 @@ from .comparison import (
     rho_vs_truth,
     rssi_vs_truth,
 )
+from .coverage import CoverageResult, detection_coverage
 from .evaluate import (
     EvaluationInputs,
     LocalisationSplit,
@@ -61,6 +62,8 @@ from .tables import (
 from .truth import TruthGrid, detection_truth, true_detected, true_rssi_dbm
 
 __all__ = [
+    "CoverageResult",
+    "detection_coverage",
     "BASELINES_FORMAT",
     "BaselineSensorModel",
     "CellGrid",

@@ -39,8 +39,11 @@ def test_first_run_produces_the_run_directory(tiny):
     for rel in ("config.toml", "manifest.json", "reads.parquet", "poses.parquet",
                 "eval_reads.parquet", "eval_poses.parquet", "models/ssm.json", "models/tdm.json",
                 "models/sensor_truepose.json", "models/baselines.json", "metrics.json",
-                "truth/detection_grid.npz", "fields/field_00.npz", "report.html"):
+                "truth/detection_grid.npz", "truth/fig7_errors.parquet", "fields/field_00.npz",
+                "report.html"):
         assert (run / rel).is_file(), rel
+    cov = json.loads((run / "metrics.json").read_text())["coverage"]
+    assert 0 <= cov["corridor_fraction"] <= 1 and cov["fields"][0]["n_cells"] > 0
     reads = pd.read_parquet(run / "reads.parquet")
     assert reads["read"].any() and {"d_est_m", "alpha_est_rad", "rssi_dbm"} <= set(reads.columns)
     assert len(pd.read_parquet(run / "eval_poses.parquet")) == cfg.tour.n_eval_poses
