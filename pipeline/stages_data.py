@@ -212,14 +212,16 @@ def stage_tour(ctx) -> dict:
     tcfg = TourConfig(n_passes=t.n_passes, lane_fractions=tuple(t.lane_fractions),
                       lane_changes_per_pass=t.lane_changes_per_pass, stops_per_pass=t.stops_per_pass,
                       speed_m_per_s=t.speed_m_per_s, dt_s=t.dt_s)
+    rng_eval = stage_rng(cfg, "eval_path")  # held out: its own seed stream
     info = {}
-    for name, make in (
-        ("train", lambda: guided_tour(sc, robot, rng, tcfg, route_m=route)),
-        ("eval", lambda: evaluation_path(sc, robot, rng, n_poses=t.n_eval_poses, config=tcfg,
-                                         route_m=route)),
+    rng_train = rng
+    for name, rng_s, make in (
+        ("train", rng_train, lambda: guided_tour(sc, robot, rng_train, tcfg, route_m=route)),
+        ("eval", rng_eval, lambda: evaluation_path(sc, robot, rng_eval, n_poses=t.n_eval_poses,
+                                                   config=tcfg, route_m=route)),
     ):
         traj = make()
-        track = _localise(sc, robot, traj, cfg, rng, ctx.progress(f"{name} MCL", total=1.0))
+        track = _localise(sc, robot, traj, cfg, rng_s, ctx.progress(f"{name} MCL", total=1.0))
         save_npz(ctx.out(f"tour/{name}_track.npz"), **track)
         err = track.get("position_error_m")
         info[name] = {

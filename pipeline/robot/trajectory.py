@@ -22,6 +22,7 @@ from pipeline.robot.kinematics import Robot, footprint_points, wrap_angle
 from pipeline.robot.occupancy import OccupancyMap, _densify
 
 __all__ = [
+    "held_out_lane",
     "TourConfig",
     "Trajectory",
     "check_trajectory",
@@ -481,6 +482,19 @@ def guided_tour(
     return traj
 
 
+def held_out_lane(lane_fractions, rng: np.random.Generator) -> float:
+    """A lane fraction no tour lane uses: the middle of the widest gap between lanes.
+
+    The band edges -1 and +1 count as lanes (the robot cannot drive beyond them);
+    ties (e.g. -0.3 and +0.3 for lanes -0.6, 0, 0.6) are broken with ``rng``.
+    """
+    lanes = np.unique(np.concatenate([[-1.0, 1.0], np.asarray(lane_fractions, float)]))
+    gaps = np.diff(lanes)
+    best = np.flatnonzero(np.isclose(gaps, gaps.max()))
+    i = int(best[rng.integers(len(best))])
+    return float(0.5 * (lanes[i] + lanes[i + 1]))
+
+
 def evaluation_path(
     scene,
     robot: Robot,
@@ -498,8 +512,8 @@ def evaluation_path(
     n_poses : int
         Number of poses, equally spaced in time over the pass (chapter: 200).
     lane_fraction : float, optional
-        Lane fraction in [-1, 1]; default drawn from +-[0.25, 0.4] (between the default
-        tour lanes 0 and +-0.6).
+        Lane fraction in [-1, 1]; default :func:`held_out_lane` of the tour's
+        ``config.lane_fractions`` (+-0.3 for the default lanes -0.6, 0, 0.6).
     config : TourConfig, optional
         Speeds, clearance and resolution; lanes, stops and passes are ignored.
 
@@ -513,7 +527,7 @@ def evaluation_path(
     cfg = TourConfig() if config is None else config
     cfg.check_robot(robot)
     if lane_fraction is None:
-        lane_fraction = float(rng.choice([-1, 1]) * rng.uniform(0.25, 0.4))
+        lane_fraction = held_out_lane(cfg.lane_fractions, rng)
     if abs(lane_fraction) > 1:
         raise ValueError(f"evaluation_path: lane_fraction={lane_fraction} outside [-1, 1]")
     cmap = collision_map(scene, robot, cfg.resolution_m, route_m)
