@@ -108,32 +108,55 @@ def test_pattern_reapplication_matches_patterned_sionna_trace(corridor_scene):
     assert np.max(np.abs(flat.gain_db - ours.gain_db)) > 3.0
 
 
-def test_corridor_los_path_loss_exponent():
-    """Fitted LOS path-loss exponent along a corridor lies below free space.
+def _ple(d_m, gain_db):
+    """Least-squares path-loss exponent n of gain_db = c - 10 n log10(d)."""
+    return -np.polyfit(10 * np.log10(d_m), gain_db, 1)[0]
 
-    Measured with this tracer (60 m x 2.4 m x 3 m corridor, tr38901 reader on the axis,
-    vertical dipole tags at random heights/offsets, depth 3, 3e4 rays): n = 1.2 over
-    2-30 m (1.3 over 2-15 m, 1.4 over 15-50 m). Walls, floor and ceiling reflect with
-    |R| -> 1 at grazing incidence and, below the two-ray breakpoint 4 h1 h2 / lambda
-    (~14 m here), add in phase on average: the corridor guides the wave and n < 2.
-    Rappaport (Wireless Communications, 2nd ed., Table 4.2) gives 1.6-1.8 for in-building
-    LOS; smooth ideal walls guide more than real ones. The assertion 1.0 <= n <= 2.0 fails
-    if reflections were lost (n -> 2, the depth-0 value) or spuriously strong.
+
+def test_corridor_lab_path_loss_exponent_local_mean():
+    """LOS path-loss exponent along corridor_lab, fitted on the local mean gain: 1.4-2.2.
+
+    Issue 2: measured UHF corridors show n = 1.4-2.2 in line of sight (Rappaport, Wireless
+    Communications 2nd ed., Table 4.2: 1.6-1.8 for in-building LOS). Measured exponents are
+    fitted on the *local mean* (small-scale fading averaged over a few wavelengths), so the
+    fit here averages the coherent gain over 8 receivers within +-lambda of each point.
+    Geometry: tr38901 reader on the centre line (y = 1.2 m) at 0.7 m looking down the
+    corridor, vertical dipoles at 0.5 / 1.0 / 1.5 m and y = 0.9 / 1.2 / 1.5 m, 1-20 m.
+    Measured with this tracer (depth 5, 3e4 rays): local mean n = 1.51 (depth 3: 1.54,
+    depth 6: 1.51, 1e5 rays: 1.49); coherent per-point gain 1.60; incoherent sum of path
+    powers 1.42; line of sight only 1.81 (below 2 because the reader pattern's elevation
+    loss shrinks with distance; the pattern-corrected Friis fit gives the same number).
+    Fails if reflections were lost (n -> 1.8) or spuriously strong (n < 1.4).
     """
-    sc = make_corridor(length=60.0)
-    rng = np.random.default_rng(1)
-    d = np.geomspace(2.0, 30.0, 60)
-    tags = np.stack([1.0 + d, 0.6 + 1.2 * rng.random(60), 0.5 + rng.random(60)], axis=1)
-    pose = np.array([[1.0, 1.0, 1.2, 0.0]])
-    links = trace_links(sc, pose, tags, max_depth=3, samples_per_src=30000)
+    import scenes
+
+    lab = scenes.load("corridor_lab")
+    lam = 299_792_458.0 / F
+    ant = np.array([1.0, 1.2, 0.7])
+    pose = np.array([[*ant, 0.0]])
+    rng = np.random.default_rng(0)
+    base = np.array([[ant[0] + d, y, z] for d in np.geomspace(1.0, 20.0, 30)
+                     for (y, z) in ((0.9, 0.5), (1.2, 1.0), (1.5, 1.5))])
+    jitter = rng.uniform(-lam, lam, (len(base), 8, 3))
+    jitter[:, 0] = 0.0
+    rx = (base[:, None, :] + jitter).reshape(-1, 3)
+    d = np.linalg.norm(base - ant, axis=1)
+    links = trace_links(lab, pose, rx)
     assert links.los.all()
-    n = -np.polyfit(10 * np.log10(d), links.gain_db[0], 1)[0]
-    assert 1.0 <= n <= 2.0
-    # line of sight alone is free space: n = 2 up to the pattern's elevation change
-    los_only = trace_links(sc, pose, tags, max_depth=0, samples_per_src=1000)
-    n0 = -np.polyfit(10 * np.log10(d), los_only.gain_db[0], 1)[0]
-    assert n0 == pytest.approx(2.0, abs=0.1)
-    assert n < n0 - 0.3
+    local_mean_db = 10 * np.log10(links.gain[0].reshape(-1, 8).mean(axis=1))
+    n = _ple(d, local_mean_db)
+    assert 1.4 <= n <= 2.2, n
+    los_only = trace_links(lab, pose, rx, max_depth=0, samples_per_src=1000)
+    n0 = _ple(d, 10 * np.log10(los_only.gain[0].reshape(-1, 8).mean(axis=1)))
+    # LOS only equals Friis with both patterns (tested above), so its fit is that of the
+    # closed form: 0.02 covers the +-lambda spread of the 8 points around each distance
+    k = rx - ant
+    th = np.arccos(k[:, 2] / np.linalg.norm(k, axis=1))
+    friis = free_space_gain_db(np.linalg.norm(k, axis=1), F, pattern_gain_db("tr38901", th, np.arctan2(k[:, 1], k[:, 0])),
+                               pattern_gain_db("hw_dipole", np.pi - th, 0.0))
+    assert n0 == pytest.approx(_ple(d, 10 * np.log10((10 ** (friis / 10)).reshape(-1, 8).mean(axis=1))), abs=0.02)
+    # the corridor guides the wave: reflections lower the exponent clearly (1.51 vs 1.81)
+    assert n < n0 - 0.15
 
 
 def test_pairs_mask_and_cache(corridor_scene, tmp_path):
