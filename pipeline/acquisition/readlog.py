@@ -8,7 +8,6 @@ run never leaves a file that looks complete.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +15,8 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from scenes.fileio import atomic_output
 
 __all__ = [
     "POSE_COLUMNS",
@@ -99,13 +100,8 @@ def write_table(df: pd.DataFrame, path: str | Path, metadata: dict | None = None
         meta = dict(table.schema.metadata or {})
         meta[_META_KEY] = json.dumps(metadata, sort_keys=True, default=_json_default).encode()
         table = table.replace_schema_metadata(meta)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with atomic_output(path) as tmp:
         pq.write_table(table, tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
 
 

@@ -27,7 +27,6 @@ rho, the chapter's Fig. 6 (:func:`rho_points_truth`, :func:`rho_vs_truth`)
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
+from scenes.fileio import atomic_save_npz
 
 from .cells import CellGrid
 from .geometry import antenna_frame_geometry
@@ -234,14 +234,12 @@ class RhoPoints:
         for name, s in (sensors or {}).items():
             s = check_sensor(s, f"sensor {name!r}")
             extra[f"{name}__rho"] = np.asarray(s.rho(self.d_m, self.alpha_rad), dtype=np.float64)
-        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, antenna_pose=self.antenna_pose, points_m=self.points_m, d_m=self.d_m,
+        atomic_save_npz(path, antenna_pose=self.antenna_pose, points_m=self.points_m, d_m=self.d_m,
                  alpha_rad=self.alpha_rad, gain_db=self.gain_db, fs_true=self.fs_true,
                  p_true=self.p_true, rho_true=self.rho_true,
                  rssi_range_dbm=np.asarray(self.rssi_range_dbm, dtype=np.float64),
                  grid_shape=np.asarray(self.grid_shape or (0, 0), dtype=np.int64),
                  model_names=np.array(sorted(sensors or {}), dtype=str), **extra)
-        os.replace(tmp, path)
         return path
 
     @classmethod

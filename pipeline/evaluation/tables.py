@@ -12,12 +12,13 @@ All writers go through a temporary name and :func:`os.replace`.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from scenes.fileio import atomic_output, atomic_write_text
 
 from .metrics import nan_to_none
 
@@ -48,22 +49,14 @@ def require_columns(df: pd.DataFrame, columns: Iterable[str], where: str) -> Non
 
 def write_parquet_atomic(df: pd.DataFrame, path) -> Path:
     """Write `df` to Parquet at `path` via a temporary file and rename; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
-    return path
+    with atomic_output(path) as tmp:
+        df.to_parquet(tmp, index=False)
+    return Path(path)
 
 
 def write_json_atomic(obj, path) -> Path:
     """Write `obj` as JSON (NaN -> null) via a temporary file and rename; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(nan_to_none(obj), indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, json.dumps(nan_to_none(obj), indent=2, allow_nan=False) + "\n")
 
 
 def tags_table(ids, positions_m, normals=None) -> pd.DataFrame:

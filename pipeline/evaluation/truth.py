@@ -20,12 +20,13 @@ The grid and model predictions at its centres are saved as
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from scenes.fileio import atomic_save_npz
 
 from .cells import CellGrid
 from .interface import check_sensor
@@ -128,9 +129,8 @@ class TruthGrid:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         extra = self.model_arrays(sensors or {})
-        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
-        np.savez(
-            tmp, d_edges_m=self.grid.d_edges_m, alpha_edges_rad=self.grid.alpha_edges_rad,
+        atomic_save_npz(
+            path, d_edges_m=self.grid.d_edges_m, alpha_edges_rad=self.grid.alpha_edges_rad,
             d_centres_m=self.grid.d_centres_m, alpha_centres_rad=self.grid.alpha_centres_rad,
             n_attempts=self.n_attempts, n_closed=self.n_closed, n_reads=self.n_reads,
             p_detect=self.p_detect, rssi_dbm=self.rssi_dbm,
@@ -138,7 +138,6 @@ class TruthGrid:
             miss_probability=np.array(self.miss_probability),
             model_names=np.array(sorted(sensors or {}), dtype=str), **extra,
         )
-        os.replace(tmp, path)
         return path
 
     @classmethod

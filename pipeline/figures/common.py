@@ -8,12 +8,13 @@ state, Agg canvas), and are written as ``figures/<name>.png`` (120 dpi) and
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+
+from scenes.fileio import atomic_output
 
 __all__ = [
     "DPI",
@@ -65,9 +66,8 @@ def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
     paths = []
     for ext in ("png", "pdf"):
         path = out_dir / f"{name}.{ext}"
-        tmp = out_dir / f".{name}.{os.getpid()}.tmp.{ext}"
-        fig.savefig(tmp, format=ext, dpi=DPI)
-        os.replace(tmp, path)
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, format=ext, dpi=DPI)
         paths.append(path)
     return paths
 
