@@ -201,7 +201,7 @@ def _validate(antenna_poses, tag_positions, pairs):
     return poses, tags, pairs
 
 
-def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed):
+def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed, refraction=True):
     """One PathSolver call; returns a SourcePaths per source (all receivers)."""
     import sionna.rt as rt
 
@@ -224,7 +224,7 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed)
         los=True,
         specular_reflection=True,
         diffuse_reflection=False,
-        refraction=True,
+        refraction=bool(refraction),
         diffraction=False,
         seed=int(seed),
     )
@@ -307,7 +307,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
                 max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
                 reader_pattern: str = "tr38901", tag_pattern: str = "hw_dipole",
                 tag_normals=None, pairs=None, cache_dir=None, memory_budget_bytes=None,
-                progress=None, reader_polarization: str = "V", seed: int = 42) -> LinkSet:
+                progress=None, reader_polarization: str = "V", seed: int = 42,
+                refraction: bool = True) -> LinkSet:
     """Ray-trace the one-way channel gain between antenna poses and tags.
 
     Parameters
@@ -348,6 +349,10 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         mismatch is inside the gain, so set ``LinkBudget.polarization_loss_db = 0``.
     seed : int
         Sionna sampling seed.
+    refraction : bool
+        Trace transmission through surfaces (Sionna ``refraction``). True (default) is the
+        physics; False drops every path that crosses a wall, cabinet or box (faster, see
+        ``bench/trace.py``; links inside one corridor change little).
 
     Returns
     -------
@@ -376,7 +381,7 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     n, m = pairs.shape
     settings = {"frequency_hz": float(frequency_hz), "max_depth": int(max_depth),
                 "samples_per_src": int(samples_per_src), "seed": int(seed),
-                "los": True, "specular_reflection": True, "refraction": True,
+                "los": True, "specular_reflection": True, "refraction": bool(refraction),
                 "diffuse_reflection": False, "diffraction": False}
     active = np.flatnonzero(pairs.any(axis=1))
     if len(active):
@@ -408,7 +413,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
             chunk = todo[c0:c0 + per_chunk]
             rec = np.unique(np.concatenate([missing[u] for u in chunk]))
             t0 = time.perf_counter()
-            fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed)
+            fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
+                                 refraction)
             t_trace += time.perf_counter() - t0
             n_calls += 1
             for u, sp in zip(chunk, fresh, strict=True):

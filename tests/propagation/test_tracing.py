@@ -259,3 +259,16 @@ def test_antenna_inside_corridor_lab_cabinet_raises():
     check_antenna_positions(lab, [[13.0, 1.2, 1.0], [13.0, 1.6, 1.0]])  # free space: no error
     with pytest.raises(ValueError, match=r"antenna pose 1 at \(13, 2.14, 1\) m lies inside solid .*metal"):
         trace_links(lab, np.array([[13.0, 1.2, 1.0, 0.0], [13.0, 2.14, 1.0, 0.0]]), lab.tags.positions_m[:2])
+
+
+def test_refraction_switch_drops_paths_through_walls(corridor_scene):
+    # a tag 0.4 m behind the plasterboard wall (y = -0.1 .. 0) is reached only through it:
+    # crossing the closed wall slab takes two interactions (in and out), hence depth 2
+    pose = np.array([[3.0, 1.2, 1.0, 0.0]])
+    tags = np.array([[6.0, -0.5, 1.0], [6.0, 1.2, 1.0]])
+    on = trace_links(corridor_scene, pose, tags, max_depth=2, samples_per_src=20000)
+    off = trace_links(corridor_scene, pose, tags, max_depth=2, samples_per_src=20000, refraction=False)
+    assert on.n_paths[0, 0] > 0 and off.n_paths[0, 0] == 0 and np.isneginf(off.gain_db[0, 0])
+    assert on.settings["refraction"] and not off.settings["refraction"]
+    # the in-corridor link keeps its line of sight either way
+    assert on.los[0, 1] and off.los[0, 1]
