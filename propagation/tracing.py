@@ -60,6 +60,7 @@ DEFAULT_MAX_DEPTH = 5
 DEFAULT_SAMPLES_PER_SRC = 30_000
 _SPEED_OF_LIGHT = 299_792_458.0
 _MAX_SOURCES_PER_CALL = 128
+_PATHS_PER_BATCH = 500_000  # pattern re-application batch (~200 MB of temporaries)
 
 
 @dataclass(frozen=True)
@@ -267,40 +268,65 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
 
 def _apply_patterns(src_paths, pos_index, tag_index, poses, tags, frequency_hz, reader_pattern,
                     reader_polarization, tag_pattern, tag_axes):
-    """Coherent gain, path count and LOS flag of links (pose_i, tag_j) from cached paths."""
+    """Coherent gain, path count and LOS flag of links (pose_i, tag_j) from cached paths.
+
+    Vectorised over links in batches of about ``_PATHS_PER_BATCH`` paths (the per-source
+    arrays are gathered into one array per batch), so the cost is per path, not per
+    antenna position.
+    """
     n_links = len(pos_index)
     gain = np.zeros(n_links)
-    n_paths = np.zeros(n_links, np.int64)
     los = np.zeros(n_links, bool)
-    r_reader = pose_rotation(poses)
-    r_tag = dipole_rotation(tag_axes)
-    for u in np.unique(pos_index):
-        sel = np.flatnonzero(pos_index == u)
-        sp = src_paths[u]
+    starts = np.zeros(n_links, np.int64)
+    counts = np.zeros(n_links, np.int64)
+    order = np.argsort(pos_index, kind="stable")
+    bounds = np.flatnonzero(np.diff(pos_index[order])) + 1
+    groups = np.split(order, bounds)
+    for sel in groups:
+        sp = src_paths[pos_index[sel[0]]]
         rows = sp.index_of(tags[tag_index[sel]])
         if np.any(rows < 0):
             raise RuntimeError("internal error: a requested link is missing from the path set")
-        starts, stops = sp.offsets[rows], sp.offsets[rows + 1]
-        counts = stops - starts
-        n_paths[sel] = counts
-        total = int(counts.sum())
+        starts[sel] = sp.offsets[rows]
+        counts[sel] = sp.offsets[rows + 1] - sp.offsets[rows]
+    r_reader = pose_rotation(poses)
+    r_tag = dipole_rotation(tag_axes)
+    g0 = 0
+    while g0 < len(groups):
+        # a batch of whole source groups holding about _PATHS_PER_BATCH paths
+        g1, total = g0, 0
+        while g1 < len(groups) and (g1 == g0 or total < _PATHS_PER_BATCH):
+            total += int(counts[groups[g1]].sum())
+            g1 += 1
+        batch = groups[g0:g1]
+        g0 = g1
         if total == 0:
             continue
-        link = np.repeat(np.arange(len(sel)), counts)
-        pidx = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(total)
-        lk = sel[link]
-        c_tx = pattern_field_world(reader_pattern, reader_polarization,
-                                   r_reader[lk], sp.k_tx[pidx])
-        g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[lk]], sp.k_rx[pidx])
-        a = np.einsum("pr,prt,pt->p", np.conj(g_rx), sp.transfer[pidx], c_tx)
-        a = a * np.exp(-2j * np.pi * frequency_hz * sp.tau_s[pidx])
-        h_re = np.bincount(link, weights=a.real, minlength=len(sel))
-        h_im = np.bincount(link, weights=a.imag, minlength=len(sel))
-        gain[sel] = h_re**2 + h_im**2
-        d = np.linalg.norm(tags[tag_index[lk]] - sp.source_m, axis=1)
-        is_los = np.abs(sp.tau_s[pidx] * _SPEED_OF_LIGHT - d) < 1e-3 + 1e-6 * d
-        los[sel] = np.bincount(link, weights=is_los, minlength=len(sel)) > 0
-    return gain, n_paths, los
+        srcs = [src_paths[pos_index[sel[0]]] for sel in batch]
+        base = np.concatenate([[0], np.cumsum([len(sp.tau_s) for sp in srcs])[:-1]]).astype(np.int64)
+        transfer = np.concatenate([sp.transfer for sp in srcs])
+        tau = np.concatenate([sp.tau_s for sp in srcs])
+        k_tx = np.concatenate([sp.k_tx for sp in srcs])
+        k_rx = np.concatenate([sp.k_rx for sp in srcs])
+        links = np.concatenate(batch)
+        gstart = np.concatenate([base[i] + starts[sel] for i, sel in enumerate(batch)])
+        cnt = counts[links]
+        link = np.repeat(np.arange(len(links)), cnt)
+        pidx = np.repeat(gstart - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt) + np.arange(int(cnt.sum()))
+        lk = links[link]
+        c_tx = pattern_field_world(reader_pattern, reader_polarization, r_reader[lk], k_tx[pidx])
+        g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[lk]], k_rx[pidx])
+        amp = np.einsum("pr,prt,pt->p", np.conj(g_rx), transfer[pidx], c_tx)
+        amp = amp * np.exp(-2j * np.pi * frequency_hz * tau[pidx])
+        h_re = np.bincount(link, weights=amp.real, minlength=len(links))
+        h_im = np.bincount(link, weights=amp.imag, minlength=len(links))
+        gain[links] = h_re**2 + h_im**2
+        src_of_link = np.concatenate([np.full(len(sel), i) for i, sel in enumerate(batch)])
+        src_pos = np.stack([sp.source_m for sp in srcs])[src_of_link]
+        d = np.linalg.norm(tags[tag_index[links]] - src_pos, axis=1)[link]
+        is_los = np.abs(tau[pidx] * _SPEED_OF_LIGHT - d) < 1e-3 + 1e-6 * d
+        los[links] = np.bincount(link, weights=is_los, minlength=len(links)) > 0
+    return gain, counts, los
 
 
 def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6,
