@@ -14,6 +14,7 @@ import argparse
 import resource
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -49,6 +50,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="8 antenna positions instead of 20")
     ap.add_argument("--full", action="store_true", help="reference with 1e6 rays/source (~5 min)")
+    ap.add_argument("--cache-positions", type=int, default=100,
+                    help="antenna positions traced cold then loaded warm for the cache line")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
@@ -103,6 +106,13 @@ def main() -> None:
             ls = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=depth, samples_per_src=spp)
             dt = time.perf_counter() - t0
             row(f"{depth} / {spp:.0e}", ls, dt)
+    # refraction off (paths through walls dropped): every ray then reflects, so more
+    # specular paths are found per ray -- it is slower, not faster, and not the same gains
+    for depth, spp in ((DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC), (6, ref_spp)):
+        t0 = time.perf_counter()
+        ls = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=depth, samples_per_src=spp,
+                           refraction=False, memory_budget_bytes=6 * 1024**3)
+        row(f"{depth}/{spp:.0e} no-refr", ls, time.perf_counter() - t0)
 
     # --- throughput and overhead at the defaults -------------------------------------------
     import sionna.rt as rt
@@ -129,6 +139,15 @@ def main() -> None:
           f"{ls.gain.size} links in {t_ours:.2f} s = {ls.gain.size / t_ours:.1f} links/s "
           f"(Sionna part {ls.trace_s:.2f} s); bare PathSolver + numpy() {t_bare:.2f} s "
           f"(max paths {a.shape[-1]}); overhead ratio ours/bare = {t_ours / t_bare:.2f}")
+    # receivers per call: the same sources against 4x the receivers (tags moved 5-30 cm
+    # into the corridor); the cost ratio tells whether receivers or rays dominate
+    rng = np.random.default_rng(0)
+    more = np.concatenate([tags] + [tags + normals * rng.uniform(0.05, 0.3, (len(tags), 1)) for _ in range(3)])
+    t0 = time.perf_counter()
+    P.trace_links(scene, poses, more)
+    t_more = time.perf_counter() - t0
+    print(f"receivers per call: {len(tags)} -> {len(more)} receivers, {t_ours:.2f} s -> {t_more:.2f} s "
+          f"(cost ratio {t_more / t_ours:.2f} for {len(more) / len(tags):.0f}x receivers)")
     # pattern re-application alone (cache hit path): orientation sweep
     import tempfile
 
@@ -141,6 +160,30 @@ def main() -> None:
         t_hit = time.perf_counter() - t0
     print(f"cache hit with new orientations: {hit.gain.size} links in {t_hit:.3f} s "
           f"({hit.gain.size / t_hit:.0f} links/s, solver calls {hit.n_solver_calls})")
+    # cache load alone (packed cache: one NPZ + JSON index per solver call), more positions
+    from propagation.pathcache import PathCache, settings_key
+
+    many = _poses(scene, args.cache_positions)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        cold = P.trace_links(scene, many, tags, tag_normals=normals, cache_dir=tmp)
+        t_cold = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        warm = P.trace_links(scene, many, tags, tag_normals=normals, cache_dir=tmp)
+        t_warm = time.perf_counter() - t0
+        sub = next(p for p in Path(tmp).iterdir() if p.is_dir())
+        assert sub.name == settings_key(scene.content_hash(), {k: cold.settings[k] for k in (
+            "frequency_hz", "max_depth", "samples_per_src", "seed", "los", "specular_reflection",
+            "refraction", "diffuse_reflection", "diffraction")})
+        uniq = np.unique(many[:, :3], axis=0)
+        t0 = time.perf_counter()
+        loaded = PathCache(sub).load(uniq)
+        t_load = time.perf_counter() - t0
+        n_files = len(list(sub.iterdir()))
+    assert all(sp is not None for sp in loaded) and warm.n_solver_calls == 0
+    print(f"cache ({len(uniq)} positions x {len(tags)} tags, {n_files} files): cold trace_links "
+          f"{t_cold:.1f} s, warm trace_links {t_warm:.2f} s ({len(uniq) / t_warm:.0f} positions/s); "
+          f"cache load positions/s {len(uniq) / t_load:.0f} ({1e3 * t_load / len(uniq):.2f} ms/position)")
 
     # --- rssi_field ----------------------------------------------------------------------
     t0 = time.perf_counter()
