@@ -100,7 +100,7 @@ class TourConfig:
     """The guided training tour and the held-out evaluation path (pipeline.robot)."""
 
     n_passes: int = option(
-        1, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 10)."
+        2, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 9)."
     )
     lane_fractions: tuple[float, ...] = option(
         (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
@@ -193,7 +193,9 @@ class TracingConfig:
     reader_polarization: str = option(
         "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
     )
-    max_depth: int = option(4, "Maximum number of interactions (reflections) per path (bench/trace.py).")
+    max_depth: int = option(
+        5, "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5)."
+    )
     samples_per_src: int = option(30_000, "Rays shot per antenna position (convergence check: bench/trace.py).")
     memory_budget_mb: float = option(2048.0, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
     cache_dir: str = option(
@@ -223,7 +225,7 @@ class TrainingConfig:
     alpha_bin_deg: float = option(10.0, "Bearing bin of the detection-model cells [deg].")
     n_clusters: int = option(3, "FCM clusters = Takagi-Sugeno rules per model.")
     fcm_exponent: float = option(2.0, "FCM fuzziness exponent m (Bezdek 1981).")
-    epochs: int = option(30, "ANFIS hybrid-learning epochs (Jang 1993).")
+    epochs: int = option(100, "ANFIS hybrid-learning epochs (Jang 1993); the best checking epoch is kept.")
     step_size: float = option(0.01, "Initial ANFIS gradient step size (adapted per Jang 1993).")
     check_fraction: float = option(0.2, "Fraction of training samples held out as checking data.")
     max_samples: int = option(0, "Subsample the SSM training set to at most this many (0 = all).")
