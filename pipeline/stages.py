@@ -76,7 +76,7 @@ STAGES: tuple[Stage, ...] = (
           + _TRACING,
           ("scene", "reads", "models"), description="propagation truth"),
     Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
-          ("scene", "reads", "models", "truth"), version=2,  # 2: coverage, fig7 table
+          ("scene", "reads", "models", "truth"), version=3,  # 2: coverage, fig7 table; 3: RSSI floor
           description="metrics"),
     Stage("figures", _stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
           description="figures"),

@@ -25,6 +25,7 @@ from .comparison import (
     detection_vs_truth,
     rho_points_truth,
     rho_vs_truth,
+    rssi_cell_mean_floor,
     rssi_vs_truth,
 )
 from .coverage import CoverageResult, detection_coverage
@@ -108,6 +109,7 @@ __all__ = [
     "require_columns",
     "rho_points_truth",
     "rho_vs_truth",
+    "rssi_cell_mean_floor",
     "rssi_vs_truth",
     "tag_position_lookup",
     "tags_table",

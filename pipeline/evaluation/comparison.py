@@ -51,6 +51,7 @@ __all__ = [
     "detection_vs_truth",
     "rho_points_truth",
     "rho_vs_truth",
+    "rssi_cell_mean_floor",
     "rssi_vs_truth",
 ]
 
@@ -104,6 +105,44 @@ def rssi_vs_truth(reads: pd.DataFrame, sensor, budget, d_max_m: float = 3.0) -> 
     pred = np.asarray(sensor.fs_dbm(d[keep], reads["alpha_true_rad"].to_numpy(np.float64)[keep]),
                       dtype=np.float64)
     return RssiComparison(error_stats(pred, truth), int(keep.sum()), float(d_max_m))
+
+
+def rssi_cell_mean_floor(reads: pd.DataFrame, truth: TruthGrid, budget, d_max_m: float = 3.0,
+                         min_count: int = 5) -> ErrorStats:
+    """Error of the best possible (d, alpha) cell model: the truth's own cell mean.
+
+    A sensor model of (d, alpha) alone predicts one RSSI per geometry, while the
+    ray-traced RSSI at a given (d, alpha) still varies with where the antenna and tag
+    are in the corridor (multipath fading). Predicting each link by the mean true RSSI
+    of its (d, alpha) cell (``truth.rssi_dbm``) is the floor of that model family at the
+    grid's resolution; :func:`rssi_vs_truth` errors near it mean the model has learned
+    what (d, alpha) can tell.
+
+    Parameters
+    ----------
+    reads : pandas.DataFrame
+        reads.parquet-format table (d_true_m, alpha_true_rad, gain_db).
+    truth : TruthGrid
+        :func:`~.truth.detection_truth` of the same reads.
+    budget : propagation.LinkBudget
+    d_max_m : float
+        Only attempts with d_true_m < d_max_m.
+    min_count : int
+        Cells with fewer closing links are left out (their mean is mostly the link itself).
+
+    Returns
+    -------
+    ErrorStats
+        Of ``cell mean - truth`` over the closing links in cells with >= min_count links.
+    """
+    require_columns(reads, ("d_true_m", "alpha_true_rad", "gain_db"), "reads")
+    g = reads["gain_db"].to_numpy(np.float64)
+    d = reads["d_true_m"].to_numpy(np.float64)
+    keep = true_detected(g, budget) & (d < float(d_max_m))
+    idx = truth.grid.index(d[keep], reads["alpha_true_rad"].to_numpy(np.float64)[keep])
+    ok = idx.valid & (truth.n_closed.ravel()[np.maximum(idx.flat, 0)] >= int(min_count))
+    cell_mean = truth.rssi_dbm.ravel()[np.maximum(idx.flat, 0)]
+    return error_stats(cell_mean[ok], true_rssi_dbm(g[keep][ok], budget))
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from .comparison import (
     RssiComparison,
     detection_vs_truth,
     rho_vs_truth,
+    rssi_cell_mean_floor,
     rssi_vs_truth,
 )
 from .fig7 import Fig7Result, fig7_errors
@@ -270,6 +271,9 @@ def evaluate_all(sensors: dict, inputs: EvaluationInputs,
         "n_reads": int(t.n_reads.sum()),
         "miss_probability": t.miss_probability,
         "grid": t.grid.to_dict(),
+        "rssi_dbm_cell_mean_floor": rssi_cell_mean_floor(
+            inputs.reads, t, inputs.budget, d_max_m=inputs.d_max_m,
+            min_count=inputs.min_attempts).to_dict(),
         "split": list(split) if sp is not None else None,
     }
     return StudyMetrics(models=models, localisation_split=sp, truth=truth)

@@ -141,3 +141,25 @@ def test_rho_truth_and_perfect_model(budget, tmp_path):
         np.testing.assert_allclose(z["anfis__rho"], rp.rho_true, atol=1e-12)
     with pytest.raises(ValueError, match="gain_db has 3 entries"):
         rho_points_truth(pose, pts, g[:3], budget, WIDE)
+
+
+def test_cell_mean_floor_is_the_within_cell_spread(budget):
+    from pipeline.evaluation import rssi_cell_mean_floor
+
+    rng = np.random.default_rng(11)
+    # RSSI constant per cell plus +-2 dB "fading" that (d, alpha) cannot explain:
+    # the cell mean misses each link by exactly 2 dB when both signs are equally many.
+    grid = CellGrid(d_max_m=3.0, d_bin_m=0.5, alpha_bin_deg=60.0)
+    centres_d = rng.choice(grid.d_centres_m, 2000)
+    centres_a = rng.choice(grid.alpha_centres_rad, 2000)
+    sign = np.tile([1.0, -1.0], 1000)
+    rssi = -50.0 - 5.0 * centres_d + 2.0 * sign
+    reads = synthetic_reads(lambda d, a: rssi, budget, rng, n=2000)
+    reads["d_true_m"], reads["alpha_true_rad"] = centres_d, centres_a
+    reads["gain_db"] = gain_for_rssi(budget, rssi)
+    truth = detection_truth(reads, budget, grid, miss_probability=0.0)
+    floor = rssi_cell_mean_floor(reads, truth, budget, d_max_m=3.0, min_count=5)
+    assert floor.n == 2000  # every link closes (-65 dBm at worst) and every cell is full
+    # each cell's mean sits within the sampling error of the +-2 dB pairs; MAE ~ 2 dB
+    assert floor.mae == pytest.approx(2.0, abs=0.15)
+    assert abs(floor.bias) < 1e-9  # the mean of a cell's residuals is zero by construction
