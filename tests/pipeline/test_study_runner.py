@@ -79,7 +79,7 @@ def test_failure_keeps_earlier_outputs_and_resumes(tmp_path):
         _run(bad, tmp_path)
     # a and b finished and kept their outputs; c's previous output is untouched
     assert json.loads((tmp_path / "b.json").read_text())["v"] == cfg.seed * 5
-    assert (tmp_path / "c.txt").read_text() == str(cfg.seed * 30 + 1)
+    assert (tmp_path / "c.txt").read_text() == str(cfg.seed * cfg.training.epochs + 1)
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["status"] == "failed" and man["failure"]["stage"] == "c"
     assert not (tmp_path / ".staging" / "c").exists()
