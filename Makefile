@@ -18,6 +18,7 @@ test-all: setup
 	.venv/bin/python -m pytest -m "not gpu"
 
 bench: setup
+	.venv/bin/python -m pip install -q --disable-pip-version-check -e ".[bench]"
 	.venv/bin/python bench/trace.py
 	.venv/bin/python bench/acquire.py
 	.venv/bin/python bench/anfis.py
