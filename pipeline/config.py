@@ -190,6 +190,12 @@ class TracingConfig:
     reader_pattern: str = option("tr38901", "Reader antenna pattern (Sionna name; 8 dBi patch-like).")
     tag_pattern: str = option("hw_dipole", "Tag antenna pattern (Sionna name; half-wave dipole).")
     backend: str = option("auto", "Dr.Jit variant: 'auto' (CUDA if usable, else LLVM), 'cuda' or 'llvm'.")
+    deterministic: bool = option(
+        False,
+        "Trace on one Dr.Jit thread so traces made afresh are bit-reproducible (Sionna's "
+        "multi-threaded path solver finds ~1 path in 1000 differently run to run; cached "
+        "traces are always reused exactly). About 2x slower tracing on 2 cores.",
+    )
     reader_polarization: str = option(
         "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
     )

@@ -138,7 +138,9 @@ def select_backend(cfg: StudyConfig) -> str:
     """Select the Dr.Jit variant (``propagation.select_variant``) before any tracing."""
     import propagation
 
-    return propagation.select_variant(prefer=cfg.tracing.backend)
+    variant = propagation.select_variant(prefer=cfg.tracing.backend)
+    propagation.set_deterministic(cfg.tracing.deterministic)
+    return variant
 
 
 # ---------------------------------------------------------------------------------- stages

@@ -11,7 +11,13 @@ from propagation.analytic import (
     linear_to_db,
     two_ray_gain_db,
 )
-from propagation.backend import BackendError, backend_info, find_libllvm, select_variant
+from propagation.backend import (
+    BackendError,
+    backend_info,
+    find_libllvm,
+    select_variant,
+    set_deterministic,
+)
 from propagation.fields import RssiField, rssi_field
 from propagation.linkbudget import LinkBudget
 from propagation.pathcache import CacheWarning
@@ -46,6 +52,7 @@ __all__ = [
     "pattern_gain_db",
     "rssi_field",
     "select_variant",
+    "set_deterministic",
     "trace_links",
     "two_ray_gain_db",
 ]
