@@ -7,7 +7,7 @@ and quantisation, and d and alpha are recorded from both the true and the estima
 (MCL) antenna poses. The training sets of the fuzzy sensor model are built from that log.
 """
 
-from pipeline.acquisition.config import AcquisitionConfig, ReaderConfig
+from pipeline.acquisition.config import ReaderConfig
 from pipeline.acquisition.reader import (
     ReadAttempts,
     ReaderResponse,
@@ -35,7 +35,6 @@ from pipeline.acquisition.training import (
 __all__ = [
     "POSE_COLUMNS",
     "READ_COLUMNS",
-    "AcquisitionConfig",
     "PoseTrack",
     "ReadAttempts",
     "ReadLog",

@@ -9,17 +9,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
-
-import tomllib
 
 from pipeline.configschema import check_keys
 
 if TYPE_CHECKING:  # pragma: no cover
     from propagation import LinkBudget
 
-__all__ = ["ANTENNA_MODES", "POSE_SOURCES", "AcquisitionConfig", "ReaderConfig"]
+__all__ = ["ANTENNA_MODES", "POSE_SOURCES", "ReaderConfig"]
 
 #: How the reader multiplexes its antenna ports, see :class:`ReaderConfig`.
 ANTENNA_MODES = ("round_robin", "all")
@@ -139,135 +136,4 @@ class ReaderConfig:
         """JSON/TOML-able dict that :meth:`from_dict` reads back."""
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         out["budget"] = dataclasses.asdict(self.budget)
-        return out
-
-
-@dataclass(frozen=True)
-class AcquisitionConfig:
-    """What the acquisition stage does: reader, tour and training-set binning.
-
-    Attributes
-    ----------
-    reader : ReaderConfig
-        The simulated reader.
-    tour : dict
-        Keyword arguments of ``pipeline.robot.guided_tour`` (e.g. ``passes``,
-        ``speed_m_s``); kept as a table here and validated by the robot package.
-    d_max_m : float
-        Largest antenna-tag distance entering the training sets, metres. Default 3.0 m
-        (the range of the chapter's model). > 0.
-    d_bin_m : float
-        Distance bin of the detection-model grid, metres. Default 0.25 m. > 0.
-    alpha_bin_deg : float
-        Bearing bin of the detection-model grid, degrees. Default 10 deg. > 0, divides
-        360 into a whole number of bins.
-    min_attempts : int
-        Detection-model cells with fewer read attempts are dropped. Default 5. >= 1.
-    pose : {"est", "true"}
-        Antenna poses the training sets use: MCL estimates (default, as on a real robot)
-        or ground truth (for the localisation-error split).
-    rssi_range_dbm : tuple of float or None
-        Fixed RSSI normalisation range (lo, hi) in dBm for the RSSI model; ``None`` uses
-        (reader sensitivity, maximum reported RSSI rounded up to 1 dB).
-    """
-
-    reader: ReaderConfig = field(default_factory=ReaderConfig)
-    tour: dict = field(default_factory=dict)
-    d_max_m: float = 3.0
-    d_bin_m: float = 0.25
-    alpha_bin_deg: float = 10.0
-    min_attempts: int = 5
-    pose: str = "est"
-    rssi_range_dbm: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("d_max_m", "d_bin_m", "alpha_bin_deg"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(
-                    f"AcquisitionConfig: {name} must be a finite number > 0, got {v!r}"
-                )
-        n_alpha = 360.0 / self.alpha_bin_deg
-        if abs(n_alpha - round(n_alpha)) > 1e-9:
-            raise ValueError(
-                f"AcquisitionConfig: alpha_bin_deg must divide 360, got {self.alpha_bin_deg!r}"
-            )
-        if not (isinstance(self.min_attempts, int) and self.min_attempts >= 1):
-            raise ValueError(
-                f"AcquisitionConfig: min_attempts must be an integer >= 1, got {self.min_attempts!r}"
-            )
-        if self.pose not in POSE_SOURCES:
-            raise ValueError(
-                f"AcquisitionConfig: pose must be one of {POSE_SOURCES}, got {self.pose!r}"
-            )
-        if not isinstance(self.tour, dict):
-            raise ValueError(f"AcquisitionConfig: tour must be a table, got {self.tour!r}")
-        if self.rssi_range_dbm is not None:
-            lo, hi = (float(v) for v in self.rssi_range_dbm)
-            if not hi > lo:
-                raise ValueError(
-                    f"AcquisitionConfig: rssi_range_dbm must be (lo, hi) with hi > lo, "
-                    f"got {self.rssi_range_dbm!r}"
-                )
-            object.__setattr__(self, "rssi_range_dbm", (lo, hi))
-
-    @classmethod
-    def from_dict(cls, d: dict, source: str = "<dict>") -> AcquisitionConfig:
-        """Build from the ``[acquisition]`` TOML table (``reader`` and ``tour`` sub-tables).
-
-        Raises
-        ------
-        KeyError
-            Naming an unknown key and the source.
-        ValueError
-            Naming a key with a bad value and the source.
-        """
-        names = {f.name for f in dataclasses.fields(cls)}
-        check_keys(d, names, f"{source}: [acquisition]")
-        kw = dict(d)
-        if "reader" in kw:
-            kw["reader"] = ReaderConfig.from_dict(kw["reader"], source)
-        if "tour" in kw:
-            check_keys(kw["tour"], set(kw["tour"]), f"{source}: [acquisition.tour]")
-            kw["tour"] = dict(kw["tour"])
-        if kw.get("rssi_range_dbm") is not None:
-            kw["rssi_range_dbm"] = tuple(kw["rssi_range_dbm"])
-        try:
-            return cls(**kw)
-        except ValueError as exc:
-            raise ValueError(f"{source}: {exc}") from exc
-
-    @classmethod
-    def from_toml(cls, path: str | Path, table: str | None = "acquisition") -> AcquisitionConfig:
-        """Read from a TOML file: its ``[acquisition]`` table (``table=None``: the whole file).
-
-        Raises
-        ------
-        FileNotFoundError, KeyError, ValueError
-            Naming the file (and the key).
-        """
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"no such acquisition config file: {path}")
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-        if table is not None:
-            if table not in data:
-                raise KeyError(f"{path}: no [{table}] table")
-            data = data[table]
-        return cls.from_dict(data, source=str(path))
-
-    def to_dict(self) -> dict[str, Any]:
-        """TOML-able dict that :meth:`from_dict` reads back (``None`` entries dropped)."""
-        out: dict[str, Any] = {
-            "reader": self.reader.to_dict(),
-            "tour": dict(self.tour),
-            "d_max_m": self.d_max_m,
-            "d_bin_m": self.d_bin_m,
-            "alpha_bin_deg": self.alpha_bin_deg,
-            "min_attempts": self.min_attempts,
-            "pose": self.pose,
-        }
-        if self.rssi_range_dbm is not None:
-            out["rssi_range_dbm"] = list(self.rssi_range_dbm)
         return out

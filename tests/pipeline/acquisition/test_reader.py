@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.acquisition import AcquisitionConfig, ReaderConfig, reader_response
+from pipeline.acquisition import ReaderConfig, reader_response
 from propagation import LinkBudget
 
 # Numbers chosen so every dB sum below is exact in binary floating point:
@@ -121,37 +121,11 @@ def test_config_errors_name_key_and_file():
         ReaderConfig.from_dict({"budget": {"tx_power": 1.0}}, source="study.toml")
     with pytest.raises(ValueError, match="anticollision_miss_probability"):
         ReaderConfig(anticollision_miss_probability=1.0, budget=LinkBudget())
-    with pytest.raises(KeyError, match="d_max"):
-        AcquisitionConfig.from_dict({"d_max": 3.0}, source="acq.toml")
-    with pytest.raises(ValueError, match="pose"):
-        AcquisitionConfig.from_dict({"pose": "odom"}, source="acq.toml")
 
 
-def test_config_roundtrip():
-    cfg = AcquisitionConfig.from_dict(
-        {
-            "reader": {"read_rate_hz": 8.0, "budget": {"tx_power_dbm": 25.0}},
-            "tour": {"n_passes": 4},
-            "d_max_m": 2.5,
-            "rssi_range_dbm": [-80, -20],
-        },
-        source="acq.toml",
+def test_reader_config_roundtrip():
+    cfg = ReaderConfig.from_dict(
+        {"read_rate_hz": 8.0, "budget": {"tx_power_dbm": 25.0}}, source="study.toml"
     )
-    assert cfg.reader.budget.tx_power_dbm == 25.0 and cfg.rssi_range_dbm == (-80.0, -20.0)
-    again = AcquisitionConfig.from_dict(cfg.to_dict())
-    assert again == cfg
-
-
-def test_paper_scale_config_loads_and_tour_keys_exist():
-    from pathlib import Path
-
-    import pipeline
-    from pipeline.robot.trajectory import TourConfig
-
-    path = Path(pipeline.__file__).parent / "data" / "paper_scale_acquisition.toml"
-    cfg = AcquisitionConfig.from_toml(path)
-    assert cfg.reader.read_rate_hz > 0 and cfg.d_max_m == 3.0
-    # The tour table must be valid keyword arguments of the robot's TourConfig.
-    TourConfig(**cfg.tour)
-    with pytest.raises(FileNotFoundError, match="nope.toml"):
-        AcquisitionConfig.from_toml(path.with_name("nope.toml"))
+    assert cfg.read_rate_hz == 8.0 and cfg.budget.tx_power_dbm == 25.0
+    assert ReaderConfig.from_dict(cfg.to_dict()) == cfg
