@@ -139,11 +139,22 @@ class LocalisationConfig:
         "Robot odometry noise alpha1..alpha4 (Thrun et al. 2005, Table 5.6).",
     )
     map_resolution_m: float = option(0.05, "Likelihood-field grid resolution [m].")
+    map_error_m: float = option(
+        0.05,
+        "Std of the smooth displacement between the robot's map and the real surfaces "
+        "(as-built tolerances, mapping error) [m]; 0 = a perfect map.",
+    )
+    map_error_correlation_m: float = option(1.0, "Correlation length of the map error along surfaces [m].")
+    sigma_hit_m: float = option(
+        0.10,
+        "Likelihood-field std of the MCL laser model [m]; keep it >= 2x map_error_m "
+        "(at 0.05 m with a 0.05 m map error MCL lost track on corridor_lab).",
+    )
 
     def __post_init__(self):
         _positive(self, "n_particles", "n_beams_used", "laser_beams", "laser_fov_deg",
-                  "laser_max_range_m", "map_resolution_m")
-        _nonneg(self, "laser_noise_m")
+                  "laser_max_range_m", "map_resolution_m", "map_error_correlation_m", "sigma_hit_m")
+        _nonneg(self, "laser_noise_m", "map_error_m")
         if len(self.odometry_noise) != 4 or min(self.odometry_noise) < 0:
             raise ConfigError(f"odometry_noise must be 4 values >= 0, got {self.odometry_noise}")
 

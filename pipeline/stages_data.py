@@ -190,8 +190,11 @@ def _localise(scene, robot, traj, cfg: StudyConfig, rng, progress) -> dict:
         odometry_noise=OdometryNoise(*loc.odometry_noise),
         scanner=LaserScanner(n_beams=loc.laser_beams, fov_rad=float(np.deg2rad(loc.laser_fov_deg)),
                              max_range_m=loc.laser_max_range_m, range_noise_m=loc.laser_noise_m),
-        mcl=MCLConfig(n_particles=loc.n_particles, n_beams_used=loc.n_beams_used),
+        mcl=MCLConfig(n_particles=loc.n_particles, n_beams_used=loc.n_beams_used,
+                      sigma_hit_m=loc.sigma_hit_m),
         map_resolution_m=loc.map_resolution_m,
+        map_error_m=loc.map_error_m,
+        map_error_correlation_m=loc.map_error_correlation_m,
     )
     progress(completed=0.0, total=1.0)
     res = simulate_localisation(scene, robot, traj, rng, lcfg)
