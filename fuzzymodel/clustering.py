@@ -2,8 +2,8 @@
 
 The iteration is implemented here rather than delegated to
 ``skfuzzy.cluster.cmeans`` because scikit-fuzzy draws its initial partition
-from NumPy's *global* generator (``np.random.seed(seed)`` then
-``np.random.rand``), which would break the project rule that randomness comes
+from NumPy's *global* generator (it reseeds the legacy global state, then
+draws from it), which would break the project rule that randomness comes
 only from a caller's :class:`numpy.random.Generator`. The update equations,
 the distance floor and the stopping rule are the same as scikit-fuzzy 0.5's,
 so both give the same result from the same initial partition (tested).
