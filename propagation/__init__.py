@@ -9,6 +9,8 @@ from propagation.analytic import (
     free_space_gain_db,
     fresnel_reflection,
     linear_to_db,
+    slab_coefficients,
+    slab_transmission_db,
     two_ray_gain_db,
 )
 from propagation.backend import (
@@ -53,6 +55,8 @@ __all__ = [
     "rssi_field",
     "select_variant",
     "set_deterministic",
+    "slab_coefficients",
+    "slab_transmission_db",
     "trace_links",
     "two_ray_gain_db",
 ]

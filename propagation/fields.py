@@ -150,6 +150,11 @@ def _grid_over_faces(tri: np.ndarray, normal: np.ndarray, max_edge_m: float, off
 def wall_surface_mesh(scene, max_edge_m: float = 0.1, offset_m: float = 0.01) -> trimesh.Trimesh:
     """Measurement surface over the walls where tags sit: a regular grid per wall face.
 
+    Built on the scene's solid meshes (where tags sit), not on its radio surfaces: a
+    generated wall's radio surface lies on the solid's inner face, so the grid is
+    ``offset_m`` in front of what the tracer sees (of a stud wall's inner leaf, of a
+    recessed door leaf's face).
+
     Vertical faces (|n_z| < 0.1) of every mesh whose face centre, moved ``offset_m`` along
     the face normal, stays inside the scene bounds (inner faces of the corridor walls,
     cabinet and box sides; not the outside of the outer walls) are grouped by plane; each

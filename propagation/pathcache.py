@@ -8,7 +8,9 @@ arrival directions. Orientation changes, pattern or polarisation what-ifs hit th
 Layout: ``<cache_dir>/<settings_key>/pack-<id>.npz`` holds the path sets of all the
 antenna positions of one solver call (concatenated, with offset arrays), and
 ``pack-<id>.json`` its index (the ``position_key`` of each slot and its tag count).
-``settings_key`` hashes the scene's :meth:`~scenes.Scene.content_hash`, the frequency
+``settings_key`` hashes the scene's :meth:`~scenes.Scene.content_hash` (solid meshes,
+radio surfaces with their thicknesses, tags, material overrides: a scene traced on its
+radio surfaces never meets an entry traced on closed wall boxes), the frequency
 and the solver settings, ``position_key`` the exact float64 bytes of the antenna
 position. Packing matters for speed: NumPy parses every array header of an NPZ with
 ``ast.literal_eval``, which cost ~36 ms per antenna position with one file per position

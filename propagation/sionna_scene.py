@@ -1,5 +1,9 @@
 """Loading a :class:`scenes.Scene` into Sionna RT, and checks on where antennas may go.
 
+Two geometries, two uses: Sionna traces the scene's radio surfaces (each physical layer
+crossed once, :mod:`scenes.radio`; the solid meshes as they are when a scene has none),
+while geometric checks (an antenna inside a wall, a cabinet) use the closed solids.
+
 All Sionna imports are lazy and happen after :func:`propagation.backend.ensure_variant`.
 """
 
@@ -30,8 +34,11 @@ _MAX_CACHED_SCENES = 2
 def load_sionna_scene(scene, frequency_hz: float):
     """A Sionna RT scene for ``scene`` at ``frequency_hz`` (exported once, then reused).
 
-    Materials are evaluated at ``frequency_hz`` by :func:`scenes.export.export_mitsuba`;
-    shapes are not merged so object names equal material names. Transmitters and
+    The scene's traced surfaces (``scene.radio_surfaces``, or its solid meshes when
+    ``None``) are exported by :func:`scenes.export.export_mitsuba` with materials
+    evaluated at ``frequency_hz``: one shape per (material, thickness), not merged, so
+    object names are ``<material>-t<thickness>`` (``brick-t0p120``). Cached by
+    :meth:`scenes.Scene.content_hash`, which covers the radio surfaces. Transmitters and
     receivers left from an earlier call are removed.
 
     Raises
@@ -72,6 +79,8 @@ def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> N
     scene : scenes.Scene
         The scene; solids are its closed mesh bodies (wall slabs, cabinets, boxes), tested
         with :func:`scenes.solid_material_at` (generalised winding number, pure NumPy).
+        The solids, not the radio surfaces: an antenna inside a wall's thickness is
+        refused although the tracer sees only the wall's inner face.
     positions_m : array_like
         Shape (n, 3), metres. x and y must lie strictly inside ``scene.bounds_m``, z above
         its lowest point (a point above the top of an open scene is accepted).

@@ -340,7 +340,9 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     Parameters
     ----------
     scene : scenes.Scene
-        The scene (one mesh per material).
+        The scene: its radio surfaces are traced (each physical layer once, see
+        :mod:`scenes.radio`; its solid meshes as they are when it has none), its solids
+        bound and check the antenna positions.
     antenna_poses : array_like
         (n, 4) [x, y, z, yaw] or (n, 6) [x, y, z, yaw, pitch, roll] [m, rad]; boresight is
         the local +x axis, positive pitch tilts it up (see :mod:`propagation.patterns`).

@@ -10,6 +10,7 @@ Public entry points::
     scenes.load_mitsuba_xml(path, tags=[...])
     scenes.is_free(scene, points) / scenes.floor_plan_segments(scene, z_m) / scenes.raycast(...)
     scenes.material("concrete", 865e6) -> (relative_permittivity, conductivity_s_per_m)
+    scene.radio_surfaces / scenes.radio_groups(scene)   # what the ray tracer sees
 """
 
 from scenes.catalog import SceneSummary, build, bundled_path, list_bundled, load, summarize
@@ -36,6 +37,7 @@ from scenes.materials import (
     material,
     resolve_material_name,
 )
+from scenes.radio import CONSTRUCTIONS, RadioGroup, RadioSurface, radio_groups, tracing_surfaces
 from scenes.scene import Scene, TagSet
 from scenes.spec import (
     BoxSpec,
@@ -55,6 +57,7 @@ from scenes.spec_toml import load_spec, save_spec, spec_from_dict, spec_to_dict
 from scenes.tags import make_tags, validate_tags
 
 __all__ = [
+    "CONSTRUCTIONS",
     "ITU_NAME_MAP",
     "MATERIALS",
     "BoxSpec",
@@ -67,6 +70,8 @@ __all__ = [
     "MeshSpec",
     "MitsubaSpec",
     "PanelSpec",
+    "RadioGroup",
+    "RadioSurface",
     "Scene",
     "SceneSpec",
     "SceneSummary",
@@ -95,6 +100,7 @@ __all__ = [
     "load_spec",
     "make_tags",
     "material",
+    "radio_groups",
     "raycast",
     "read_sidecar",
     "resolve_material_name",
@@ -103,5 +109,6 @@ __all__ = [
     "spec_from_dict",
     "spec_to_dict",
     "summarize",
+    "tracing_surfaces",
     "validate_tags",
 ]

@@ -45,19 +45,22 @@ def build(spec: SceneSpec) -> Scene:
 
     A ``[corridor]`` spec is generated (:func:`scenes.generator.build_corridor`); a
     ``[mesh]`` or ``[mitsuba]`` spec loads its file (relative to the spec's folder) and
-    places the spec's tags on it.
+    places the spec's tags on it; its ``radio_geometry`` says what the tracer sees.
     """
     if spec.corridor is not None:
         return build_corridor(spec)
     base = Path(spec.base_dir)
     route = spec.route_m
+    src = spec.mesh if spec.mesh is not None else spec.mitsuba
+    radio = {"radio_geometry": src.radio_geometry, "thin_box_max_m": src.thin_box_max_m,
+             "thin_box_face": src.thin_box_face}
     if spec.mesh is not None:
         scene = import_mesh(base / spec.mesh.path, material=spec.mesh.material,
                             material_map=spec.mesh.material_map, tags=spec.tags, name=spec.name,
-                            route_m=route)
+                            route_m=route, **radio)
     else:
         scene = load_mitsuba_xml(base / spec.mitsuba.path, tags=spec.tags, route_m=route,
-                                 name=spec.name)
+                                 name=spec.name, **radio)
     scene.metadata.update({"spec": spec_to_dict(spec), **overrides_metadata(spec)})
     return scene
 

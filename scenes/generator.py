@@ -1,14 +1,18 @@
-"""Corridor generator: solid slabs around a union of free-space rectangles.
+"""Corridor generator: solid slabs around a union of free-space rectangles, and their radio surfaces.
 
 The walkable area is a union of axis-aligned rectangles (one for a straight
 corridor, several for an L or T junction). Walls are the band of width
 ``wall_thickness_m`` around that union (the union grown by the thickness with square
 corners, minus the union); floor and ceiling slabs cover the grown union. Every solid
-is a closed box, so Sionna's slab model and the robot's laser both see a thickness.
+is a closed box, so the robot's laser, collision and tag placement see a thickness.
+The ray tracer sees the scene's radio surfaces instead (:mod:`scenes.corridor_radio`):
+each physical layer once, a solid wall as one surface on its inner face carrying the
+wall thickness, a stud partition as two leaves, floor and ceiling as one surface each,
+hollow furniture as closed shells.
 
 The plane is cut into cells on the compressed grid of all rectangle, wall and
 opening coordinates; each wall cell carries a vertical profile (z-intervals and
-their material) that panels replace and doors open. Cells with equal profiles are
+their material and construction) that panels replace and doors open. Cells with equal profiles are
 merged into as few boxes as possible: meshes stay coarse (12 triangles per box).
 """
 
@@ -18,8 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenes.corridor_radio import construction_of, slab_surface, wall_surfaces
 from scenes.geometry import box_mesh, is_free, merge_meshes, points_in_boxes
-from scenes.materials import resolve_material_name
+from scenes.materials import get_material, resolve_material_name
+from scenes.radio import RadioSurface, rectangle_mesh
 from scenes.scene import Scene, TagSet
 from scenes.spec import (
     BoxSpec,
@@ -214,8 +220,8 @@ def build_corridor(spec: SceneSpec) -> Scene:
     t, H = c.wall_thickness_m, c.height_m
     edges = _boundary_edges(rooms)
 
-    # openings: (along-axis, along lo/hi, perp lo/hi, z0, z1, material or None)
-    openings, leaves = [], []
+    # openings: (edge, along lo/hi, z0, z1, (material, construction) or None)
+    openings, leaves, door_surfaces = [], [], []
     for i, p in enumerate(spec.panels):
         label = f"{src}: panel {p.id or '#' + str(i + 1)}"
         z1 = H if p.height_m is None else p.sill_m + p.height_m
@@ -223,8 +229,9 @@ def build_corridor(spec: SceneSpec) -> Scene:
             raise ValueError(f"{label}: sill_m {p.sill_m} + height_m {p.height_m} exceeds the "
                              f"ceiling height {H} m")
         e = _find_edge(edges, p.position_m, t, label)
+        mat = resolve_material_name(p.material)
         openings.append((e, _opening_span(e, p.position_m, p.width_m, label), p.sill_m, z1,
-                         resolve_material_name(p.material)))
+                         (mat, construction_of(c, mat, p.construction))))
     for i, d in enumerate(spec.doors):
         label = f"{src}: door {d.id or '#' + str(i + 1)}"
         if d.height_m > H + _EPS:
@@ -242,6 +249,11 @@ def build_corridor(spec: SceneSpec) -> Scene:
             lo[1 - e.along], hi[1 - e.along] = min(s0, s1), max(s0, s1)
             hi[2] = d.height_m
             leaves.append((resolve_material_name(d.leaf_material), box_mesh(lo, hi)))
+            lo[1 - e.along] = hi[1 - e.along] = s0  # the leaf's face towards the corridor
+            normal = np.zeros(3)
+            normal[1 - e.along] = e.inward
+            door_surfaces.append(RadioSurface(d.leaf_material, d.leaf_thickness_m,
+                                              rectangle_mesh(lo, hi, normal), "door"))
 
     xs = [rooms[:, [0, 2]].ravel(), rooms[:, [0, 2]].ravel() - t, rooms[:, [0, 2]].ravel() + t]
     ys = [rooms[:, [1, 3]].ravel(), rooms[:, [1, 3]].ravel() - t, rooms[:, [1, 3]].ravel() + t]
@@ -253,7 +265,8 @@ def build_corridor(spec: SceneSpec) -> Scene:
     wall = grown & ~free
     cx, cy = (xs[:-1] + xs[1:]) / 2, (ys[:-1] + ys[1:]) / 2
     keys = np.full(wall.shape, None, dtype=object)
-    base = ((0.0, H, resolve_material_name(c.wall_material)),)
+    wall_mat = resolve_material_name(c.wall_material)
+    base = ((0.0, H, (wall_mat, construction_of(c, wall_mat))),)
     for i, j in zip(*np.nonzero(wall), strict=True):
         keys[i, j] = base
     for e, (u0, u1), z0, z1, mat in openings:
@@ -267,16 +280,20 @@ def build_corridor(spec: SceneSpec) -> Scene:
 
     parts: dict[str, list] = {}
     for i0, i1, j0, j1, profile in _merge_cells(keys):
-        for z0, z1, mat in profile:
+        for z0, z1, (mat, _) in profile:
             parts.setdefault(mat, []).append(box_mesh([xs[i0], ys[j0], z0], [xs[i1], ys[j1], z1]))
     slab = np.where(grown, True, None)
-    for i0, i1, j0, j1, _ in _merge_cells(slab):
+    rects = [(xs[i0], ys[j0], xs[i1], ys[j1]) for i0, i1, j0, j1, _ in _merge_cells(slab)]
+    for x0, y0, x1, y1 in rects:
         parts.setdefault(resolve_material_name(c.floor_material), []).append(
-            box_mesh([xs[i0], ys[j0], -c.floor_thickness_m], [xs[i1], ys[j1], 0.0]))
+            box_mesh([x0, y0, -c.floor_thickness_m], [x1, y1, 0.0]))
         parts.setdefault(resolve_material_name(c.ceiling_material), []).append(
-            box_mesh([xs[i0], ys[j0], H], [xs[i1], ys[j1], H + c.ceiling_thickness_m]))
+            box_mesh([x0, y0, H], [x1, y1, H + c.ceiling_thickness_m]))
     for mat, mesh in leaves:
         parts.setdefault(mat, []).append(mesh)
+    radio = wall_surfaces(xs, ys, free, grown, keys, t) + door_surfaces + [
+        slab_surface(rects, 0.0, True, c.floor_material, c.floor_thickness_m, "floor"),
+        slab_surface(rects, H, False, c.ceiling_material, c.ceiling_thickness_m, "ceiling")]
 
     free_space = np.stack([np.c_[rooms[:, :2], np.zeros(len(rooms))],
                            np.c_[rooms[:, 2:], np.full(len(rooms), H)]], axis=1)
@@ -294,7 +311,9 @@ def build_corridor(spec: SceneSpec) -> Scene:
                                  "outside the free space (into a wall, the floor or the ceiling)")
             lo = np.array([b.center_m[0] - half[0], b.center_m[1] - half[1], b.z_m])
             hi = np.array([b.center_m[0] + half[0], b.center_m[1] + half[1], top])
-            parts.setdefault(resolve_material_name(b.material), []).append(box_mesh(lo, hi, yaw))
+            shell = box_mesh(lo, hi, yaw)
+            parts.setdefault(resolve_material_name(b.material), []).append(shell)
+            radio.append(RadioSurface(b.material, get_material(b.material).thickness_m, shell, "shell"))
 
     meshes = {mat: merge_meshes(ms) for mat, ms in sorted(parts.items())}
     route = np.array(spec.route_m, dtype=float) if spec.route_m is not None else corridor_route(rooms)
@@ -307,6 +326,7 @@ def build_corridor(spec: SceneSpec) -> Scene:
                   **overrides_metadata(spec)},
         route_m=route,
         free_space_m=free_space,
+        radio_surfaces=tuple(radio),
     )
     scene.tags = make_tags(scene, spec.tags, f"{src}: tag")
     validate_tags(scene)
@@ -350,6 +370,8 @@ def corridor(
     ceiling_thickness_m: float = 0.05,
     route_m=None,
     description: str = "",
+    wall_construction: str | None = None,
+    material_construction: dict[str, str] | None = None,
 ) -> Scene:
     """Generate a corridor scene.
 
@@ -384,12 +406,18 @@ def corridor(
         Robot route; default: the centre line (:func:`corridor_route`).
     description : str
         Free text stored in the metadata.
+    wall_construction : str, optional
+        Construction of the ``wall_material`` pieces (``"solid"``, ``"stud"``,
+        ``"double"``, ``"single"``); default: plasterboard ``"stud"``, else ``"solid"``.
+    material_construction : dict of str to str, optional
+        Construction per material for every wall piece of it (panels' own
+        ``construction`` wins).
 
     Returns
     -------
     Scene
-        One mesh per material, tags, ``route_m``, ``free_space_m`` and the spec in
-        ``metadata["spec"]``.
+        One solid mesh per material, radio surfaces (:mod:`scenes.corridor_radio`), tags,
+        ``route_m``, ``free_space_m`` and the spec in ``metadata["spec"]``.
     """
     where = "corridor()"
     straight = segments is None
@@ -398,7 +426,8 @@ def corridor(
         "width_m": width_m if straight else None, "wall_material": wall_material,
         "floor_material": floor_material, "ceiling_material": ceiling_material,
         "wall_thickness_m": wall_thickness_m, "floor_thickness_m": floor_thickness_m,
-        "ceiling_thickness_m": ceiling_thickness_m}, where)
+        "ceiling_thickness_m": ceiling_thickness_m, "wall_construction": wall_construction,
+        "material_construction": dict(material_construction or {})}, where)
 
     def items(cls, seq, key):
         return tuple(parse_item(cls, it, f"{where}: {key} #{i + 1}") for i, it in enumerate(seq))

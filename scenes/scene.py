@@ -1,9 +1,10 @@
-"""The scene: meshes grouped by material, tags, and the metadata every later stage needs.
+"""The scene: meshes grouped by material, radio surfaces, tags, and the metadata every later stage needs.
 
 A :class:`Scene` is the contract between ``scenes`` (which builds or loads it),
 ``propagation`` (which ray-traces it) and ``pipeline`` (which drives a robot in it).
-Sionna assigns one radio material per shape, so a scene holds exactly one
-triangle mesh per material.
+It holds two geometries: closed solids, one triangle mesh per material (collision,
+laser, free space, where tags sit), and the radio surfaces the ray tracer sees, each
+physical layer once (:mod:`scenes.radio`; ``None``: trace the solids as they are).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
+from scenes.radio import RadioSurface, hash_radio_surfaces
 
 __all__ = ["Scene", "TagSet"]
 
@@ -70,7 +73,7 @@ class TagSet:
 
 @dataclass
 class Scene:
-    """A radio scene: one triangle mesh per material, plus tags.
+    """A radio scene: one solid triangle mesh per material, radio surfaces, tags.
 
     Attributes
     ----------
@@ -96,6 +99,13 @@ class Scene:
         Generated scenes set it; ``None`` means "the scene's bounding box" (imported
         meshes). Solids inside it (boxes, cabinets) are not free: see
         :func:`scenes.geometry.is_free`.
+    radio_surfaces : tuple of RadioSurface or None
+        What the ray tracer sees (:mod:`scenes.radio`): single-sided surfaces, each
+        physical layer once with its thickness (a solid wall: one surface on its inner
+        face), closed shells for hollow furniture. ``None``: trace ``meshes`` as they are,
+        every face with its material's library thickness (a closed box counts twice).
+        Generated scenes set it; imports only when asked (``radio_geometry=``).
+        Geometric queries (collision, laser, tags) always use ``meshes``.
     """
 
     name: str
@@ -105,6 +115,7 @@ class Scene:
     metadata: dict = field(default_factory=dict)
     route_m: np.ndarray | None = None
     free_space_m: np.ndarray | None = None
+    radio_surfaces: tuple[RadioSurface, ...] | None = None
 
     @property
     def materials(self) -> list[str]:
@@ -123,7 +134,12 @@ class Scene:
         return trimesh.util.concatenate(list(self.meshes.values()))
 
     def content_hash(self) -> str:
-        """SHA-256 of geometry, materials and tags: the cache key of everything traced here."""
+        """SHA-256 of geometry, materials and tags: the cache key of everything traced here.
+
+        Covers the solid meshes, the radio surfaces (materials, thicknesses, triangles;
+        nothing is added when they are ``None``, so imported scenes keep their hash), the
+        tags and ``metadata["material_overrides"]``.
+        """
         h = hashlib.sha256()
         for name in self.materials:
             mesh = self.meshes[name]
@@ -134,10 +150,12 @@ class Scene:
         h.update((np.round(self.tags.positions_m, 6) + 0.0).tobytes())
         h.update((np.round(self.tags.normals, 6) + 0.0).tobytes())  # +0.0: -0.0 -> 0.0
         h.update(json.dumps(self.metadata.get("material_overrides", {}), sort_keys=True).encode())
+        if self.radio_surfaces is not None:
+            hash_radio_surfaces(h, self.radio_surfaces)
         return h.hexdigest()
 
     def export_mitsuba(self, directory: str | Path, frequency_hz: float) -> Path:
-        """Write a Sionna-loadable Mitsuba XML scene plus one PLY per material.
+        """Write a Sionna-loadable Mitsuba XML scene plus one PLY per (material, thickness).
 
         See :func:`scenes.export.export_mitsuba`.
         """

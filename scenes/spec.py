@@ -11,6 +11,8 @@ tags and an optional route::
     width_m = 2.4                              # several [[segment]] rectangles
     height_m = 3.0
     wall_material = "plasterboard"
+    wall_construction = "stud"                 # optional: "solid" | "stud" | "double" | "single"
+    material_construction = { glass = "double" }   # optional, per material
 
     [[segment]]                                # free-space rectangles; their union
     min_m = [0.0, 0.0]                         # is the walkable area, walls are
@@ -19,6 +21,7 @@ tags and an optional route::
     [mesh]                                     # ... or an imported mesh file
     path = "room.glb"                          # (relative to the TOML)
     material = "concrete"                      # or [mesh.material_map]
+    radio_geometry = "as_is"                   # or "single" | "thin_boxes" (scenes.radio_import)
 
     [mitsuba]                                  # ... or a Mitsuba/Sionna XML scene
     path = "scene.xml"
@@ -27,6 +30,14 @@ tags and an optional route::
 
 Every key carries its unit. Unknown keys are rejected by name, and values of the
 wrong type by key and value, with the file path in the message.
+
+Wall constructions decide the radio geometry of generated walls (see
+:mod:`scenes.radio` and ``docs/radio_geometry.md``): ``"solid"`` is one surface on the
+wall's inner face with ``wall_thickness_m``; ``"stud"`` (plasterboard's default) and
+``"double"`` one leaf on each face of the wall with the material's library thickness;
+``"single"`` one leaf on the inner face. A panel's ``construction`` wins over
+``material_construction``, which wins over the material default; ``wall_construction``
+sets the construction of the corridor's ``wall_material``.
 """
 
 from __future__ import annotations
@@ -37,6 +48,7 @@ import typing
 from dataclasses import dataclass, field
 
 from scenes.materials import UnknownMaterialError, resolve_material_name
+from scenes.radio import CONSTRUCTIONS, RADIO_GEOMETRIES, THIN_BOX_FACES
 
 __all__ = [
     "SegmentSpec",
@@ -88,7 +100,15 @@ class CorridorSpec:
     wall_material, floor_material, ceiling_material : str
         Library material names (ITU names accepted).
     wall_thickness_m, floor_thickness_m, ceiling_thickness_m : float
-        Slab thicknesses of the generated solids, metres.
+        Slab thicknesses of the generated solids, metres; also the thickness the ray
+        tracer applies at the floor, the ceiling and solid wall surfaces.
+    wall_construction : str or None
+        Construction of the ``wall_material`` pieces (one of
+        :data:`scenes.radio.CONSTRUCTIONS`); ``None``: ``material_construction`` or the
+        material's default (plasterboard ``"stud"``, else ``"solid"``).
+    material_construction : dict of str to str
+        Construction per material name for every wall piece of that material (panels
+        included, unless they set their own ``construction``).
     """
 
     height_m: float = 3.0
@@ -100,6 +120,8 @@ class CorridorSpec:
     wall_thickness_m: float = 0.12
     floor_thickness_m: float = 0.2
     ceiling_thickness_m: float = 0.05
+    wall_construction: str | None = None
+    material_construction: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -150,6 +172,9 @@ class PanelSpec:
         Height of the section's bottom edge, metres.
     height_m : float or None
         Height of the section, metres; ``None``: up to the ceiling.
+    construction : str or None
+        Its construction (:data:`scenes.radio.CONSTRUCTIONS`, e.g. ``"double"`` glazing);
+        ``None``: the corridor's ``material_construction`` or the material default.
     id : str
         Optional name used in error messages.
     """
@@ -159,6 +184,7 @@ class PanelSpec:
     material: str = "glass"
     sill_m: float = 0.0
     height_m: float | None = None
+    construction: str | None = None
     id: str = ""
 
 
@@ -231,11 +257,20 @@ class MeshSpec:
         Material of every geometry not named in ``material_map``.
     material_map : dict of str to str
         Geometry or node name to material name.
+    radio_geometry : str
+        ``"as_is"``, ``"single"`` or ``"thin_boxes"`` (:mod:`scenes.radio_import`).
+    thin_box_max_m : float
+        Largest smallest-extent of a box converted by ``"thin_boxes"``, metres.
+    thin_box_face : str
+        Face that carries a converted box (``"inner"``, ``"lower"``, ``"upper"``, ``"mid"``).
     """
 
     path: str
     material: str | None = None
     material_map: dict[str, str] = field(default_factory=dict)
+    radio_geometry: str = "as_is"
+    thin_box_max_m: float = 0.3
+    thin_box_face: str = "inner"
 
 
 @dataclass(frozen=True)
@@ -246,9 +281,15 @@ class MitsubaSpec:
     ----------
     path : str
         XML path, relative to the TOML file.
+    radio_geometry, thin_box_max_m, thin_box_face
+        As in :class:`MeshSpec`; ``"single"`` takes each shape's thickness from its
+        radio material.
     """
 
     path: str
+    radio_geometry: str = "as_is"
+    thin_box_max_m: float = 0.3
+    thin_box_face: str = "inner"
 
 
 @dataclass(frozen=True)
@@ -258,8 +299,9 @@ class MaterialOverride:
     Attributes
     ----------
     thickness_m : float or None
-        Slab thickness used by Sionna's layered-slab model, metres. Note that a ray
-        crossing a generated wall passes two faces, each modelled as a slab.
+        Slab thickness used by Sionna's slab model, metres: replaces the thickness of
+        every traced surface of the material (each leaf of a stud wall, a solid wall's
+        single surface, every face of an imported mesh traced as it is).
     relative_permittivity : float or None
         Replaces P.2040's ``a * f_GHz ** b``.
     conductivity_s_per_m : float or None
@@ -317,9 +359,11 @@ class SceneSpec:
 
 _POSITIVE_KEYS = {"length_m", "width_m", "height_m", "wall_thickness_m", "floor_thickness_m",
                   "ceiling_thickness_m", "leaf_thickness_m", "size_m", "thickness_m",
-                  "relative_permittivity"}
+                  "relative_permittivity", "thin_box_max_m"}
 _NONNEGATIVE_KEYS = {"offset_m", "recess_m", "sill_m", "conductivity_s_per_m"}
 _MATERIAL_KEYS = {"material", "wall_material", "floor_material", "ceiling_material", "leaf_material"}
+_CHOICE_KEYS = {"wall_construction": CONSTRUCTIONS, "construction": CONSTRUCTIONS,
+                "radio_geometry": RADIO_GEOMETRIES, "thin_box_face": THIN_BOX_FACES}
 
 
 def _fail(where: str, msg: str) -> SpecError:
@@ -370,6 +414,20 @@ def convert_value(value, tp, where: str, key: str):
     raise TypeError(f"unsupported annotation {tp!r}")  # pragma: no cover
 
 
+def _material_constructions(table: dict, where: str) -> dict[str, str]:
+    out = {}
+    for mat, cons in table.items():
+        try:
+            key = resolve_material_name(mat)
+        except UnknownMaterialError as exc:
+            raise UnknownMaterialError(f"{where}: key 'material_construction': {exc}") from None
+        if cons not in CONSTRUCTIONS:
+            raise _fail(where, f"key 'material_construction': {mat!r} must be one of "
+                               f"{', '.join(repr(c) for c in CONSTRUCTIONS)}, got {cons!r}")
+        out[key] = cons
+    return dict(sorted(out.items()))
+
+
 def parse_item(cls, data, where: str):
     """Build dataclass ``cls`` from a mapping, rejecting unknown keys and wrong types.
 
@@ -408,6 +466,11 @@ def parse_item(cls, data, where: str):
                     kwargs[name] = resolve_material_name(kwargs[name])
                 except UnknownMaterialError as exc:
                     raise UnknownMaterialError(f"{where}: key {name!r}: {exc}") from None
+            if name in _CHOICE_KEYS and kwargs[name] not in _CHOICE_KEYS[name]:
+                raise _fail(where, f"key {name!r} must be one of "
+                                   f"{', '.join(repr(c) for c in _CHOICE_KEYS[name])}, got {value!r}")
+            if name == "material_construction":
+                kwargs[name] = _material_constructions(kwargs[name], where)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise _fail(where, f"missing required key {name!r}")
     for name, value in kwargs.items():

@@ -127,6 +127,9 @@ def test_corridor_lab_path_loss_exponent_local_mean():
     depth 6: 1.51, 1e5 rays: 1.49); coherent per-point gain 1.60; incoherent sum of path
     powers 1.42; line of sight only 1.81 (below 2 because the reader pattern's elevation
     loss shrinks with distance; the pattern-corrected Friis fit gives the same number).
+    Those numbers were traced on the closed wall boxes; with the radio surfaces (issue 13,
+    each layer crossed once) the local mean gives n = 1.45 (seed 7: 1.48; the boxes gave
+    1.51 and 1.52 for the same seeds): the move is of the size of the seed-to-seed spread.
     Fails if reflections were lost (n -> 1.8) or spuriously strong (n < 1.4).
     """
     import scenes
@@ -156,7 +159,7 @@ def test_corridor_lab_path_loss_exponent_local_mean():
     friis = free_space_gain_db(np.linalg.norm(k, axis=1), F, pattern_gain_db("tr38901", th, np.arctan2(k[:, 1], k[:, 0])),
                                pattern_gain_db("hw_dipole", np.pi - th, 0.0))
     assert n0 == pytest.approx(_ple(d, 10 * np.log10((10 ** (friis / 10)).reshape(-1, 8).mean(axis=1))), abs=0.02)
-    # the corridor guides the wave: reflections lower the exponent clearly (1.51 vs 1.81)
+    # the corridor guides the wave: reflections lower the exponent clearly (1.45 vs 1.81)
     assert n < n0 - 0.15
 
 

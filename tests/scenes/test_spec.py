@@ -98,7 +98,8 @@ def test_material_overrides_reach_export_and_hash(tmp_path):
         "concrete": {"thickness_m": 0.1, "conductivity_s_per_m": 0.05}}
     assert over.content_hash() != plain.content_hash()
     xml = over.export_mitsuba(tmp_path / "x", 865e6).read_text()
-    block = xml.split('id="uhf-concrete">')[1].split("</bsdf>")[0]
+    # the floor is the only concrete surface; its overridden thickness names its material
+    block = xml.split('id="uhf-concrete-t0p100">')[1].split("</bsdf>")[0]
     assert 'name="conductivity" value="0.05"' in block and 'name="thickness" value="0.1"' in block
     assert 'name="relative_permittivity" value="5.24"' in block  # not overridden
     with pytest.raises(scenes.SpecError, match=r"\[material_overrides.itu_concrete\]: unknown key 'thick'"):
