@@ -16,6 +16,16 @@ premise parameters take one normalised gradient step
 10 % after four consecutive error reductions and shrinks by 10 % after two
 consecutive increase/reduction alternations (Jang 1993, Sec. V, rules 1-2).
 
+Sample weights (``sample_weight`` of :meth:`ANFIS.fit`): with non-negative
+weights :math:`w_n` the error becomes :math:`E = \\sum_n w_n (y_n - \\hat y_n)^2`;
+the forward pass solves the weighted least-squares problem (rows of the design
+matrix and targets scaled by :math:`\\sqrt{w_n}`), the backward pass follows the
+gradient of the weighted E, and RMSEs are weighted,
+:math:`\\sqrt{\\sum_n w_n r_n^2 / \\sum_n w_n}`. For integer weights this is the
+fit to the data with sample n repeated :math:`w_n` times; equal weights give
+the unweighted fit. Used for the tag-detection model, whose samples are
+detection ratios over cells that saw very different numbers of read attempts.
+
 Inputs are mapped affinely to the unit box, ``u = (x - offset) / scale``;
 membership and consequent parameters live in ``u``; the mapping is part of the
 model and of its saved file.
@@ -31,7 +41,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from .clustering import fcm
-from .errors import FuzzyModelError, check_matrix, check_target
+from .errors import FuzzyModelError, check_matrix, check_target, check_weights
 from .initfis import Premise, fcm_premise, grid_premise
 from .membership import MF_PARAM_NAMES, log_membership, log_membership_grad
 
@@ -52,9 +62,12 @@ class TrainingHistory:
     Attributes
     ----------
     train_rmse : numpy.ndarray, shape (epochs,), float64
-        Training RMSE (output units) after each epoch's least-squares step.
+        Training RMSE (output units) after each epoch's least-squares step;
+        weighted, :math:`\\sqrt{\\sum_n w_n r_n^2 / \\sum_n w_n}`, when
+        ``sample_weight`` was given.
     check_rmse : numpy.ndarray, shape (epochs,), float64
-        Checking RMSE with the same parameters; NaN without a checking set.
+        Checking RMSE with the same parameters (weighted by
+        ``check_sample_weight`` when given); NaN without a checking set.
     step_size : numpy.ndarray, shape (epochs,), float64
         Step size :math:`\\kappa` (normalised input units) used by the epoch's
         gradient step.
@@ -76,7 +89,8 @@ class PremiseGradient:
     Attributes
     ----------
     error : float
-        :math:`E = \\sum_n (y_n - \\hat y_n)^2` (output units squared).
+        :math:`E = \\sum_n w_n (y_n - \\hat y_n)^2` (output units squared;
+        :math:`w_n = 1` without sample weights).
     gradient : numpy.ndarray, shape (n_mfs_total, n_params), float64
         :math:`\\partial E/\\partial\\alpha` for every premise parameter, with
         the consequents held fixed (Jang 1993, eq. 11-13).
@@ -283,6 +297,7 @@ class ANFIS:
         input_names=None,
         normalise: bool = True,
         min_sigma: float = 1e-3,
+        sample_weight=None,
     ):
         """FCM-clustered initial FIS (MATLAB ``genfis3``), see :func:`fcm_premise`.
 
@@ -306,6 +321,14 @@ class ANFIS:
             Map inputs to [0, 1] by their training range.
         min_sigma : float
             Floor on the Gaussian widths, normalised units.
+        sample_weight : array_like, shape (n_samples,), optional
+            Non-negative sample weights (not all zero). Used throughout: the
+            weighted FCM (Bezdek's objective with sample weights, see
+            :func:`fuzzymodel.fcm`), the weighted widths of
+            :func:`fcm_premise` and the weighted least-squares consequents;
+            equivalent to repeating sample n :math:`w_n` times. The input and
+            output ranges used for normalisation are those of every sample,
+            weighted or not. None: unweighted.
 
         Returns
         -------
@@ -313,23 +336,25 @@ class ANFIS:
         """
         X = check_matrix(X, "X")
         y = check_target(y, X.shape[0])
+        sw = None if sample_weight is None else check_weights(sample_weight, X.shape[0])
         offset, scale = cls._normalisation(X, normalise)
         U = (X - offset) / scale
         yspan = np.ptp(y) if np.ptp(y) > 0 else 1.0
         Z = np.column_stack([U, (y - y.min()) / yspan])
         rng = np.random.default_rng(0) if rng is None else rng
-        res = fcm(Z, n_clusters=n_clusters, m=m, rng=rng)
-        premise = fcm_premise(U, res.centers, res.memberships, m, min_sigma)
+        res = fcm(Z, n_clusters=n_clusters, m=m, rng=rng, sample_weight=sw)
+        premise = fcm_premise(U, res.centers, res.memberships, m, min_sigma, sample_weight=sw)
         prov = {
             "initialisation": "fcm (genfis3)",
             "n_clusters": int(n_clusters),
             "fcm_m": float(m),
             "fcm_iterations": res.n_iter,
             "fcm_partition_coefficient": res.partition_coefficient,
+            "weighted": sw is not None,
         }
         model = cls(premise, np.zeros((n_clusters, X.shape[1] + 1)), offset, scale,
                     input_names, provenance=prov)
-        model.consequents = model._least_squares(model._wbar(U)[0], U, y)
+        model.consequents = model._least_squares(model._wbar(U)[0], U, y, sw)
         return model
 
     # ---------------------------------------------------------------- forward
@@ -353,12 +378,18 @@ class ANFIS:
     def _rule_outputs(U: np.ndarray, consequents: np.ndarray) -> np.ndarray:
         return U @ consequents[:, :-1].T + consequents[:, -1]  # (n, R)
 
-    def _least_squares(self, wbar: np.ndarray, U: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def _least_squares(
+        self, wbar: np.ndarray, U: np.ndarray, y: np.ndarray, sw: np.ndarray | None = None
+    ) -> np.ndarray:
         # y = sum_r wbar_r [u, 1] . theta_r is linear in theta (Jang 1993, eq. 7);
-        # lstsq with a cutoff gives the minimum-norm solution when A is rank deficient.
+        # the ridge gives the minimum-norm solution when A is rank deficient.
+        # Weighted: minimise sum_n w_n (y_n - A_n theta)^2 = ||sqrt(w) * (y - A theta)||^2.
         n = U.shape[0]
         ubar = np.column_stack([U, np.ones(n)])
         A = (wbar[:, :, None] * ubar[:, None, :]).reshape(n, -1)
+        if sw is not None:
+            s = np.sqrt(sw)
+            A, y = A * s[:, None], y * s
         return _solve_least_squares(A, y).reshape(self.n_rules, self.n_inputs + 1)
 
     def predict(self, X) -> np.ndarray:
@@ -382,27 +413,41 @@ class ANFIS:
         return out
 
     # --------------------------------------------------------------- backward
-    def _gradient(self, U, y, wbar, log_mu, params) -> tuple[float, np.ndarray]:
+    def _gradient(self, U, y, wbar, log_mu, params, sw=None) -> tuple[float, np.ndarray]:
         f = self._rule_outputs(U, self.consequents)
         yhat = (wbar * f).sum(axis=1)
         resid = y - yhat
+        wres = resid if sw is None else sw * resid  # dE/dyhat = -2 w r
         # dE/dlog w_r = dE/dy * wbar_r (f_r - y) (soft-max derivative); a log-MF
         # enters every rule it belongs to with weight 1.
-        h = (-2.0 * resid)[:, None] * wbar * (f - yhat[:, None])  # (n, R)
+        h = (-2.0 * wres)[:, None] * wbar * (f - yhat[:, None])  # (n, R)
         G = h @ self._incidence  # (n, n_mf)
         dlog = log_membership_grad(self.mf_type, U[:, self.premise.mf_input], params)
-        return float(resid @ resid), np.einsum("nj,njp->jp", G, dlog)
+        return float(wres @ resid), np.einsum("nj,njp->jp", G, dlog)
 
-    def premise_gradient(self, X, y) -> PremiseGradient:
+    def premise_gradient(self, X, y, sample_weight=None) -> PremiseGradient:
         """Squared error and its gradient w.r.t. the premise parameters.
 
         Consequents are held fixed (Jang 1993, backward pass). Parameters are
         in normalised input units (see class doc).
+
+        Parameters
+        ----------
+        X : array_like, shape (n_samples, n_inputs)
+        y : array_like, shape (n_samples,)
+        sample_weight : array_like, shape (n_samples,), optional
+            Non-negative weights :math:`w_n`; E is then
+            :math:`\\sum_n w_n (y_n - \\hat y_n)^2`.
+
+        Returns
+        -------
+        PremiseGradient
         """
         U = self._normalise(X)
         y = check_target(y, U.shape[0])
+        sw = None if sample_weight is None else check_weights(sample_weight, U.shape[0])
         wbar, log_mu = self._wbar(U)
-        err, grad = self._gradient(U, y, wbar, log_mu, self.premise.mf_params)
+        err, grad = self._gradient(U, y, wbar, log_mu, self.premise.mf_params, sw)
         return PremiseGradient(error=err, gradient=grad)
 
     def _clamp(self, p: np.ndarray) -> None:
@@ -420,6 +465,8 @@ class ANFIS:
         y_check=None,
         step_size: float = 0.01,
         keep_best: bool = True,
+        sample_weight=None,
+        check_sample_weight=None,
     ) -> TrainingHistory:
         """Train with Jang's hybrid rule (see module doc).
 
@@ -437,6 +484,18 @@ class ANFIS:
         keep_best : bool
             Keep the epoch of lowest checking (else training) RMSE rather than
             the last.
+        sample_weight : array_like, shape (n_samples,), optional
+            Non-negative weight :math:`w_n` of each training sample (finite,
+            not all zero), e.g. the read attempts behind a detection ratio.
+            The hybrid rule then minimises :math:`E = \\sum_n w_n (y_n -
+            \\hat y_n)^2`: weighted least squares for the consequents (forward
+            pass) and the gradient of the weighted E for the premise (backward
+            pass); ``train_rmse`` is the weighted RMSE
+            :math:`\\sqrt{\\sum_n w_n r_n^2 / \\sum_n w_n}`. Zero-weight samples
+            take no part. None: every weight 1 (Jang 1993).
+        check_sample_weight : array_like, shape (n_check,), optional
+            Weights of the checking samples; ``check_rmse`` is then weighted
+            the same way. Needs a checking set.
 
         Returns
         -------
@@ -445,21 +504,32 @@ class ANFIS:
         Raises
         ------
         FuzzyModelError
-            On NaN/inf, mismatched shapes, fewer samples than parameters.
+            On NaN/inf, mismatched shapes, fewer samples (of positive weight)
+            than parameters, negative or all-zero weights.
         """
         U = self._normalise(X)
         y = check_target(y, U.shape[0])
-        if U.shape[0] < self.n_parameters:
+        sw = None if sample_weight is None else check_weights(sample_weight, U.shape[0])
+        n_eff = U.shape[0] if sw is None else int(np.count_nonzero(sw))
+        if n_eff < self.n_parameters:
+            what = "samples" if sw is None else "samples of positive weight"
             raise FuzzyModelError(
-                f"X has {U.shape[0]} samples, fewer than the model's {self.n_parameters} "
+                f"X has {n_eff} {what}, fewer than the model's {self.n_parameters} "
                 f"parameters ({self.n_rules} rules); use fewer rules or more data"
             )
         if (X_check is None) != (y_check is None):
             raise FuzzyModelError("give both X_check and y_check, or neither")
         has_check = X_check is not None
+        swc = None
         if has_check:
             Uc = self._normalise(X_check, "X_check")
             yc = check_target(y_check, Uc.shape[0], "y_check")
+            if check_sample_weight is not None:
+                swc = check_weights(check_sample_weight, Uc.shape[0], "check_sample_weight")
+        elif check_sample_weight is not None:
+            raise FuzzyModelError("check_sample_weight given without a checking set")
+        w_sum = float(U.shape[0]) if sw is None else float(sw.sum())
+        wc_sum = (float(Uc.shape[0]) if swc is None else float(swc.sum())) if has_check else 1.0
         if int(epochs) < 1:
             raise FuzzyModelError(f"epochs must be >= 1, got {epochs}")
         if not (np.isfinite(step_size) and step_size > 0):
@@ -474,19 +544,19 @@ class ANFIS:
         best = (np.inf, -1, params.copy(), self.consequents.copy())
         for ep in range(n_ep):
             wbar, log_mu = self._wbar(U, params)
-            self.consequents = self._least_squares(wbar, U, y)
+            self.consequents = self._least_squares(wbar, U, y, sw)
             steps[ep] = kappa
             if ep + 1 < n_ep:
-                err, grad = self._gradient(U, y, wbar, log_mu, params)
+                err, grad = self._gradient(U, y, wbar, log_mu, params, sw)
             else:  # no step after the last epoch
                 f = self._rule_outputs(U, self.consequents)
                 r = y - (wbar * f).sum(axis=1)
-                err, grad = float(r @ r), None
-            train[ep] = np.sqrt(err / U.shape[0])
+                err, grad = float((r if sw is None else sw * r) @ r), None
+            train[ep] = np.sqrt(err / w_sum)
             if has_check:
                 wc, _ = self._wbar(Uc, params)
                 rc = yc - (wc * self._rule_outputs(Uc, self.consequents)).sum(axis=1)
-                check[ep] = np.sqrt(rc @ rc / Uc.shape[0])
+                check[ep] = np.sqrt(float((rc if swc is None else swc * rc) @ rc) / wc_sum)
             score = check[ep] if has_check else train[ep]
             if score < best[0]:
                 best = (score, ep, params.copy(), self.consequents.copy())
@@ -502,7 +572,8 @@ class ANFIS:
             best_ep = n_ep - 1
         self.premise = Premise(self.mf_type, self.premise.mf_input, params, self.premise.rules)
         history = TrainingHistory(train, check, steps, int(best_ep))
-        self.provenance["training"] = _training_provenance(history, U.shape[0], step_size)
+        self.provenance["training"] = _training_provenance(history, U.shape[0], step_size,
+                                                           None if sw is None else w_sum)
         _log.info("ANFIS fit: %d epochs, best epoch %d, train RMSE %.4g, check RMSE %.4g",
                   n_ep, best_ep, train[best_ep], check[best_ep])
         return history
@@ -527,7 +598,8 @@ class ANFIS:
                 f"mf_type={self.mf_type!r}, n_parameters={self.n_parameters})")
 
 
-def _training_provenance(h: TrainingHistory, n_samples: int, step_size: float) -> dict:
+def _training_provenance(h: TrainingHistory, n_samples: int, step_size: float,
+                         weight_sum: float | None = None) -> dict:
     import datetime
 
     from .persistence import package_version
@@ -538,6 +610,8 @@ def _training_provenance(h: TrainingHistory, n_samples: int, step_size: float) -
         "epochs": int(h.train_rmse.size),
         "best_epoch": b,
         "n_training_samples": int(n_samples),
+        "weighted": weight_sum is not None,
+        "sample_weight_sum": weight_sum,
         "initial_step_size": float(step_size),
         "final_step_size": float(h.step_size[-1]),
         "train_rmse": float(h.train_rmse[b]),

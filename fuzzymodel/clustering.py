@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import FuzzyModelError, check_matrix
+from .errors import FuzzyModelError, check_matrix, check_weights
 
 __all__ = ["FCMResult", "fcm"]
 
@@ -40,10 +40,12 @@ class FCMResult:
         Fuzzy partition :math:`u_{ik}` in [0, 1]; each row sums to 1.
     objective : numpy.ndarray, shape (n_iter,), float64
         Objective :math:`J_m = \\sum_i \\sum_k u_{ik}^m \\|x_i - v_k\\|^2` at each
-        iteration (data units squared); non-increasing.
+        iteration (data units squared); non-increasing. With sample weights
+        :math:`w_i`, each sample's term is multiplied by :math:`w_i`.
     partition_coefficient : float
         Bezdek's fuzzy partition coefficient :math:`\\sum u_{ik}^2 / n` in
-        [1/c, 1]; 1 means a crisp partition.
+        [1/c, 1]; 1 means a crisp partition. With sample weights,
+        :math:`\\sum_i w_i \\sum_k u_{ik}^2 / \\sum_i w_i`.
     n_iter : int
         Number of iterations run.
     converged : bool
@@ -80,6 +82,7 @@ def fcm(
     max_iter: int = 300,
     rng: np.random.Generator | None = None,
     initial_memberships=None,
+    sample_weight=None,
 ) -> FCMResult:
     """Fuzzy C-Means clustering.
 
@@ -104,6 +107,14 @@ def fcm(
         normalised to sum 1). Required unless `initial_memberships` is given.
     initial_memberships : array_like, shape (n_samples, n_clusters), optional
         Explicit initial partition (rows are normalised to sum 1).
+    sample_weight : array_like, shape (n_samples,), optional
+        Non-negative sample weights :math:`w_i` (not all zero). They enter
+        Bezdek's objective as :math:`J_m = \\sum_i w_i \\sum_k u_{ik}^m
+        \\|x_i - v_k\\|^2`, which is what FCM minimises on data where sample
+        i is repeated :math:`w_i` times: the centre update becomes
+        :math:`v_k = \\sum_i w_i u_{ik}^m x_i / \\sum_i w_i u_{ik}^m`; the
+        membership update (per sample) is unchanged. The partition coefficient
+        is weighted the same way. None: every weight 1 (plain FCM).
 
     Returns
     -------
@@ -139,12 +150,13 @@ def fcm(
         if not np.all(np.isfinite(u)) or np.any(u < 0) or np.any(u.sum(axis=1) <= 0):
             raise FuzzyModelError("initial_memberships must be finite, >= 0, rows summing > 0")
     u = u / u.sum(axis=1, keepdims=True)
+    sw = None if sample_weight is None else check_weights(sample_weight, n)
 
     objective = []
     converged = False
     centers = np.empty((c, X.shape[1]))
     for _ in range(int(max_iter)):
-        um = u**m
+        um = u**m if sw is None else (u**m) * sw[:, None]
         centers = (um.T @ X) / um.sum(axis=0)[:, None]
         d = _distances(X, centers)
         objective.append(float((um * d * d).sum()))
@@ -160,7 +172,8 @@ def fcm(
         centers=centers,
         memberships=u,
         objective=np.asarray(objective),
-        partition_coefficient=float((u * u).sum() / n),
+        partition_coefficient=(float((u * u).sum() / n) if sw is None
+                               else float((sw @ (u * u).sum(axis=1)) / sw.sum())),
         n_iter=len(objective),
         converged=converged,
     )

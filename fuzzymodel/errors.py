@@ -13,6 +13,7 @@ __all__ = [
     "FuzzyModelFileError",
     "check_matrix",
     "check_target",
+    "check_weights",
 ]
 
 
@@ -102,4 +103,56 @@ def check_target(y, n_samples: int, name: str = "y") -> np.ndarray:
             f"{name} holds {int(bad.sum())} non-finite value(s) (NaN or inf); "
             f"first at index {idx}: {arr[idx]}"
         )
+    return arr
+
+
+def check_weights(w, n_samples: int, name: str = "sample_weight") -> np.ndarray:
+    """Return sample weights `w` as a finite, non-negative float64 vector.
+
+    Parameters
+    ----------
+    w : array_like, shape (n_samples,)
+        Non-negative weight of each sample (e.g. the read attempts n+ + n- behind
+        a detection-ratio cell); only their ratios matter.
+    n_samples : int
+        Number of rows of the matching input matrix.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_samples,), float64
+
+    Raises
+    ------
+    FuzzyModelError
+        If `w` is not 1-D of length `n_samples`, holds NaN, inf or a negative
+        value (the message gives the first), or is all zero.
+    """
+    try:
+        arr = np.asarray(w, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise FuzzyModelError(f"{name} is not numeric: {exc}") from exc
+    if arr.ndim != 1:
+        raise FuzzyModelError(f"{name} must be 1-D (n_samples,), got shape {arr.shape}")
+    if arr.shape[0] != n_samples:
+        raise FuzzyModelError(
+            f"{name} has {arr.shape[0]} weights but the inputs have {n_samples} rows"
+        )
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        idx = int(np.flatnonzero(bad)[0])
+        raise FuzzyModelError(
+            f"{name} holds {int(bad.sum())} non-finite value(s) (NaN or inf); "
+            f"first at index {idx}: {arr[idx]}"
+        )
+    neg = arr < 0
+    if neg.any():
+        idx = int(np.flatnonzero(neg)[0])
+        raise FuzzyModelError(
+            f"{name} must be >= 0; {int(neg.sum())} negative value(s), first at index "
+            f"{idx}: {arr[idx]}"
+        )
+    if not np.any(arr > 0):
+        raise FuzzyModelError(f"{name} is all zero: no sample carries any weight")
     return arr

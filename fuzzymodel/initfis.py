@@ -99,7 +99,12 @@ def grid_premise(n_inputs: int, n_mfs, mf: str = "bell") -> Premise:
 
 
 def fcm_premise(
-    U: np.ndarray, centers: np.ndarray, memberships: np.ndarray, m: float, min_sigma: float = 1e-3
+    U: np.ndarray,
+    centers: np.ndarray,
+    memberships: np.ndarray,
+    m: float,
+    min_sigma: float = 1e-3,
+    sample_weight: np.ndarray | None = None,
 ) -> Premise:
     """genfis3-style premise: one rule per FCM cluster, Gaussian MFs.
 
@@ -115,6 +120,10 @@ def fcm_premise(
         Fuzzifier used by the clustering.
     min_sigma : float
         Floor on the widths (normalised input units).
+    sample_weight : numpy.ndarray, shape (n_samples,), optional
+        Non-negative sample weights :math:`w_n`, as given to the weighted
+        :func:`~fuzzymodel.fcm`; the widths then use :math:`w_n u_{nk}^m` in
+        place of :math:`u_{nk}^m`. None: unweighted.
 
     Returns
     -------
@@ -125,6 +134,8 @@ def fcm_premise(
     n_inputs = U.shape[1]
     c = centers.shape[0]
     um = memberships**m  # (n, c)
+    if sample_weight is not None:
+        um = um * np.asarray(sample_weight, dtype=np.float64)[:, None]
     v = centers[:, :n_inputs]  # (c, I)
     dev2 = (U[:, None, :] - v[None, :, :]) ** 2  # (n, c, I)
     sigma = np.sqrt(np.einsum("nk,nki->ki", um, dev2) / um.sum(axis=0)[:, None])

@@ -141,20 +141,41 @@ class LocalisationConfig:
     map_resolution_m: float = option(0.05, "Likelihood-field grid resolution [m].")
     map_error_m: float = option(
         0.05,
-        "Std of the smooth displacement between the robot's map and the real surfaces "
-        "(as-built tolerances, mapping error) [m]; 0 = a perfect map.",
+        "Std of the signed offset of each wall of the robot's map along its normal (one draw "
+        "per wall line, once per building, shared by both tours; survey/SLAM error, as-built "
+        "tolerances) [m]; 0 = every wall where it is.",
     )
-    map_error_correlation_m: float = option(1.0, "Correlation length of the map error along surfaces [m].")
+    map_scale_error: float = option(
+        0.0, "Std of the fractional scale error of the robot's map (scaled about the building's "
+        "centre by 1 + s; 0.001 = 1 mm per metre) [1]; 0 = none.",
+    )
+    map_noise_m: float = option(
+        0.0, "Std of a smooth, unsigned random displacement of the map's likelihood field on top "
+        "of the wall offsets [m]; 0 = none.",
+    )
+    map_noise_correlation_m: float = option(
+        1.0, "Correlation length of that smooth displacement along surfaces [m]."
+    )
     sigma_hit_m: float = option(
         0.10,
-        "Likelihood-field std of the MCL laser model [m]; keep it >= 2x map_error_m "
-        "(at 0.05 m with a 0.05 m map error MCL lost track on corridor_lab).",
+        "Likelihood-field std of the MCL laser model [m]; keep it >= map_error_m (corridor_lab, "
+        "per-wall offsets of 0.05 m std: MCL tracks at 0.05 and 0.10, position error median "
+        "3-8 cm; at 0.2 m std the p90 reached 2-6 m on 2 of 3 maps).",
+    )
+    max_position_error_median_m: float = option(
+        0.5, "The tour stage fails when the MCL position error median of either tour exceeds "
+        "this (MCL lost track: lower the map error or widen sigma_hit_m) [m].",
+    )
+    max_position_error_p90_m: float = option(
+        1.0, "The tour stage fails when the 90th percentile of the MCL position error of either "
+        "tour exceeds this [m].",
     )
 
     def __post_init__(self):
         _positive(self, "n_particles", "n_beams_used", "laser_beams", "laser_fov_deg",
-                  "laser_max_range_m", "map_resolution_m", "map_error_correlation_m", "sigma_hit_m")
-        _nonneg(self, "laser_noise_m", "map_error_m")
+                  "laser_max_range_m", "map_resolution_m", "map_noise_correlation_m", "sigma_hit_m",
+                  "max_position_error_median_m", "max_position_error_p90_m")
+        _nonneg(self, "laser_noise_m", "map_error_m", "map_scale_error", "map_noise_m")
         if len(self.odometry_noise) != 4 or min(self.odometry_noise) < 0:
             raise ConfigError(f"odometry_noise must be 4 values >= 0, got {self.odometry_noise}")
 
@@ -252,6 +273,9 @@ class TrainingConfig:
             raise ConfigError(f"pose_source must be 'est' or 'true', got {self.pose_source!r}")
         _positive(self, "d_max_m", "d_bin_m", "alpha_bin_deg", "n_clusters", "fcm_exponent",
                   "epochs", "step_size")
+        if not self.fcm_exponent > 1.0:
+            raise ConfigError(f"fcm_exponent must be > 1 (FCM's fuzziness exponent m; 1 is hard "
+                              f"k-means, memberships undefined; 2 is usual), got {self.fcm_exponent!r}")
         _nonneg(self, "max_samples")
         if not 0.0 <= self.check_fraction < 1.0:
             raise ConfigError("check_fraction must be in [0, 1)")
@@ -273,11 +297,30 @@ class EvaluationConfig:
     n_field_poses: int = option(1, "Of those, how many also get a ray-traced RSSI field (plane + walls).")
     fig7_radius_m: float = option(0.1, "Fig. 7: radius of the neighbourhood averaged around a tag [m].")
     field_height_m: float = option(1.0, "Height of the planar RSSI field (tag height) [m].")
+    n_eval_tags: int = option(
+        16, "Held-out tags drawn on the scene's walls, boxes and cabinets (own seed stream): the "
+        "evaluation tour reads only these, the training tour only the scene's own tags (>= 8).")
+    eval_tag_min_separation_m: float = option(
+        0.5, "Smallest distance of a held-out tag from any other tag, training tags included [m].")
+    eval_tag_heights_m: tuple[float, ...] = option(
+        (0.2, 1.6), "Height range of held-out tags and of the truth's tag sites, [lo, hi] [m].")
+    site_spacing_m: float = option(
+        0.5, "Spacing of the tag-like truth sites on every vertical surface facing free space [m] "
+        "(the solver's cost grows with the sites in reach of each pose).")
+    n_site_poses: int = option(
+        16, "Evaluation-tour antenna poses at which the truth is traced to every tag site in reach.")
 
     def __post_init__(self):
         _positive(self, "grid_d_max_m", "grid_n_d", "grid_n_alpha", "n_sample_poses",
-                  "fig7_radius_m", "field_height_m")
+                  "fig7_radius_m", "field_height_m", "eval_tag_min_separation_m",
+                  "site_spacing_m", "n_site_poses")
         _nonneg(self, "n_field_poses")
+        if self.n_eval_tags < 8:
+            raise ConfigError(f"n_eval_tags must be >= 8 (a held-out layout worth scoring on), "
+                              f"got {self.n_eval_tags}")
+        h = self.eval_tag_heights_m
+        if len(h) != 2 or not 0.0 <= h[0] < h[1]:
+            raise ConfigError(f"eval_tag_heights_m must be (lo, hi) with 0 <= lo < hi, got {h}")
 
 
 @section
@@ -298,6 +341,9 @@ class StudyConfig:
     def __post_init__(self):
         if not self.scene:
             raise ConfigError("scene must not be empty")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"seed must be an integer >= 0 (NumPy seeds every random stream "
+                              f"from it), got {self.seed!r}")
         if not 1e8 <= self.frequency_hz <= 1e10:
             raise ConfigError(f"frequency_hz must be in [1e8, 1e10] Hz, got {self.frequency_hz!r}")
 

@@ -20,7 +20,8 @@ import tomllib
 
 from pipeline.runstore import atomic_write_text
 
-__all__ = ["figure_captions", "metrics_tables", "model_comparison_tables", "write_report"]
+__all__ = ["figure_captions", "headline_html", "metrics_tables", "model_comparison_tables",
+           "write_report"]
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +125,80 @@ def model_comparison_tables(models: dict) -> list[tuple[str, list[str], list[lis
         tables.append((f"models: {g}", ["model"] + cols,
                        [[name] + [st.get(c) for c in cols] for name, st in rows]))
     return tables
+
+
+_HEADLINE_COLS = (
+    ("RSSI MAE [dB]", "rssi_dbm", "mae"), ("RSSI RMSE [dB]", "rssi_dbm", "rmse"),
+    ("RSSI bias [dB]", "rssi_dbm", "bias"), ("fT cell MAE", "detection", "mae"),
+    ("Brier", "detection", "brier"), ("Fig. 7 median [%]", "fig7", "median_pct"),
+    ("Fig. 7 p90 [%]", "fig7", "p90_pct"), ("Fig. 7 share < 20 %", "fig7", "share_below_20pct"),
+)
+
+
+def headline_html(metrics: dict) -> list[str]:
+    """The held-out headline, error budget, MCL bias and tag-site tables as HTML parts.
+
+    Parameters
+    ----------
+    metrics : dict
+        ``metrics.json`` with a ``heldout`` section (see ``pipeline.stages_model``).
+    """
+    held = metrics["heldout"]
+    fig7 = metrics.get("fig7") or {}
+    data = held.get("data") or {}
+    out = ["<h3>Held-out scores (the headline)</h3>",
+           f"<p>Every number is on data no model saw: the evaluation tour (its own MCL run in "
+           f"the same map) reading the held-out tag layout ({_fmt(data.get('n_tags'))} tags, "
+           f"{_fmt(data.get('n_attempts'))} attempts), against the noise-free ray-traced truth; "
+           f"RSSI within d &lt; {_fmt(data.get('d_max_m'))} m. Baselines and the floor are "
+           "fitted on the training tour only. Fig. 7 is chapter Sec. 5: |f&#772;s - s| x 100 on "
+           "normalised RSSI, within the training domain. '–': the model predicts no such "
+           "quantity.</p>"]
+    rows = []
+    models = dict(held.get("models") or {})
+    models["floor"] = held.get("floor") or {}
+    for name, m in models.items():
+        row = [name]
+        for _, sec, key in _HEADLINE_COLS:
+            src = fig7.get(name) if sec == "fig7" else (m or {}).get(sec)
+            row.append(None if not isinstance(src, dict) else src.get(key))
+        rows.append(row)
+    out.append(_table_html("held-out: model against the ray-traced truth",
+                           ["model"] + [c[0] for c in _HEADLINE_COLS], rows))
+    budget = metrics.get("error_budget")
+    if isinstance(budget, dict):
+        out.append(_table_html(
+            "error budget of the held-out RSSI error", ["term", "RMSE [dB]", "step [dB]",
+                                                        "step in quadrature [dB]", "how"],
+            [[k, v.get("rmse_db"), v.get("step_db"), v.get("step_quadrature_db"), v.get("how")]
+             for k, v in budget.items() if isinstance(v, dict)]))
+    loc = metrics.get("localisation")
+    if isinstance(loc, dict) and loc:
+        cols = []
+        for v in loc.values():
+            if isinstance(v, dict):
+                cols += [c for c, x in v.items() if _is_scalar(x) and c not in cols]
+        out.append(_table_html("MCL pose error and bias (biased map)", ["tour"] + cols,
+                               [[k] + [v.get(c) for c in cols] for k, v in loc.items()
+                                if isinstance(v, dict)]))
+    sites = metrics.get("tag_sites")
+    if isinstance(sites, dict) and sites:
+        rows = []
+        for name, s in sites.items():
+            for part in ("clear", "obstructed"):
+                p = s.get(part) or {}
+                rho = p.get("rho") or {}
+                rows.append([name, part, p.get("n_pairs"), rho.get("mae"), rho.get("bias"),
+                             p.get("fT_mae"), p.get("true_read_fraction"),
+                             p.get("predicted_read_fraction")])
+        out.append("<p>Truth where tags are: every tag site (a grid on every surface facing "
+                   "free space, tag dipole in the surface) within the training domain of "
+                   "evaluation-tour antenna poses; 'obstructed': the straight line crosses a "
+                   "wall, cabinet or box.</p>")
+        out.append(_table_html("tag sites: model against the truth",
+                               ["model", "pairs", "n", "rho MAE", "rho bias", "fT MAE",
+                                "true read fraction", "predicted read fraction"], rows))
+    return out
 
 
 def _flatten(d: dict, prefix: str = "") -> dict:
@@ -230,6 +305,14 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     else:
         body = metrics.get("evaluation", metrics)
         rest = dict(body)
+        if isinstance(body.get("heldout"), dict):
+            parts.extend(headline_html(body))
+            for key in ("heldout", "fig7", "error_budget", "localisation", "tag_sites"):
+                rest.pop(key, None)
+            if isinstance(rest.get("in_sample"), dict):
+                parts.append("<h3>In-sample (training tour, training tags)</h3><p class='muted'>"
+                             "Scored on the reads the models were fitted on: optimistic, kept for "
+                             "comparison with the held-out table above.</p>")
         if isinstance(body.get("models"), dict):
             parts.append("<p>ANFIS (trained on MCL poses) against the baselines, and against the "
                          "same models trained on true poses (the localisation-error split).</p>")

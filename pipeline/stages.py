@@ -58,9 +58,13 @@ def _stage_report(ctx) -> dict:
 
 
 STAGES: tuple[Stage, ...] = (
-    Stage("scene", stage_scene, ("scene", "tour.max_length_m"), (), version=1,
+    Stage("scene", stage_scene, ("scene", "seed", "tour.max_length_m", "evaluation.n_eval_tags",
+                                 "evaluation.eval_tag_min_separation_m",
+                                 "evaluation.eval_tag_heights_m", "training.d_max_m"),
+          (), version=2,  # 2: held-out tag layout (tags.parquet split)
           description="load the scene", always=True),
     Stage("tour", stage_tour, ("seed", "robot", "tour", "localisation"), ("scene",),
+          version=2,  # 2: one biased robot map per building (tour/map_error.npz, localisation.json)
           description="robot tours and MCL"),
     Stage("reads", stage_reads, ("seed", "robot", "reader") + _TRACING, ("scene", "tour"),
           description="ray-traced reader simulation"),
@@ -69,14 +73,17 @@ STAGES: tuple[Stage, ...] = (
            "training.alpha_bin_deg", "training.min_attempts", "training.n_clusters"),
           ("reads",), description="training sets"),
     Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
+          version=2,  # 2: competitors and ablations (pipeline.sensormodels)
           description="FCM + ANFIS"),
     Stage("truth", stage_truth,
           ("seed", "reader", "evaluation", "training.d_max_m", "training.d_bin_m",
            "training.alpha_bin_deg", "tracing.field_cell_m", "tracing.field_samples_per_tx")
           + _TRACING,
-          ("scene", "reads", "models"), description="propagation truth"),
+          ("scene", "reads", "models"), version=2,  # 2: held-out grid, tag sites, eval poses
+          description="propagation truth"),
     Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
-          ("scene", "reads", "models", "truth"), version=3,  # 2: coverage, fig7 table; 3: RSSI floor
+          ("scene", "tour", "reads", "models", "truth"),
+          version=4,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections
           description="metrics"),
     Stage("figures", _stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
           description="figures"),
@@ -157,7 +164,8 @@ def run_summary(run_dir: str | Path) -> dict:
     run = Path(run_dir)
     row: dict = {}
     reads = pd.read_parquet(run / "reads.parquet", columns=["tag_id", "read", "in_range"])
-    n_tags = json.loads((run / "scene" / "scene.json").read_text())["n_tags"]
+    scene_info = json.loads((run / "scene" / "scene.json").read_text())
+    n_tags = scene_info.get("n_tags_train", scene_info["n_tags"])  # the training tour's layout
     in_range = reads["in_range"].to_numpy(bool)
     read = reads["read"].to_numpy(bool)
     row["n_attempts_in_range"] = int(in_range.sum())
@@ -183,16 +191,26 @@ def _find(d, *path):
 
 
 def _metric_columns(metrics: dict) -> dict:
+    """Sweep columns from metrics.json: the learned model's HELD-OUT scores (older run
+    directories without a ``heldout`` section: their single ``models`` section)."""
     m = metrics.get("evaluation", metrics)
-    anfis = m.get("models", {}).get("anfis", {})
     out = {}
-    for key, path in {
-        "ssm_rmse_db": ("rssi_dbm", "rmse"),
-        "tdm_rmse": ("detection", "rmse"),
-        "rho_rmse": ("rho", "rmse"),
-        "fig7_median_pct": ("fig7", "pct_error", "median"),
-    }.items():
-        v = _find(anfis, *path)
+    if isinstance(m.get("heldout"), dict):
+        paths = {
+            "ssm_rmse_db": ("heldout", "models", "anfis", "rssi_dbm", "rmse"),
+            "tdm_rmse": ("heldout", "models", "anfis", "detection", "rmse"),
+            "brier": ("heldout", "models", "anfis", "detection", "brier"),
+            "floor_rmse_db": ("heldout", "floor", "rssi_dbm", "rmse"),
+            "rho_rmse": ("tag_sites", "anfis", "all", "rho", "rmse"),
+            "fig7_median_pct": ("fig7", "anfis", "median_pct"),
+            "mcl_error_median_m": ("localisation", "eval", "position_error_median_m"),
+        }
+    else:
+        paths = {k: ("models", "anfis", *v) for k, v in {
+            "ssm_rmse_db": ("rssi_dbm", "rmse"), "tdm_rmse": ("detection", "rmse"),
+            "rho_rmse": ("rho", "rmse")}.items()}
+    for key, path in paths.items():
+        v = _find(m, *path)
         if v is not None:
             out[key] = float(v)
     return out

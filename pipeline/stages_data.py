@@ -23,6 +23,8 @@ __all__ = [
     "link_budget",
     "load_scene",
     "resolve_cache_dir",
+    "split_tags",
+    "study_scene",
     "stage_reads",
     "stage_scene",
     "stage_tour",
@@ -32,6 +34,10 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
+#: and heights are not those of any lattice the training tags or truth sites use.
+_EVAL_TAG_SPACING_M = 0.1
 
 
 def stage_rng(cfg: StudyConfig, stage: str) -> np.random.Generator:
@@ -53,15 +59,72 @@ def resolve_cache_dir(cfg: StudyConfig) -> Path:
     return (Path.home() / ".cache" / "rfidstudy").resolve()
 
 
-def load_scene(ctx):
-    """The study's scene (loaded once per run, memoised in ``ctx.memo``)."""
-    import scenes
+def study_scene(cfg: StudyConfig):
+    """The scene with the study's two tag layouts, and which tag belongs to which.
 
+    The scene's own tags are the training layout; ``evaluation.n_eval_tags`` held-out
+    tags are drawn on its walls, boxes and cabinets (:func:`scenes.tagsites.draw_tags`,
+    stream ``stage_rng(cfg, "eval_tags")``), at least ``eval_tag_min_separation_m`` from
+    every other tag and at heights in ``eval_tag_heights_m``, so the evaluation tour
+    reads tags at positions and heights the training tour never read.
+
+    Returns
+    -------
+    scene : scenes.Scene
+        A copy whose ``tags`` are the training tags followed by the held-out ones.
+    split : numpy.ndarray, shape (n_tags,), str
+        ``"train"`` or ``"eval"`` per tag, in ``scene.tags`` order.
+    """
+    import dataclasses
+
+    import scenes
+    from scenes.scene import TagSet
+    from scenes.tagsites import draw_tags, tag_sites
+
+    sc = scenes.load(cfg.scene)
+    ev = cfg.evaluation
+    train = sc.tags
+    sites = tag_sites(sc, spacing_m=_EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
+    route = study_route(sc, cfg)
+    if route is not None:  # only where the evaluation tour passes within the models' domain
+        sites = sites.subset(_route_distance_m(sites.positions_m[:, :2], route) <= cfg.training.d_max_m)
+    held = draw_tags(sites, ev.n_eval_tags, stage_rng(cfg, "eval_tags"), avoid_m=train.positions_m,
+                     min_separation_m=ev.eval_tag_min_separation_m, prefix="E",
+                     where=f"{sc.name}: evaluation.n_eval_tags = {ev.n_eval_tags}")
+    clash = sorted(set(train.ids.tolist()) & set(held.ids.tolist()))
+    if clash:
+        raise ValueError(f"{sc.name}: held-out tag ids {clash} are already used by the scene's tags")
+    tags = TagSet(np.concatenate([train.ids, held.ids]),
+                  np.vstack([train.positions_m, held.positions_m]),
+                  np.vstack([train.normals, held.normals]))
+    split = np.array(["train"] * len(train) + ["eval"] * len(held))
+    return dataclasses.replace(sc, tags=tags), split
+
+
+def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:
+    """Horizontal distance of points (k, 2) to a polyline (n, 2) [m]."""
+    a, b = route[:-1], route[1:]
+    ab = b - a
+    t = np.einsum("kij,ij->ki", xy[:, None, :] - a[None], ab) / np.maximum(
+        np.einsum("ij,ij->i", ab, ab), 1e-12)
+    proj = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.min(np.linalg.norm(xy[:, None, :] - proj, axis=2), axis=1)
+
+
+def load_scene(ctx):
+    """The study's scene with both tag layouts (:func:`study_scene`), memoised per run."""
     sc = ctx.memo.get("scene")
     if sc is None:
-        sc = scenes.load(ctx.config.scene)
+        sc, split = study_scene(ctx.config)
         ctx.memo["scene"] = sc
+        ctx.memo["tag_split"] = split
     return sc
+
+
+def split_tags(ctx, which: str):
+    """The tags of one layout (``"train"`` or ``"eval"``) of the study scene (a TagSet)."""
+    sc = load_scene(ctx)
+    return sc.tags.subset(ctx.memo["tag_split"] == which)
 
 
 def study_route(scene, cfg: StudyConfig) -> np.ndarray | None:
@@ -160,10 +223,13 @@ def stage_scene(ctx) -> dict:
         "bounds_m": [lo.tolist(), hi.tolist()],
         "materials": sc.materials,
         "n_tags": len(sc.tags),
+        "n_tags_train": int(np.sum(ctx.memo["tag_split"] == "train")),
+        "n_tags_eval": int(np.sum(ctx.memo["tag_split"] == "eval")),
         "route_m": None if route is None else np.round(route, 6).tolist(),
     }
     atomic_write_json(ctx.out("scene/scene.json"), summary)
-    write_tags(ctx.out("scene/tags.parquet"), sc.tags.ids, sc.tags.positions_m, sc.tags.normals)
+    write_tags(ctx.out("scene/tags.parquet"), sc.tags.ids, sc.tags.positions_m, sc.tags.normals,
+               split=ctx.memo["tag_split"])
     heights = sorted({0.35, 1.0})
     segs = {f"segments_z{int(h * 100):03d}cm": floor_plan_segments(sc, h) for h in heights}
     save_npz(ctx.out("scene/floorplan.npz"), heights_m=np.asarray(heights),
@@ -171,33 +237,21 @@ def stage_scene(ctx) -> dict:
     return {"scene": sc.name, "n_tags": len(sc.tags), "content_hash": summary["content_hash"][:16]}
 
 
-def _localise(scene, robot, traj, cfg: StudyConfig, rng, progress) -> dict:
-    """Odometry, laser scans and MCL along a trajectory (pipeline.robot.simulate_localisation)."""
-    from pipeline.robot import (
-        LaserScanner,
-        LocalizationConfig,
-        MCLConfig,
-        OdometryNoise,
-        simulate_localisation,
-    )
+def _localise(scene, robot, traj, lcfg, rng, progress, robot_map=None) -> dict:
+    """Odometry, laser scans and MCL along a trajectory (pipeline.robot.simulate_localisation).
 
-    loc = cfg.localisation
+    ``lcfg`` is the ``pipeline.robot.LocalizationConfig`` (None: MCL off, the estimated
+    poses are the true ones); ``robot_map`` the ``OccupancyMap`` MCL localises in, drawn
+    once per building by :func:`stage_tour` (None: ``simulate_localisation`` draws one).
+    """
+    from pipeline.robot import simulate_localisation
+
     true = np.asarray(traj.poses, dtype=float)
     t = np.asarray(traj.t_s, dtype=float)
-    if not loc.enabled:
+    if lcfg is None:
         return {"t_s": t, "true": true, "odom": true.copy(), "est": true.copy()}
-    lcfg = LocalizationConfig(
-        odometry_noise=OdometryNoise(*loc.odometry_noise),
-        scanner=LaserScanner(n_beams=loc.laser_beams, fov_rad=float(np.deg2rad(loc.laser_fov_deg)),
-                             max_range_m=loc.laser_max_range_m, range_noise_m=loc.laser_noise_m),
-        mcl=MCLConfig(n_particles=loc.n_particles, n_beams_used=loc.n_beams_used,
-                      sigma_hit_m=loc.sigma_hit_m),
-        map_resolution_m=loc.map_resolution_m,
-        map_error_m=loc.map_error_m,
-        map_error_correlation_m=loc.map_error_correlation_m,
-    )
     progress(completed=0.0, total=1.0)
-    res = simulate_localisation(scene, robot, traj, rng, lcfg)
+    res = simulate_localisation(scene, robot, traj, rng, lcfg, occupancy_map=robot_map)
     progress(completed=1.0)
     return {"t_s": t, "true": true, "odom": np.asarray(res.odometry_poses),
             "est": np.asarray(res.estimated_poses),
@@ -205,10 +259,42 @@ def _localise(scene, robot, traj, cfg: StudyConfig, rng, progress) -> dict:
 
 
 def stage_tour(ctx) -> dict:
-    """Drive the guided tour and the evaluation path, localise with MCL; write tour/*.npz."""
-    from pipeline.robot import TourConfig, evaluation_path, guided_tour
+    """Drive the guided tour and the evaluation path, localise with MCL; write tour/*.
+
+    The robot's map (its walls off by ``localisation.map_error_m``, its scale by
+    ``localisation.map_scale_error``: :func:`pipeline.robot.draw_robot_map`) is drawn
+    once, from its own stream ``stage_rng(cfg, "map")``, and both tours localise in it,
+    as one robot in one building would. Writes ``tour/train_track.npz``,
+    ``tour/eval_track.npz``, ``tour/map_error.npz`` (the wall lines ``segments``
+    (k, 2, 2) [m], their ``normals``, ``offsets_m`` (k,) [m], ``scale``, ``centre_m``,
+    ``displaced_segments``; empty when MCL is off) and ``tour/localisation.json``
+    (per tour: MCL position error median/p90, heading error median and the mean
+    signed pose offset in the robot and world frames,
+    :func:`pipeline.evaluation.localisation.pose_error_summary`).
+
+    Raises
+    ------
+    ValueError
+        When MCL lost track on either tour: position error median over
+        ``localisation.max_position_error_median_m`` or p90 over
+        ``localisation.max_position_error_p90_m``; the message names the measured
+        error and the map-error and filter keys to change. Nothing is written then.
+    """
+    from pipeline.evaluation.localisation import check_tracking, pose_error_summary
+    from pipeline.robot import (
+        LaserScanner,
+        LocalizationConfig,
+        MapError,
+        MCLConfig,
+        OdometryNoise,
+        TourConfig,
+        draw_robot_map,
+        evaluation_path,
+        guided_tour,
+    )
 
     cfg = ctx.config
+    loc = cfg.localisation
     sc = load_scene(ctx)
     robot = build_robot(cfg)
     route = study_route(sc, cfg)
@@ -218,7 +304,30 @@ def stage_tour(ctx) -> dict:
                       lane_changes_per_pass=t.lane_changes_per_pass, stops_per_pass=t.stops_per_pass,
                       speed_m_per_s=t.speed_m_per_s, dt_s=t.dt_s)
     rng_eval = stage_rng(cfg, "eval_path")  # held out: its own seed stream
-    info = {}
+    lcfg = LocalizationConfig(
+        odometry_noise=OdometryNoise(*loc.odometry_noise),
+        scanner=LaserScanner(n_beams=loc.laser_beams, fov_rad=float(np.deg2rad(loc.laser_fov_deg)),
+                             max_range_m=loc.laser_max_range_m, range_noise_m=loc.laser_noise_m),
+        mcl=MCLConfig(n_particles=loc.n_particles, n_beams_used=loc.n_beams_used,
+                      sigma_hit_m=loc.sigma_hit_m),
+        map_resolution_m=loc.map_resolution_m,
+        map_error_m=loc.map_error_m,
+        map_scale_error=loc.map_scale_error,
+        map_noise_m=loc.map_noise_m,
+        map_noise_correlation_m=loc.map_noise_correlation_m,
+    )
+    if loc.enabled:  # one map of the building for both tours, from its own stream
+        rmap = draw_robot_map(sc, lcfg, stage_rng(cfg, "map"))
+        occ, map_error = rmap.occupancy_map, rmap.error
+    else:
+        occ = None
+        map_error = MapError(np.zeros((0, 2, 2)), np.zeros((0, 2)), np.zeros(0), 0.0,
+                             np.zeros(2), float(lcfg.scanner.height_m))
+    causes = {f"localisation.{k}": getattr(loc, k) for k in
+              ("map_error_m", "map_scale_error", "map_noise_m", "sigma_hit_m", "n_particles")}
+    causes["largest drawn wall offset [m]"] = round(float(np.max(np.abs(map_error.offsets_m),
+                                                                 initial=0.0)), 4)
+    tracks, info, summaries = {}, {}, {}
     rng_train = rng
     for name, rng_s, make in (
         ("train", rng_train, lambda: guided_tour(sc, robot, rng_train, tcfg, route_m=route)),
@@ -226,14 +335,30 @@ def stage_tour(ctx) -> dict:
                                                    config=tcfg, route_m=route)),
     ):
         traj = make()
-        track = _localise(sc, robot, traj, cfg, rng_s, ctx.progress(f"{name} MCL", total=1.0))
-        save_npz(ctx.out(f"tour/{name}_track.npz"), **track)
+        track = _localise(sc, robot, traj, lcfg if loc.enabled else None, rng_s,
+                          ctx.progress(f"{name} MCL", total=1.0), robot_map=occ)
+        summary = pose_error_summary(track["true"], track["est"])
+        check_tracking(summary, loc.max_position_error_median_m, loc.max_position_error_p90_m,
+                       track=f"{name} tour", causes=causes,
+                       median_key="localisation.max_position_error_median_m",
+                       p90_key="localisation.max_position_error_p90_m")
+        tracks[name] = track
+        summaries[name] = summary.to_dict()
         err = track.get("position_error_m")
         info[name] = {
             "n_poses": int(len(track["t_s"])),
             "duration_s": float(track["t_s"][-1]),
             "mcl_position_error_m_median": None if err is None else float(np.median(err)),
+            **summaries[name],
         }
+    for name, track in tracks.items():
+        save_npz(ctx.out(f"tour/{name}_track.npz"), **track)
+    save_npz(ctx.out("tour/map_error.npz"), **map_error.to_arrays())
+    atomic_write_json(ctx.out("tour/localisation.json"), summaries)
+    info["map"] = {"n_walls": int(len(map_error.offsets_m)),
+                   "offset_std_m": float(np.std(map_error.offsets_m)) if len(map_error.offsets_m)
+                   else None,
+                   "scale": float(map_error.scale)}
     return info
 
 
@@ -266,7 +391,11 @@ def stage_reads(ctx) -> dict:
         track = _read_track(ctx, name)
         opts = trace_options(cfg)
         opts["progress"] = ctx.progress(f"tracing {name} links")
-        readlog = simulate_reads(sc, robot, track, reader, rng, trace=opts, cache_dir=cache)
+        # held out: the training tour reads only the training tags, the evaluation tour
+        # only the held-out ones
+        tags = split_tags(ctx, name)
+        readlog = simulate_reads(sc, robot, track, reader, rng, trace=opts, cache_dir=cache,
+                                 tags=tags)
         readlog.write(ctx.staging_dir, prefix=prefix)
         info[name] = {"n_attempts": readlog.n_attempts, "n_reads": readlog.n_reads,
                       "n_pairs_traced": readlog.metadata.get("n_pairs_traced")}

@@ -86,21 +86,38 @@ def _split(X, y, frac: float, rng):
 
 
 def _fit(ts, cfg, rng, progress):
-    """FCM-initialised ANFIS (fuzzymodel) on one training set; returns (model, history dict)."""
+    """FCM-initialised ANFIS (fuzzymodel) on one training set; returns (model, history dict).
+
+    A TDM set's samples are weighted by their read attempts n+ + n-
+    (``TrainingSet.weights``): the FCM, the least squares and the gradient all weigh
+    a cell that saw 200 attempts 100 times one that saw 2, and the RMSEs in the
+    history are weighted. SSM samples (one per read) are unweighted.
+    """
     from fuzzymodel import ANFIS
 
     X, y = ts.X, ts.y
+    w = None if ts.weights is None else np.asarray(ts.weights, dtype=float)
     if ts.kind == "ssm" and cfg.max_samples and len(y) > cfg.max_samples:
         keep = np.sort(rng.choice(len(y), cfg.max_samples, replace=False))
         X, y = X[keep], y[keep]
-    Xt, yt, Xc, yc = _split(X, y, cfg.check_fraction, rng)
+        w = None if w is None else w[keep]
+    if w is None:
+        Xt, yt, Xc, yc = _split(X, y, cfg.check_fraction, rng)
+        wt = wc = None
+    else:  # the weights ride along as a third column, so they split with their cells
+        XWt, yt, XWc, yc = _split(np.column_stack([X, w]), y, cfg.check_fraction, rng)
+        Xt, wt = XWt[:, :-1], XWt[:, -1]
+        Xc, wc = (None, None) if XWc is None else (XWc[:, :-1], XWc[:, -1])
     model = ANFIS.from_fcm(Xt, yt, n_clusters=cfg.n_clusters, m=cfg.fcm_exponent, rng=rng,
-                           input_names=["d_m", "alpha_rad"])
-    hist = model.fit(Xt, yt, epochs=cfg.epochs, X_check=Xc, y_check=yc, step_size=cfg.step_size)
+                           input_names=["d_m", "alpha_rad"], sample_weight=wt)
+    hist = model.fit(Xt, yt, epochs=cfg.epochs, X_check=Xc, y_check=yc, step_size=cfg.step_size,
+                     sample_weight=wt, check_sample_weight=wc)
     progress(advance=1)
     return model, {
         "n_train": int(len(yt)),
         "n_check": 0 if yc is None else int(len(yc)),
+        "weighted": wt is not None,
+        "train_weight_sum": None if wt is None else float(wt.sum()),
         "train_rmse": np.asarray(hist.train_rmse, float).tolist(),
         "check_rmse": [None if not np.isfinite(v) else float(v) for v in np.asarray(hist.check_rmse)],
         "step_size": np.asarray(hist.step_size, float).tolist(),
@@ -141,6 +158,22 @@ def stage_models(ctx) -> dict:
     base.save(ctx.out("models/baselines.json"))
     base_true = fit_baselines(reads, rssi_range, grid=grid, pose="true")
     base_true.save(ctx.out("models/baselines_truepose.json"))
+    # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
+    # so the ANFIS fits above stay bit-identical
+    from pipeline.sensormodels import ABLATIONS, fit_ablation, fit_competitors
+
+    comps = fit_competitors(reads, rssi_range, d_max_m=cfg.d_max_m, grid=grid,
+                            rng=stage_rng(ctx.config, "competitors"))
+    for name, model in comps.items():
+        model.save(ctx.out(f"models/{name}.json"))
+    ssm_set = TrainingSet.from_parquet(ctx.input("training/ssm_est.parquet"))
+    tdm_set = TrainingSet.from_parquet(ctx.input("training/tdm_est.parquet"))
+    for kind in ABLATIONS:
+        fit_ablation(kind, ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{kind}"),
+                     epochs=cfg.epochs, n_clusters=cfg.n_clusters, fcm_exponent=cfg.fcm_exponent,
+                     check_fraction=cfg.check_fraction, max_samples=cfg.max_samples,
+                     step_size=cfg.step_size).save(ctx.out(f"models/{kind}.json"))
+    info["competitors"] = sorted(comps) + list(ABLATIONS)
     return info
 
 
@@ -169,32 +202,90 @@ def _polar_points(pose: np.ndarray, d_m: np.ndarray, alpha_rad: np.ndarray) -> n
 
 
 def stage_truth(ctx) -> dict:
-    """Propagation truth: Fig. 6 (d, alpha) points traced around sample antenna poses,
-    RSSI fields at those poses, and the detection truth grid over (d, alpha)."""
-    import propagation
+    """Propagation truth: detection grids of the training and of the held-out reads, the
+    truth at tag sites along the evaluation tour, and the chapter's free-space Fig. 6
+    points and RSSI fields around evaluation-tour antenna poses."""
     from pipeline.evaluation.cells import CellGrid
-    from pipeline.evaluation.comparison import rho_points_truth
     from pipeline.evaluation.truth import detection_truth
+
+    cfg = ctx.config
+    select_backend(cfg)
+    budget = link_budget(cfg)
+    reads, _ = _read_reads(ctx)
+    eval_reads, _ = _read_reads(ctx, "eval_")
+    grid = CellGrid(d_max_m=cfg.training.d_max_m, d_bin_m=cfg.training.d_bin_m,
+                    alpha_bin_deg=cfg.training.alpha_bin_deg)
+    q = cfg.reader.anticollision_miss_probability
+    # the training truth is what a floor may be fitted on; the held-out one is scored on
+    truth = detection_truth(reads, budget, grid=grid, miss_probability=q)
+    truth.save(ctx.out("truth/detection_grid.npz"))
+    eval_truth = detection_truth(eval_reads, budget, grid=grid, miss_probability=q)
+    eval_truth.save(ctx.out("truth/detection_grid_eval.npz"))
+    info = {"cells_with_attempts": int((truth.n_attempts > 0).sum()),
+            "eval_cells_with_attempts": int((eval_truth.n_attempts > 0).sum())}
+    info.update(_trace_sites(ctx, eval_reads))
+    info.update(_trace_free_space_view(ctx, eval_reads, budget))
+    return info
+
+
+def _trace_sites(ctx, eval_reads) -> dict:
+    """Truth at every tag site within reach of evaluation-tour antenna poses
+    (pipeline.evaluation.sites); writes truth/site_truth.npz."""
+    import propagation
+    from pipeline.evaluation.sites import SiteTruth, obstructed_pairs
+    from scenes.tagsites import tag_sites
+
+    cfg = ctx.config
+    ev = cfg.evaluation
+    sc = load_scene(ctx)
+    poses = _sample_poses(eval_reads, ev.n_site_poses, _tilts(cfg))
+    sites = tag_sites(sc, spacing_m=ev.site_spacing_m, z_range_m=tuple(ev.eval_tag_heights_m))
+    if len(sites) == 0:
+        raise ValueError(f"{sc.name}: no tag sites on the scene's surfaces at "
+                         f"evaluation.eval_tag_heights_m = {list(ev.eval_tag_heights_m)}")
+    reach = max(cfg.training.d_max_m, ev.grid_d_max_m)
+    d = np.linalg.norm(poses[:, None, :3] - sites.positions_m[None], axis=2)
+    pairs = d <= reach
+    traced = np.zeros(pairs.shape, bool)
+    gain = np.full(pairs.shape, -np.inf)
+    update = ctx.progress("truth at tag sites", total=len(poses))
+    # one call per pose: the solver's cost grows with the receivers of a call, and poses
+    # batched together would each be traced against the union of their sites
+    for i in range(len(poses)):
+        cols = np.flatnonzero(pairs[i])
+        if len(cols):
+            links = propagation.trace_links(
+                sc, poses[i:i + 1], sites.positions_m[cols], frequency_hz=cfg.frequency_hz,
+                tag_normals=sites.normals[cols], cache_dir=resolve_cache_dir(cfg),
+                **trace_options(cfg))
+            traced[i, cols] = np.asarray(links.traced, bool)[0]
+            gain[i, cols] = np.where(traced[i, cols], np.asarray(links.gain_db, float)[0], -np.inf)
+        update(advance=1)
+    SiteTruth(antenna_poses=poses, positions_m=sites.positions_m, normals=sites.normals,
+              material=sites.material, gain_db=gain, traced=traced,
+              obstructed=obstructed_pairs(sc, poses[:, :3], sites.positions_m)
+              ).save(ctx.out("truth/site_truth.npz"))
+    return {"n_site_poses": int(len(poses)), "n_sites": int(len(sites)),
+            "n_site_links": int(traced.sum())}
+
+
+def _trace_free_space_view(ctx, eval_reads, budget) -> dict:
+    """The chapter's Fig. 6 view: (d, alpha) points at antenna height in free space around
+    evaluation-tour poses, and RSSI fields; writes truth/rho_points_*.npz, fields/*.npz."""
+    import propagation
+    from pipeline.evaluation.comparison import rho_points_truth
     from scenes.geometry import is_free
 
     cfg = ctx.config
     ev = cfg.evaluation
-    select_backend(cfg)
     sc = load_scene(ctx)
-    budget = link_budget(cfg)
-    reads, _ = _read_reads(ctx)
     rssi_range = tuple(json.loads(ctx.input("models/sensor.json").read_text())["rssi_range_dbm"])
-    grid = CellGrid(d_max_m=cfg.training.d_max_m, d_bin_m=cfg.training.d_bin_m,
-                    alpha_bin_deg=cfg.training.alpha_bin_deg)
-    truth = detection_truth(reads, budget, grid=grid,
-                            miss_probability=cfg.reader.anticollision_miss_probability)
-    truth.save(ctx.out("truth/detection_grid.npz"))
-    poses = _sample_poses(reads, ev.n_sample_poses, _tilts(cfg))
+    poses = _sample_poses(eval_reads, ev.n_sample_poses, _tilts(cfg))
     d = np.linspace(ev.grid_d_max_m / ev.grid_n_d, ev.grid_d_max_m, ev.grid_n_d)
     a = np.deg2rad(np.linspace(-90.0, 90.0, ev.grid_n_alpha))
     cache = resolve_cache_dir(cfg)
     opts = trace_options(cfg)
-    update = ctx.progress("Fig. 6 truth + fields", total=len(poses))
+    update = ctx.progress("Fig. 6 free-space view + fields", total=len(poses))
     lo, hi = sc.bounds_m
     bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
     n_free = 0
@@ -219,8 +310,7 @@ def stage_truth(ctx) -> dict:
                 plane_bounds_m=bounds)
             field.save(ctx.out(f"fields/field_{i:02d}.npz"))
         update(advance=1)
-    return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free,
-            "cells_with_attempts": int((truth.n_attempts > 0).sum())}
+    return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free}
 
 
 def field_coverage(cfg, scene, field_paths) -> dict | None:
@@ -248,44 +338,108 @@ def field_coverage(cfg, scene, field_paths) -> dict | None:
 
 
 def stage_evaluation(ctx) -> dict:
-    """Every model against the truth (pipeline.evaluation.evaluate_all); write metrics.json
-    (with the field coverage) and truth/fig7_errors.parquet."""
+    """Every model against the truth; write metrics.json and the Fig. 7 / tag-site tables.
+
+    ``metrics.json`` sections: ``heldout`` (every model and the floor on the held-out tag
+    layout read by the evaluation tour; the headline), ``fig7`` (chapter Sec. 5 on the
+    evaluation tour, per model), ``tag_sites`` (truth where tags are, per model),
+    ``error_budget``, ``localisation`` (MCL pose error and bias per tour), ``in_sample``
+    (the same comparisons on the training tour's reads: labelled, not the headline),
+    ``free_space_view`` (the chapter's Fig. 6 plane at antenna height), ``coverage``.
+    """
+    import pandas as pd
+
     from fuzzymodel import SensorModel
     from pipeline.evaluation.baselines import BaselineSensorModel
-    from pipeline.evaluation.comparison import RhoPoints
+    from pipeline.evaluation.comparison import RhoPoints, rho_vs_truth
     from pipeline.evaluation.evaluate import EvaluationInputs, evaluate_all
-    from pipeline.evaluation.tables import read_tags
+    from pipeline.evaluation.fig7 import fig7_errors
+    from pipeline.evaluation.heldout import error_budget, heldout_scores
+    from pipeline.evaluation.metrics import nan_to_none
+    from pipeline.evaluation.sites import SiteTruth, site_comparison
+    from pipeline.evaluation.tables import read_tags, write_parquet_atomic
     from pipeline.evaluation.truth import TruthGrid
 
     cfg = ctx.config
+    budget = link_budget(cfg)
     reads, _ = _read_reads(ctx)
     eval_reads, _ = _read_reads(ctx, "eval_")
-    import pandas as pd
-
+    tags = read_tags(ctx.input("scene/tags.parquet"))
+    _check_split(tags, reads, eval_reads, ctx.store.path("scene/tags.parquet"))
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
-    rho_points = [RhoPoints.load(p) for p in sorted(ctx.store.path("truth").glob("rho_points_*.npz"))]
+    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
     sensors = {
         "anfis": SensorModel.load(ctx.input("models/sensor.json")),
         "anfis_truepose": SensorModel.load(ctx.input("models/sensor_truepose.json")),
-        "baselines": BaselineSensorModel.load(ctx.input("models/baselines.json")),
-        "baselines_truepose": BaselineSensorModel.load(ctx.input("models/baselines_truepose.json")),
+        "log_distance": base,
+        "grid_count": base,
     }
-    inputs = EvaluationInputs(
-        reads=reads, truth=TruthGrid.load(ctx.input("truth/detection_grid.npz")),
-        budget=link_budget(cfg), eval_reads=eval_reads,
-        tags=read_tags(ctx.input("scene/tags.parquet")), rho_points=rho_points,
-        pose_times_s=eval_poses["time_s"].to_numpy(float), d_max_m=cfg.training.d_max_m,
-        min_attempts=cfg.training.min_attempts, fig7_radius_m=cfg.evaluation.fig7_radius_m,
-        antenna_pitch_rad=_tilts(cfg),
-    )
-    result = evaluate_all(sensors, inputs)
-    fig7 = result.models["anfis"].fig7
-    if fig7 is not None:  # the Fig. 7 figure reads it instead of recomputing
-        fig7.write_table(ctx.out("truth/fig7_errors.parquet"))
-    metrics = result.to_dict()
+    from pipeline.sensormodels import ABLATIONS, COMPETITORS, load_competitor
+
+    sensors.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
+    sensors.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
+    extra = (*COMPETITORS, *ABLATIONS)
+    rssi_names = ("anfis", "anfis_truepose", "log_distance",
+                  *(n for n in extra if getattr(sensors[n], "predicts_rssi", True)))
+    train_truth = TruthGrid.load(ctx.input("truth/detection_grid.npz"))
+    eval_truth = TruthGrid.load(ctx.input("truth/detection_grid_eval.npz"))
+    tr = cfg.training
+    heldout = heldout_scores(sensors, eval_reads, train_truth, eval_truth, budget,
+                             d_max_m=tr.d_max_m, min_attempts=tr.min_attempts,
+                             rssi_models=rssi_names,
+                             detection_models=("anfis", "anfis_truepose", "grid_count", *extra))
+    metrics = {"heldout": heldout, "error_budget": error_budget(heldout)}
+    fig7 = {}
+    for name in rssi_names:
+        f7 = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
+                         pose_times_s=eval_poses["time_s"].to_numpy(float),
+                         antenna_pitch_rad=_tilts(cfg), d_max_m=tr.d_max_m)
+        fig7[name] = f7.to_dict()
+        if name == "anfis":  # the Fig. 7 figure reads it instead of recomputing
+            f7.write_table(ctx.out("truth/fig7_errors.parquet"))
+    metrics["fig7"] = fig7
+    site_truth = SiteTruth.load(ctx.input("truth/site_truth.npz"))
+    q = cfg.reader.anticollision_miss_probability
+    metrics["tag_sites"] = {}
+    for name in rssi_names:
+        sc_ = site_comparison(site_truth, sensors[name], budget, miss_probability=q,
+                              d_max_m=tr.d_max_m)
+        metrics["tag_sites"][name] = sc_.to_dict()
+        if name == "anfis":
+            write_parquet_atomic(sc_.per_site, ctx.out("truth/site_errors.parquet"))
+    loc = ctx.store.path("tour/localisation.json")
+    if loc.is_file():
+        metrics["localisation"] = json.loads(loc.read_text())
+    # in-sample: the training tour's own reads (labelled; not the headline)
+    insample = evaluate_all(
+        {"anfis": sensors["anfis"], "anfis_truepose": sensors["anfis_truepose"],
+         "baselines": base,
+         "baselines_truepose": BaselineSensorModel.load(ctx.input("models/baselines_truepose.json"))},
+        EvaluationInputs(reads=reads, truth=train_truth, budget=budget,
+                         d_max_m=tr.d_max_m, min_attempts=tr.min_attempts)).to_dict()
+    insample["note"] = ("in_sample: scored on the training tour's reads of the training tags, "
+                        "which the models were fitted on")
+    metrics["in_sample"] = insample
+    rho_points = [RhoPoints.load(p) for p in sorted(ctx.store.path("truth").glob("rho_points_*.npz"))]
+    metrics["free_space_view"] = {
+        name: rho_vs_truth(rho_points, sensors[name]).to_dict() for name in rssi_names
+    } if rho_points else None
     fields = sorted(ctx.store.path("fields").glob("field_*.npz"))
     coverage = field_coverage(cfg, load_scene(ctx), fields)
     if coverage is not None:
         metrics["coverage"] = coverage
-    atomic_write_json(ctx.out("metrics.json"), metrics)
+    atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
     return {"models": sorted(sensors)}
+
+
+def _check_split(tags, reads, eval_reads, path) -> None:
+    """No tag read in training appears in evaluation, and each tour reads only its layout."""
+    if "split" not in tags.columns:
+        raise ValueError(f"{path}: no 'split' column; rerun the scene stage")
+    split = dict(zip(tags["tag_id"].astype(str), tags["split"].astype(str), strict=True))
+    for name, df, want in (("reads.parquet", reads, "train"), ("eval_reads.parquet", eval_reads, "eval")):
+        ids = set(df["tag_id"].astype(str))
+        wrong = sorted(t for t in ids if split.get(t) != want)
+        if wrong:
+            raise ValueError(f"{name} holds tags {wrong[:5]} whose split in {path} is not {want!r}: "
+                             "training and held-out layouts mix; rerun the reads stage")

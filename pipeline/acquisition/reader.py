@@ -191,7 +191,8 @@ def in_range_mask(d_m: np.ndarray, reader: ReaderConfig) -> np.ndarray:
     return np.asarray(d_m) <= r
 
 
-def _trace_gains(scene, poses6: np.ndarray, mask: np.ndarray, reader: ReaderConfig, trace: dict):
+def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, reader: ReaderConfig,
+                 trace: dict):
     """Trace the masked pairs (unique antenna poses only); gains (n, m) in dB and traced."""
     from propagation import trace_links
 
@@ -205,11 +206,11 @@ def _trace_gains(scene, poses6: np.ndarray, mask: np.ndarray, reader: ReaderConf
     inv = inv.reshape(-1)
     umask = np.zeros((len(uniq), m), dtype=bool)
     np.logical_or.at(umask, inv, mask[rows])
-    kw = {"tag_normals": scene.tags.normals, **trace}
+    kw = {"tag_normals": tags.normals, **trace}
     links = trace_links(
         scene,
         uniq,
-        scene.tags.positions_m,
+        tags.positions_m,
         frequency_hz=reader.budget.frequency_hz,
         pairs=umask,
         **kw,
@@ -306,13 +307,15 @@ def simulate_reads(
     *,
     trace: dict | None = None,
     cache_dir: str | Path | None = None,
+    tags=None,
 ) -> ReadLog:
     """Simulate the reader along a robot track in a ray-traced scene.
 
     Parameters
     ----------
     scene : scenes.Scene
-        The scene; its tags are the population the reader inventories.
+        The scene; its tags are the population the reader inventories unless `tags`
+        is given.
     robot : pipeline.robot.Robot
         Supplies the antenna mounts (``robot.antennas``).
     track : PoseTrack, LocalizationResult, Trajectory or tuple
@@ -329,6 +332,9 @@ def simulate_reads(
         ``frequency_hz`` comes from ``reader.budget`` and ``pairs`` from the range mask.
     cache_dir : str or Path, optional
         Trace cache directory passed to :func:`propagation.trace_links`.
+    tags : scenes.TagSet, optional
+        The tags this tour can read (e.g. only the training or only the held-out
+        layout); default ``scene.tags``.
 
     Returns
     -------
@@ -346,11 +352,11 @@ def simulate_reads(
         trace["cache_dir"] = cache_dir
     mounts = list(robot.antennas)
     att = read_attempts(trk, mounts, reader)
-    tags = scene.tags
+    tags = scene.tags if tags is None else tags
     n, m = len(att.time_s), len(tags)
     d_true = antenna_frame_angles(att.true_antenna, tags.positions_m).d_m
     mask = in_range_mask(d_true, reader)
-    gain_db, traced, n_traced = _trace_gains(scene, att.true_antenna, mask, reader, trace)
+    gain_db, traced, n_traced = _trace_gains(scene, tags, att.true_antenna, mask, reader, trace)
     reads = reads_from_gains(att, tags, gain_db, traced, reader, rng)
     _check_margin(gain_db, traced, d_true, reader)
     meta = {

@@ -67,10 +67,20 @@ class TrainingSet:
 
     @property
     def weights(self) -> np.ndarray | None:
-        """Attempts per cell n+ + n- (TDM), usable as sample weights; None for SSM."""
+        """Read attempts per cell n+ + n- (TDM), the sample weights of the fT fit.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,), float64, or None
+            ``n_pos + n_neg`` per cell (>= ``min_attempts`` >= 1), aligned with ``X``
+            and ``y``; passed as ``sample_weight`` to ``fuzzymodel.ANFIS.from_fcm`` /
+            ``fit`` so a cell weighs as many attempts as it saw. None for SSM (one
+            sample per read, unweighted).
+        """
         if self.n_pos is None or self.n_neg is None:
             return None
-        return self.n_pos + self.n_neg
+        return (np.asarray(self.n_pos, dtype=np.int64)
+                + np.asarray(self.n_neg, dtype=np.int64)).astype(np.float64)
 
     def to_frame(self) -> pd.DataFrame:
         """Columns d_m, alpha_rad, y (and n_pos, n_neg for TDM)."""

@@ -135,7 +135,7 @@ def evaluate_model(sensor, inputs: EvaluationInputs) -> ModelMetrics:
             raise ValueError("EvaluationInputs: eval_reads given without tags")
         f7 = fig7_errors(inputs.eval_reads, inputs.tags, sensor, radius_m=inputs.fig7_radius_m,
                          pose_times_s=inputs.pose_times_s,
-                         antenna_pitch_rad=inputs.antenna_pitch_rad)
+                         antenna_pitch_rad=inputs.antenna_pitch_rad, d_max_m=inputs.d_max_m)
     return ModelMetrics(rssi=rssi, detection=det, rho=rho, fig7=f7)
 
 
@@ -174,12 +174,9 @@ class LocalisationSplit:
 def _split_difference(est: ModelMetrics, true: ModelMetrics) -> dict:
     a, b = est.to_dict(), true.to_dict()
     out = {}
-    keys = list(_SPLIT_KEYS) + [("fig7", "mean"), ("fig7", "median")]
+    keys = list(_SPLIT_KEYS) + [("fig7", "mean_pct"), ("fig7", "median_pct")]
     for sec, key in keys:
         sa, sb = a.get(sec), b.get(sec)
-        if sec == "fig7":
-            sa = None if sa is None else sa["pct_error"]
-            sb = None if sb is None else sb["pct_error"]
         va = None if sa is None else sa.get(key)
         vb = None if sb is None else sb.get(key)
         out[f"{sec}.{key}"] = None if va is None or vb is None else float(va) - float(vb)

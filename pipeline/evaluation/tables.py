@@ -2,9 +2,11 @@
 
 Files defined here (paths relative to the run directory):
 
-``truth/tags.parquet``
+``scene/tags.parquet``
     One row per tag: ``tag_id`` (str), ``x_m``, ``y_m``, ``z_m`` (float64,
-    world frame), ``nx``, ``ny``, ``nz`` (unit normal of the surface it sits on).
+    world frame), ``nx``, ``ny``, ``nz`` (unit normal of the surface it sits on),
+    ``split`` (``"train"``: read by the training tour; ``"eval"``: held out, read only
+    by the evaluation tour).
 
 All writers go through a temporary name and :func:`os.replace`.
 """
@@ -59,29 +61,39 @@ def write_json_atomic(obj, path) -> Path:
     return atomic_write_text(path, json.dumps(nan_to_none(obj), indent=2, allow_nan=False) + "\n")
 
 
-def tags_table(ids, positions_m, normals=None) -> pd.DataFrame:
-    """Tags as a table (format of ``truth/tags.parquet``).
+def tags_table(ids, positions_m, normals=None, split=None) -> pd.DataFrame:
+    """Tags as a table (format of ``scene/tags.parquet``).
 
     Parameters
     ----------
     ids : array_like, shape (m,), str
     positions_m : array_like, shape (m, 3), float, metres
     normals : array_like, shape (m, 3), optional (NaN if omitted)
+    split : array_like, shape (m,), str, optional
+        ``"train"`` (read by the training tour) or ``"eval"`` (held out: read only by
+        the evaluation tour) per tag; column ``split``, omitted when None.
     """
     ids = np.asarray(ids, dtype=str).reshape(-1)
     pos = np.asarray(positions_m, dtype=np.float64).reshape(-1, 3)
     nrm = np.full_like(pos, np.nan) if normals is None else np.asarray(normals, float).reshape(-1, 3)
     if not (len(ids) == len(pos) == len(nrm)):
         raise ValueError(f"tags_table: {len(ids)} ids, {len(pos)} positions, {len(nrm)} normals")
-    return pd.DataFrame({
+    df = pd.DataFrame({
         "tag_id": ids, "x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2],
         "nx": nrm[:, 0], "ny": nrm[:, 1], "nz": nrm[:, 2],
     })
+    if split is not None:
+        split = np.asarray(split, dtype=str).reshape(-1)
+        bad = sorted(set(split.tolist()) - {"train", "eval"})
+        if len(split) != len(ids) or bad:
+            raise ValueError(f"tags_table: split must hold 'train'/'eval' per tag, got {bad or len(split)}")
+        df["split"] = split
+    return df
 
 
-def write_tags(path, ids, positions_m, normals=None) -> Path:
-    """Write ``truth/tags.parquet`` (see module doc); e.g. ``write_tags(p, *scene.tags...)``."""
-    return write_parquet_atomic(tags_table(ids, positions_m, normals), path)
+def write_tags(path, ids, positions_m, normals=None, split=None) -> Path:
+    """Write ``scene/tags.parquet`` (see module doc); e.g. ``write_tags(p, *scene.tags...)``."""
+    return write_parquet_atomic(tags_table(ids, positions_m, normals, split), path)
 
 
 def read_tags(path) -> pd.DataFrame:

@@ -12,6 +12,7 @@ from .common import DPI, MissingInput
 from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
 from .drawall import FIGURES, draw_all
 from .scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
+from .sites import fig_site_errors
 from .surfaces import (
     fig_learned_vs_truth_detection,
     fig_learned_vs_truth_rssi,
@@ -32,6 +33,7 @@ __all__ = [
     "fig_mcl_error",
     "fig_rho_vs_truth",
     "fig_scene_top_view",
+    "fig_site_errors",
     "fig_ssm_surface",
     "fig_tdm_surface",
     "scene_top_view",

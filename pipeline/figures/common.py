@@ -96,16 +96,30 @@ def load_sensor(run_dir, name: str = "anfis"):
 
 
 def model_metrics(run_dir) -> dict:
-    """``{model name: metrics dict}`` from ``metrics.json`` (top level or under "evaluation")."""
+    """``{model name: metrics dict}`` of the HELD-OUT scores in ``metrics.json``.
+
+    Each model's dict has ``rssi_dbm`` and ``detection`` (``heldout.models``, None where the
+    model predicts no such thing) and ``fig7`` (``fig7.<model>``); the floor is included
+    under the name ``floor``. Older run directories (one ``models`` section, in-sample)
+    are read as they are.
+    """
     path = require(run_dir, "metrics.json")
     try:
         m = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(m, dict) and isinstance(m.get("heldout"), dict):
+        held = m["heldout"]
+        out = {k: dict(v) for k, v in held.get("models", {}).items()}
+        for name, f7 in (m.get("fig7") or {}).items():
+            out.setdefault(name, {})["fig7"] = f7
+        if isinstance(held.get("floor"), dict):
+            out["floor"] = {k: v for k, v in held["floor"].items() if isinstance(v, dict)}
+        return out
     if isinstance(m, dict) and "evaluation" in m and isinstance(m["evaluation"], dict):
         m = m["evaluation"]
     if not isinstance(m, dict) or not isinstance(m.get("models"), dict):
-        raise ValueError(f"{path}: no 'models' section")
+        raise ValueError(f"{path}: no 'heldout' or 'models' section")
     return m["models"]
 
 

@@ -78,7 +78,8 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
             ax.set_xlabel("x [m]")
             ax.set_ylabel("y [m]")
             fig.colorbar(m, ax=ax, label="rho [-]")
-    fig.suptitle("Fig. 6: sensor likelihood rho around sample antenna poses")
+    fig.suptitle("Fig. 6 (free-space view at antenna height, not where tags are): rho around "
+                 "evaluation-tour antenna poses")
     return save_figure(fig, out_dir or run_dir / "figures", "rho_vs_truth")
 
 
@@ -94,8 +95,22 @@ def _fig7_table(run_dir: Path) -> pd.DataFrame:
     tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
     res = fig7_errors(reads, tags, load_sensor(run_dir, "anfis"),
                       pose_times_s=poses["time_s"].to_numpy(float),
-                      antenna_pitch_rad=_tilts(run_dir))
+                      antenna_pitch_rad=_tilts(run_dir), d_max_m=_training_d_max(run_dir))
     return res.table
+
+
+def _training_d_max(run_dir: Path) -> float | None:
+    """config.toml ``[training] d_max_m`` [m] (the Fig. 7 training domain); None if absent."""
+    import tomllib
+
+    p = run_dir / "config.toml"
+    if not p.is_file():
+        return None
+    try:
+        v = tomllib.loads(p.read_text()).get("training", {}).get("d_max_m")
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    return None if v is None else float(v)
 
 
 def _tilts(run_dir: Path) -> dict | float:
@@ -113,29 +128,36 @@ def _tilts(run_dir: Path) -> dict | float:
 
 
 def fig_fig7_error(run_dir, out_dir=None) -> list[Path]:
-    """Chapter Fig. 7: percentage error |fs_model - fs_meas| / fs_meas along the evaluation path.
+    """Chapter Fig. 7: Error = |f̄s - s| x 100 (chapter Sec. 5) along the evaluation path.
 
-    Points: per (pose, antenna, tag); lines: the mean per pose and antenna; dashed:
-    the chapter's 20 % mark.
+    s: measured RSSI normalised to [0, 1]; f̄s: the model's fs averaged within 10 cm
+    of the tag. Points: per (pose, antenna, tag) within the training domain
+    (``in_domain``); grey crosses: beyond it (d > training.d_max_m, extrapolation);
+    lines: the in-domain mean per pose and antenna; dashed: the chapter's 20 % mark.
     """
     run_dir = Path(run_dir)
     t = _fig7_table(run_dir)
-    t = t.loc[~t["excluded"].astype(bool)]
+    inside = t["in_domain"].astype(bool).to_numpy()
+    t_in, t_out = t.loc[inside], t.loc[~inside]
     fig = new_figure(8.0, 4.0)
     ax = fig.subplots()
-    for i, (ant, sub) in enumerate(t.groupby("antenna", sort=True)):
+    if len(t_out):
+        ax.plot(t_out["pose"], t_out["error_pct"], "x", color="0.6", alpha=0.5, ms=3,
+                label="beyond training domain")
+    for i, (ant, sub) in enumerate(t_in.groupby("antenna", sort=True)):
         c = f"C{i}"
-        ax.plot(sub["pose"], sub["pct_error"], ".", color=c, alpha=0.35, ms=4)
-        mean = sub.groupby("pose")["pct_error"].mean()
+        ax.plot(sub["pose"], sub["error_pct"], ".", color=c, alpha=0.35, ms=4)
+        mean = sub.groupby("pose")["error_pct"].mean()
         ax.plot(mean.index, mean.to_numpy(), "-", color=c, lw=1.2, label=f"antenna {ant}")
     ax.axhline(20.0, color="k", ls="--", lw=0.8, label="20 % (chapter)")
     ax.set_xlabel("evaluation pose [index]")
-    ax.set_ylabel("percentage error of fs [%]")
+    ax.set_ylabel("|f̄s - s| x 100 [%]")
     if len(t):
-        ax.set_ylim(0, max(25.0, float(np.nanpercentile(t["pct_error"], 98)) * 1.1))
+        ax.set_ylim(0, max(25.0, float(np.nanpercentile(t["error_pct"], 98)) * 1.1))
     ax.legend(loc="upper right", fontsize=8)
-    med = float(np.nanmedian(t["pct_error"])) if len(t) else float("nan")
-    ax.set_title(f"Fig. 7: RSSI model error along the evaluation path (median {med:.1f} %)")
+    med = float(np.nanmedian(t_in["error_pct"])) if len(t_in) else float("nan")
+    ax.set_title(f"Fig. 7: RSSI model error along the evaluation path (in-domain median "
+                 f"{med:.1f} %)")
     return save_figure(fig, out_dir or run_dir / "figures", "fig7_error")
 
 
@@ -145,14 +167,13 @@ _BARS = (
     ("RSSI |bias| [dB]", "rssi_dbm", "bias", None),
     ("detection MAE [-] x10", "detection", "mae", None),
     ("Brier [-] x10", "detection", "brier", None),
-    ("rho MAE [-] x10", "rho", "mae", None),
-    ("Fig. 7 median [%] /10", "fig7", "pct_error", "median"),
+    ("Fig. 7 median [%] /10", "fig7", "median_pct", None),
 )
 _SCALE = {"detection": 10.0, "rho": 10.0, "fig7": 0.1}
 
 
 def fig_baselines(run_dir, out_dir=None) -> list[Path]:
-    """Baselines beside ANFIS: headline metrics per model from metrics.json (grouped bars)."""
+    """Baselines and the floor beside ANFIS: held-out headline metrics per model (grouped bars)."""
     run_dir = Path(run_dir)
     models = model_metrics(run_dir)
     names = list(models)
@@ -163,7 +184,7 @@ def fig_baselines(run_dir, out_dir=None) -> list[Path]:
     for i, name in enumerate(names):
         vals = []
         for _, sec, key, sub in _BARS:
-            s = models[name].get(sec) or {}
+            s = (models[name] or {}).get(sec) or {}
             v = s.get(key)
             v = v.get(sub) if isinstance(v, dict) and sub else v
             v = abs(finite_or_nan(v)) * _SCALE.get(sec, 1.0)
@@ -172,5 +193,5 @@ def fig_baselines(run_dir, out_dir=None) -> list[Path]:
     ax.set_xticks(x, [b[0] for b in _BARS], rotation=20, ha="right", fontsize=8)
     ax.set_ylabel("metric value (scaled as labelled)")
     ax.legend(fontsize=8)
-    ax.set_title("ANFIS and baselines against the ray-traced truth (lower is better)")
+    ax.set_title("Held-out scores against the ray-traced truth (lower is better)")
     return save_figure(fig, out_dir or run_dir / "figures", "baselines")

@@ -8,6 +8,7 @@ from pathlib import Path
 from .common import MissingInput
 from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
 from .scene import fig_fields, fig_mcl_error, fig_scene_top_view
+from .sites import fig_site_errors
 from .surfaces import (
     fig_learned_vs_truth_detection,
     fig_learned_vs_truth_rssi,
@@ -31,6 +32,7 @@ FIGURES = {
     "fields": fig_fields,
     "mcl_error": fig_mcl_error,
     "baselines": fig_baselines,
+    "site_errors": fig_site_errors,
 }
 
 

@@ -38,13 +38,18 @@ def _segments(z) -> np.ndarray | None:
     return np.asarray(z[keys[-1]], dtype=float).reshape(-1, 2, 2)
 
 
-def _draw_plan(ax, segments, tags_xy, tag_ids=None, route=None):
+def _draw_plan(ax, segments, tags_xy, tag_ids=None, route=None, held_out=None):
     if segments is not None and len(segments):
         ax.add_collection(LineCollection(segments, colors="0.2", linewidths=1.0, label="walls"))
     if route is not None and len(route):
         ax.plot(route[:, 0], route[:, 1], ":", color="0.5", lw=0.8, label="route")
     if tags_xy is not None and len(tags_xy):
-        ax.plot(tags_xy[:, 0], tags_xy[:, 1], "s", color="C3", ms=4, label="tags")
+        held = np.zeros(len(tags_xy), bool) if held_out is None else np.asarray(held_out, bool)
+        ax.plot(tags_xy[~held, 0], tags_xy[~held, 1], "s", color="C3", ms=4,
+                label="training tags" if held.any() else "tags")
+        if held.any():
+            ax.plot(tags_xy[held, 0], tags_xy[held, 1], "D", color="C4", ms=4,
+                    label="held-out tags")
         if tag_ids is not None and len(tag_ids) <= 40:
             for (x, y), t in zip(tags_xy, tag_ids, strict=True):
                 ax.annotate(str(t), (x, y), fontsize=5, xytext=(2, 2), textcoords="offset points")
@@ -67,7 +72,9 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     poses = pd.read_parquet(require(run_dir, "poses.parquet"))
     fig = new_figure(10.0, 4.5)
     ax = fig.subplots()
-    _draw_plan(ax, segs, tags[["x_m", "y_m"]].to_numpy(float), tags["tag_id"].tolist(), route)
+    held = (tags["split"] == "eval").to_numpy() if "split" in tags.columns else None
+    _draw_plan(ax, segs, tags[["x_m", "y_m"]].to_numpy(float), tags["tag_id"].tolist(), route,
+               held_out=held)
     ax.plot(poses["true_x_m"], poses["true_y_m"], "-", color="C0", lw=0.8, label="true (tour)")
     ax.plot(poses["est_x_m"], poses["est_y_m"], "-", color="C1", lw=0.6, alpha=0.8,
             label="MCL (tour)")

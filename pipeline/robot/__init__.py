@@ -3,7 +3,8 @@
 A Pioneer-like differential-drive robot with reader antennas drives guided tours up
 and down a corridor; its wheel odometry drifts, a 2-D laser scanner is ray-cast
 against the scene, and a particle filter (MCL) estimates the pose a real robot would
-record (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005).
+record, in a map of the building whose walls are off by a few centimetres
+(:mod:`pipeline.robot.robotmap`) (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005).
 """
 
 from pipeline.robot.kinematics import (
@@ -30,6 +31,15 @@ from pipeline.robot.odometry import (
     sample_motion_model_odometry,
     simulate_odometry,
 )
+from pipeline.robot.robotmap import (
+    MapError,
+    RobotMap,
+    displace_wall_lines,
+    draw_map_error,
+    draw_robot_map,
+    robot_map,
+    wall_lines,
+)
 from pipeline.robot.simulate import LocalizationConfig, laser_map, simulate_localisation
 from pipeline.robot.trajectory import (
     TourConfig,
@@ -46,11 +56,13 @@ __all__ = [
     "LocalizationConfig",
     "LocalizationResult",
     "MCLConfig",
+    "MapError",
     "MonteCarloLocalization",
     "OccupancyMap",
     "OdometryNoise",
     "PoseEstimate",
     "Robot",
+    "RobotMap",
     "TourConfig",
     "Trajectory",
     "antenna_poses",
@@ -58,15 +70,20 @@ __all__ = [
     "collision_map",
     "compose_poses",
     "default_antennas",
+    "displace_wall_lines",
+    "draw_map_error",
+    "draw_robot_map",
     "evaluation_path",
     "footprint_points",
     "guided_tour",
     "laser_map",
     "low_variance_resample",
     "ray_cast",
+    "robot_map",
     "run_mcl",
     "sample_motion_model_odometry",
     "simulate_localisation",
     "simulate_odometry",
+    "wall_lines",
     "wrap_angle",
 ]

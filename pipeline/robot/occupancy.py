@@ -18,9 +18,20 @@ from scipy import ndimage
 
 from scenes import floor_plan_segments
 
-__all__ = ["OccupancyMap"]
+__all__ = ["OccupancyMap", "slice_heights"]
 
 logger = logging.getLogger(__name__)
+
+
+def slice_heights(z_range: tuple[float, float], n_slices: int = 5) -> list[float]:
+    """Heights [m] of the cutting planes :meth:`OccupancyMap.from_scene` slices the meshes at.
+
+    ``n_slices`` planes spread over ``z_range`` (one when the range is a point), each
+    raised by 1 um so that no plane lies exactly on a horizontal face.
+    """
+    z0, z1 = (float(v) for v in z_range)
+    heights = [z0] if z1 - z0 < 1e-9 else np.linspace(z0, z1, max(2, int(n_slices)))
+    return [float(h) + 1e-6 for h in heights]
 
 
 def _rasterise(segments: np.ndarray, origin: np.ndarray, res: float, shape) -> np.ndarray:
@@ -118,18 +129,78 @@ class OccupancyMap:
             raise ValueError(
                 f"OccupancyMap: z_range={z_range} must be (low, high) with low <= high"
             )
-        heights = [z0] if z1 - z0 < 1e-9 else np.linspace(z0, z1, max(2, int(n_slices)))
-        heights = [h + 1e-6 for h in heights]  # keep planes off exactly-horizontal faces
-        bounds = scene.bounds_m
-        origin = bounds[0, :2] - margin_m
-        extent = bounds[1, :2] + margin_m - origin
-        shape = (int(np.ceil(extent[1] / resolution_m)), int(np.ceil(extent[0] / resolution_m)))
-        walls = np.zeros(shape, dtype=bool)
-        cut = [floor_plan_segments(scene, h) for h in heights]
-        for seg in cut:
-            walls |= _rasterise(seg, origin, resolution_m, shape)
-        labels, n_labels = ndimage.label(~walls)  # 4-connectivity: diagonal gaps do not leak
+        heights = slice_heights((z0, z1), n_slices)
+        origin, shape = cls.scene_grid(scene, resolution_m, margin_m)
+        cut = np.concatenate([floor_plan_segments(scene, h) for h in heights])
         route = scene.route_m if route_m is None else route_m
+        return cls.from_segments(cut, origin, shape, resolution_m, route_m=route,
+                                 z_range=(z0, z1), name=scene.name)
+
+    @staticmethod
+    def scene_grid(
+        scene, resolution_m: float = 0.05, margin_m: float = 0.5
+    ) -> tuple[np.ndarray, tuple[int, int]]:
+        """Origin (2,) [m] and shape (ny, nx) of the grid :meth:`from_scene` lays over a scene.
+
+        The scene's horizontal bounds grown by ``margin_m`` on every side, in cells of
+        ``resolution_m``.
+        """
+        if not resolution_m > 0:
+            raise ValueError(f"OccupancyMap: resolution_m={resolution_m} must be > 0")
+        bounds = scene.bounds_m
+        origin = np.asarray(bounds[0, :2], dtype=float) - margin_m
+        extent = np.asarray(bounds[1, :2], dtype=float) + margin_m - origin
+        shape = (int(np.ceil(extent[1] / resolution_m)), int(np.ceil(extent[0] / resolution_m)))
+        return origin, shape
+
+    @classmethod
+    def from_segments(
+        cls,
+        segments: np.ndarray,
+        origin_m: np.ndarray,
+        shape: tuple[int, int],
+        resolution_m: float = 0.05,
+        route_m: np.ndarray | None = None,
+        z_range: tuple[float, float] = (0.0, 0.0),
+        name: str = "map",
+    ) -> OccupancyMap:
+        """Build the map from 2-D obstacle outlines (what :meth:`from_scene` cuts).
+
+        Used directly for a map that is not the scene: the robot's map with its walls
+        displaced (:func:`pipeline.robot.robotmap.draw_robot_map`).
+
+        Parameters
+        ----------
+        segments : numpy.ndarray
+            Obstacle outline segments (k, 2, 2) [m] (every slice's cut, concatenated).
+        origin_m : numpy.ndarray
+            World (x, y) of the grid's lower-left corner (2,) [m].
+        shape : tuple[int, int]
+            Grid shape (ny, nx).
+        resolution_m : float
+            Cell size [m].
+        route_m : numpy.ndarray, optional
+            Polyline (k, 2) [m] in walkable space; free space is the set of cells
+            4-connected to it. Without one, the largest free component not touching the
+            grid border.
+        z_range : tuple[float, float]
+            Heights the outlines were cut between [m] (recorded only).
+        name : str
+            Used in error messages.
+
+        Raises
+        ------
+        ValueError
+            When no route point lies in free space, or there is no enclosed free space.
+        """
+        if not resolution_m > 0:
+            raise ValueError(f"OccupancyMap: resolution_m={resolution_m} must be > 0")
+        seg = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
+        origin = np.asarray(origin_m, dtype=float)
+        shape = (int(shape[0]), int(shape[1]))
+        walls = _rasterise(seg, origin, resolution_m, shape)
+        labels, n_labels = ndimage.label(~walls)  # 4-connectivity: diagonal gaps do not leak
+        route = route_m
         if route is not None and len(route):
             pts = _densify(np.asarray(route, dtype=float), resolution_m / 2)
             col = np.floor((pts[:, 0] - origin[0]) / resolution_m).astype(int)
@@ -139,22 +210,23 @@ class OccupancyMap:
             seeds = seeds[seeds > 0]
             if len(seeds) == 0:
                 raise ValueError(
-                    f"OccupancyMap: no point of the route of scene {scene.name!r} lies in "
-                    f"free space at z in {z_range}"
+                    f"OccupancyMap: no point of the route of {name!r} lies in "
+                    f"free space at z in {tuple(z_range)}"
                 )
         else:
             border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
             sizes = ndimage.sum_labels(np.ones(shape), labels, np.arange(1, n_labels + 1))
             sizes[np.isin(np.arange(1, n_labels + 1), border)] = 0
             if not np.any(sizes > 0):
-                raise ValueError(f"OccupancyMap: scene {scene.name!r} has no enclosed free space")
+                raise ValueError(f"OccupancyMap: {name!r} has no enclosed free space")
             seeds = np.array([int(np.argmax(sizes)) + 1])
         free = np.isin(labels, seeds)
         occupied = ~free
         distance = ndimage.distance_transform_edt(free) * resolution_m
-        faces = _free_facing(np.concatenate(cut), free, origin, resolution_m)
+        faces = _free_facing(seg, free, origin, resolution_m)
         boundary = _segment_distance_field(faces, origin, resolution_m, shape)
-        logger.debug("OccupancyMap %s: %s cells, %.1f%% free", scene.name, shape, 100 * free.mean())
+        logger.debug("OccupancyMap %s: %s cells, %.1f%% free", name, shape, 100 * free.mean())
+        z0, z1 = (float(v) for v in z_range)
         return cls(origin, float(resolution_m), occupied, distance, boundary, (z0, z1))
 
     @property
@@ -221,8 +293,10 @@ class OccupancyMap:
     ) -> OccupancyMap:
         """A copy whose likelihood field has its surfaces displaced by a smooth random field.
 
-        Models the difference between the robot's map and the world (building tolerances,
-        mapping error): a Gaussian random field delta (std ``sigma_m``, Gaussian correlation
+        The unsigned, smooth part of the difference between the robot's map and the
+        world (surface roughness, clutter; the ``map_noise_m`` of
+        :func:`pipeline.robot.robotmap.draw_robot_map`, whose systematic part, whole walls
+        off, is :func:`pipeline.robot.robotmap.displace_wall_lines`): a Gaussian random field delta (std ``sigma_m``, Gaussian correlation
         length ``correlation_m``) shifts every surface, ``field' = |field - delta|``
         (the field is a distance, so subtracting delta moves its zero set by delta).
 

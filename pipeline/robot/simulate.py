@@ -14,6 +14,7 @@ from pipeline.robot.laser import LaserScanner
 from pipeline.robot.mcl import LocalizationResult, MCLConfig, run_mcl
 from pipeline.robot.occupancy import OccupancyMap
 from pipeline.robot.odometry import OdometryNoise, simulate_odometry
+from pipeline.robot.robotmap import draw_robot_map
 from pipeline.robot.trajectory import Trajectory
 from scenes import floor_plan_segments
 
@@ -35,13 +36,20 @@ class LocalizationConfig:
     map_resolution_m : float
         Cell size of the laser map / likelihood field [m].
     map_error_m : float
-        Standard deviation of the displacement of the robot's map surfaces relative to
-        the world [m] (:meth:`OccupancyMap.with_surface_error`). A real robot localises
-        in a map that differs from the building by a few centimetres (mapping error,
-        furniture moved, tolerances); the 2 cm default brings the simulated MCL error
-        to the few-centimetre level of a real laser-MCL robot. 0 = perfect map.
-    map_error_correlation_m : float
-        Correlation length of that displacement along the walls [m].
+        Standard deviation of the signed offset of each wall line of the robot's map
+        along its normal [m] (:func:`pipeline.robot.robotmap.draw_robot_map`): a real
+        robot localises in a map whose walls are a few centimetres off (survey or SLAM
+        error, as-built tolerances), which biases its poses near them. 0 = every wall
+        where it is.
+    map_scale_error : float
+        Standard deviation of the fractional scale error of the map [1] (the map is the
+        building scaled by ``1 + s`` about its centre); 0 = none.
+    map_noise_m : float
+        Standard deviation of a smooth random displacement of the map's likelihood field
+        added on top of the wall offsets [m] (:meth:`OccupancyMap.with_surface_error`:
+        unsigned, no systematic offset); 0 = none.
+    map_noise_correlation_m : float
+        Correlation length of that smooth displacement along the surfaces [m].
     """
 
     odometry_noise: OdometryNoise = field(default_factory=OdometryNoise)
@@ -49,7 +57,17 @@ class LocalizationConfig:
     mcl: MCLConfig = field(default_factory=MCLConfig)
     map_resolution_m: float = 0.05
     map_error_m: float = 0.02
-    map_error_correlation_m: float = 1.0
+    map_scale_error: float = 0.0
+    map_noise_m: float = 0.0
+    map_noise_correlation_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        for k in ("map_error_m", "map_scale_error", "map_noise_m"):
+            if not getattr(self, k) >= 0:
+                raise ValueError(f"LocalizationConfig: {k}={getattr(self, k)} must be >= 0")
+        for k in ("map_resolution_m", "map_noise_correlation_m"):
+            if not getattr(self, k) > 0:
+                raise ValueError(f"LocalizationConfig: {k}={getattr(self, k)} must be > 0")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "") -> LocalizationConfig:
@@ -74,15 +92,18 @@ def simulate_localisation(
     trajectory: Trajectory,
     rng: np.random.Generator,
     config: LocalizationConfig | None = None,
+    occupancy_map: OccupancyMap | None = None,
 ) -> LocalizationResult:
     """Simulate odometry and laser scans along a true trajectory, then localise with MCL.
 
     The robot starts at the trajectory's first pose, which it knows (tracking), unless
     ``config.mcl.global_init``. The laser is simulated in the true scene; the filter
-    localises in the map cut from the same meshes, with ``config.map_error_m`` of surface
-    displacement. Independent random streams (``rng.spawn``) drive the odometry noise,
-    the laser noise, the particle filter and the map error, so changing one does not
-    reshuffle the others.
+    localises in the robot's map: ``occupancy_map`` when given (used as it is: draw it
+    once per building with :func:`pipeline.robot.robotmap.draw_robot_map` and pass it
+    to every tour), otherwise one drawn here from ``config`` (its wall offsets,
+    scale error and smooth noise). Independent random streams (``rng.spawn(4)``) drive
+    the odometry noise, the laser noise, the particle filter and the map (the last one
+    unused when a map is given), so changing one does not reshuffle the others.
 
     Parameters
     ----------
@@ -90,24 +111,39 @@ def simulate_localisation(
     robot : Robot
         (Unused by the sensors today; kept so antenna-aware sensors can be added.)
     trajectory : Trajectory
-        True path.
+        True path, poses (n, 3) [x_m, y_m, theta_rad].
     rng : numpy.random.Generator
     config : LocalizationConfig, optional
+    occupancy_map : OccupancyMap, optional
+        The map MCL localises in, cut at the scanner's height.
 
     Returns
     -------
     LocalizationResult
         True, odometry and MCL poses with per-step errors.
+
+    Raises
+    ------
+    ValueError
+        When ``occupancy_map`` was not cut at the scanner's height.
     """
     cfg = LocalizationConfig() if config is None else config
     rng_odo, rng_laser, rng_mcl, rng_map = rng.spawn(4)
+    if occupancy_map is None:
+        lmap = draw_robot_map(scene, cfg, rng_map).occupancy_map
+    else:
+        z0, z1 = occupancy_map.z_range_m
+        h = cfg.scanner.height_m
+        if not z0 - 1e-6 <= h <= z1 + 1e-6:
+            raise ValueError(
+                f"simulate_localisation: the map was cut at z in {occupancy_map.z_range_m} m, "
+                f"the laser scans at {h} m"
+            )
+        lmap = occupancy_map
     truth = np.asarray(trajectory.poses, dtype=float)
     odo = simulate_odometry(truth, cfg.odometry_noise, rng_odo)
     segments = floor_plan_segments(scene, cfg.scanner.height_m)
     scans = cfg.scanner.scan(segments, truth, rng_laser)
-    lmap = laser_map(scene, cfg.scanner, cfg.map_resolution_m).with_surface_error(
-        rng_map, cfg.map_error_m, cfg.map_error_correlation_m
-    )
     start = None if cfg.mcl.global_init else truth[0]
     return run_mcl(
         lmap,

@@ -153,3 +153,39 @@ def test_cli_figures_on_a_run_dir(tiny, tmp_path):
     assert res.exit_code == 0, res.output
     assert (run / "figures" / "scene_top_view.png").is_file()
     assert "data:image/png;base64," in (run / "report.html").read_text()
+
+
+def test_heldout_layout_never_mixes_with_training(tiny):
+    """No tag read in training appears in evaluation; each tour reads only its own layout."""
+    _, base, _ = tiny
+    run = base / "run"
+    tags = pd.read_parquet(run / "scene" / "tags.parquet")
+    assert set(tags["split"]) == {"train", "eval"}
+    train_ids = set(tags.loc[tags["split"] == "train", "tag_id"])
+    eval_ids = set(tags.loc[tags["split"] == "eval", "tag_id"])
+    assert len(eval_ids) >= 8 and not train_ids & eval_ids
+    seen_train = set(pd.read_parquet(run / "reads.parquet")["tag_id"].astype(str))
+    seen_eval = set(pd.read_parquet(run / "eval_reads.parquet")["tag_id"].astype(str))
+    assert seen_train <= train_ids and seen_eval <= eval_ids and not seen_train & seen_eval
+    # held-out tags sit at positions the training tags do not (>= the configured separation)
+    import numpy as np
+
+    xyz = tags[["x_m", "y_m", "z_m"]].to_numpy(float)
+    tr, ev = xyz[tags["split"] == "train"], xyz[tags["split"] == "eval"]
+    assert np.min(np.linalg.norm(tr[:, None] - ev[None], axis=2)) >= 0.5 - 1e-9
+
+
+def test_metrics_have_the_heldout_sections(tiny):
+    _, base, _ = tiny
+    m = json.loads((base / "run" / "metrics.json").read_text())
+    for sec in ("heldout", "fig7", "error_budget", "in_sample", "tag_sites"):
+        assert sec in m, sec
+    models = m["heldout"]["models"]
+    assert {"anfis", "anfis_truepose", "log_distance", "grid_count", "joho2009", "liu2006",
+            "vorst2008", "fcm_only", "anfis_gridinit"} <= set(models)
+    assert models["anfis"]["rssi_dbm"]["n"] > 0 and models["log_distance"]["detection"] is None
+    assert models["grid_count"]["rssi_dbm"] is None
+    assert m["heldout"]["floor"]["rssi_dbm"]["n"] > 0
+    assert m["error_budget"]["total"]["rmse_db"] == models["anfis"]["rssi_dbm"]["rmse"]
+    assert m["tag_sites"]["anfis"]["all"]["n_pairs"] > 0
+    assert "held-out" in (base / "run" / "report.html").read_text()

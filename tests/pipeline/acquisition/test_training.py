@@ -89,3 +89,54 @@ def test_bad_input_named():
         tdm_samples(df, d_bin_m=0)
     with pytest.raises(ValueError, match="d_est_m"):
         ssm_samples(df.drop(columns=["d_est_m"]))
+
+
+def _tdm_set(seed=0):
+    """A TDM set of 60 cells with 1 to 300 attempts each (weights), via tdm_samples."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    d_c = np.arange(0.125, 3.0, 0.25)
+    a_c = np.deg2rad(np.arange(-40.0, 50.0, 20.0))
+    for d in d_c:
+        for a in a_c:
+            n = int(rng.integers(1, 300))
+            p = 1.0 / (1.0 + np.exp(3.0 * (d - 1.5)))
+            reads = rng.random(n) < p
+            rows += [(d, a, int(r), -50.0) for r in reads]
+    return tdm_samples(_reads(rows), d_bin_m=0.25, alpha_bin_deg=20, d_max_m=3.0)
+
+
+def test_tdm_weights_are_attempts_and_survive_parquet(tmp_path):
+    ts = _tdm_set()
+    assert ts.weights.dtype == np.float64 and ts.weights.shape == (len(ts),)
+    np.testing.assert_array_equal(ts.weights, ts.n_pos + ts.n_neg)
+    assert ts.weights.sum() == ts.description["n_attempts"]
+    back = TrainingSet.from_parquet(ts.to_parquet(tmp_path / "tdm.parquet"))
+    np.testing.assert_array_equal(back.weights, ts.weights)
+    assert ssm_samples(_reads([(0.1, 0.0, 1, -40)])).weights is None
+
+
+def test_model_fit_weights_tdm_cells_by_attempts_split_with_their_cells():
+    from types import SimpleNamespace
+
+    from pipeline.stages_model import _fit
+
+    ts = _tdm_set(1)
+    cfg = SimpleNamespace(n_clusters=2, fcm_exponent=2.0, epochs=5, step_size=0.01,
+                          check_fraction=0.25, max_samples=0)
+    model, hist = _fit(ts, cfg, np.random.default_rng(5), lambda **_: None)
+    # the same split as stages_model._split draws from the same generator
+    n = len(ts)
+    n_check = int(round(0.25 * n))
+    perm = np.random.default_rng(5).permutation(n)
+    c, t = perm[:n_check], perm[n_check:]
+    w = ts.weights
+    assert hist["weighted"] and hist["n_train"] == len(t) and hist["n_check"] == len(c)
+    assert hist["train_weight_sum"] == pytest.approx(w[t].sum())
+    # reported RMSEs of the kept epoch are the attempt-weighted ones on each part
+    b = hist["best_epoch"]
+    for idx, key in ((t, "train_rmse"), (c, "check_rmse")):
+        r = ts.y[idx] - model.predict(ts.X[idx])
+        want = np.sqrt(np.sum(w[idx] * r * r) / np.sum(w[idx]))
+        assert hist[key][b] == pytest.approx(want, rel=1e-9)
+    assert model.provenance["training"]["weighted"]

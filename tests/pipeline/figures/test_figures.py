@@ -24,6 +24,7 @@ from pipeline.evaluation import (
     fig7_errors,
     fit_baselines,
     write_json_atomic,
+    write_parquet_atomic,
     write_tags,
 )
 from pipeline.figures import FIGURES, draw_all
@@ -136,6 +137,20 @@ def run_dir(tmp_path_factory):
                 pose_times_s=eval_poses["time_s"]).write_table(run / "truth" / "fig7_errors.parquet")
     write_json_atomic(_metrics(["anfis", "anfis_truepose", "baselines"]).to_dict(),
                       run / "metrics.json")
+    # per-site errors as the evaluation writes them (SiteComparison.per_site); synthetic
+    xs = np.arange(0.25, 10.0, 0.5)
+    site = pd.DataFrame({"x_m": np.r_[xs, xs], "y_m": np.r_[np.full(xs.size, 0.005),
+                                                           np.full(xs.size, 2.395)],
+                         "z_m": 1.0, "nx": 0.0, "ny": np.r_[np.ones(xs.size), -np.ones(xs.size)]})
+    site["site"] = np.arange(len(site))
+    site["material"] = "brick"
+    site["n_poses"] = 3
+    site["rho_true_mean"] = 0.2
+    site["rho_model_mean"] = 0.2 + 0.1 * np.sin(site["x_m"])
+    site["rho_error_mean"] = site["rho_model_mean"] - site["rho_true_mean"]
+    site["rho_abs_error_mean"] = site["rho_error_mean"].abs()
+    site["obstructed_fraction"] = (site["x_m"] > 8).astype(float)
+    write_parquet_atomic(site, run / "truth" / "site_errors.parquet")
     # a planar field written by propagation.RssiField.save (values: a closed-form falloff)
     from propagation import RssiField
 

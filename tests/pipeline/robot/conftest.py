@@ -70,3 +70,10 @@ def corridor():
 @pytest.fixture(scope="session")
 def room():
     return box_room()
+
+
+@pytest.fixture(scope="session")
+def hall():
+    """A 9 m x 12 m hall: driving 1 m from its south wall, the laser (8 m) sees only that
+    wall and the east wall ahead, so the south wall alone fixes the robot's lateral position."""
+    return box_room(size_x=9.0, size_y=12.0)

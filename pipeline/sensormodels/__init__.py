@@ -1,0 +1,54 @@
+"""The chapter's competitors as SensorLike models, and ablations of its own model.
+
+Cicirelli, Milella & Di Paola (2011) compare their FCM + ANFIS sensor model with earlier
+RFID sensor models. Each competitor here is fitted on the training tour's reads
+(MCL geometry, attempts within d_max) and predicts what the learned
+``rho = fs * fT`` predicts (see ``pipeline.evaluation.interface.SensorLike``):
+
+* :mod:`.joho2009` - Joho, Plagemann & Burgard (ICRA 2009): detection rate and Gaussian
+  RSSI per (d, alpha) cell, one joint likelihood of a read and its RSSI.
+* :mod:`.liu2006` - Liu et al. (2006): a sector read region with constant detection
+  probabilities (and RSSI) inside and outside, fitted by maximum likelihood.
+* :mod:`.vorst2008` - Vorst & Zell (EUROS 2008): kernel-smoothed detection rates on a
+  Cartesian antenna-frame grid; no RSSI (fs = 1, fs_dbm = NaN, ``predicts_rssi`` False).
+* :mod:`.ablations` - the chapter's model with FCM only (no ANFIS) and with a grid
+  partition instead of FCM, as ``fuzzymodel.SensorModel``.
+
+Each module's docstring says what is reproduced and what is simplified.
+"""
+
+from ._common import (
+    COMPETITOR_FORMAT,
+    Attempts,
+    CompetitorModel,
+    attempts_from_reads,
+    read_model_file,
+)
+from .ablations import ABLATIONS, fit_ablation
+from .competitors import COMPETITORS, MODEL_CLASSES, fit_competitors, load_competitor
+from .joho2009 import JOHO2009, Joho2009Model, fit_joho2009
+from .liu2006 import LIU2006, Liu2006Model, fit_liu2006
+from .vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
+
+__all__ = [
+    "ABLATIONS",
+    "COMPETITORS",
+    "COMPETITOR_FORMAT",
+    "JOHO2009",
+    "LIU2006",
+    "MODEL_CLASSES",
+    "VORST2008",
+    "Attempts",
+    "CompetitorModel",
+    "Joho2009Model",
+    "Liu2006Model",
+    "Vorst2008Model",
+    "attempts_from_reads",
+    "fit_ablation",
+    "fit_competitors",
+    "fit_joho2009",
+    "fit_liu2006",
+    "fit_vorst2008",
+    "load_competitor",
+    "read_model_file",
+]

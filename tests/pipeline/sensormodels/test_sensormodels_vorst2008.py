@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+
+from pipeline.sensormodels import Attempts, Joho2009Model, Vorst2008Model, fit_vorst2008
+
+
+@pytest.fixture(scope="module")
+def model(big_attempts, synth):
+    return fit_vorst2008(big_attempts, synth.RSSI_RANGE, np.random.default_rng(0), d_max_m=3.0,
+                         cell_m=0.1)
+
+
+def _interior_points(n, seed):
+    """Points >= 0.35 m from the cone's edge and away from the data's d-limits."""
+    rng = np.random.default_rng(seed)
+    d = rng.uniform(1.0, 2.4, n)
+    in_cone = rng.random(n) < 0.5
+    a = np.where(in_cone, rng.uniform(0, np.deg2rad(20), n), rng.uniform(np.deg2rad(70), np.pi, n))
+    return d, a * rng.choice([-1, 1], n)
+
+
+def test_recovers_the_detection_probability(model, synth):
+    d, a = _interior_points(4000, seed=5)
+    err = model.fT(d, a) - synth.p_true(d, a)
+    # ~65 attempts per 0.1 m cell at d ~ 1.7 m: binomial SE <= 0.06 in the cone (p ~ 0.5),
+    # 0.027 outside (p = 0.05); the mean |error| of such a count is ~0.8 SE, plus up to
+    # 0.018 from looking up the cell (slope 0.25/m x half a cell diagonal): 0.035
+    assert np.mean(np.abs(err)) < 0.035
+    # no systematic error: the kernel ratio is unbiased for a linear p (SE of the mean
+    # of 4000 errors, correlated within ~1000 cells, ~0.002)
+    assert abs(np.mean(err)) < 0.01
+    assert 0 < model.bandwidth_m <= 0.6  # smoothing chosen by CV, among the candidates
+    assert model.cv_log_likelihood[0] < max(model.cv_log_likelihood)  # it beat the histogram
+    # no data beyond d_max: 0, as the grid-count baseline
+    np.testing.assert_array_equal(model.fT([3.0, 4.2], [0.0, 0.0]), [0.0, 0.0])
+
+
+def test_deterministic_reads_are_reproduced_away_from_edges(synth):
+    def p(d, a):  # read iff in a 90-deg cone closer than 2.2 m: a step, no noise
+        return ((d < 2.2) & (np.abs(a) < synth.CONE)).astype(float)
+
+    att = Attempts(*synth.sample(100_000, seed=6, p=p))
+    m = fit_vorst2008(att, synth.RSSI_RANGE, np.random.default_rng(0), d_max_m=3.0,
+                      cell_m=0.1)
+    # smoothing only blurs a noise-free step: cross-validation keeps the histogram
+    assert m.bandwidth_m == 0.0
+    # points >= 0.7 m from the step: each cell holds >= 15 attempts (100 000 attempts
+    # over 3 m x 2 pi), and only the prior of one pseudo-attempt at the overall rate moves
+    # a cell off 0 or 1, by < 1 / (15 + 1)
+    inside = m.fT([1.3, 1.0, 1.2], [0.0, 0.1, -0.1])
+    outside = m.fT([2.95, 1.5, 2.0], [0.0, np.pi, -2.0])
+    assert np.all(inside > 1 - 1 / 16) and np.all(outside < 1 / 16)
+
+
+def test_histogram_bandwidth_is_the_count_ratio(synth):
+    d = np.array([0.05, 0.06, 0.07, 1.0, 1.02])
+    a = np.zeros(5)
+    read = np.array([True, True, False, True, False])
+    m = fit_vorst2008(Attempts(d, a, read), synth.RSSI_RANGE, np.random.default_rng(0),
+                      d_max_m=3.0, cell_m=0.1, bandwidths_m=[0.0], n_folds=2, prior_weight=1.0)
+    p0 = 3 / 5
+    # cell of d = 0.05..0.07 (x in [0, 0.1)): (2 reads + p0) / (3 attempts + 1)
+    assert m.fT(0.06, 0.0) == pytest.approx((2 + p0) / 4, rel=1e-12)
+    assert m.fT(1.01, 0.0) == pytest.approx((1 + p0) / 3, rel=1e-12)
+    assert m.fT(2.0, 1.0) == pytest.approx(p0, rel=1e-12)  # no data: the prior
+
+
+def test_no_rssi_prediction(model):
+    d, a = np.array([0.5, 1.5, 2.5]), np.array([0.0, 1.0, -2.0])
+    assert model.predicts_rssi is False
+    np.testing.assert_array_equal(model.fs(d, a), np.ones(3))  # so that rho = fT
+    assert np.all(np.isnan(model.fs_dbm(d, a)))
+    np.testing.assert_array_equal(model.rho(d, a), model.fT(d, a))
+
+
+def test_json_round_trip_and_wrong_kind(model, tmp_path):
+    path = model.save(tmp_path / "vorst.json")
+    back = Vorst2008Model.load(path)
+    d, a = _interior_points(2000, seed=8)
+    for name in ("fT", "fs", "rho"):
+        np.testing.assert_array_equal(getattr(back, name)(d, a), getattr(model, name)(d, a))
+    assert back.bandwidth_m == model.bandwidth_m
+    assert back.cv_log_likelihood == model.cv_log_likelihood
+    with pytest.raises(ValueError, match=r"vorst\.json.*'vorst2008'.*'joho2009'"):
+        Joho2009Model.load(path)
