@@ -7,14 +7,18 @@ Each material follows ITU-R P.2040-3 (08/2023), Table 3, equations (28)-(29)::
 
 Sionna RT's own ``itu_*`` materials raise below 1 GHz for concrete, brick,
 plasterboard, metal and the grounds, so this library carries the coefficients
-itself, with their validity range, and warns once per material when asked for a
-frequency outside it (UHF RFID at 865 MHz sits just below most ranges; the
-P.2040 fits are smooth power laws, so a 13 % extrapolation in frequency is the
-usual practice, e.g. in Sionna's own P.2040 implementation for wood and glass).
+itself, with their validity range. UHF RFID (860-960 MHz) sits just below most
+ranges, which start at 1 GHz; the P.2040 fits are smooth power laws, so extrapolating
+them down to :data:`UHF_EXTRAPOLATION_MIN_HZ` (800 MHz, a 20 % step in frequency) is the
+usual practice (Sionna's own P.2040 implementation does it for wood and glass). That
+extrapolation is stated once per material in the log at INFO level, with the values
+used (and in a study report's methods section); a frequency farther outside a
+material's range warns once with :class:`FrequencyRangeWarning`.
 """
 
 from __future__ import annotations
 
+import logging
 import warnings
 from dataclasses import dataclass
 
@@ -24,6 +28,8 @@ __all__ = [
     "ITU_NAME_MAP",
     "UnknownMaterialError",
     "FrequencyRangeWarning",
+    "UHF_EXTRAPOLATION_MIN_HZ",
+    "extrapolated_materials",
     "material",
     "get_material",
     "resolve_material_name",
@@ -118,6 +124,31 @@ ITU_NAME_MAP: dict[str, str] = {
 }
 
 _warned: set[str] = set()
+_log = logging.getLogger(__name__)
+
+#: Below a material's P.2040 range but at or above this, the power-law fit is extrapolated
+#: with an INFO line (the UHF RFID bands); farther out a FrequencyRangeWarning is raised.
+UHF_EXTRAPOLATION_MIN_HZ = 0.8e9
+
+
+def extrapolated_materials(names, frequency_hz: float) -> list[dict]:
+    """The materials of ``names`` whose P.2040 fit is extrapolated at ``frequency_hz``.
+
+    Returns
+    -------
+    list of dict
+        ``{"material", "range_ghz", "relative_permittivity", "conductivity_s_per_m"}``
+        per extrapolated material (for a report's methods section).
+    """
+    out = []
+    for name in sorted({resolve_material_name(n) for n in names}):
+        mat = MATERIALS[name]
+        if not mat.f_min_hz <= frequency_hz <= mat.f_max_hz:
+            out.append({"material": name,
+                        "range_ghz": [mat.f_min_hz / 1e9, mat.f_max_hz / 1e9],
+                        "relative_permittivity": mat.relative_permittivity(frequency_hz),
+                        "conductivity_s_per_m": mat.conductivity(frequency_hz)})
+    return out
 
 
 def resolve_material_name(name: str) -> str:
@@ -162,14 +193,22 @@ def material(name: str, frequency_hz: float = 865e6) -> tuple[float, float]:
     Returns
     -------
     (relative_permittivity, conductivity_s_per_m) : tuple of float
-        P.2040-3 eqs. (28)-(29). Warns once per material when ``frequency_hz`` lies
-        outside the coefficients' validity range.
+        P.2040-3 eqs. (28)-(29). Below the coefficients' validity range but at or above
+        :data:`UHF_EXTRAPOLATION_MIN_HZ` the fit is extrapolated with one INFO log line
+        per material; farther outside the range it warns once per material.
     """
     mat = get_material(name)
     if not frequency_hz > 0:
         raise ValueError(f"frequency_hz must be positive, got {frequency_hz!r}")
+    uhf = UHF_EXTRAPOLATION_MIN_HZ <= frequency_hz < mat.f_min_hz
     if not (mat.f_min_hz <= frequency_hz <= mat.f_max_hz) and mat.name not in _warned:
         _warned.add(mat.name)
+        if uhf:
+            _log.info("material %r: P.2040-3 fit (valid %.4g-%.4g GHz) extrapolated to %.4g GHz: "
+                      "eps_r = %.4g, sigma = %.4g S/m", mat.name, mat.f_min_hz / 1e9,
+                      mat.f_max_hz / 1e9, frequency_hz / 1e9, mat.relative_permittivity(frequency_hz),
+                      mat.conductivity(frequency_hz))
+            return mat.relative_permittivity(frequency_hz), mat.conductivity(frequency_hz)
         warnings.warn(
             f"material {mat.name!r}: {frequency_hz / 1e9:.4g} GHz lies outside the P.2040-3 "
             f"validity range {mat.f_min_hz / 1e9:.4g}-{mat.f_max_hz / 1e9:.4g} GHz; "

@@ -39,12 +39,27 @@ def test_warning_emitted_once_outside_validity(monkeypatch):
     monkeypatch.setattr(materials, "_warned", set())
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
-        scenes.material("concrete", 865e6)
-        scenes.material("concrete", 865e6)
-        scenes.material("itu_concrete", 870e6)
+        scenes.material("concrete", 400e6)
+        scenes.material("concrete", 400e6)
+        scenes.material("itu_concrete", 450e6)
     hits = [w for w in rec if issubclass(w.category, scenes.FrequencyRangeWarning)]
     assert len(hits) == 1
     assert "concrete" in str(hits[0].message) and "1-100 GHz" in str(hits[0].message)
+
+
+def test_uhf_extrapolation_is_an_info_line_not_a_warning(monkeypatch, caplog):
+    """865 MHz lies 13 % below concrete's range: stated once in the log, no warning."""
+    import logging
+
+    monkeypatch.setattr(materials, "_warned", set())
+    with warnings.catch_warnings(), caplog.at_level(logging.INFO, logger="scenes.materials"):
+        warnings.simplefilter("error", scenes.FrequencyRangeWarning)
+        eps, sigma = scenes.material("concrete", 865e6)
+        scenes.material("concrete", 865e6)
+    lines = [r.getMessage() for r in caplog.records if "concrete" in r.getMessage()]
+    assert len(lines) == 1 and "extrapolated to 0.865 GHz" in lines[0]
+    (row,) = materials.extrapolated_materials(["itu_concrete", "wood"], 865e6)
+    assert row["material"] == "concrete" and row["conductivity_s_per_m"] == sigma
 
 
 def test_no_warning_inside_validity(monkeypatch):
