@@ -38,6 +38,16 @@ def _segments(z) -> np.ndarray | None:
     return np.asarray(z[keys[-1]], dtype=float).reshape(-1, 2, 2)
 
 
+def _plan_height_in(segments, width_in: float) -> float:
+    """Figure height [in] fitting a top view of ``segments`` (k, 2, 2) at ``width_in``:
+    the plan's aspect plus room for the title, axis labels and a legend row."""
+    if segments is None or not len(segments):
+        return 4.5
+    pts = np.asarray(segments, float).reshape(-1, 2)
+    dx, dy = np.ptp(pts[:, 0]) or 1.0, np.ptp(pts[:, 1]) or 1.0
+    return float(np.clip((width_in - 0.8) * dy / dx + 1.6, 2.4, 9.0))
+
+
 def _draw_plan(ax, segments, tags_xy, tag_ids=None, route=None, held_out=None):
     if segments is not None and len(segments):
         ax.add_collection(LineCollection(segments, colors="0.2", linewidths=1.0, label="walls"))
@@ -70,7 +80,7 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
         route = np.asarray(z["route_m"], float) if "route_m" in z.files else None
     tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
     poses = pd.read_parquet(require(run_dir, "poses.parquet"))
-    fig = new_figure(10.0, 4.5)
+    fig = new_figure(10.0, _plan_height_in(segs, 10.0))
     ax = fig.subplots()
     held = (tags["split"] == "eval").to_numpy() if "split" in tags.columns else None
     _draw_plan(ax, segs, tags[["x_m", "y_m"]].to_numpy(float), tags["tag_id"].tolist(), route,
@@ -82,7 +92,7 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     if ev is not None:
         e = pd.read_parquet(ev)
         ax.plot(e["true_x_m"], e["true_y_m"], ".", color="C2", ms=2, label="evaluation path")
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=6)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=7, frameon=False)
     ax.set_title("Scene top view: walls, tags and robot trajectories")
     return save_figure(fig, out_dir or run_dir / "figures", "scene_top_view")
 
@@ -95,12 +105,12 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
     from scenes.geometry import floor_plan_segments
 
     png = Path(png)
-    fig = new_figure(10.0, 4.5)
-    ax = fig.subplots()
     segs = floor_plan_segments(scene, z_m)
+    fig = new_figure(10.0, _plan_height_in(segs, 10.0))
+    ax = fig.subplots()
     _draw_plan(ax, segs, np.asarray(scene.tags.positions_m)[:, :2], list(scene.tags.ids),
                None if scene.route_m is None else np.asarray(scene.route_m)[:, :2])
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=4)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=4, frameon=False)
     ax.set_title(f"{scene.name}: walls at z = {z_m:.2f} m, {len(scene.tags)} tags")
     return save_figure(fig, png.parent, png.stem)[0]
 
