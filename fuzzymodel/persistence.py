@@ -35,6 +35,18 @@ __all__ = [
 #: Format tag written to (and required in) every ANFIS file.
 ANFIS_FORMAT = "rfidstudy.fuzzymodel.anfis/1"
 
+#: Provenance keys that hold wall-clock times; not written (files must be reproducible).
+_TIME_KEYS = frozenset({"date_utc"})
+
+
+def _without_times(obj):
+    """``obj`` with every key of :data:`_TIME_KEYS` dropped, at any depth."""
+    if isinstance(obj, dict):
+        return {k: _without_times(v) for k, v in obj.items() if k not in _TIME_KEYS}
+    if isinstance(obj, list):
+        return [_without_times(v) for v in obj]
+    return obj
+
 
 def package_version() -> str:
     """Installed version of the ``rfidstudy`` distribution, or ``"unknown"``."""
@@ -135,7 +147,7 @@ def anfis_to_dict(model) -> dict:
         "inputs": inputs,
         "output": model.output_name,
         "rules": rules,
-        "provenance": model.provenance,
+        "provenance": _without_times(model.provenance),
     }
 
 

@@ -8,10 +8,15 @@
     rfidstudy sweep SWEEP.toml --out sweeps/x [--scheduler tcp://host:8786] [--workers N]
     rfidstudy scenes list | show NAME [--png top.png]
     rfidstudy config [CONFIG.toml]                     # print the resolved (or reference) config
+
+Errors are one line on stderr (``error: ...``, naming the file, key or value) with exit
+status 2 for a bad config, scene or run directory and 1 for a failed stage; Ctrl-C
+during ``run`` exits 130 after naming the stage it interrupted.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 import sys
 import time
@@ -57,6 +62,18 @@ def _setup_logging(verbose: bool) -> None:
 def _fail(msg: str, code: int = 2):
     typer.echo(f"error: {msg}", err=True)
     raise typer.Exit(code)
+
+
+def _fail_os(exc: OSError, what: str, code: int = 2):
+    """One line for a file-system error (read-only, permissions, a file for a folder)."""
+    from pipeline.runstore import final_name
+
+    where = final_name(exc.filename) if exc.filename is not None else what
+    _fail(f"cannot write {where}: {exc.strerror or exc}", code)
+
+
+_WRITE_ERRNOS = {errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT,
+                 errno.ENOTDIR, errno.EISDIR, errno.EEXIST}
 
 
 def _parse_value(text: str):
@@ -127,6 +144,9 @@ def run(
     force: Annotated[list[str] | None, typer.Option(
         help="Re-run this stage even if cached (repeatable).")] = None,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+    force_dir: Annotated[bool, typer.Option(
+        "--force-dir", help="Run into a non-empty --out directory that is not a run directory "
+                            "(its other files are left alone).")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
 ):
     """Run (or resume) the whole study into a run directory.
@@ -140,19 +160,34 @@ def run(
     Every config key and its default: configs/reference.toml (or `rfidstudy config`).
     """
     _setup_logging(verbose)
-    from pipeline.study import StageError, run_study
+    from pipeline.study import RunDirError, StageError, StudyInterrupted, run_study
 
     try:
         cfg = resolve_target(target, set_, backend)
     except ConfigError as exc:
         _fail(str(exc))
+    except KeyboardInterrupt:
+        _fail("interrupted before the run started", code=130)
     t0 = time.perf_counter()
     try:
-        res = run_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv)
+        res = run_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv,
+                        force_dir=force_dir)
+    except StudyInterrupted as exc:
+        typer.echo(str(exc), err=True)
+        raise typer.Exit(130) from None
+    except KeyboardInterrupt:
+        typer.echo("interrupted; rerun the same command to resume", err=True)
+        raise typer.Exit(130) from None
+    except RunDirError as exc:
+        _fail(str(exc))
     except StageError as exc:
         _fail(str(exc), code=1)
     except ValueError as exc:
         _fail(str(exc))
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        _fail_os(exc, str(out))
     typer.echo(f"run directory: {res.run_dir}")
     typer.echo(f"stages run: {', '.join(res.ran) or 'none'}; cached: {', '.join(res.cached) or 'none'}")
     typer.echo(f"elapsed {time.perf_counter() - t0:.1f} s, peak memory {res.peak_rss_mib:.0f} MiB")
@@ -177,6 +212,10 @@ def figures(
         report = write_report(run_dir)
     except (FileNotFoundError, ValueError, KeyError) as exc:
         _fail(str(exc), code=1)
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        _fail_os(exc, str(run_dir))
     typer.echo(f"{len(paths)} figure files in {run_dir / 'figures'}; report {report} "
                f"({time.perf_counter() - t0:.1f} s)")
 
@@ -186,10 +225,16 @@ def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     """Rewrite report.html from a run directory's files."""
     from pipeline.report import write_report
 
+    if not run_dir.is_dir():
+        _fail(f"{run_dir}: not a directory")
     try:
         typer.echo(str(write_report(run_dir)))
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc), code=1)
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        _fail_os(exc, str(run_dir))
 
 
 @app.command()
@@ -251,11 +296,16 @@ def scenes_list():
 @scenes_app.command("show")
 def scenes_show(
     name: Annotated[str, typer.Argument(help="Bundled scene name or scene path.")],
-    png: Annotated[Path | None, typer.Option(help="Write a top-view picture here.")] = None,
+    png: Annotated[Path | None, typer.Option(
+        help="Write a top-view picture here (a .png file; a .pdf is written beside it).")] = None,
 ):
     """Describe a scene (size, materials, tags) and optionally draw its top view."""
     import scenes
 
+    if png is not None and png.suffix.lower() != ".png":
+        _fail(f"--png {png}: the top view is written as PNG; give a file name ending in .png")
+    if png is not None and png.is_dir():
+        _fail(f"--png {png}: is a directory; give a file name ending in .png")
     try:
         sc = scenes.load(name)
     except (FileNotFoundError, KeyError, ValueError) as exc:
@@ -272,4 +322,9 @@ def scenes_show(
     if png is not None:
         from pipeline.stages import draw_scene_top_view
 
-        typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")
+        try:
+            typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")
+        except OSError as exc:
+            if exc.errno not in _WRITE_ERRNOS:
+                raise
+            _fail_os(exc, str(png))

@@ -10,14 +10,20 @@ A record holds the stage's inputs hash (config slice + upstream output digests +
 stage version) and the SHA-256 of every output file; a rerun skips a stage only if
 its record's inputs hash matches and every output still has the recorded digest
 (a changed or truncated file is reported by name and the stage re-runs).
+
+A directory is a run directory when it holds ``stages/`` or ``manifest.json``;
+:func:`open_run_dir` refuses a path that is a file, and a non-empty directory that is
+not a run directory (unless told otherwise), with a :class:`RunDirError` naming it.
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,20 +31,107 @@ from pathlib import Path
 from scenes.fileio import atomic_write_bytes, atomic_write_text
 
 __all__ = [
+    "RunDirError",
     "RunStore",
     "StageRecord",
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
     "file_sha256",
+    "final_name",
     "json_hash",
+    "open_run_dir",
     "save_npz",
+    "write_error",
 ]
 
 log = logging.getLogger(__name__)
 
 RECORD_DIR = "stages"
 STAGING_DIR = ".staging"
+MANIFEST = "manifest.json"
+
+#: errno values of a run directory that cannot be written (read-only mount, permissions,
+#: full disk, a file where a folder should be).
+WRITE_ERRNOS = frozenset({errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT,
+                          errno.ENOTDIR, errno.EISDIR, errno.EEXIST})
+
+
+class RunDirError(RuntimeError):
+    """The run directory cannot be used: a file, not a run directory, not writable.
+
+    The message is one line naming the directory (or file) and the cause.
+    """
+
+
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.[^.]+\.tmp(?:\.[A-Za-z0-9]+)?$")
+
+
+def final_name(path) -> str:
+    """The file an atomic write's temporary file (``.<name>.<random>.tmp``) stands for."""
+    p = Path(str(path))
+    m = _TEMP_NAME.match(p.name)
+    return str(p.with_name(m.group("name"))) if m else str(p)
+
+
+def write_error(exc: OSError, root) -> RunDirError | None:
+    """A :class:`RunDirError` for an ``OSError`` that means "cannot write here", else None."""
+    if exc.errno not in WRITE_ERRNOS:
+        return None
+    where = final_name(exc.filename) if exc.filename is not None else root
+    reason = {errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
+              errno.EPERM: "operation not permitted", errno.ENOSPC: "no space left on the device",
+              errno.EDQUOT: "disk quota exceeded"}.get(exc.errno, exc.strerror or str(exc))
+    return RunDirError(f"cannot write the run directory {root}: {reason} ({where})")
+
+
+def is_run_dir(root: str | Path) -> bool:
+    """Whether ``root`` holds this tool's ``stages/`` records or ``manifest.json``."""
+    root = Path(root)
+    return (root / RECORD_DIR).is_dir() or (root / MANIFEST).is_file()
+
+
+def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
+    """The :class:`RunStore` at ``root``, after checking that it may be written.
+
+    Parameters
+    ----------
+    root : path
+        Run directory: missing (created), empty, or a run directory of this tool.
+    force_dir : bool
+        Also accept a non-empty directory that is not a run directory (its other files
+        are left alone).
+
+    Raises
+    ------
+    RunDirError
+        ``root`` is a file (or lies under one); it is a non-empty directory without
+        ``stages/`` or ``manifest.json`` and ``force_dir`` is false; it cannot be created.
+    """
+    path = Path(root).expanduser()
+    if path.exists() and not path.is_dir():
+        raise RunDirError(f"{path} is a file, not a directory: choose a directory for the run")
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise RunDirError(f"{path}: {parent} is a file, not a directory")
+    if path.is_dir() and not force_dir and not is_run_dir(path):
+        try:
+            entries = sorted(p.name for p in path.iterdir())
+        except OSError as exc:
+            raise RunDirError(f"cannot read the run directory {path}: {exc.strerror}") from None
+        if entries:
+            shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+            raise RunDirError(
+                f"{path} is not empty ({shown}) and is not a run directory of rfidstudy (no "
+                f"stages/, no {MANIFEST}): choose another directory, or pass --force-dir "
+                "(force_dir=True) to run into it")
+    try:
+        return RunStore(path)
+    except OSError as exc:
+        err = write_error(exc, path)
+        if err is None:
+            raise
+        raise err from None
 
 
 def file_sha256(path: str | Path) -> str:
@@ -186,7 +279,13 @@ class RunStore:
 
     def commit(self, stage: str, inputs_hash: str, staged: Path, elapsed_s: float,
                peak_rss_mib: float, finished_utc: str, info: dict | None = None) -> StageRecord:
-        """Move every staged file into place and write the stage record (last)."""
+        """Move every staged file into place and write the stage record (last).
+
+        Each stage owns its outputs: a file the stage's previous record lists that this
+        run did not write is removed, so a run directory never holds a stale output of
+        an earlier config (fewer sample poses, no field) beside the fresh ones.
+        """
+        previous = self.read_record(stage)
         self.record_path(stage).unlink(missing_ok=True)
         outputs = {}
         for f in sorted(p for p in staged.rglob("*") if p.is_file()):
@@ -196,6 +295,8 @@ class RunStore:
             dest.parent.mkdir(parents=True, exist_ok=True)
             os.replace(f, dest)
         shutil.rmtree(staged, ignore_errors=True)
+        for rel in sorted(set(previous.outputs) - set(outputs)) if previous is not None else ():
+            self.path(rel).unlink(missing_ok=True)
         rec = StageRecord(stage=stage, inputs_hash=inputs_hash, outputs=outputs,
                           elapsed_s=round(elapsed_s, 3), peak_rss_mib=round(peak_rss_mib, 1),
                           finished_utc=finished_utc, info=info or {})
@@ -205,6 +306,12 @@ class RunStore:
     def discard(self, stage: str) -> None:
         """Remove a failed stage's staging directory."""
         shutil.rmtree(self.root / STAGING_DIR / stage, ignore_errors=True)
+
+    def remove_staging_root(self) -> None:
+        """Remove ``.staging/`` if nothing is left in it (after a finished run)."""
+        d = self.root / STAGING_DIR
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
 
     def records(self) -> dict[str, StageRecord]:
         """Every readable stage record, by stage name."""

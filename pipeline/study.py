@@ -9,6 +9,26 @@ directory (see :mod:`pipeline.runstore`). So a second run of the same config run
 nothing, a changed ANFIS epoch count re-runs model fitting and what follows, and an
 interrupted run resumes at the stage that did not finish.
 
+The run directory never lies:
+
+- ``manifest.json`` says what state the directory is in: ``"status"`` is ``"running"``
+  (with the ``"stage"`` under way; a killed run leaves it so, and the next run names
+  it: "the previous run stopped during stage X; resuming"), ``"complete"``,
+  ``"failed"`` or ``"interrupted"`` (Ctrl-C; :class:`StudyInterrupted`), and
+  ``"files"`` lists every file of the run (config, stage outputs, stage records).
+- A stage owns its outputs: what its previous record listed and this run did not write
+  is removed (:meth:`pipeline.runstore.RunStore.commit`).
+- Stage outputs hold no wall-clock time (times are in the manifest and the records):
+  the same inputs give the same bytes, so a re-run stage leaves its downstream stages
+  cached. Stages run with ``SOURCE_DATE_EPOCH=0`` unless it is set, which keeps
+  matplotlib's PDF creation date out of the figures.
+- A directory that is not a run directory is refused (:func:`pipeline.runstore.open_run_dir`),
+  a run directory of another config is reported with the keys that differ, and one
+  that cannot be written raises :class:`pipeline.runstore.RunDirError` (one line).
+- ``checks`` (for the full study: :func:`check_antenna_mounts`) run before the first
+  stage that is not an ``always`` stage, so a config that cannot work on its scene
+  fails before anything is traced.
+
 Orchestration only: the stages call ``scenes``, ``propagation``, ``fuzzymodel`` and
 the ``pipeline`` sub-packages (see :mod:`pipeline.stages`).
 """
@@ -17,7 +37,9 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import json
 import logging
+import os
 import resource
 import sys
 import time
@@ -26,15 +48,33 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.config import StudyConfig, config_to_dict, config_to_toml
-from pipeline.runstore import RunStore, StageRecord, atomic_write_json, atomic_write_text, json_hash
+import tomllib
+
+from pipeline.config import ConfigError, StudyConfig, config_to_dict, config_to_toml
+from pipeline.runstore import (
+    MANIFEST,
+    RECORD_DIR,
+    STAGING_DIR,
+    RunDirError,
+    RunStore,
+    StageRecord,
+    atomic_write_json,
+    atomic_write_text,
+    json_hash,
+    open_run_dir,
+    write_error,
+)
 
 __all__ = [
+    "RunDirError",
     "Stage",
     "StageContext",
     "StageError",
     "StageInputError",
+    "StudyInterrupted",
     "StudyResult",
+    "check_antenna_mounts",
+    "config_changes",
     "config_slice",
     "peak_rss_mib",
     "run_study",
@@ -49,6 +89,26 @@ class StageError(RuntimeError):
 
 class StageInputError(StageError):
     """A stage's input file is missing or unreadable; the message names the file."""
+
+
+class StudyInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a run; finished stages are kept and the manifest says ``interrupted``.
+
+    Attributes
+    ----------
+    stage : str or None
+        The stage under way (``None``: between stages).
+    run_dir : pathlib.Path
+    """
+
+    def __init__(self, stage: str | None, run_dir: Path):
+        self.stage = stage
+        self.run_dir = run_dir
+        where = f"at stage {stage}" if stage else "between stages"
+        super().__init__(f"interrupted {where}; rerun the same command to resume")
+
+    def __str__(self) -> str:
+        return str(self.args[0])
 
 
 def peak_rss_mib() -> float:
@@ -198,6 +258,12 @@ class StudyResult:
         Wall-clock time of the call [s].
     peak_rss_mib : float
         Peak resident memory of the process [MiB].
+    previous : str
+        What the previous run in this directory left ("" for a fresh directory or a
+        complete run; else e.g. "the previous run stopped during stage reads").
+    changed_keys : list of str
+        Dotted config keys whose values differ from the config of the previous run in
+        this directory.
     """
 
     run_dir: Path
@@ -206,6 +272,8 @@ class StudyResult:
     records: dict[str, StageRecord] = field(default_factory=dict)
     elapsed_s: float = 0.0
     peak_rss_mib: float = 0.0
+    previous: str = ""
+    changed_keys: list[str] = field(default_factory=list)
 
 
 def _utc_now() -> str:
@@ -231,10 +299,191 @@ def _progress_bars(enabled: bool):
         yield prog
 
 
+@contextlib.contextmanager
+def _reproducible_outputs():
+    """``SOURCE_DATE_EPOCH=0`` while a stage runs, unless set (dates in PDF metadata)."""
+    if "SOURCE_DATE_EPOCH" in os.environ:
+        yield
+        return
+    os.environ["SOURCE_DATE_EPOCH"] = "0"
+    try:
+        yield
+    finally:
+        os.environ.pop("SOURCE_DATE_EPOCH", None)
+
+
+class _FinalPaths(logging.Filter):
+    """Log lines naming a file in the staging area name its final place instead."""
+
+    def __init__(self, staged: Path, root: Path):
+        super().__init__()
+        self._from, self._to = str(staged), str(root)
+
+    def _fix(self, v):
+        if isinstance(v, (str, Path)) and self._from in str(v):
+            return str(v).replace(self._from, self._to)
+        return v
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str):
+            record.msg = self._fix(record.msg)
+        if isinstance(record.args, tuple):
+            record.args = tuple(self._fix(a) for a in record.args)
+        return True
+
+
+@contextlib.contextmanager
+def _final_paths_in_logs(staged: Path, root: Path):
+    filt = _FinalPaths(staged, root)
+    handlers = list(logging.getLogger().handlers)
+    for h in handlers:
+        h.addFilter(filt)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(filt)
+
+
+def _flatten(obj, prefix: str = "") -> dict:
+    out = {}
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    elif isinstance(obj, (list, tuple)) and obj and all(isinstance(v, dict) for v in obj):
+        for i, v in enumerate(obj):
+            out.update(_flatten(v, f"{prefix}[{i}]"))
+    else:
+        out[prefix] = list(obj) if isinstance(obj, tuple) else obj
+    return out
+
+
+def config_changes(old: dict, new: dict) -> dict[str, tuple]:
+    """Dotted keys whose values differ between two config dicts: key -> (old, new).
+
+    A key missing on one side shows as ``None`` there.
+    """
+    a, b = _flatten(old), _flatten(new)
+    return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
+
+
+def _previous_run(store: RunStore, config: StudyConfig, result: StudyResult) -> None:
+    """Name what the previous run in this directory left, and how its config differs."""
+    man_path = store.path(MANIFEST)
+    if man_path.is_file():
+        try:
+            man = json.loads(man_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            man = None
+            log.warning("%s is unreadable; the stage records decide what re-runs", man_path)
+        if isinstance(man, dict):
+            status = man.get("status")
+            stage = man.get("stage") or (man.get("failure") or {}).get("stage")
+            at = f" during stage {stage}" if stage else ""
+            if status == "running":
+                result.previous = f"the previous run stopped{at}"
+                log.warning("%s (killed?); resuming", result.previous)
+            elif status == "interrupted":
+                result.previous = f"the previous run was interrupted{at}"
+                log.info("%s; resuming", result.previous)
+            elif status == "failed":
+                result.previous = f"the previous run failed{' at stage ' + stage if stage else ''}"
+                log.info("%s; resuming", result.previous)
+    cfg_path = store.path("config.toml")
+    if cfg_path.is_file():
+        try:
+            old = tomllib.loads(cfg_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return
+        diff = config_changes(old, config_to_dict(config))
+        if diff:
+            result.changed_keys = list(diff)
+            shown = "; ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in list(diff.items())[:8])
+            more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
+            log.info("%s holds a run of another config (%s%s); the stages that depend on "
+                     "these keys re-run", store.root, shown, more)
+
+
+def check_antenna_mounts(ctx: StageContext) -> None:
+    """Every antenna mount lies in the scene's free space for a robot on the route.
+
+    The robot stands at points every 0.5 m along the study route (both headings, as the
+    tour drives up and back); each antenna's world position must be free
+    (:func:`scenes.geometry.is_free`: inside the free volume, outside every solid).
+
+    Raises
+    ------
+    pipeline.config.ConfigError
+        Naming the key (``robot.antennas[0].z_m``), its value, the antenna and where it
+        would be: above the ceiling, below the floor, or inside a solid.
+    """
+    import numpy as np
+
+    from pipeline.stages_data import load_scene, study_route
+    from scenes.geometry import in_free_space, solid_material_at
+
+    cfg = ctx.config
+    sc = load_scene(ctx)
+    route = study_route(sc, cfg)
+    lo, hi = sc.bounds_m
+    if route is None or len(route) < 2:
+        xy = np.array([(lo[:2] + hi[:2]) / 2.0])
+        heading = np.zeros(1)
+        check_xy = False
+    else:
+        pts, hd = [], []
+        for a, b in zip(route[:-1], route[1:], strict=True):
+            seg = b - a
+            n = max(1, int(np.ceil(np.hypot(*seg) / 0.5)))
+            t = np.linspace(0.0, 1.0, n + 1)
+            pts.append(a + t[:, None] * seg)
+            hd.append(np.full(n + 1, np.arctan2(seg[1], seg[0])))
+        xy = np.concatenate(pts * 2)
+        heading = np.concatenate(hd + [h + np.pi for h in hd])
+        check_xy = True
+    boxes = sc.free_space_m if getattr(sc, "free_space_m", None) is not None and len(sc.free_space_m) \
+        else sc.bounds_m[None]
+    z_top, z_bottom = float(np.max(boxes[:, 1, 2])), float(np.min(boxes[:, 0, 2]))
+    c, s_ = np.cos(heading), np.sin(heading)
+    for i, a in enumerate(cfg.robot.antennas):
+        key = f"robot.antennas[{i}]"
+        if a.z_m >= z_top:
+            raise ConfigError(f"{key}.z_m = {a.z_m}: antenna {a.name!r} would be above the ceiling "
+                              f"of scene {sc.name!r} (free space ends at z = {z_top:.3g} m)")
+        if a.z_m <= z_bottom:
+            raise ConfigError(f"{key}.z_m = {a.z_m}: antenna {a.name!r} would be below the floor "
+                              f"of scene {sc.name!r} (free space starts at z = {z_bottom:.3g} m)")
+        if not check_xy:
+            continue
+        world = np.column_stack([xy[:, 0] + c * a.x_m - s_ * a.y_m,
+                                 xy[:, 1] + s_ * a.x_m + c * a.y_m, np.full(len(xy), a.z_m)])
+        free = in_free_space(sc, world)
+        mats = np.full(len(world), "", dtype=object)
+        if np.any(free):
+            mats[free] = solid_material_at(sc, world[free])
+        bad = np.flatnonzero(~free | (mats != ""))
+        if len(bad):
+            j = bad[0]
+            where = (f"inside {mats[j]!r} solid geometry" if free[j]
+                     else "outside the scene's free space")
+            raise ConfigError(
+                f"{key} ({a.name!r}: x_m = {a.x_m}, y_m = {a.y_m}, z_m = {a.z_m}): with the robot "
+                f"on the route at ({xy[j, 0]:.2f}, {xy[j, 1]:.2f}) m the antenna would be at "
+                f"({world[j, 0]:.2f}, {world[j, 1]:.2f}, {world[j, 2]:.2f}) m, {where} of scene "
+                f"{sc.name!r}")
+
+
+def _write_error(exc: OSError, store: RunStore) -> OSError | RunDirError:
+    err = write_error(exc, store.root)
+    return exc if err is None else err
+
+
 def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stage] | None = None,
               progress: bool = False, force: Sequence[str] = (),
               command_line: Sequence[str] | None = None,
-              manifest_extra: Callable[[StudyConfig], dict] | None = None) -> StudyResult:
+              manifest_extra: Callable[[StudyConfig], dict] | None = None,
+              force_dir: bool = False,
+              checks: Sequence[Callable[[StageContext], None]] | None = None) -> StudyResult:
     """Run (or resume) a study into ``run_dir``.
 
     Parameters
@@ -242,8 +491,8 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
     config : StudyConfig
         The resolved study configuration.
     run_dir : path
-        Run directory; created if missing. ``config.toml`` and ``manifest.json`` are
-        (re)written there.
+        Run directory: missing (created), empty, or a run directory of this tool.
+        ``config.toml`` and ``manifest.json`` are (re)written there.
     stages : sequence of Stage, optional
         Stage list (default: :data:`pipeline.stages.STAGES`, the full study).
     progress : bool
@@ -255,6 +504,12 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
     manifest_extra : callable, optional
         ``f(config) -> dict`` merged into the manifest (default: package versions and
         the Dr.Jit backend, see :func:`pipeline.stages.manifest_info`).
+    force_dir : bool
+        Run into a non-empty directory that is not a run directory.
+    checks : sequence of callable, optional
+        ``f(ctx)`` run once before the first stage that is not ``always`` (after the
+        scene stage); they raise :class:`~pipeline.config.ConfigError` naming a key.
+        Default: ``(check_antenna_mounts,)`` for the full study, none for ``stages``.
 
     Returns
     -------
@@ -265,79 +520,142 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
     StageError
         When a stage fails; the message names the stage and the cause, outputs of the
         stages before it are intact and the manifest records the failure.
+    StudyInterrupted
+        On Ctrl-C (a ``KeyboardInterrupt``): the stage under way is discarded, finished
+        stages are kept, the manifest says ``"interrupted"`` and names the stage.
+    RunDirError
+        ``run_dir`` is a file, a non-empty directory that is not a run directory (and
+        ``force_dir`` is false), or cannot be written (read-only, no permission, full).
+    pipeline.config.ConfigError
+        A check failed (the message names the key and value).
     """
     if stages is None:
         from pipeline.stages import STAGES, manifest_info
 
         stages = STAGES
         manifest_extra = manifest_extra or manifest_info
-    store = RunStore(run_dir)
-    t0 = time.perf_counter()
-    started = _utc_now()
-    atomic_write_text(store.path("config.toml"), config_to_toml(config))
-    result = StudyResult(run_dir=store.root)
-    memo: dict = {}
-    digests: dict[str, str] = {}
-    failure: dict | None = None
+        if checks is None:
+            checks = (check_antenna_mounts,)
+    checks = tuple(checks or ())
     known = {s.name for s in stages}
     unknown = [f for f in force if f not in known]
     if unknown:
         raise ValueError(f"unknown stage(s) {unknown} in force; stages are {sorted(known)}")
-    with _progress_bars(progress) as prog:
-        for st in stages:
-            missing = [u for u in st.upstream if u not in digests]
-            if missing:
-                raise ValueError(f"stage {st.name!r} needs {missing} to run before it")
-            inputs = {
-                "stage": st.name,
-                "version": st.version,
-                "config": config_slice(config, st.config_keys),
-                "upstream": {u: digests[u] for u in st.upstream},
-            }
-            inputs_hash = json_hash(inputs)
-            if st.name in force:
-                rec, reason = None, "forced"
-            elif st.always:
-                rec, reason = None, "always runs"
-            else:
-                rec, reason = store.check_record(st.name, inputs_hash)
-            if rec is not None:
-                log.info("stage %s: up to date, skipped", st.name)
-                result.cached.append(st.name)
-            else:
-                log.log(logging.DEBUG if st.always else logging.INFO, "stage %s: running (%s)",
-                        st.name, reason)
-                staged = store.staging(st.name)
-                ctx = StageContext(config, store, st.name, staged, prog, memo)
-                ts = time.perf_counter()
-                try:
-                    info = st.func(ctx) or {}
-                except Exception as exc:
-                    store.discard(st.name)
-                    failure = {"stage": st.name, "error": f"{type(exc).__name__}: {exc}"}
-                    _write_manifest(store, config, result, started, t0, command_line,
-                                    manifest_extra, failure)
-                    raise StageError(f"stage {st.name!r} failed: {type(exc).__name__}: {exc} "
-                                     f"(earlier stages' outputs in {store.root} are intact; "
-                                     "fix the cause and rerun to resume)") from exc
-                prev = store.read_record(st.name) if st.always else None
-                rec = store.commit(st.name, inputs_hash, staged, time.perf_counter() - ts,
-                                   peak_rss_mib(), _utc_now(), info)
-                if prev is not None and prev.inputs_hash == inputs_hash and prev.outputs == rec.outputs:
-                    result.cached.append(st.name)  # re-checked, outputs unchanged
+    store = open_run_dir(run_dir, force_dir=force_dir)
+    t0 = time.perf_counter()
+    started = _utc_now()
+    result = StudyResult(run_dir=store.root)
+    _previous_run(store, config, result)
+    memo: dict = {}
+    digests: dict[str, str] = {}
+    current: str | None = None
+
+    def manifest(status, stage=None, failure=None, extra=None):
+        _write_manifest(store, config, result, started, t0, command_line, extra, failure,
+                        status=status, stage=stage)
+
+    try:
+        manifest("running")
+        atomic_write_text(store.path("config.toml"), config_to_toml(config))
+        with _progress_bars(progress) as prog:
+            for st in stages:
+                missing = [u for u in st.upstream if u not in digests]
+                if missing:
+                    raise ValueError(f"stage {st.name!r} needs {missing} to run before it")
+                if checks and not st.always:
+                    current = "checks"
+                    _run_checks(checks, config, store, prog, memo, result, manifest)
+                    checks = ()
+                current = st.name
+                inputs = {
+                    "stage": st.name,
+                    "version": st.version,
+                    "config": config_slice(config, st.config_keys),
+                    "upstream": {u: digests[u] for u in st.upstream},
+                }
+                inputs_hash = json_hash(inputs)
+                if st.name in force:
+                    rec, reason = None, "forced"
+                elif st.always:
+                    rec, reason = None, "always runs"
                 else:
-                    result.ran.append(st.name)
-            result.records[st.name] = rec
-            digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
-            if st.name in result.ran:
-                _write_manifest(store, config, result, started, t0, command_line, None, None,
-                                status="running")
-    _write_manifest(store, config, result, started, t0, command_line, manifest_extra, None)
+                    rec, reason = store.check_record(st.name, inputs_hash)
+                if rec is not None:
+                    log.info("stage %s: up to date, skipped", st.name)
+                    result.cached.append(st.name)
+                else:
+                    log.log(logging.DEBUG if st.always else logging.INFO, "stage %s: running (%s)",
+                            st.name, reason)
+                    manifest("running", st.name)
+                    staged = store.staging(st.name)
+                    ctx = StageContext(config, store, st.name, staged, prog, memo)
+                    ts = time.perf_counter()
+                    try:
+                        with _reproducible_outputs(), _final_paths_in_logs(staged, store.root):
+                            info = st.func(ctx) or {}
+                    except Exception as exc:
+                        store.discard(st.name)
+                        failure = {"stage": st.name, "error": f"{type(exc).__name__}: {exc}"}
+                        _safe(manifest, "failed", st.name, failure, manifest_extra)
+                        raise StageError(f"stage {st.name!r} failed: {type(exc).__name__}: {exc} "
+                                         f"(earlier stages' outputs in {store.root} are intact; "
+                                         "fix the cause and rerun to resume)") from exc
+                    prev = store.read_record(st.name) if st.always else None
+                    rec = store.commit(st.name, inputs_hash, staged, time.perf_counter() - ts,
+                                       peak_rss_mib(), _utc_now(), info)
+                    if prev is not None and prev.inputs_hash == inputs_hash and prev.outputs == rec.outputs:
+                        result.cached.append(st.name)  # re-checked, outputs unchanged
+                    else:
+                        result.ran.append(st.name)
+                result.records[st.name] = rec
+                digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
+            current = None
+        manifest("complete", extra=manifest_extra)
+        store.remove_staging_root()
+    except KeyboardInterrupt:
+        if current and current != "checks":
+            store.discard(current)
+        _safe(manifest, "interrupted", current, None, None)
+        raise StudyInterrupted(current, store.root) from None
+    except OSError as exc:
+        err = _write_error(exc, store)
+        if err is exc:
+            raise
+        if current and current != "checks":
+            store.discard(current)
+        raise err from None
     return result
 
 
+def _run_checks(checks, config, store, prog, memo, result, manifest) -> None:
+    ctx = StageContext(config, store, "checks", store.root / STAGING_DIR / "checks", prog, memo)
+    for check in checks:
+        try:
+            check(ctx)
+        except ConfigError as exc:
+            _safe(manifest, "failed", "checks", {"stage": "checks", "error": str(exc)}, None)
+            raise
+
+
+def _safe(manifest, status, stage, failure, extra) -> None:
+    """Write the manifest on the way out of a failure; a write error must not hide it."""
+    try:
+        manifest(status, stage, failure, extra)
+    except OSError as exc:
+        log.warning("could not update manifest.json: %s", exc)
+
+
+def _run_files(store: RunStore, result: StudyResult) -> list[str]:
+    """Files of this run: config.toml, every stage's outputs and records (not the manifest)."""
+    files = {"config.toml"} if store.path("config.toml").is_file() else set()
+    for name, rec in result.records.items():
+        files.update(rec.outputs)
+        files.add(f"{RECORD_DIR}/{name}.json")
+    return sorted(files)
+
+
 def _write_manifest(store, config, result, started, t0, command_line, manifest_extra, failure,
-                    status=None):
+                    status=None, stage=None):
     result.elapsed_s = time.perf_counter() - t0
     result.peak_rss_mib = peak_rss_mib()
     manifest = {
@@ -349,7 +667,9 @@ def _write_manifest(store, config, result, started, t0, command_line, manifest_e
         "elapsed_s": round(result.elapsed_s, 3),
         "peak_rss_mib": round(result.peak_rss_mib, 1),
         "status": status or ("failed" if failure else "complete"),
+        "stage": stage,
         "failure": failure,
+        "previous_run": result.previous or None,
         "stages": {
             name: {
                 "status": "ran" if name in result.ran else "cached",
@@ -360,10 +680,11 @@ def _write_manifest(store, config, result, started, t0, command_line, manifest_e
             }
             for name, rec in result.records.items()
         },
+        "files": _run_files(store, result),
     }
     if manifest_extra is not None:
         try:
             manifest.update(manifest_extra(config))
         except Exception as exc:  # the manifest must not hide the real result
             log.warning("manifest: could not collect environment info: %s", exc)
-    atomic_write_json(store.path("manifest.json"), manifest)
+    atomic_write_json(store.path(MANIFEST), manifest)

@@ -7,27 +7,55 @@ arrival directions. Orientation changes, pattern or polarisation what-ifs hit th
 
 Layout: ``<cache_dir>/<settings_key>/pack-<id>.npz`` holds the path sets of all the
 antenna positions of one solver call (concatenated, with offset arrays), and
-``pack-<id>.json`` its index (the ``position_key`` of each slot and its tag count).
-``settings_key`` hashes the scene's :meth:`~scenes.Scene.content_hash` (solid meshes,
-radio surfaces with their thicknesses, tags, material overrides: a scene traced on its
-radio surfaces never meets an entry traced on closed wall boxes), the frequency
-and the solver settings, ``position_key`` the exact float64 bytes of the antenna
-position. Packing matters for speed: NumPy parses every array header of an NPZ with
-``ast.literal_eval``, which cost ~36 ms per antenna position with one file per position
-(format 1); with one file per solver call the load is a few files per thousand
-positions. Format-1 files (``<position_key>.npz``) found in the same folder are still
-read, then repacked and removed.
+``pack-<id>.json`` its index (the ``position_key`` of each slot, its tag count and the
+SHA-256 of the pack's values). Packing matters for speed: NumPy parses every array
+header of an NPZ with ``ast.literal_eval``, which cost ~36 ms per antenna position with
+one file per position (format 1); with one file per solver call the load is a few files
+per thousand positions. Format-1 files (``<position_key>.npz``) found in the same folder
+are still read, then repacked and removed.
 
+What the keys cover
+-------------------
+An entry is reused only when all of these are equal; anything else gets its own folder
+(a new ``settings_key``) or misses (a new ``position_key``, an untraced tag):
+
+- ``settings_key`` (the folder): the scene's :meth:`~scenes.Scene.content_hash` (solid
+  meshes with their materials, radio surfaces with their thicknesses, tags,
+  ``metadata["material_overrides"]``: a scene traced on its radio surfaces never meets
+  an entry traced on closed wall boxes); the carrier frequency (materials are evaluated
+  there); the solver settings :func:`propagation.trace_links` passes (``max_depth``,
+  ``samples_per_src``, sampling ``seed``, ``los``, ``specular_reflection``,
+  ``refraction``, ``diffuse_reflection``, ``diffraction``); the cache format; and the
+  installed versions of ``sionna-rt``, ``mitsuba`` and ``drjit`` (another solver
+  build may find other paths, so an upgrade starts a new folder).
+- ``position_key`` (a slot in a pack): the exact float64 bytes of the antenna position.
+- inside a slot, tags are matched by the exact float64 bytes of their position.
+
+Not part of any key, because they are applied after tracing: antenna orientations, the
+reader and tag patterns, the reader polarisation, tag normals (the tag dipole axis).
+Also not part of the key: the Dr.Jit variant (LLVM or CUDA) and thread count
+(``tracing.deterministic``), and the memory budget (how sources are chunked); the
+multi-threaded solver itself finds about one path in a thousand differently from call to
+call, so an entry is one valid trace, not the only one. Folders of older settings keys
+(other versions, other settings) are never read again and may be deleted.
+
+Integrity
+---------
 Packs are never rewritten: when more tags are traced at a cached position, a new pack
 holds the merged set, and the slot with the most tags wins. Several processes may share
 a cache folder (pack names are unique; each file appears atomically, the index last).
+The index stores the SHA-256 of the pack's arrays (names, dtypes, shapes and bytes),
+which :meth:`PathCache.load` checks: a pack whose values changed after it was written
+(edited, bit rot, a file from elsewhere under the same name) is treated like a file that
+cannot be read.
 
-A cache file that cannot be read is reported with a :class:`CacheWarning` naming the
-file, removed, and its links traced again (a killed or corrupted run stays resumable).
+A cache file that cannot be read, or whose values do not match the checksum in its index,
+is reported with a :class:`CacheWarning` naming the file, removed, and its links traced
+again (a killed or corrupted run stays resumable, and never reuses wrong numbers).
 """
-
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import uuid
@@ -39,15 +67,20 @@ import numpy as np
 
 from scenes.fileio import atomic_save_npz, atomic_write_text
 
-__all__ = ["CacheWarning", "PathCache", "SourcePaths", "position_key", "settings_key"]
+__all__ = ["CacheWarning", "PathCache", "SourcePaths", "position_key", "settings_key",
+           "solver_versions", "values_sha256"]
 
-# part of settings_key; the pack layout (format 2) reads format-1 files in the same folder
+# part of settings_key; the pack layout (format 3: format 2 plus the values' SHA-256 in
+# the index) reads format-1 files in the same folder
 _FORMAT_VERSION = 1
-_PACK_FORMAT = 2
+_PACK_FORMAT = 3
+
+#: Distributions whose versions enter settings_key (the ray tracer and its back ends).
+SOLVER_DISTRIBUTIONS = ("sionna-rt", "mitsuba", "drjit")
 
 
 class CacheWarning(UserWarning):
-    """A cache entry was unreadable and is being recomputed."""
+    """A cache entry was unreadable or failed its checksum and is being recomputed."""
 
 
 @dataclass
@@ -113,10 +146,50 @@ class SourcePaths:
         )
 
 
+@functools.lru_cache(maxsize=1)
+def solver_versions() -> dict[str, str | None]:
+    """Installed versions of :data:`SOLVER_DISTRIBUTIONS` (``None`` where not installed)."""
+    from importlib import metadata
+
+    out: dict[str, str | None] = {}
+    for dist in SOLVER_DISTRIBUTIONS:
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
 def settings_key(scene_hash: str, settings: dict) -> str:
-    """Hash of the scene content and the solver settings (a cache sub-directory name)."""
-    blob = json.dumps({"scene": scene_hash, "format": _FORMAT_VERSION, **settings}, sort_keys=True)
+    """Hash of the scene content, the solver settings and the solver's versions.
+
+    Parameters
+    ----------
+    scene_hash : str
+        :meth:`scenes.Scene.content_hash` of the traced scene.
+    settings : dict
+        Frequency and solver settings (JSON-able), as :func:`propagation.trace_links`
+        passes them.
+
+    Returns
+    -------
+    str
+        32 hex digits: the cache sub-directory name (see the module docstring for what
+        it covers).
+    """
+    blob = json.dumps({"scene": scene_hash, "format": _FORMAT_VERSION,
+                       "versions": solver_versions(), **settings}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
+def values_sha256(arrays: dict) -> str:
+    """SHA-256 of named arrays: each name, dtype, shape and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}\n".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 def position_key(position_m) -> str:
@@ -136,9 +209,14 @@ def _check(sp: SourcePaths, position_m) -> SourcePaths:
     return sp
 
 
+class _ChecksumMismatch(ValueError):
+    pass
+
+
 def _warn_and_remove(files, exc, stacklevel=4) -> None:
     names = ", ".join(str(f) for f in files)
-    warnings.warn(f"unreadable path cache file {names} ({exc}); removing it and tracing again",
+    what = "damaged" if isinstance(exc, _ChecksumMismatch) else "unreadable"
+    warnings.warn(f"{what} path cache file {names} ({exc}); removing it and tracing again",
                   CacheWarning, stacklevel=stacklevel)
     for f in files:
         try:
@@ -180,6 +258,8 @@ class PathCache:
         self.directory = Path(directory)
         # position key -> (pack stem, slot, n_tags)
         self._index: dict[str, tuple[str, int, int]] = {}
+        # pack stem -> SHA-256 of its values (from its index)
+        self._sha256: dict[str, str] = {}
         if self.directory.is_dir():
             for js in sorted(self.directory.glob("pack-*.json")):
                 self._read_index(js)
@@ -187,9 +267,11 @@ class PathCache:
     def _read_index(self, js: Path) -> None:
         try:
             meta = json.loads(js.read_text())
-            if meta.get("format") != _PACK_FORMAT or len(meta["keys"]) != len(meta["n_tags"]):
-                raise ValueError(f"not a format-{_PACK_FORMAT} pack index")
+            if (meta.get("format") != _PACK_FORMAT or len(meta["keys"]) != len(meta["n_tags"])
+                    or not isinstance(meta.get("sha256"), str)):
+                raise ValueError(f"not a format-{_PACK_FORMAT} pack index (keys, n_tags, sha256)")
             entries = [(str(k), int(n)) for k, n in zip(meta["keys"], meta["n_tags"], strict=True)]
+            self._sha256[js.stem] = meta["sha256"]
         except Exception as exc:  # noqa: BLE001 - any damage means "recompute"
             _warn_and_remove([js, js.with_suffix(".npz")], exc, stacklevel=5)
             return
@@ -213,7 +295,8 @@ class PathCache:
         -------
         list of SourcePaths or None
             One entry per position. An unreadable pack is reported with a
-            :class:`CacheWarning` naming it and removed (its positions come back None).
+            :class:`CacheWarning` naming it and removed (its positions come back None),
+            and so is a pack whose values do not match the SHA-256 in its index.
         """
         pos = np.asarray(positions_m, dtype=np.float64).reshape(-1, 3)
         out: list[SourcePaths | None] = [None] * len(pos)
@@ -231,6 +314,10 @@ class PathCache:
             try:
                 with np.load(npz, allow_pickle=False) as z:
                     arr = {k: z[k] for k in z.files}
+                want_sha, got_sha = self._sha256.get(stem), values_sha256(arr)
+                if got_sha != want_sha:
+                    raise _ChecksumMismatch(f"SHA-256 of its values {got_sha[:12]}... is not the "
+                                            f"{str(want_sha)[:12]}... recorded in {stem}.json")
                 tag_off, path_off = arr["tag_offsets"], arr["path_offsets"]
                 for i, slot in wanted:
                     t0, t1 = int(tag_off[slot]), int(tag_off[slot + 1])
@@ -251,6 +338,7 @@ class PathCache:
                 for i, _ in wanted:
                     out[i] = None
                 self._index = {k: v for k, v in self._index.items() if v[0] != stem}
+                self._sha256.pop(stem, None)
         if legacy:
             self._migrate(pos, legacy, out)
         return out
@@ -289,8 +377,7 @@ class PathCache:
             path_off.append(base + np.asarray(sp.offsets[1:], np.int64))
             base += int(sp.offsets[-1])
         transfer = np.concatenate([sp.transfer.reshape(-1, 2, 2) for sp in path_sets])
-        npz = atomic_save_npz(
-            self.directory / f"{stem}.npz",
+        arrays = dict(
             source_m=np.stack([np.asarray(sp.source_m, np.float64) for sp in path_sets]),
             tag_offsets=np.concatenate([[0], np.cumsum(n_tags)]).astype(np.int64),
             tag_positions_m=np.concatenate([sp.tag_positions_m.reshape(-1, 3) for sp in path_sets]),
@@ -301,9 +388,14 @@ class PathCache:
             k_tx=np.concatenate([sp.k_tx.reshape(-1, 3) for sp in path_sets]).astype(np.float64),
             k_rx=np.concatenate([sp.k_rx.reshape(-1, 3) for sp in path_sets]).astype(np.float64),
         )
+        arrays = {k: np.ascontiguousarray(v) for k, v in arrays.items()}
+        sha = values_sha256(arrays)
+        npz = atomic_save_npz(self.directory / f"{stem}.npz", **arrays)
         keys = [position_key(sp.source_m) for sp in path_sets]
         atomic_write_text(self.directory / f"{stem}.json",
-                          json.dumps({"format": _PACK_FORMAT, "keys": keys, "n_tags": n_tags}))
+                          json.dumps({"format": _PACK_FORMAT, "keys": keys, "n_tags": n_tags,
+                                      "sha256": sha}))
+        self._sha256[stem] = sha
         for slot, (key, k) in enumerate(zip(keys, n_tags, strict=True)):
             old = self._index.get(key)
             if old is None or k >= old[2]:

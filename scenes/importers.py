@@ -43,7 +43,7 @@ from scenes.geometry import merge_meshes
 from scenes.materials import UnknownMaterialError, resolve_material_name
 from scenes.radio_import import imported_radio_surfaces
 from scenes.scene import Scene, TagSet
-from scenes.spec import SpecError, TagSpec, parse_item
+from scenes.spec import SpecError, TagSpec, convert_value, item_where, parse_item
 from scenes.tags import make_tags, validate_tags
 
 try:  # Python >= 3.11
@@ -64,6 +64,26 @@ def _require_file(path: Path, what: str) -> None:
         raise FileNotFoundError(f"{what} {str(path)!r} does not exist")
 
 
+def _load_mesh_file(path: Path, where: str, **kwargs):
+    """``trimesh.load`` whose failures name the file (an empty or garbage file raises
+    anything from ``IndexError`` to ``ValueError('Not a ply file!')`` inside trimesh)."""
+    try:
+        return trimesh.load(str(path), **kwargs)
+    except Exception as exc:  # noqa: BLE001 - a file trimesh cannot parse, whatever it raises
+        what = f"{path}: cannot read it as a mesh" if where == str(path) else \
+            f"{where}: cannot read mesh file {path}"
+        raise ValueError(f"{what} ({type(exc).__name__}: {exc}); is it empty or not a mesh?") from None
+
+
+def _require_triangles(mesh, path: Path, where: str):
+    """``mesh`` if it is a triangle mesh with finite vertices and at least one face."""
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"{where}: mesh file {path} holds no triangles (an empty mesh)")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ValueError(f"{where}: mesh file {path} has vertices that are NaN or inf")
+    return mesh
+
+
 def _finish(name, items, source, tags, route_m, metadata, where, radio) -> Scene:
     """Scene from ``items`` = [(material, thickness_m or None, mesh)] and radio options."""
     parts: dict[str, list] = {}
@@ -72,6 +92,11 @@ def _finish(name, items, source, tags, route_m, metadata, where, radio) -> Scene
     meshes = {mat: merge_meshes(ms) for mat, ms in sorted(parts.items())}
     if not meshes:
         raise ValueError(f"{where}: no triangle geometry found")
+    if route_m is not None:
+        route = np.asarray(route_m, dtype=float)
+        if route.ndim != 2 or route.shape[1] != 2 or len(route) < 2 or not np.all(np.isfinite(route)):
+            raise ValueError(f"{where}: route_m must be at least 2 finite (x, y) points, got "
+                             f"{np.asarray(route_m).tolist()}")
     try:
         surfaces = imported_radio_surfaces(items, **radio)
     except ValueError as exc:
@@ -145,7 +170,7 @@ def import_mesh(
     material_map = dict(material_map or {})
     mats = {k: resolve_material_name(v) for k, v in material_map.items()}
     default = resolve_material_name(material) if material is not None else None
-    loaded = trimesh.load(str(path), process=False)
+    loaded = _load_mesh_file(path, str(path), process=False)
     items: list[tuple[str, str, trimesh.Trimesh]] = []  # (node, geometry, mesh)
     if isinstance(loaded, trimesh.Scene):
         for node in loaded.graph.nodes_geometry:
@@ -153,8 +178,13 @@ def import_mesh(
             geom = loaded.geometry[geom_name]
             if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
                 items.append((node, geom_name, geom.copy().apply_transform(transform)))
-    elif isinstance(loaded, trimesh.Trimesh):
+    elif isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):
         items.append((path.stem, path.stem, loaded))
+    if not items:
+        raise ValueError(f"{path}: mesh file holds no triangles (an empty mesh)")
+    for _, geom_name, mesh in items:
+        if not np.all(np.isfinite(mesh.vertices)):
+            raise ValueError(f"{path}: geometry {geom_name!r} has vertices that are NaN or inf")
     used, parts = set(), []
     for node, geom_name, mesh in items:
         key = node if node in mats else geom_name if geom_name in mats else None
@@ -240,10 +270,19 @@ def _bsdf_material(bsdf: ET.Element, where: str) -> str:
     )
 
 
-def _bsdf_thickness(bsdf: ET.Element) -> float | None:
+def _bsdf_thickness(bsdf: ET.Element, where: str = "") -> float | None:
     """The ``thickness`` float of a radio material, metres (``None`` if not given)."""
     elem = bsdf.find("float[@name='thickness']")
-    return None if elem is None else float(elem.get("value"))
+    if elem is None:
+        return None
+    try:
+        t = float(elem.get("value"))
+    except (TypeError, ValueError):
+        t = float("nan")
+    if not (np.isfinite(t) and t > 0):
+        raise ValueError(f"{where}: <bsdf id={bsdf.get('id')!r}> thickness must be a positive "
+                         f"number, got {elem.get('value')!r}")
+    return t
 
 
 def read_sidecar(path: str | Path) -> tuple[list[TagSpec], list | None]:
@@ -255,12 +294,19 @@ def read_sidecar(path: str | Path) -> tuple[list[TagSpec], list | None]:
     """
     path = Path(path)
     _require_file(path, "tag sidecar")
-    data = tomllib.loads(path.read_text())
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: invalid TOML: {exc}") from None
     unknown = sorted(set(data) - {"tag", "route_m"})
     if unknown:
         raise SpecError(f"{path}: unknown key {unknown[0]!r} at top level; known keys: route_m, tag")
-    tags = [parse_item(TagSpec, t, f"{path}: [[tag]] #{i + 1}") for i, t in enumerate(data.get("tag", []))]
-    return tags, data.get("route_m")
+    tags = [parse_item(TagSpec, t, item_where(f"{path}: [[tag]] #{i + 1}", t))
+            for i, t in enumerate(data.get("tag", []))]
+    route = data.get("route_m")
+    if route is not None:
+        route = [list(p) for p in convert_value(route, tuple[tuple[float, float], ...], str(path), "route_m")]
+    return tags, route
 
 
 def load_mitsuba_xml(path: str | Path, tags=None, route_m=None, sidecar: str | Path | None = None,
@@ -308,10 +354,10 @@ def load_mitsuba_xml(path: str | Path, tags=None, route_m=None, sidecar: str | P
         ref = shape.find("ref")
         inline = shape.find("bsdf")
         if inline is not None:
-            mat, thickness = _bsdf_material(inline, where), _bsdf_thickness(inline)
+            mat, thickness = _bsdf_material(inline, where), _bsdf_thickness(inline, where)
         elif ref is not None and ref.get("id") in bsdfs:
             bsdf = bsdfs[ref.get("id")]
-            mat, thickness = _bsdf_material(bsdf, where), _bsdf_thickness(bsdf)
+            mat, thickness = _bsdf_material(bsdf, where), _bsdf_thickness(bsdf, where)
         elif ref is not None:
             raise ValueError(f"{where}: references undefined bsdf {ref.get('id')!r}")
         else:
@@ -323,7 +369,8 @@ def load_mitsuba_xml(path: str | Path, tags=None, route_m=None, sidecar: str | P
                 raise ValueError(f"{where}: has no filename")
             mesh_path = path.parent / fname.get("value")
             _require_file(mesh_path, f"mesh file of {where}:")
-            mesh = trimesh.load(str(mesh_path), force="mesh", process=False)
+            mesh = _require_triangles(_load_mesh_file(mesh_path, where, force="mesh", process=False),
+                                      mesh_path, where)
         elif stype == "rectangle":
             mesh = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
                                    [[0, 1, 2], [0, 2, 3]], process=False)
@@ -331,7 +378,10 @@ def load_mitsuba_xml(path: str | Path, tags=None, route_m=None, sidecar: str | P
             mesh = trimesh.creation.box(extents=[2, 2, 2])
         else:
             raise ValueError(f"{where}: unsupported shape type {stype!r} (ply, obj, rectangle, cube)")
-        mesh.apply_transform(_transform(shape.find("transform"), where))
+        m4 = _transform(shape.find("transform"), where)
+        if not np.all(np.isfinite(m4)):
+            raise ValueError(f"{where}: its <transform> holds NaN or inf ({m4.tolist()})")
+        mesh.apply_transform(m4)
         parts.append((mat, thickness, mesh))
     if sidecar is None:
         default = path.with_suffix(".tags.toml")

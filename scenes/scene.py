@@ -53,8 +53,12 @@ class TagSet:
         if len(set(ids.tolist())) != len(ids):
             dup = sorted({i for i in ids.tolist() if ids.tolist().count(i) > 1})
             raise ValueError(f"TagSet: duplicate tag ids {dup}")
-        if not np.all(np.isfinite(pos)):
-            raise ValueError("TagSet: positions_m contains NaN or inf")
+        bad = ~np.all(np.isfinite(pos), axis=1)
+        if np.any(bad):
+            raise ValueError(f"TagSet: positions_m of tags {ids[bad].tolist()} contain NaN or inf")
+        bad = ~np.all(np.isfinite(nrm), axis=1)
+        if np.any(bad):
+            raise ValueError(f"TagSet: normals of tags {ids[bad].tolist()} contain NaN or inf")
         norms = np.linalg.norm(nrm, axis=1)
         if np.any(norms < 1e-9):
             bad = ids[norms < 1e-9].tolist()

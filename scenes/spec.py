@@ -29,7 +29,9 @@ tags and an optional route::
     [[door]] / [[panel]] / [[box]] / [[cabinet]] / [[tag]]
 
 Every key carries its unit. Unknown keys are rejected by name, and values of the
-wrong type by key and value, with the file path in the message.
+wrong type by key and value, with the file path in the message; so are numbers that
+are not finite (TOML's ``nan`` and ``inf``), anywhere, and a ``[[tag]]`` item is named by
+its ``id`` as well as its number.
 
 Wall constructions decide the radio geometry of generated walls (see
 :mod:`scenes.radio` and ``docs/radio_geometry.md``): ``"solid"`` is one surface on the
@@ -43,6 +45,7 @@ sets the construction of the corridor's ``wall_material``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -65,6 +68,7 @@ __all__ = [
     "SpecError",
     "parse_item",
     "convert_value",
+    "item_where",
 ]
 
 
@@ -384,6 +388,8 @@ def convert_value(value, tp, where: str, key: str):
     if tp is float:
         if not _is_number(value):
             raise _fail(where, f"key {key!r} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise _fail(where, f"key {key!r} must be a finite number, got {value!r}")
         return float(value)
     if tp is int:
         if not isinstance(value, int) or isinstance(value, bool):
@@ -406,6 +412,8 @@ def convert_value(value, tp, where: str, key: str):
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise _fail(where, f"key {key!r} must be an array, got {value!r}")
+        if any(_is_number(v) and not math.isfinite(v) for v in value):
+            raise _fail(where, f"key {key!r} must hold finite numbers, got {list(value)!r}")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(convert_value(v, args[0], where, key) for v in value)
         if len(value) != len(args):
@@ -426,6 +434,12 @@ def _material_constructions(table: dict, where: str) -> dict[str, str]:
                                f"{', '.join(repr(c) for c in CONSTRUCTIONS)}, got {cons!r}")
         out[key] = cons
     return dict(sorted(out.items()))
+
+
+def item_where(where: str, data) -> str:
+    """``where`` plus the item's ``id`` when it has one (``"f.toml: [[tag]] #3 (id 'T03')"``)."""
+    ident = data.get("id") if isinstance(data, dict) else getattr(data, "id", None)
+    return f"{where} (id {ident!r})" if isinstance(ident, str) and ident else where
 
 
 def parse_item(cls, data, where: str):

@@ -23,6 +23,7 @@ from scenes.spec import (
     SpecError,
     TagSpec,
     convert_value,
+    item_where,
     parse_item,
 )
 
@@ -99,7 +100,8 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
         if not isinstance(items, list):
             raise SpecError(f"{source}: [[{table}]] must be an array of tables, got {items!r}")
         kwargs[attr] = tuple(
-            parse_item(cls, it, f"{source}: [[{table}]] #{i + 1}") for i, it in enumerate(items)
+            parse_item(cls, it, item_where(f"{source}: [[{table}]] #{i + 1}", it))
+            for i, it in enumerate(items)
         )
     spec = SceneSpec(**kwargs)
     check_spec(spec, source)

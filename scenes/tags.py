@@ -6,7 +6,7 @@ import numpy as np
 
 from scenes.geometry import closest_surface, in_free_space, solid_material_at
 from scenes.scene import TagSet
-from scenes.spec import TagSpec, parse_item
+from scenes.spec import TagSpec, item_where, parse_item
 
 __all__ = ["make_tags", "validate_tags", "DEFAULT_MAX_SURFACE_DISTANCE_M"]
 
@@ -34,12 +34,19 @@ def make_tags(scene, tags, where: str = "tags") -> TagSet:
     TagSet
         Centres ``position_m + offset_m * normal``, unit normals.
     """
-    specs = [parse_item(TagSpec, t, f"{where} #{i + 1}") for i, t in enumerate(tags)]
+    specs = [parse_item(TagSpec, t, item_where(f"{where} #{i + 1}", t)) for i, t in enumerate(tags)]
     if not specs:
         return TagSet(np.zeros(0, dtype=str), np.zeros((0, 3)), np.zeros((0, 3)))
     pos = np.array([s.position_m for s in specs], dtype=float)
-    normals = np.array([s.normal if s.normal is not None else (np.nan,) * 3 for s in specs])
-    missing = np.isnan(normals).any(axis=1)
+    for i, s in enumerate(specs):  # specs built elsewhere (TagSpec(...)) skip parse_item's checks
+        for key, value in (("position_m", s.position_m), ("normal", s.normal), ("offset_m", s.offset_m)):
+            if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
+                raise ValueError(f"{item_where(f'{where} #{i + 1}', {'id': s.id})}: key {key!r} must "
+                                 f"hold finite numbers, got {value!r}")
+    # only an absent normal is taken from the nearest face (never a NaN one)
+    missing = np.array([s.normal is None for s in specs])
+    normals = np.array([s.normal if s.normal is not None else (0.0, 0.0, 0.0) for s in specs],
+                       dtype=float)
     if np.any(missing):
         normals[missing] = closest_surface(scene, pos[missing]).normal
     norm = np.linalg.norm(normals, axis=1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -66,3 +67,158 @@ def test_scenes_list_and_show(tmp_path):
 def test_figures_on_missing_dir(tmp_path):
     res = runner.invoke(app, ["figures", str(tmp_path / "nope")])
     assert res.exit_code == 2 and "not a directory" in res.output
+
+
+# --------------------------------------------------------------------------------------
+# Faults give one clear line (issue 12): no traceback, the file / key / value named.
+
+
+def _one_line_error(res, code):
+    assert res.exit_code == code, res.output
+    assert "Traceback" not in res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit)
+    errors = [line for line in res.output.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1, res.output
+    return errors[0]
+
+
+@pytest.fixture
+def fake_study(monkeypatch):
+    """The CLI's `run` with three quick stages instead of the study (the second one can
+    be told to raise KeyboardInterrupt)."""
+    import pipeline.stages
+    import pipeline.study
+    from pipeline.study import Stage
+
+    state = {"interrupt": False}
+
+    def a(ctx):
+        ctx.out("a.json").write_text("{}")
+
+    def b(ctx):
+        if state["interrupt"]:
+            raise KeyboardInterrupt
+        ctx.out("b.json").write_text("{}")
+
+    def c(ctx):
+        ctx.out("c.json").write_text("{}")
+
+    monkeypatch.setattr(pipeline.stages, "STAGES",
+                        (Stage("a", a), Stage("b", b, (), ("a",)), Stage("c", c, (), ("b",))))
+    monkeypatch.setattr(pipeline.stages, "manifest_info", lambda cfg: {})
+    monkeypatch.setattr(pipeline.study, "check_antenna_mounts", lambda ctx: None)
+    return state
+
+
+def test_out_is_a_file_is_one_line(tmp_path):
+    f = tmp_path / "results.txt"
+    f.write_text("keep me")
+    line = _one_line_error(runner.invoke(app, ["run", "--out", str(f), "--no-progress"]), 2)
+    assert str(f) in line and "is a file, not a directory" in line
+    assert f.read_text() == "keep me"
+
+
+def test_foreign_out_dir_needs_force_dir(tmp_path, fake_study):
+    d = tmp_path / "docs"
+    d.mkdir()
+    (d / "notes.md").write_text("mine")
+    line = _one_line_error(runner.invoke(app, ["run", "--out", str(d), "--no-progress"]), 2)
+    assert str(d) in line and "not a run directory" in line and "--force-dir" in line
+    res = runner.invoke(app, ["run", "--out", str(d), "--no-progress", "--force-dir"])
+    assert res.exit_code == 0, res.output
+    assert (d / "notes.md").read_text() == "mine" and (d / "c.json").is_file()
+
+
+def test_ctrl_c_exits_130_naming_the_stage_and_resumes(tmp_path, fake_study, caplog):
+    import logging
+
+    out = tmp_path / "run"
+    fake_study["interrupt"] = True
+    res = runner.invoke(app, ["run", "--out", str(out), "--no-progress"])
+    assert res.exit_code == 130, res.output
+    assert "interrupted at stage b; rerun the same command to resume" in res.output
+    assert "Traceback" not in res.output
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["status"] == "interrupted" and man["stage"] == "b"
+    fake_study["interrupt"] = False
+    with caplog.at_level(logging.INFO):
+        res = runner.invoke(app, ["run", "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "the previous run was interrupted during stage b" in caplog.text
+    assert "stages run: b, c; cached: a" in res.output
+
+
+def test_read_only_run_dir_is_one_line(tmp_path, fake_study, monkeypatch):
+    import errno
+
+    import pipeline.study
+
+    def erofs(path, *a, **k):
+        raise OSError(errno.EROFS, "Read-only file system", str(path))
+
+    out = tmp_path / "run"
+    assert runner.invoke(app, ["run", "--out", str(out), "--no-progress"]).exit_code == 0
+    monkeypatch.setattr(pipeline.study, "atomic_write_json", erofs)
+    line = _one_line_error(runner.invoke(app, ["run", "--out", str(out), "--no-progress"]), 2)
+    assert "read-only" in line and str(out) in line
+
+
+def test_bad_numbers_in_the_config_are_named(tmp_path):
+    tiny = str(ROOT / "configs" / "tiny.toml")
+    line = _one_line_error(runner.invoke(app, ["run", tiny, "--set", "seed=-1", "--out",
+                                               str(tmp_path / "r1")]), 2)
+    assert "seed must be an integer >= 0" in line and "-1" in line
+    line = _one_line_error(runner.invoke(app, ["run", tiny, "--set", "training.fcm_exponent=1.0",
+                                               "--out", str(tmp_path / "r2")]), 2)
+    assert "fcm_exponent must be > 1" in line and "1.0" in line
+    assert not (tmp_path / "r1").exists() and not (tmp_path / "r2").exists()
+
+
+def test_antenna_above_the_ceiling_fails_before_any_tracing(tmp_path):
+    out = tmp_path / "r"
+    res = runner.invoke(app, ["run", str(ROOT / "configs" / "tiny.toml"), "--no-progress",
+                              "--set", "robot.antennas=[{name='high', z_m=5.0}]", "--out", str(out)])
+    line = _one_line_error(res, 2)
+    assert "robot.antennas[0].z_m = 5.0" in line and "above the ceiling" in line
+    assert sorted(p.name for p in (out / "stages").iterdir()) == ["scene.json"]  # no tour, no trace
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["status"] == "failed" and man["stage"] == "checks"
+
+
+def test_antenna_in_a_wall_is_named(tmp_path):
+    res = runner.invoke(app, ["run", str(ROOT / "configs" / "tiny.toml"), "--no-progress",
+                              "--set", "robot.antennas=[{name='wide', y_m=1.5, z_m=0.7}]",
+                              "--out", str(tmp_path / "r")])
+    line = _one_line_error(res, 2)
+    assert "robot.antennas[0] ('wide'" in line and "outside the scene's free space" in line
+
+
+def test_scenes_show_png_needs_a_png_name(tmp_path):
+    line = _one_line_error(runner.invoke(app, ["scenes", "show", "corridor_lab", "--png",
+                                               str(tmp_path / "top.jpgg")]), 2)
+    assert "top.jpgg" in line and ".png" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+PLY_HEADER = ("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+              "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n")
+
+
+def test_scenes_show_empty_mesh_in_mitsuba_xml(tmp_path):
+    (tmp_path / "empty.ply").write_text(PLY_HEADER)
+    xml = tmp_path / "scene.xml"
+    xml.write_text('<scene version="2.1.0"><bsdf type="diffuse" id="mat-itu_concrete"/>'
+                   '<shape type="ply" id="floor"><string name="filename" value="empty.ply"/>'
+                   '<ref id="mat-itu_concrete"/></shape></scene>')
+    line = _one_line_error(runner.invoke(app, ["scenes", "show", str(xml)]), 2)
+    assert str(xml) in line and "floor" in line and "empty.ply" in line and "no triangles" in line
+
+
+@pytest.mark.parametrize("content", [b"", b"\x00\x01garbage not a ply\n" * 10, PLY_HEADER.encode()])
+def test_scenes_show_empty_or_garbage_ply(tmp_path, content):
+    ply = tmp_path / "room.ply"
+    ply.write_bytes(content)
+    spec = tmp_path / "room.toml"
+    spec.write_text('name = "room"\n[mesh]\npath = "room.ply"\nmaterial = "concrete"\n')
+    line = _one_line_error(runner.invoke(app, ["scenes", "show", str(spec)]), 2)
+    assert str(ply) in line

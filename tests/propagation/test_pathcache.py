@@ -74,3 +74,73 @@ def test_damaged_index_and_inconsistent_pack_warn_by_name(tmp_path):
     npz.with_suffix(".json").write_text(json.dumps(meta))
     with pytest.warns(CacheWarning, match=npz.name):
         assert PathCache(tmp_path).load([[5.0, 1.0, 1.0]]) == [None]
+
+
+def _scale_transfer(npz, factor):
+    """Rewrite a pack as a valid NPZ whose transfer values are scaled (the index untouched)."""
+    with np.load(npz, allow_pickle=False) as z:
+        arr = {k: z[k] for k in z.files}
+    arr["transfer_re"] = (arr["transfer_re"] * factor).astype(np.float32)
+    arr["transfer_im"] = (arr["transfer_im"] * factor).astype(np.float32)
+    with open(npz, "wb") as fh:
+        np.savez(fh, **arr)
+
+
+def test_index_holds_a_checksum_and_tampered_values_are_refused(tmp_path):
+    rng = np.random.default_rng(3)
+    sp = _paths([1.0, 2.0, 1.0], 4, rng)
+    npz = PathCache(tmp_path).save([sp])
+    meta = json.loads(npz.with_suffix(".json").read_text())
+    assert len(meta["sha256"]) == 64
+    _equal(PathCache(tmp_path).load([sp.source_m])[0], sp)  # intact: verified and read
+    _scale_transfer(npz, 1.2)
+    with pytest.warns(CacheWarning, match=rf"damaged path cache file .*{npz.name}.*SHA-256"):
+        assert PathCache(tmp_path).load([sp.source_m]) == [None]
+    assert not npz.exists() and not npz.with_suffix(".json").exists()
+
+
+def test_index_without_checksum_is_not_trusted(tmp_path):
+    rng = np.random.default_rng(4)
+    sp = _paths([1.0, 2.0, 1.0], 2, rng)
+    npz = PathCache(tmp_path).save([sp])
+    js = npz.with_suffix(".json")
+    meta = json.loads(js.read_text())
+    del meta["sha256"]
+    js.write_text(json.dumps(meta))
+    with pytest.warns(CacheWarning, match=js.name):
+        assert len(PathCache(tmp_path)) == 0
+
+
+def test_settings_key_covers_solver_versions(monkeypatch):
+    from propagation import pathcache
+
+    settings = {"frequency_hz": 865e6, "max_depth": 2}
+    key = pathcache.settings_key("abc", settings)
+    assert set(pathcache.solver_versions()) == {"sionna-rt", "mitsuba", "drjit"}
+    assert pathcache.solver_versions()["drjit"]  # installed here
+    bumped = {**pathcache.solver_versions(), "sionna-rt": "99.0"}
+    monkeypatch.setattr(pathcache, "solver_versions", lambda: bumped)
+    assert pathcache.settings_key("abc", settings) != key
+    assert pathcache.settings_key("abc", {**settings, "max_depth": 3}) != pathcache.settings_key("abc", settings)
+    assert pathcache.settings_key("abd", settings) != pathcache.settings_key("abc", settings)
+
+
+def test_tampered_pack_is_retraced_to_the_original_values(tmp_path, corridor_scene):
+    """A real (small) trace: a pack whose transfer values were scaled by 1.2 is named,
+    removed and traced again; the gains come back as the first trace gave them."""
+    from propagation import trace_links
+
+    poses = np.array([[3.0, 1.2, 1.0, 0.0], [6.0, 1.2, 1.0, np.pi]])
+    tags = corridor_scene.tags.positions_m[:4]
+    kw = dict(max_depth=1, samples_per_src=2000, cache_dir=tmp_path)
+    first = trace_links(corridor_scene, poses, tags, **kw)
+    assert first.n_traced_sources == 2
+    (npz,) = sorted(tmp_path.rglob("pack-*.npz"))
+    _scale_transfer(npz, 1.2)
+    with pytest.warns(CacheWarning, match=npz.name):
+        again = trace_links(corridor_scene, poses, tags, **kw)
+    assert again.n_traced_sources == 2 and not npz.exists()
+    np.testing.assert_allclose(again.gain, first.gain, rtol=1e-5)
+    third = trace_links(corridor_scene, poses, tags, **kw)  # the fresh pack verifies
+    assert third.n_traced_sources == 0
+    np.testing.assert_array_equal(third.gain, again.gain)
