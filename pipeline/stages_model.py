@@ -307,7 +307,7 @@ def _trace_free_space_view(ctx, eval_reads, budget) -> dict:
                 plane_height_m=ev.field_height_m, samples_per_tx=cfg.tracing.field_samples_per_tx,
                 max_depth=cfg.tracing.max_depth, reader_pattern=cfg.tracing.reader_pattern,
                 reader_polarization=cfg.tracing.reader_polarization,
-                plane_bounds_m=bounds)
+                plane_bounds_m=bounds, cache_dir=cache)
             field.save(ctx.out(f"fields/field_{i:02d}.npz"))
         update(advance=1)
     return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free}

@@ -263,7 +263,10 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     wall_spp = int(wall_samples_per_tx or 10 * samples_per_tx)
     cache_file = None
     if cache_dir is not None:
+        from propagation.pathcache import solver_versions
+
         key = {"format": 1, "scene": scene.content_hash(), "pose": pose.tobytes().hex(),
+               "versions": solver_versions(),
                "frequency_hz": float(frequency_hz), "cell_size_m": float(cell_size_m),
                "plane_height_m": float(plane_height_m), "samples_per_tx": int(samples_per_tx),
                "max_depth": int(max_depth), "include_walls": bool(include_walls),
