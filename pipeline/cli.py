@@ -20,10 +20,10 @@ import errno
 import logging
 import sys
 import time
+import tomllib
 from pathlib import Path
 from typing import Annotated
 
-import tomllib
 import typer
 
 from pipeline.config import (

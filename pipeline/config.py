@@ -12,9 +12,8 @@ radians before calling the packages, which work in SI.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
-
 import tomllib
+from pathlib import Path
 
 from pipeline.configschema import ConfigError, from_dict, option, reference_toml, section, to_dict
 
@@ -182,7 +181,7 @@ class LocalisationConfig:
 
 @section
 class ReaderConfigSection:
-    """The UHF reader and the backscatter link budget (DESIGN.md, 'The backscatter link')."""
+    """The UHF reader and the backscatter link budget (docs/physics.md, 'The backscatter link')."""
 
     read_rate_hz: float = option(
         4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10)."
@@ -251,9 +250,12 @@ class TracingConfig:
 
 @section
 class TrainingConfig:
-    """Training sets and the FCM + ANFIS sensor models (RSSI model fs, detection model fT)."""
+    """Training sets and the FCM + ANFIS sensor models (RSSI model fs, detection model fT).
 
-    pose_source: str = option("est", "Poses the training set uses: 'est' (MCL, as on a robot) or 'true'.")
+    Every study fits both: on the MCL poses (``anfis``, as on a robot) and on the true poses
+    (``anfis_truepose``: the localisation split of the error budget).
+    """
+
     d_max_m: float = option(3.0, "Largest antenna-tag distance kept in the training sets [m].")
     rssi_range_dbm: tuple[float, ...] | None = option(
         None, "RSSI range mapped to fs in [0, 1], [lo, hi] [dBm]; unset = (reader sensitivity, max RSSI read)."
@@ -269,8 +271,6 @@ class TrainingConfig:
     max_samples: int = option(0, "Subsample the SSM training set to at most this many (0 = all).")
 
     def __post_init__(self):
-        if self.pose_source not in ("est", "true"):
-            raise ConfigError(f"pose_source must be 'est' or 'true', got {self.pose_source!r}")
         _positive(self, "d_max_m", "d_bin_m", "alpha_bin_deg", "n_clusters", "fcm_exponent",
                   "epochs", "step_size")
         if not self.fcm_exponent > 1.0:

@@ -14,9 +14,8 @@ import datetime as _dt
 import html
 import json
 import logging
-from pathlib import Path
-
 import tomllib
+from pathlib import Path
 
 from pipeline.runstore import atomic_write_text
 

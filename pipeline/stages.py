@@ -226,7 +226,6 @@ def corridor_coverage(run_dir: str | Path) -> float | None:
     ``fields/*.npz`` the same way for runs whose metrics predate it.
     """
     import json
-
     import tomllib
 
     import scenes

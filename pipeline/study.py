@@ -43,12 +43,11 @@ import os
 import resource
 import sys
 import time
+import tomllib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import tomllib
 
 from pipeline.config import ConfigError, StudyConfig, config_to_dict, config_to_toml
 from pipeline.runstore import (

@@ -31,11 +31,10 @@ import itertools
 import logging
 import multiprocessing
 import re
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import tomllib
 
 from pipeline.config import (
     ConfigError,

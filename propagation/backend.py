@@ -7,7 +7,7 @@ first would pick a variant on its own.
 
 The CPU variant (``llvm_ad_mono_polarized``) loads the system libLLVM at the first
 kernel. Debian 12's default LLVM 15 aborts Dr.Jit 1.5 with ``LLVM ERROR: Cannot select
-... fminimum`` (see ``shared/SIONNA_NOTES.md``), so :func:`find_libllvm` only accepts
+... fminimum`` (see ``docs/physics.md``, "Dr.Jit on the CPU"), so :func:`find_libllvm` only accepts
 LLVM >= 16 and :func:`select_variant` sets ``DRJIT_LIBLLVM_PATH`` before ``drjit`` is
 imported.
 """

@@ -2,7 +2,7 @@
 
 Sionna's ``RadioMapSolver`` shoots rays from the transmitter and accumulates, per cell,
 the Monte-Carlo mean of the path power crossing it: the *local mean* gain, without
-small-scale fading (``shared/SIONNA_NOTES.md``). The receiver is isotropic there: the tag
+small-scale fading (``docs/physics.md``, "Radio maps"). The receiver is isotropic there: the tag
 pattern is not in these fields (unlike :func:`propagation.trace_links`).
 """
 

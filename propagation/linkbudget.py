@@ -46,7 +46,7 @@ class LinkBudget:
         Chip read sensitivity, dBm. Default -18 dBm (Impinj Monza 4 datasheet: -17.4 dBm
         read sensitivity with a dipole; "Monza-4 class").
     reader_sensitivity_dbm : float
-        Reader receive sensitivity, dBm. Default -80 dBm (DESIGN.md; the Impinj Speedway
+        Reader receive sensitivity, dBm. Default -80 dBm (docs/physics.md; the Impinj Speedway
         R420 datasheet gives -84 dBm, so -80 dBm is a conservative value).
     polarization_loss_db : float
         Circular reader to linear tag mismatch per way, dB. Default 3 dB. Set 0 when the

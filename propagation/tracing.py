@@ -1,6 +1,6 @@
 """Ray-traced one-way channel gain between reader-antenna poses and tags (Sionna RT).
 
-Design ("Making the truth affordable", ``shared/DESIGN.md``): every antenna *position* is
+``docs/physics.md`` ("Making the truth affordable"): every antenna *position* is
 traced once with unrotated isotropic dual-polarised (``VH``) antennas at both ends;
 per path the 2x2 polarimetric transfer matrix T, the delay tau and the departure /
 arrival directions are kept (and cached on disk, see :mod:`propagation.pathcache`).

@@ -7,7 +7,7 @@ scene's traced surfaces (:func:`scenes.radio.radio_groups`: the radio surfaces, 
 solid meshes with library thicknesses when there are none), each with a custom
 ``radio-material`` whose id is ``uhf-<name>-t<thickness>`` (``uhf-brick-t0p120`` for
 0.12 m of brick) and float properties ``relative_permittivity``, ``conductivity`` and
-``thickness`` evaluated at the study frequency (see ``shared/SIONNA_NOTES.md``).
+``thickness`` evaluated at the study frequency (see ``docs/physics.md``, "Materials at 865 MHz").
 """
 
 from __future__ import annotations

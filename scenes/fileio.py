@@ -1,7 +1,7 @@
 """Atomic file writes: a temporary file in the destination folder, then ``os.replace``.
 
 A killed process never leaves a file under the final name that looks complete
-(``shared/DESIGN.md``, Conventions). Shared by :mod:`scenes` and :mod:`propagation`
+(``docs/physics.md``, Conventions). Shared by :mod:`scenes` and :mod:`propagation`
 (and usable by :mod:`pipeline`).
 """
 

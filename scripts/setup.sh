@@ -40,9 +40,10 @@ if [ ! -x .venv/bin/python ]; then
 fi
 
 stamp=.venv/.rfidstudy-installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt "$stamp" ]; then
   .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test]"
+  # constraints.txt pins the ray tracer to the versions the project was tested with
+  .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e ".[test]"
   touch "$stamp"
 fi
 echo "setup: ready (.venv)"

@@ -2,7 +2,7 @@
 
 For every read attempt (read cycle, active antenna, tag) the one-way channel gain g
 from the ray tracer (both antenna patterns included) goes through the monostatic
-backscatter link budget of ``DESIGN.md``:
+backscatter link budget of ``docs/physics.md``:
 
 - power at the tag ``P_tag = P_tx + G(g) - L_pol``; the tag answers only if
   ``P_tag >= tag_sensitivity_dbm`` (forward link);

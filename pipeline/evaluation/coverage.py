@@ -3,7 +3,7 @@
 A cell of the planar RSSI field (``propagation.RssiField``) is *covered* when the
 probability of reading a tag there exceeds one half: the backscatter link closes
 (``LinkBudget.detected``: tag power >= tag sensitivity and RSSI >= reader
-sensitivity, DESIGN.md "The backscatter link") and the reader's anti-collision
+sensitivity, docs/physics.md "The backscatter link") and the reader's anti-collision
 miss probability q leaves ``1 - q > 0.5``. The field's gain is the reader side
 only (an isotropic receiver), so the tag antenna's gain
 ``budget.tag_antenna_gain_dbi`` is added before the budget decides.

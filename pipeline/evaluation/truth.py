@@ -1,6 +1,6 @@
 """The propagation truth the learned models are compared with.
 
-Noise-free link (DESIGN.md, "The backscatter link"): with the ray-traced one-way
+Noise-free link (docs/physics.md, "The backscatter link"): with the ray-traced one-way
 gain ``gain_db`` and a ``propagation.LinkBudget`` ``budget``,
 
 - true RSSI ``budget.reader_rssi_dbm(gain_db)`` [dBm] (no reader noise or quantisation);

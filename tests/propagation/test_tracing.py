@@ -47,7 +47,7 @@ def _away_from_nulls(ref_db, d, h_t, h_r):
 
 def test_floor_matches_two_ray_fresnel_v_and_h(floor_scene):
     # Sionna models the floor as a 0.2 m concrete slab, the closed form as a half-space:
-    # SIONNA_NOTES measured 0.28 dB between them; 0.5 dB bounds it (brief)
+    # bare Sionna measured 0.28 dB (docs/physics.md) between them; 0.5 dB bounds it (brief)
     eps, sigma = material("concrete", F)
     d = np.linspace(1.0, 20.0, 39)
     h_t, h_r = 0.6, 1.0
@@ -86,7 +86,7 @@ def test_pattern_reapplication_matches_patterned_sionna_trace(corridor_scene):
                       [12.0, 1.6, 1.5, 2.5, 0.5, 0.7]])
     tags = corridor_scene.tags.positions_m
     # depth 1 and many rays so that both calls find the same path set (sampling differences
-    # between two calls are the only other source of mismatch, see SIONNA_NOTES)
+    # between two calls are the only other source of mismatch, see docs/physics.md)
     spp = 300_000
     ours = trace_links(corridor_scene, poses, tags, max_depth=1, samples_per_src=spp)
     s = load_sionna_scene(corridor_scene, F)

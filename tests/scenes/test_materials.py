@@ -31,7 +31,7 @@ def test_material_values_at_865_mhz(name):
 
 @pytest.mark.filterwarnings("ignore::scenes.FrequencyRangeWarning")
 def test_concrete_conductivity_named_in_notes():
-    # SIONNA_NOTES two-ray check used sigma = 0.0412 S/m for concrete at 865 MHz
+    # the bare-Sionna two-ray check (docs/physics.md) used sigma = 0.0412 S/m for concrete at 865 MHz
     assert scenes.material("concrete", 865e6)[1] == pytest.approx(0.0412, abs=5e-5)
 
 

@@ -19,7 +19,7 @@ def budget():
 def gain_for_rssi(budget, rssi_dbm):
     """One-way gain [dB] whose noise-free reader RSSI is `rssi_dbm`.
 
-    P_rx = P_tx + 2 G + M - 2 L_pol is affine in G with slope 2 (DESIGN.md).
+    P_rx = P_tx + 2 G + M - 2 L_pol is affine in G with slope 2 (docs/physics.md).
     """
     return (np.asarray(rssi_dbm, float) - budget.reader_rssi_dbm(np.float64(0.0))) / 2.0
 

@@ -9,7 +9,7 @@ from propagation import LinkBudget
 
 def test_coverage_of_hand_built_plane_matches_forward_link_threshold():
     budget = LinkBudget()
-    # forward link (DESIGN.md): P_tx + g + G_tag - L_pol >= S_tag  <=>  g >= threshold;
+    # forward link (docs/physics.md): P_tx + g + G_tag - L_pol >= S_tag  <=>  g >= threshold;
     # with the defaults the reverse link (-80 dBm) closes ~3 dB further out, so the
     # tag threshold alone decides
     thr = (budget.tag_sensitivity_dbm - budget.tx_power_dbm + budget.polarization_loss_db
