@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import box, make_corridor
+from propagation_scenes import box, make_corridor
 
 import scenes
 from propagation import (

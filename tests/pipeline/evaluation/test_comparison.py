@@ -2,7 +2,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import gain_for_rssi, synthetic_reads
+from synthetic_reads import gain_for_rssi, synthetic_reads
 
 from pipeline.evaluation import (
     BaselineSensorModel,

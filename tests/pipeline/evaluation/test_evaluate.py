@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import gain_for_rssi, synthetic_reads
+from synthetic_reads import gain_for_rssi, synthetic_reads
 
 from fuzzymodel import ANFIS, SensorModel, normalise_rssi
 from pipeline.evaluation import (
