@@ -67,6 +67,7 @@ STAGES: tuple[Stage, ...] = (
           version=2,  # 2: one biased robot map per building (tour/map_error.npz, localisation.json)
           description="robot tours and MCL"),
     Stage("reads", stage_reads, ("seed", "robot", "reader") + _TRACING, ("scene", "tour"),
+          version=2,  # 2: each tour reads its own tag layout; range-margin check in metadata
           description="ray-traced reader simulation"),
     Stage("training_sets", stage_training_sets,
           ("training.d_max_m", "training.rssi_range_dbm", "training.d_bin_m",
@@ -83,7 +84,7 @@ STAGES: tuple[Stage, ...] = (
           description="propagation truth"),
     Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
           ("scene", "tour", "reads", "models", "truth"),
-          version=4,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections
+          version=5,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections; 5: range margin
           description="metrics"),
     Stage("figures", _stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
           description="figures"),

@@ -362,8 +362,8 @@ def stage_evaluation(ctx) -> dict:
 
     cfg = ctx.config
     budget = link_budget(cfg)
-    reads, _ = _read_reads(ctx)
-    eval_reads, _ = _read_reads(ctx, "eval_")
+    reads, meta = _read_reads(ctx)
+    eval_reads, eval_meta = _read_reads(ctx, "eval_")
     tags = read_tags(ctx.input("scene/tags.parquet"))
     _check_split(tags, reads, eval_reads, ctx.store.path("scene/tags.parquet"))
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
@@ -388,7 +388,8 @@ def stage_evaluation(ctx) -> dict:
                              d_max_m=tr.d_max_m, min_attempts=tr.min_attempts,
                              rssi_models=rssi_names,
                              detection_models=("anfis", "anfis_truepose", "grid_count", *extra))
-    metrics = {"heldout": heldout, "error_budget": error_budget(heldout)}
+    metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
+               "reads": {"range_margin": _range_margin(meta, eval_meta)}}
     fig7 = {}
     for name in rssi_names:
         f7 = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
@@ -430,6 +431,17 @@ def stage_evaluation(ctx) -> dict:
         metrics["coverage"] = coverage
     atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
     return {"models": sorted(sensors)}
+
+
+def _range_margin(*metas) -> dict:
+    """Did any traced link exceed free space by more than the range margin (the untraced
+    links beyond it might then have been readable)? From the read logs' metadata."""
+    vals = [m.get("max_excess_over_free_space_db") for m in metas if isinstance(m, dict)]
+    vals = [float(v) for v in vals if v is not None]
+    margin = next((m.get("range_margin_db") for m in metas if isinstance(m, dict)), None)
+    worst = max(vals) if vals else None
+    return {"range_margin_db": margin, "max_excess_over_free_space_db": worst,
+            "margin_holds": None if worst is None or margin is None else bool(worst <= margin)}
 
 
 def _check_split(tags, reads, eval_reads, path) -> None:

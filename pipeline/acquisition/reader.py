@@ -358,7 +358,7 @@ def simulate_reads(
     mask = in_range_mask(d_true, reader)
     gain_db, traced, n_traced = _trace_gains(scene, tags, att.true_antenna, mask, reader, trace)
     reads = reads_from_gains(att, tags, gain_db, traced, reader, rng)
-    _check_margin(gain_db, traced, d_true, reader)
+    excess_db = _check_margin(gain_db, traced, d_true, reader)
     meta = {
         "scene": scene.name,
         "scene_hash": scene.content_hash(),
@@ -371,6 +371,8 @@ def simulate_reads(
         "n_pairs_in_range": int(mask.sum()),
         "n_pairs_traced": int(n_traced),
         "max_range_m": float(reader.budget.max_range_m(margin_db=reader.range_margin_db)),
+        "range_margin_db": float(reader.range_margin_db),
+        "max_excess_over_free_space_db": excess_db,
     }
     logger.info(
         "simulate_reads: %d antenna slots x %d tags, %d pairs in range (%d unique traced), %d reads",
@@ -383,10 +385,16 @@ def simulate_reads(
     return ReadLog(reads=reads, poses=_poses_frame(trk), metadata=meta)
 
 
-def _check_margin(gain_db, traced, d_m, reader: ReaderConfig) -> None:
-    """Warn if traced gains exceed free space by more than the range margin."""
+def _check_margin(gain_db, traced, d_m, reader: ReaderConfig) -> float | None:
+    """Largest excess of a traced gain over free space with maximum pattern gains [dB].
+
+    Links beyond ``max_range_m(range_margin_db)`` are not traced; an excess above the
+    margin on the traced links says some of them might have been readable. The value is
+    recorded in the read log's metadata and reported (metrics ``reads.range_margin``,
+    report); the log says so at INFO level. None when nothing was traced.
+    """
     if not traced.any():
-        return
+        return None
     from propagation import free_space_gain_db
 
     b = reader.budget
@@ -398,10 +406,11 @@ def _check_margin(gain_db, traced, d_m, reader: ReaderConfig) -> None:
     )
     excess = float(np.max(gain_db[traced] - fs))
     if excess > reader.range_margin_db:
-        logger.warning(
+        logger.info(
             "ray-traced gain exceeds free space with maximum pattern gains by %.1f dB, more "
             "than range_margin_db = %.1f dB: tags beyond the traced range might have been "
-            "readable; raise range_margin_db",
+            "readable (recorded in metrics.json reads.range_margin)",
             excess,
             reader.range_margin_db,
         )
+    return excess
