@@ -33,6 +33,7 @@ __all__ = [
     "config_to_toml",
     "load_config",
     "reference_config_toml",
+    "is_config_key",
     "replace_path",
 ]
 
@@ -414,6 +415,21 @@ Units are in the key names (_m, _hz, _dbm, _deg, _s)."""
 def reference_config_toml() -> str:
     """The reference TOML (``configs/reference.toml``): every key, default and doc."""
     return reference_toml(StudyConfig(), header=REFERENCE_HEADER)
+
+
+def is_config_key(dotted: str) -> bool:
+    """Whether ``dotted`` names a section or key of :class:`StudyConfig` (``"training"``,
+    ``"training.epochs"``); list items (``robot.antennas[0]``) are not keys of their own."""
+    cls = StudyConfig
+    for part in dotted.split("."):
+        if not (dataclasses.is_dataclass(cls) and isinstance(cls, type)):
+            return False
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        if part not in fields:
+            return False
+        default = StudyConfig() if cls is StudyConfig else cls()
+        cls = type(getattr(default, part))
+    return True
 
 
 def replace_path(cfg, dotted: str, value):

@@ -165,6 +165,16 @@ class Stage:
     description: str = ""
     always: bool = False
 
+    def __post_init__(self):
+        # a misspelt key would hash as None and never re-run the stage when the real key
+        # changes: a silent stale cache, so it is refused where the stage is defined
+        from pipeline.config import is_config_key
+
+        unknown = [k for k in self.config_keys if not is_config_key(k)]
+        if unknown:
+            raise ValueError(f"stage {self.name!r} depends on unknown config key(s) {unknown}; "
+                             "see configs/reference.toml for the keys")
+
 
 class StageContext:
     """What a running stage sees: config, run directory, staging area, progress, memo.

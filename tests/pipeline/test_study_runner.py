@@ -326,3 +326,19 @@ def test_logs_name_final_paths_not_the_staging_area(tmp_path, caplog):
         _run_stages(StudyConfig(), tmp_path, (Stage("report", writes),))
     assert f"report written to {tmp_path.resolve() / 'report.html'}" in caplog.text
     assert ".staging" not in caplog.text
+
+
+def test_unknown_stage_key_is_refused_where_the_stage_is_defined():
+    """A misspelt key would hash as None and never re-run the stage: refused at definition."""
+    from pipeline.study import Stage
+
+    with pytest.raises(ValueError, match=r"unknown config key\(s\) \['training.epochz'\]"):
+        Stage("x", lambda ctx: None, ("training.epochs", "training.epochz"))
+
+
+def test_every_study_stage_depends_on_real_keys():
+    from pipeline.config import is_config_key
+    from pipeline.stages import STAGES
+
+    for st in STAGES:
+        assert all(is_config_key(k) for k in st.config_keys), st.name
