@@ -24,6 +24,7 @@ from propagation.pathcache import CacheWarning
 from propagation.patterns import PATTERNS, POLARIZATIONS, sionna_orientation
 from propagation.sionna_scene import check_antenna_positions, clear_devices, load_sionna_scene
 from scenes.fileio import atomic_save_npz
+from scenes.geometry import in_triangles_2d
 
 __all__ = ["RssiField", "rssi_field", "wall_surface_mesh"]
 
@@ -127,15 +128,7 @@ def _grid_over_faces(tri: np.ndarray, normal: np.ndarray, max_edge_m: float, off
     us, vs = np.linspace(lo[0], hi[0], nu + 1), np.linspace(lo[1], hi[1], nv + 1)
     cu, cv = np.meshgrid((us[:-1] + us[1:]) / 2, (vs[:-1] + vs[1:]) / 2, indexing="ij")
     c = np.stack([cu.ravel(), cv.ravel()], axis=1)
-    # barycentric point-in-triangle test, cells x triangles
-    a, b, d = uv[:, 0], uv[:, 1], uv[:, 2]
-    det = (b[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    ok = np.abs(det) > 1e-12
-    det = np.where(ok, det, 1.0)
-    px, py = c[:, None, 0] - a[None, :, 0], c[:, None, 1] - a[None, :, 1]
-    l1 = (px * (d[:, 1] - a[:, 1]) - py * (d[:, 0] - a[:, 0])) / det
-    l2 = (py * (b[:, 0] - a[:, 0]) - px * (b[:, 1] - a[:, 1])) / det
-    inside = (ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)).any(axis=1)
+    inside = in_triangles_2d(c, uv)
     iu, iv = np.unravel_index(np.flatnonzero(inside), (nu, nv))
     u0, u1, v0, v1 = us[iu], us[iu + 1], vs[iv], vs[iv + 1]
 

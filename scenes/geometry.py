@@ -313,6 +313,32 @@ def floor_plan_segments(scene, z_m: float) -> np.ndarray:
     return out[keep]
 
 
+def in_triangles_2d(points, triangles) -> np.ndarray:
+    """Which 2-D points lie in at least one of the 2-D triangles (barycentric test).
+
+    Parameters
+    ----------
+    points : array_like, shape (p, 2)
+    triangles : array_like, shape (k, 3, 2)
+        Degenerate triangles (zero area) contain nothing.
+
+    Returns
+    -------
+    numpy.ndarray, shape (p,), bool
+        Edges and vertices count as inside (1e-9 slack in barycentric coordinates).
+    """
+    c = np.asarray(points, dtype=float).reshape(-1, 2)
+    uv = np.asarray(triangles, dtype=float).reshape(-1, 3, 2)
+    a, b, d = uv[:, 0], uv[:, 1], uv[:, 2]
+    det = (b[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    ok = np.abs(det) > 1e-12
+    det = np.where(ok, det, 1.0)
+    px, py = c[:, None, 0] - a[None, :, 0], c[:, None, 1] - a[None, :, 1]
+    l1 = (px * (d[:, 1] - a[:, 1]) - py * (d[:, 0] - a[:, 0])) / det
+    l2 = (py * (b[:, 0] - a[:, 0]) - px * (b[:, 1] - a[:, 1])) / det
+    return (ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)).any(axis=1)
+
+
 def _scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
     tris, mats = [], []
     for name in scene.materials:

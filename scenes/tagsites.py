@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenes.geometry import is_free, raycast
+from scenes.geometry import in_triangles_2d, is_free, raycast
 from scenes.scene import TagSet
 
 __all__ = ["TagSites", "draw_tags", "tag_sites"]
@@ -79,15 +79,7 @@ def _face_grid(tri: np.ndarray, normal: np.ndarray, spacing_m: float) -> np.ndar
     vs = lo[1] + (hi[1] - lo[1] - (nv - 1) * spacing_m) / 2 + spacing_m * np.arange(nv)
     cu, cv = np.meshgrid(us, vs, indexing="ij")
     c = np.stack([cu.ravel(), cv.ravel()], axis=1)
-    a, b, d = uv[:, 0], uv[:, 1], uv[:, 2]
-    det = (b[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    ok = np.abs(det) > 1e-12
-    det = np.where(ok, det, 1.0)
-    px, py = c[:, None, 0] - a[None, :, 0], c[:, None, 1] - a[None, :, 1]
-    l1 = (px * (d[:, 1] - a[:, 1]) - py * (d[:, 0] - a[:, 0])) / det
-    l2 = (py * (b[:, 0] - a[:, 0]) - px * (b[:, 1] - a[:, 1])) / det
-    inside = (ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)).any(axis=1)
-    c = c[inside]
+    c = c[in_triangles_2d(c, uv)]
     return o + c[:, :1] * u_ax + c[:, 1:] * v_ax
 
 
