@@ -1,0 +1,80 @@
+"""Downstream localisation with each sensor model: tags from reads, the robot from tags.
+
+* :mod:`.likelihood` - the read likelihood of a ``SensorLike`` model
+  (:class:`ModelLikelihood`) and of the propagation oracle given true gains
+  (:class:`OracleLikelihood`), vectorised over (slot, candidate) pairs;
+* :mod:`.observations` - the read log as tags x attempt slots (:class:`Observations`);
+* :mod:`.tags` - posteriors of tag positions over candidate sites, estimates and error
+  summaries (:func:`localise_tags`, :func:`localisation_summary`);
+* :mod:`.oracle` - which (slot, candidate) pairs to ray trace for the oracle
+  (:func:`oracle_plan`);
+* :mod:`.robot` - RFID-only robot localisation, a particle filter with global
+  initialisation and random-particle injection (:func:`run_rfid_mcl`,
+  :func:`filter_metrics`);
+* :mod:`.synthetic` - free-space gains, a closed-form sensor and a corridor scenario for
+  tests and benchmarks.
+"""
+
+from .likelihood import (
+    EPS,
+    Z_CLIP,
+    GaussianTerms,
+    ModelLikelihood,
+    OracleGains,
+    OracleLikelihood,
+    OwnTerms,
+    fit_far_detection,
+    rssi_residual_std,
+)
+from .observations import Observations, as_pose6, observations_from_reads, pair_geometry
+from .oracle import OraclePlan, oracle_plan
+from .robot import (
+    BoxFreeSpace,
+    RfidMCLConfig,
+    RfidMCLResult,
+    RfidParticleFilter,
+    as_free_space,
+    filter_metrics,
+    run_rfid_mcl,
+)
+from .tags import (
+    ESTIMATORS,
+    TagPosteriors,
+    as_tag_map,
+    localisation_summary,
+    localise_tags,
+    read_region_mask,
+    tag_position_errors,
+)
+
+__all__ = [
+    "EPS",
+    "ESTIMATORS",
+    "Z_CLIP",
+    "BoxFreeSpace",
+    "GaussianTerms",
+    "ModelLikelihood",
+    "Observations",
+    "OracleGains",
+    "OracleLikelihood",
+    "OraclePlan",
+    "OwnTerms",
+    "RfidMCLConfig",
+    "RfidMCLResult",
+    "RfidParticleFilter",
+    "TagPosteriors",
+    "as_free_space",
+    "as_pose6",
+    "as_tag_map",
+    "filter_metrics",
+    "fit_far_detection",
+    "localisation_summary",
+    "localise_tags",
+    "observations_from_reads",
+    "oracle_plan",
+    "pair_geometry",
+    "read_region_mask",
+    "rssi_residual_std",
+    "run_rfid_mcl",
+    "tag_position_errors",
+]

@@ -1,0 +1,533 @@
+"""Read likelihoods of a sensor model and of the propagation oracle, vectorised.
+
+An observation of a tag in one attempt slot is ``z = (read, rssi)``. For a tag at a
+candidate position, seen from the slot's antenna at distance d and bearing alpha,
+
+    log p(z) = log P(read) + log N(rssi; mu, sigma)      for a read,
+    log p(z) = log (1 - P(read))                         for a miss,
+
+(Joho, Plagemann & Burgard, ICRA 2009; the chapter's ``rho = fs fT`` is its two factors
+without the normalisation). Sources of P(read), mu and sigma:
+
+* :class:`ModelLikelihood`, a ``SensorLike`` model: ``P(read) = fT(d, alpha)``,
+  ``mu = fs_dbm(d, alpha)``, sigma from the model where it has one
+  (``rssi_sigma_db(d, alpha)``, e.g. Joho 2009 per cell) else the ``sigma_rssi_db``
+  given (e.g. :func:`rssi_residual_std`, the training residual std). A model without RSSI
+  (``predicts_rssi`` False, or ``fs_dbm`` NaN at a pair) contributes the detection term
+  only. A model with its own ``log_likelihood(d, alpha, read, rssi_dbm)`` is used through
+  it (``use_own_likelihood``).
+* :class:`OracleLikelihood`, the reader itself given the true one-way gains (as ray
+  traced) at the candidates: ``P(read) = P(closed) (1 - anticollision miss)``,
+  ``mu = reader_rssi_dbm(gain)``, ``sigma^2 = rssi_noise^2 + resolution^2 / 12``. The
+  simulated reader closes the link on the noise-free powers, i.e. when
+  ``reader_rssi_dbm(gain) >= T`` with ``T = reader_rssi_dbm(budget.min_gain_db())`` (the
+  tag and reader thresholds in one, in the RSSI domain); the oracle softens this step to
+  ``P(closed) = Phi((mu - T) / closure_sigma_db)``, ``closure_sigma_db`` defaulting to the
+  reader's RSSI noise: gains at candidate points a few centimetres from the tag differ
+  by fractions of a dB (fading), so a hard step would veto the neighbours of the truth
+  on a hair. With exact gains it is the best any sensor model can do with these reads.
+
+Robustness (both sources), so that one surprising observation cannot veto a position:
+
+* probabilities are clipped to ``[eps, 1 - eps]``, ``eps = EPS = 1e-3`` by default (a
+  read where the source says "never" costs log(1e-3) = -6.9 nats, as much as a 3.7
+  sigma RSSI residual; Joho 2009's ``p_floor`` is the same number);
+* the RSSI residual is clipped at ``z_clip = Z_CLIP = 5`` standard deviations (the
+  density floor of a 5 sigma outlier, -12.5 nats below the peak); a gain of -inf
+  (not traced: out of range) gives the floor.
+
+Learned models are valid where they were trained (``d < d_max_m``). Beyond it (when
+``d_max_m`` is given) every model gets the same rule: ``P(read) = p_far`` up to
+``d_far_m`` and eps beyond, the RSSI of a read there uniform over the model's
+``rssi_range_dbm`` (density ``1 / (hi - lo)``); :func:`fit_far_detection` estimates
+``p_far`` and ``d_far_m`` from the training reads. Pairs beyond ``d_max_m`` are not
+evaluated by the model at all, which is also what makes the (slots x candidates)
+matrices cheap.
+
+Every source turns arrays of pairs into :class:`GaussianTerms` (or :class:`OwnTerms`):
+the miss term of every pair and, for the RSSI of a read, the read term, so a caller can
+combine the same per-pair predictions with the outcomes of many tags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.special import log_ndtr
+
+__all__ = [
+    "EPS",
+    "Z_CLIP",
+    "GaussianTerms",
+    "ModelLikelihood",
+    "OracleGains",
+    "OracleLikelihood",
+    "OwnTerms",
+    "fit_far_detection",
+    "rssi_residual_std",
+]
+
+#: Default clip of every probability to [EPS, 1 - EPS] (see module doc).
+EPS = 1e-3
+#: Default clip of the RSSI residual, in standard deviations (see module doc).
+Z_CLIP = 5.0
+_LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
+
+
+def _check_eps(eps: float) -> float:
+    eps = float(eps)
+    if not 0.0 < eps < 0.5:
+        raise ValueError(f"eps must be in (0, 0.5), got {eps!r}")
+    return eps
+
+
+def _check_zclip(z_clip: float) -> float:
+    z = float(z_clip)
+    if not z > 0:
+        raise ValueError(f"z_clip must be > 0, got {z_clip!r}")
+    return z
+
+
+class GaussianTerms:
+    """Per-pair terms of a read likelihood with a Gaussian (or flat) RSSI density.
+
+    All arrays share one shape P (or broadcast to it; scalars allowed).
+
+    Parameters
+    ----------
+    log_read : numpy.ndarray
+        ``log P(read)`` (clipped probability).
+    log_miss : numpy.ndarray
+        ``log (1 - P(read))``.
+    rssi_mean_dbm : numpy.ndarray
+        Mean RSSI of a read [dBm]; -inf gives the z_clip floor; NaN: no Gaussian, the
+        flat density applies.
+    rssi_sigma_db : numpy.ndarray or float
+        Its standard deviation [dB] (> 0).
+    rssi_flat_logpdf : numpy.ndarray or float
+        Log-density [1/dB] of a read's RSSI where the mean is NaN; 0 = no RSSI term
+        (detection only).
+    z_clip : float
+    """
+
+    def __init__(self, log_read, log_miss, rssi_mean_dbm, rssi_sigma_db,
+                 rssi_flat_logpdf=0.0, z_clip: float = Z_CLIP) -> None:
+        self.log_read = np.asarray(log_read, dtype=np.float64)
+        self.log_miss = np.asarray(log_miss, dtype=np.float64)
+        self.z_clip = float(z_clip)
+        mu = np.asarray(rssi_mean_dbm, dtype=np.float64)
+        sd = np.asarray(rssi_sigma_db, dtype=np.float64)
+        flat = np.asarray(rssi_flat_logpdf, dtype=np.float64)
+        nan = np.isnan(mu)
+        # NaN mean encoded as mean 0, 1/sigma 0, normalisation = the flat log-density, so
+        # read_loglik needs no branch: the Gaussian term is then exactly the flat one
+        lnorm = -np.log(sd) - _LOG_SQRT_2PI
+        if nan.any():
+            self._mu = np.where(nan, 0.0, mu)
+            self._inv = np.where(nan, 0.0, 1.0 / sd)
+            self._lnorm = np.where(nan, flat, lnorm)
+        else:
+            self._mu, self._inv, self._lnorm = mu, 1.0 / sd, lnorm
+
+    @staticmethod
+    def _take(a, index):
+        return a if (index is None or a.ndim == 0) else a[index]
+
+    def read_loglik(self, rssi_dbm, index=None) -> np.ndarray:
+        """``log p(read, rssi)`` at the pairs ``[index]``, broadcast with `rssi_dbm`.
+
+        NaN RSSI (a read without a reported RSSI): detection term only.
+        """
+        r = np.asarray(rssi_dbm, dtype=np.float64)
+        finite = np.isfinite(r)
+        r0 = r if finite.all() else np.where(finite, r, 0.0)
+        mu, inv = self._take(self._mu, index), self._take(self._inv, index)
+        with np.errstate(invalid="ignore"):
+            z = np.minimum(np.abs(r0 - mu) * inv, self.z_clip)
+        g = self._take(self._lnorm, index) - 0.5 * z * z
+        if not finite.all():
+            g = np.where(finite, g, 0.0)
+        return g + self._take(self.log_read, index)
+
+    def loglik(self, read, rssi_dbm, index=None) -> np.ndarray:
+        """Log-likelihood of outcomes (read, rssi) at the pairs ``[index]`` (broadcasting)."""
+        read = np.asarray(read, dtype=bool)
+        return np.where(read, self.read_loglik(rssi_dbm, index),
+                        self._take(self.log_miss, index))
+
+
+@dataclass(frozen=True)
+class OwnTerms:
+    """Per-pair terms of a model with its own ``log_likelihood(d, alpha, read, rssi)``.
+
+    Pairs with ``near`` False (beyond the model's domain) take the constants
+    ``far_log_read`` (+ ``far_rssi_logpdf`` for a reported RSSI) and ``log_miss``.
+    """
+
+    model: object
+    d_m: np.ndarray
+    alpha_rad: np.ndarray
+    near: np.ndarray
+    log_miss: np.ndarray
+    far_log_read: np.ndarray
+    far_rssi_logpdf: float
+    use_rssi: bool = True
+
+    def read_loglik(self, rssi_dbm, index=None) -> np.ndarray:
+        """``log p(read, rssi)`` at the pairs ``[index]``, broadcast with `rssi_dbm`."""
+        arrs = (self.d_m, self.alpha_rad, self.near, self.far_log_read)
+        if index is not None:
+            arrs = tuple(v[index] for v in arrs)
+        r = np.asarray(rssi_dbm, dtype=np.float64)
+        if not self.use_rssi:  # detection only: the model's read term without an RSSI
+            r = np.full(r.shape, np.nan)
+        d, a, near, flr, r = np.broadcast_arrays(*arrs, r)
+        out = flr + np.where(np.isfinite(r), self.far_rssi_logpdf, 0.0)
+        if near.any():
+            out[near] = self.model.log_likelihood(d[near], a[near],
+                                                  np.ones(int(near.sum()), dtype=bool), r[near])
+        return out
+
+    def loglik(self, read, rssi_dbm, index=None) -> np.ndarray:
+        read = np.asarray(read, dtype=bool)
+        lm = self.log_miss if index is None else self.log_miss[index]
+        return np.where(read, self.read_loglik(rssi_dbm, index), lm)
+
+
+class ModelLikelihood:
+    """Read likelihood of a ``SensorLike`` model (see module doc).
+
+    Parameters
+    ----------
+    model : SensorLike
+        ``fT``, ``fs_dbm`` (and ``rssi_range_dbm``); optionally ``predicts_rssi``,
+        ``rssi_sigma_db(d, alpha)`` and ``log_likelihood(d, alpha, read, rssi_dbm)``.
+    sigma_rssi_db : float, optional
+        RSSI standard deviation [dB] for a model without ``rssi_sigma_db`` (e.g. the
+        training residual std, :func:`rssi_residual_std`). Required when such a model's
+        RSSI is used.
+    eps : float
+        Probability clip, default :data:`EPS`.
+    z_clip : float
+        RSSI residual clip [sigma], default :data:`Z_CLIP`.
+    d_max_m : float, optional
+        The model's domain (training ``d_max_m``); beyond it the far rule applies
+        (module doc). None: the model is evaluated at every distance.
+    p_far : float
+        Detection probability for ``d_max_m <= d < d_far_m`` (required with ``d_max_m``).
+    d_far_m : float
+        Beyond this distance P(read) = eps [m] (default inf).
+    use_rssi : bool
+        False: detection term only, whatever the model predicts.
+    use_own_likelihood : bool
+        Use the model's ``log_likelihood`` when it has one (default True).
+    name : str, optional
+        For messages and results.
+    """
+
+    def __init__(self, model, *, sigma_rssi_db: float | None = None, eps: float = EPS,
+                 z_clip: float = Z_CLIP, d_max_m: float | None = None,
+                 p_far: float | None = None, d_far_m: float = np.inf, use_rssi: bool = True,
+                 use_own_likelihood: bool = True, name: str | None = None) -> None:
+        for m in ("fT", "fs_dbm", "rssi_range_dbm"):
+            if not hasattr(model, m):
+                raise TypeError(f"ModelLikelihood: {type(model).__name__} lacks {m!r}; "
+                                "expected a SensorLike model")
+        self.model = model
+        self.name = name or type(model).__name__
+        self.eps = _check_eps(eps)
+        self.z_clip = _check_zclip(z_clip)
+        lo, hi = (float(v) for v in model.rssi_range_dbm)
+        if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+            raise ValueError(f"{self.name}: rssi_range_dbm must be (lo, hi) with lo < hi")
+        self.use_rssi = bool(use_rssi) and bool(getattr(model, "predicts_rssi", True))
+        self.own = bool(use_own_likelihood) and callable(getattr(model, "log_likelihood", None))
+        self.has_sigma = callable(getattr(model, "rssi_sigma_db", None))
+        if sigma_rssi_db is not None and not (np.isfinite(sigma_rssi_db) and sigma_rssi_db > 0):
+            raise ValueError(f"{self.name}: sigma_rssi_db must be finite and > 0, "
+                             f"got {sigma_rssi_db!r}")
+        if self.use_rssi and not self.own and not self.has_sigma and sigma_rssi_db is None:
+            raise ValueError(f"{self.name}: the model predicts RSSI but has no rssi_sigma_db; "
+                             "pass sigma_rssi_db (e.g. rssi_residual_std(model, training reads, "
+                             "d_max_m)) or use_rssi=False")
+        self.sigma_rssi_db = None if sigma_rssi_db is None else float(sigma_rssi_db)
+        if d_max_m is not None:
+            if not (np.isfinite(d_max_m) and d_max_m > 0):
+                raise ValueError(f"{self.name}: d_max_m must be finite and > 0, got {d_max_m!r}")
+            if p_far is None or not 0.0 <= float(p_far) <= 1.0:
+                raise ValueError(f"{self.name}: with d_max_m, pass p_far in [0, 1] (the "
+                                 f"detection rate beyond it, fit_far_detection), got {p_far!r}")
+            if not float(d_far_m) >= float(d_max_m):
+                raise ValueError(f"{self.name}: d_far_m ({d_far_m}) must be >= d_max_m "
+                                 f"({d_max_m})")
+        self.d_max_m = None if d_max_m is None else float(d_max_m)
+        self.p_far = None if p_far is None else float(p_far)
+        self.d_far_m = float(d_far_m)
+        self.flat_logpdf = -np.log(hi - lo) if self.use_rssi else 0.0
+
+    def __repr__(self) -> str:
+        return (f"ModelLikelihood({self.name}, own={self.own}, rssi={self.use_rssi}, "
+                f"d_max_m={self.d_max_m}, p_far={self.p_far})")
+
+    @property
+    def alpha_needed_within_m(self) -> float:
+        """Pairs farther than this need no bearing (inf: all)."""
+        return np.inf if self.d_max_m is None else self.d_max_m
+
+    def far_probability(self, d: np.ndarray) -> np.ndarray:
+        """Clipped P(read) of the far rule at distances `d` (``p_far`` below ``d_far_m``)."""
+        p = np.where(d < self.d_far_m, self.p_far, 0.0)
+        return np.clip(p, self.eps, 1.0 - self.eps)
+
+    def far_log_miss(self, d_m) -> np.ndarray:
+        """``log(1 - P(read))`` of pairs beyond ``d_max_m`` (the far rule) at `d_m`."""
+        return np.log1p(-self.far_probability(np.asarray(d_m, dtype=np.float64)))
+
+    def far_read_loglik(self, d_m, rssi_dbm) -> np.ndarray:
+        """``log p(read, rssi)`` of pairs beyond ``d_max_m`` (the far rule), broadcasting."""
+        d, r = np.broadcast_arrays(np.asarray(d_m, dtype=np.float64),
+                                   np.asarray(rssi_dbm, dtype=np.float64))
+        return np.log(self.far_probability(d)) + np.where(np.isfinite(r), self.flat_logpdf, 0.0)
+
+    def terms(self, d_m, alpha_rad) -> GaussianTerms | OwnTerms:
+        """Per-pair terms at distances `d_m` [m] and bearings `alpha_rad` [rad] (broadcast).
+
+        Bearings beyond ``d_max_m`` are not used (may be NaN).
+        """
+        d, a = np.broadcast_arrays(np.asarray(d_m, dtype=np.float64),
+                                   np.asarray(alpha_rad, dtype=np.float64))
+        shape = d.shape
+        d, a = d.reshape(-1), a.reshape(-1)
+        near = np.isfinite(d) if self.d_max_m is None else d < self.d_max_m
+        near &= np.isfinite(a)
+        far_p = self.far_probability(d) if self.d_max_m is not None else np.full(d.shape, self.eps)
+        m = self.model
+        if self.own:
+            log_miss = np.log1p(-far_p)
+            if near.any():
+                n = int(near.sum())
+                log_miss[near] = m.log_likelihood(d[near], a[near], np.zeros(n, bool),
+                                                  np.full(n, np.nan))
+            return OwnTerms(m, d.reshape(shape), a.reshape(shape), near.reshape(shape),
+                            log_miss.reshape(shape), np.log(far_p).reshape(shape),
+                            self.flat_logpdf, self.use_rssi)
+        p = far_p
+        mu = np.full(d.shape, np.nan)
+        sd = np.ones(d.shape)
+        dn, an = d[near], a[near]
+        if dn.size:
+            p[near] = np.clip(np.nan_to_num(m.fT(dn, an), nan=0.0), self.eps, 1.0 - self.eps)
+            if self.use_rssi:
+                mu[near] = m.fs_dbm(dn, an)
+                if self.has_sigma:
+                    sd[near] = m.rssi_sigma_db(dn, an)
+                else:
+                    sd[near] = self.sigma_rssi_db
+        flat = np.full(d.shape, self.flat_logpdf)
+        if self.use_rssi:
+            # a pair inside the domain without an RSSI prediction (NaN): detection only
+            flat[near & np.isnan(mu)] = 0.0
+        return GaussianTerms(np.log(p).reshape(shape), np.log1p(-p).reshape(shape),
+                             mu.reshape(shape), sd.reshape(shape), flat.reshape(shape),
+                             self.z_clip)
+
+    def log_likelihood(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:
+        """Elementwise ``log p(read, rssi | d, alpha)`` (all four broadcast)."""
+        d, a, r, s = np.broadcast_arrays(np.asarray(d_m, dtype=np.float64),
+                                         np.asarray(alpha_rad, dtype=np.float64),
+                                         np.asarray(read, dtype=bool),
+                                         np.asarray(rssi_dbm, dtype=np.float64))
+        return self.terms(d, a).loglik(r, s)
+
+    def sample(self, d_m, alpha_rad, rng: np.random.Generator):
+        """Outcomes drawn from the model (unclipped fT; RSSI ~ N(fs_dbm, sigma)).
+
+        Returns ``(read, rssi_dbm)`` of the broadcast shape; RSSI NaN where not read
+        or where the model predicts none.
+        """
+        d, a = np.broadcast_arrays(np.asarray(d_m, dtype=np.float64),
+                                   np.asarray(alpha_rad, dtype=np.float64))
+        m = self.model
+        p = np.nan_to_num(np.asarray(m.fT(d, a), dtype=np.float64), nan=0.0)
+        read = rng.random(d.shape) < p
+        z = rng.standard_normal(d.shape)
+        if not self.use_rssi:
+            return read, np.full(d.shape, np.nan)
+        mu = np.asarray(m.fs_dbm(d, a), dtype=np.float64)
+        if self.has_sigma:
+            sd = np.asarray(m.rssi_sigma_db(d, a), dtype=np.float64)
+        else:
+            sd = self.sigma_rssi_db if self.sigma_rssi_db is not None else 0.0
+        return read, np.where(read, mu + sd * z, np.nan)
+
+
+class OracleLikelihood:
+    """The reader's own read likelihood given true one-way gains (see module doc).
+
+    Parameters
+    ----------
+    budget : propagation.LinkBudget
+    miss_probability : float
+        Anti-collision miss probability of a closed link, in [0, 1).
+    rssi_noise_db : float
+        Reader RSSI noise std [dB] (>= 0).
+    rssi_resolution_db : float
+        RSSI quantisation step [dB] (>= 0); enters as variance ``step^2 / 12``.
+    closure_sigma_db : float, optional
+        Width of the soft link-closure step in the RSSI domain [dB]; default the RSSI
+        sigma (noise and quantisation), at least 0.1 dB.
+    eps, z_clip : float
+        As :class:`ModelLikelihood`.
+    """
+
+    def __init__(self, budget, *, miss_probability: float, rssi_noise_db: float,
+                 rssi_resolution_db: float = 0.0, closure_sigma_db: float | None = None,
+                 eps: float = EPS, z_clip: float = Z_CLIP) -> None:
+        self.budget = budget
+        if not 0.0 <= float(miss_probability) < 1.0:
+            raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+        if not float(rssi_noise_db) >= 0 or not float(rssi_resolution_db) >= 0:
+            raise ValueError("rssi_noise_db and rssi_resolution_db must be >= 0")
+        self.miss_probability = float(miss_probability)
+        self.sigma_db = float(np.sqrt(float(rssi_noise_db) ** 2
+                                      + float(rssi_resolution_db) ** 2 / 12.0))
+        if self.sigma_db <= 0:
+            self.sigma_db = 0.1  # a noise-free reader: keep the density finite
+        cs = max(self.sigma_db, 0.1) if closure_sigma_db is None else float(closure_sigma_db)
+        if not cs > 0:
+            raise ValueError(f"closure_sigma_db must be > 0, got {closure_sigma_db!r}")
+        self.closure_sigma_db = cs
+        self.eps = _check_eps(eps)
+        self.z_clip = _check_zclip(z_clip)
+        self.threshold_dbm = float(budget.reader_rssi_dbm(budget.min_gain_db()))
+
+    @classmethod
+    def from_reader(cls, reader, frequency_hz: float | None = None, **kw) -> OracleLikelihood:
+        """From a :class:`pipeline.acquisition.config.ReaderConfig` (budget, noise, losses);
+        the link budget is ``reader.link_budget(frequency_hz)`` (or ``reader.budget`` of a
+        reader object that holds one)."""
+        if hasattr(reader, "link_budget"):
+            budget = reader.link_budget(frequency_hz)
+        else:
+            budget = reader.budget
+        return cls(budget, miss_probability=reader.anticollision_miss_probability,
+                   rssi_noise_db=reader.rssi_noise_db,
+                   rssi_resolution_db=reader.rssi_resolution_db, **kw)
+
+    def read_probability(self, gain_db) -> np.ndarray:
+        """Unclipped P(read) of one-way gains [dB] (-inf: 0)."""
+        mu = np.asarray(self.budget.reader_rssi_dbm(gain_db), dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            lc = log_ndtr((mu - self.threshold_dbm) / self.closure_sigma_db)
+        return np.exp(np.nan_to_num(lc, nan=-np.inf)) * (1.0 - self.miss_probability)
+
+    def terms(self, gain_db) -> GaussianTerms:
+        """Per-pair terms of one-way gains [dB] (any shape; -inf where not traced)."""
+        g = np.asarray(gain_db, dtype=np.float64)
+        if np.any(np.isnan(g)):
+            raise ValueError("oracle gains contain NaN (use -inf for untraced pairs)")
+        p = np.clip(self.read_probability(g), self.eps, 1.0 - self.eps)
+        mu = np.asarray(self.budget.reader_rssi_dbm(g), dtype=np.float64)
+        return GaussianTerms(np.log(p), np.log1p(-p), mu, self.sigma_db, 0.0, self.z_clip)
+
+    def log_likelihood(self, gain_db, read, rssi_dbm) -> np.ndarray:
+        """Elementwise ``log p(read, rssi | gain)``."""
+        return self.terms(gain_db).loglik(read, rssi_dbm)
+
+    def sample(self, gain_db, rng: np.random.Generator):
+        """Outcomes drawn exactly from this likelihood: ``(read, rssi_dbm)``."""
+        g = np.asarray(gain_db, dtype=np.float64)
+        read = rng.random(g.shape) < self.read_probability(g)
+        mu = np.asarray(self.budget.reader_rssi_dbm(g), dtype=np.float64)
+        z = rng.standard_normal(g.shape)
+        return read, np.where(read, mu + self.sigma_db * z, np.nan)
+
+    def with_gains(self, gain_db) -> OracleGains:
+        """Bind a (slots x candidates) gain matrix for :func:`~pipeline.localisation.localise_tags`."""
+        return OracleGains(self, gain_db)
+
+
+class OracleGains:
+    """An :class:`OracleLikelihood` with its true gains, shape (S slots, C candidates) [dB].
+
+    Column c must be candidate c of the candidate set, row s slot s of the
+    :class:`~pipeline.localisation.Observations` (in their order); -inf where not traced.
+    """
+
+    def __init__(self, oracle: OracleLikelihood, gain_db) -> None:
+        g = np.asarray(gain_db, dtype=np.float64)
+        if g.ndim != 2:
+            raise ValueError(f"oracle gains must be (slots, candidates), got shape {g.shape}")
+        if np.any(np.isnan(g)):
+            raise ValueError("oracle gains contain NaN (use -inf for untraced pairs)")
+        self.oracle = oracle
+        self.gain_db = g
+        self.name = "oracle"
+
+    def terms_for(self, cols) -> GaussianTerms:
+        return self.oracle.terms(self.gain_db[:, cols])
+
+
+# ----------------------------------------------------------------------------- helpers
+def _geometry_columns(reads, pose: str, table: str):
+    """(d, alpha, read, rssi) of a reads table, or of an object with those attributes."""
+    if all(hasattr(reads, k) for k in ("d", "alpha", "read", "rssi")):  # sensormodels.Attempts
+        arrs = (reads.d, reads.alpha, reads.read, reads.rssi)
+        if len(arrs[0]) == 0:
+            raise ValueError(f"{table}: no attempts")
+        return tuple(np.asarray(a, dtype=bool if i == 2 else np.float64)
+                     for i, a in enumerate(arrs))
+    if pose not in ("est", "true"):
+        raise ValueError(f"pose must be 'est' or 'true', got {pose!r}")
+    if not isinstance(reads, pd.DataFrame):
+        raise ValueError(f"{table}: expected a reads DataFrame or Attempts, got "
+                         f"{type(reads).__name__}")
+    cols = ("read", "rssi_dbm", f"d_{pose}_m", f"alpha_{pose}_rad")
+    missing = [c for c in cols if c not in reads.columns]
+    if missing:
+        raise ValueError(f"{table}: missing column(s) {missing}")
+    if len(reads) == 0:
+        raise ValueError(f"{table}: the read log is empty")
+    return (reads[f"d_{pose}_m"].to_numpy(np.float64),
+            reads[f"alpha_{pose}_rad"].to_numpy(np.float64),
+            reads["read"].to_numpy(bool), reads["rssi_dbm"].to_numpy(np.float64))
+
+
+def rssi_residual_std(model, reads: pd.DataFrame, d_max_m: float, pose: str = "est",
+                      table: str = "reads") -> float:
+    """Standard deviation [dB] of ``rssi - fs_dbm(d, alpha)`` over the reads with d < d_max_m.
+
+    `reads` is the TRAINING tour's ``reads.parquet`` (the model's own residual, what a
+    robot can know) or a :class:`pipeline.sensormodels.Attempts`; ValueError if no read
+    has an RSSI there.
+    """
+    d, a, r, s = _geometry_columns(reads, pose, table)
+    keep = r & np.isfinite(s) & np.isfinite(d) & np.isfinite(a) & (d < float(d_max_m))
+    if keep.sum() < 2:
+        raise ValueError(f"{table}: fewer than 2 reads with an RSSI within d < {d_max_m} m")
+    res = s[keep] - np.asarray(model.fs_dbm(d[keep], a[keep]), dtype=np.float64)
+    res = res[np.isfinite(res)]
+    if len(res) < 2:
+        raise ValueError(f"{table}: the model predicts no RSSI at the reads")
+    return float(np.std(res, ddof=1))
+
+
+def fit_far_detection(reads: pd.DataFrame, d_max_m: float, pose: str = "est",
+                      quantile: float = 0.99, table: str = "reads") -> tuple[float, float]:
+    """``(p_far, d_far_m)`` of the far rule from the TRAINING reads (table or Attempts).
+
+    ``d_far_m`` is the `quantile` of the distances of reads at ``d >= d_max_m`` (d_max_m
+    itself when there are none) and ``p_far`` the read rate of the attempts with
+    ``d_max_m <= d < d_far_m`` (0 when there are none).
+    """
+    d, _, r, _ = _geometry_columns(reads, pose, table)
+    ok = np.isfinite(d) & (d >= float(d_max_m))
+    far_reads = d[ok & r]
+    if len(far_reads) == 0:
+        return 0.0, float(d_max_m)
+    d_far = float(np.quantile(far_reads, float(quantile)))
+    band = ok & (d < d_far)
+    p = float(r[band].mean()) if band.any() else 0.0
+    return p, d_far
