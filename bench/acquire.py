@@ -113,7 +113,7 @@ def bench_reads(scene, robot, tour):
     """
     from pipeline.acquisition import ReaderConfig, as_pose_track, read_attempts, reads_from_gains
 
-    reader = ReaderConfig()
+    reader = ReaderConfig(read_rate_hz=10.0)  # paper_scale's rate
     track = as_pose_track(tour)
     rng = np.random.default_rng(0)
 
@@ -142,7 +142,7 @@ def bench_reads_traced(scene, robot, tour, seconds=4.0, rays=10_000, depth=3):
     track = PoseTrack(
         full.t_s[keep], full.true_poses[keep], full.est_poses[keep], full.odom_poses[keep]
     )
-    reader = ReaderConfig()
+    reader = ReaderConfig(read_rate_hz=10.0)  # paper_scale's rate
     trace = {"max_depth": depth, "samples_per_src": rays}
     rows = []
     with tempfile.TemporaryDirectory() as cache:

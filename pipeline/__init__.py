@@ -1,12 +1,24 @@
 """Pipeline: robot and localisation, reader acquisition, evaluation, figures and orchestration.
 
 The study itself: ``pipeline.load_config(path)`` -> :class:`StudyConfig`,
-``pipeline.run_study(config, run_dir)`` -> :class:`StudyResult` (cached, resumable
-stages, see :mod:`pipeline.study` and :mod:`pipeline.stages`); sweeps in
-:mod:`pipeline.sweep`; the ``rfidstudy`` command line in :mod:`pipeline.cli`.
+``pipeline.run_full_study(config, run_dir)`` -> :class:`StudyResult` (cached, resumable
+stages: the engine :mod:`pipeline.study`, ``run_study(config, run_dir, stages)``, runs
+the stage list of :mod:`pipeline.stages`); sweeps in :mod:`pipeline.sweep`; the
+``rfidstudy`` command line in :mod:`pipeline.cli`.
 """
 
 from pipeline.config import ConfigError, StudyConfig, load_config
 from pipeline.study import StageError, StudyResult, run_study
 
-__all__ = ["ConfigError", "StageError", "StudyConfig", "StudyResult", "load_config", "run_study"]
+__all__ = ["ConfigError", "StageError", "StudyConfig", "StudyResult", "load_config",
+           "run_full_study", "run_study"]
+
+
+def __getattr__(name: str):
+    # the stages are loaded on first use: importing the engine (or anything in pipeline)
+    # does not import the stage package
+    if name == "run_full_study":
+        from pipeline.stages import run_full_study
+
+        return run_full_study
+    raise AttributeError(f"module 'pipeline' has no attribute {name!r}")

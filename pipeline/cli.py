@@ -160,7 +160,8 @@ def run(
     Every config key and its default: configs/reference.toml (or `rfidstudy config`).
     """
     _setup_logging(verbose)
-    from pipeline.study import RunDirError, StageError, StudyInterrupted, run_study
+    from pipeline.stages import run_full_study
+    from pipeline.study import RunDirError, StageError, StudyInterrupted
 
     try:
         cfg = resolve_target(target, set_, backend)
@@ -170,8 +171,8 @@ def run(
         _fail("interrupted before the run started", code=130)
     t0 = time.perf_counter()
     try:
-        res = run_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv,
-                        force_dir=force_dir)
+        res = run_full_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv,
+                             force_dir=force_dir)
     except StudyInterrupted as exc:
         typer.echo(str(exc), err=True)
         raise typer.Exit(130) from None

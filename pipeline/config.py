@@ -7,6 +7,14 @@ writes every key with its default and documentation; the shipped
 
 Angles in TOML carry their unit (``yaw_deg``); the orchestration converts them to
 radians before calling the packages, which work in SI.
+
+One schema, one default per key: where a package consumes a section, the section's
+dataclass is the package's own and is defined there (``[tour]``:
+:class:`pipeline.robot.TourConfig`, ``[localisation]``:
+:class:`pipeline.robot.LocalisationConfig`, ``[reader]``:
+:class:`pipeline.acquisition.ReaderConfig`), re-exported here; the default antennas
+are :func:`pipeline.robot.default_antennas`, the carrier that of
+:class:`propagation.LinkBudget` and the ray budget that of :func:`propagation.trace_links`.
 """
 
 from __future__ import annotations
@@ -15,14 +23,22 @@ import dataclasses
 import tomllib
 from pathlib import Path
 
+import numpy as np
+
+from pipeline.acquisition.config import ReaderConfig
 from pipeline.configschema import ConfigError, from_dict, option, reference_toml, section, to_dict
+from pipeline.robot.kinematics import default_antennas
+from pipeline.robot.simulate import LocalisationConfig
+from pipeline.robot.trajectory import TourConfig
+from propagation.linkbudget import LinkBudget
+from propagation.tracing import DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC
 
 __all__ = [
     "AntennaMountConfig",
     "ConfigError",
     "EvaluationConfig",
     "LocalisationConfig",
-    "ReaderConfigSection",
+    "ReaderConfig",
     "RobotConfig",
     "StudyConfig",
     "TourConfig",
@@ -71,10 +87,11 @@ class AntennaMountConfig:
 
 def _default_antennas() -> tuple[AntennaMountConfig, ...]:
     # pipeline.robot.default_antennas(): the chapter's two panels at the front corners of
-    # a mast 0.70 m above the floor, yawed +-45 deg (see that function for why).
-    return (
-        AntennaMountConfig(name="left", x_m=0.20, y_m=0.15, z_m=0.70, yaw_deg=45.0),
-        AntennaMountConfig(name="right", x_m=0.20, y_m=-0.15, z_m=0.70, yaw_deg=-45.0),
+    # a mast 0.70 m above the floor, yawed +-45 deg (see that function for why)
+    return tuple(
+        AntennaMountConfig(name=m.name, x_m=m.x_m, y_m=m.y_m, z_m=m.z_m,
+                           yaw_deg=float(np.rad2deg(m.yaw_rad)), tilt_deg=float(np.rad2deg(m.tilt_rad)))
+        for m in default_antennas()
     )
 
 
@@ -96,126 +113,6 @@ class RobotConfig:
 
 
 @section
-class TourConfig:
-    """The guided training tour and the held-out evaluation path (pipeline.robot)."""
-
-    n_passes: int = option(
-        2, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 9)."
-    )
-    lane_fractions: tuple[float, ...] = option(
-        (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
-    )
-    lane_changes_per_pass: int = option(1, "Lane changes inside each pass.")
-    stops_per_pass: int = option(1, "Stops inside each pass.")
-    speed_m_per_s: float = option(0.3, "Cruise speed [m/s] (the chapter's robot: about 0.3 m/s).")
-    dt_s: float = option(0.1, "Pose sampling period (one laser scan / MCL update per pose) [s].")
-    max_length_m: float = option(
-        0.0, "Drive only the first max_length_m metres of the scene's route (0 = whole route) [m]."
-    )
-    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path (chapter Fig. 7: 200).")
-
-    def __post_init__(self):
-        _positive(self, "n_passes", "speed_m_per_s", "dt_s", "n_eval_poses")
-        _nonneg(self, "max_length_m", "lane_changes_per_pass", "stops_per_pass")
-        if not self.lane_fractions or any(abs(f) > 1 for f in self.lane_fractions):
-            raise ConfigError(f"lane_fractions must be non-empty and in [-1, 1], got {self.lane_fractions}")
-        if self.n_eval_poses < 2:
-            raise ConfigError(f"n_eval_poses must be >= 2, got {self.n_eval_poses}")
-
-
-@section
-class LocalisationConfig:
-    """Odometry noise, the laser scanner and Monte Carlo Localization (pipeline.robot)."""
-
-    enabled: bool = option(True, "Run MCL; if false the estimated poses equal the true poses.")
-    n_particles: int = option(500, "MCL particles.")
-    n_beams_used: int = option(30, "Laser beams per scan used by the likelihood field.")
-    laser_beams: int = option(181, "Laser beams over the field of view (SICK LMS-200: 181).")
-    laser_fov_deg: float = option(180.0, "Laser field of view [deg].")
-    laser_max_range_m: float = option(8.0, "Laser maximum range [m].")
-    laser_noise_m: float = option(0.01, "Laser range noise standard deviation [m].")
-    odometry_noise: tuple[float, ...] = option(
-        (0.02, 0.02, 0.02, 0.002),
-        "Robot odometry noise alpha1..alpha4 (Thrun et al. 2005, Table 5.6).",
-    )
-    map_resolution_m: float = option(0.05, "Likelihood-field grid resolution [m].")
-    map_error_m: float = option(
-        0.05,
-        "Std of the signed offset of each wall of the robot's map along its normal (one draw "
-        "per wall line, once per building, shared by both tours; survey/SLAM error, as-built "
-        "tolerances) [m]; 0 = every wall where it is.",
-    )
-    map_scale_error: float = option(
-        0.0, "Std of the fractional scale error of the robot's map (scaled about the building's "
-        "centre by 1 + s; 0.001 = 1 mm per metre) [1]; 0 = none.",
-    )
-    map_noise_m: float = option(
-        0.0, "Std of a smooth, unsigned random displacement of the map's likelihood field on top "
-        "of the wall offsets [m]; 0 = none.",
-    )
-    map_noise_correlation_m: float = option(
-        1.0, "Correlation length of that smooth displacement along surfaces [m]."
-    )
-    sigma_hit_m: float = option(
-        0.10,
-        "Likelihood-field std of the MCL laser model [m]; keep it >= map_error_m (corridor_lab, "
-        "per-wall offsets of 0.05 m std: MCL tracks at 0.05 and 0.10, position error median "
-        "3-8 cm; at 0.2 m std the p90 reached 2-6 m on 2 of 3 maps).",
-    )
-    max_position_error_median_m: float = option(
-        0.5, "The tour stage fails when the MCL position error median of either tour exceeds "
-        "this (MCL lost track: lower the map error or widen sigma_hit_m) [m].",
-    )
-    max_position_error_p90_m: float = option(
-        1.0, "The tour stage fails when the 90th percentile of the MCL position error of either "
-        "tour exceeds this [m].",
-    )
-
-    def __post_init__(self):
-        _positive(self, "n_particles", "n_beams_used", "laser_beams", "laser_fov_deg",
-                  "laser_max_range_m", "map_resolution_m", "map_noise_correlation_m", "sigma_hit_m",
-                  "max_position_error_median_m", "max_position_error_p90_m")
-        _nonneg(self, "laser_noise_m", "map_error_m", "map_scale_error", "map_noise_m")
-        if len(self.odometry_noise) != 4 or min(self.odometry_noise) < 0:
-            raise ConfigError(f"odometry_noise must be 4 values >= 0, got {self.odometry_noise}")
-
-
-@section
-class ReaderConfigSection:
-    """The UHF reader and the backscatter link budget (docs/physics.md, 'The backscatter link')."""
-
-    read_rate_hz: float = option(
-        4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10)."
-    )
-    antenna_mode: str = option(
-        "round_robin", "Antenna multiplexing: 'round_robin' (one port per cycle) or 'all'."
-    )
-    rssi_noise_db: float = option(1.0, "Reader RSSI noise standard deviation [dB].")
-    rssi_resolution_db: float = option(0.5, "Reader RSSI quantisation step [dB].")
-    anticollision_miss_probability: float = option(
-        0.05, "Probability that a powered, audible tag is still missed in a cycle."
-    )
-    tx_power_dbm: float = option(
-        27.15, "Conducted reader power [dBm] (2 W ERP = 35.15 dBm EIRP with the 8 dBi antenna)."
-    )
-    tag_sensitivity_dbm: float = option(-18.0, "Tag chip sensitivity [dBm] (Monza-4 class).")
-    reader_sensitivity_dbm: float = option(-80.0, "Reader receiver sensitivity [dBm].")
-    polarization_loss_db: float = option(3.0, "Polarisation mismatch loss per way [dB] (circular to linear).")
-    modulation_loss_db: float = option(-6.0, "Backscatter modulation factor M [dB].")
-    range_margin_db: float = option(
-        10.0, "Margin over the free-space budget when choosing which links can be read and are traced [dB]."
-    )
-
-    def __post_init__(self):
-        _positive(self, "read_rate_hz")
-        _nonneg(self, "rssi_noise_db", "rssi_resolution_db", "polarization_loss_db", "range_margin_db")
-        if self.antenna_mode not in ("round_robin", "all"):
-            raise ConfigError(f"antenna_mode must be 'round_robin' or 'all', got {self.antenna_mode!r}")
-        if not 0.0 <= self.anticollision_miss_probability < 1.0:
-            raise ConfigError("anticollision_miss_probability must be in [0, 1)")
-
-
-@section
 class TracingConfig:
     """Ray tracing with Sionna RT (propagation package)."""
 
@@ -232,9 +129,12 @@ class TracingConfig:
         "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
     )
     max_depth: int = option(
-        5, "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5)."
+        DEFAULT_MAX_DEPTH,
+        "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5).",
     )
-    samples_per_src: int = option(30_000, "Rays shot per antenna position (convergence check: bench/trace.py).")
+    samples_per_src: int = option(
+        DEFAULT_SAMPLES_PER_SRC, "Rays shot per antenna position (convergence check: bench/trace.py)."
+    )
     memory_budget_mb: float = option(2048.0, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
@@ -330,11 +230,11 @@ class StudyConfig:
 
     scene: str = option("corridor_lab", "Bundled scene name, or a scene.toml / Mitsuba XML path.")
     seed: int = option(2011, "Seed of every random generator in the study (bit-reproducible runs).")
-    frequency_hz: float = option(865e6, "Carrier frequency [Hz] (ETSI UHF RFID band).")
+    frequency_hz: float = option(LinkBudget.frequency_hz, "Carrier frequency [Hz] (ETSI UHF RFID band).")
     robot: RobotConfig = option(doc="Robot and antenna mounts.", factory=RobotConfig)
     tour: TourConfig = option(doc="Training tour and evaluation path.", factory=TourConfig)
     localisation: LocalisationConfig = option(doc="Odometry, laser and MCL.", factory=LocalisationConfig)
-    reader: ReaderConfigSection = option(doc="Reader and link budget.", factory=ReaderConfigSection)
+    reader: ReaderConfig = option(doc="Reader and link budget.", factory=ReaderConfig)
     tracing: TracingConfig = option(doc="Ray tracing.", factory=TracingConfig)
     training: TrainingConfig = option(doc="Training sets and models.", factory=TrainingConfig)
     evaluation: EvaluationConfig = option(doc="Evaluation.", factory=EvaluationConfig)

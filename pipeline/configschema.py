@@ -7,7 +7,8 @@ source this module
 * builds each section's numpydoc ``Attributes`` docstring (:func:`section`);
 * reads a nested dict (parsed TOML) into the dataclass tree, rejecting unknown keys
   by name and wrong types by key, expected type and received value
-  (:func:`from_dict`), every message prefixed with the file it came from;
+  (:func:`from_dict`, values through :func:`scenes.schema.convert_value`, the
+  converter the scene specs use too), every message prefixed with the file it came from;
 * writes the tree back to a dict (:func:`to_dict`) and to a commented reference
   TOML with every key, its default and its documentation (:func:`reference_toml`).
 
@@ -21,10 +22,11 @@ string ``""`` stands for ``None`` where a string-like option may be absent),
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from typing import Any
+
+from scenes.schema import ValueTypeError, convert_value
 
 __all__ = [
     "ConfigError",
@@ -130,60 +132,12 @@ def _fail(source: str, key: str, msg: str) -> ConfigError:
     return ConfigError(f"{source}: {key}: {msg}")
 
 
-def _convert(value: Any, tp: Any, key: str, source: str) -> Any:
-    """Check ``value`` against the annotation ``tp`` and convert it (lists -> tuples)."""
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        args = typing.get_args(tp)
-        if value is None and type(None) in args:
-            return None
-        non_none = [a for a in args if a is not type(None)]
-        if value == "" and type(None) in args and str not in non_none:
-            return None
-        errors = []
-        for a in non_none:
-            try:
-                return _convert(value, a, key, source)
-            except ConfigError as exc:
-                errors.append(str(exc))
-        raise _fail(source, key, f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}")
-    if origin in (list, tuple):
-        if not isinstance(value, (list, tuple)):
-            raise _fail(source, key, f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}")
-        args = [a for a in typing.get_args(tp) if a is not Ellipsis]
-        inner = args[0] if args else Any
-        return tuple(_convert(v, inner, f"{key}[{i}]", source) for i, v in enumerate(value))
-    if dataclasses.is_dataclass(tp):
-        if isinstance(value, tp):
-            return value
-        if not isinstance(value, dict):
-            raise _fail(source, key, f"expected a table, got {type(value).__name__} {value!r}")
-        return from_dict(tp, value, source=source, prefix=key)
-    if tp is Any:
-        return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise _fail(source, key, f"expected bool, got {type(value).__name__} {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise _fail(source, key, f"expected int, got {type(value).__name__} {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _fail(source, key, f"expected float, got {type(value).__name__} {value!r}")
-        if not math.isfinite(float(value)):
-            raise _fail(source, key, f"expected a finite float, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise _fail(source, key, f"expected str, got {type(value).__name__} {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {tp!r} for {key}")  # programming error
-
-
 def from_dict(cls, data: dict, source: str = "<config>", prefix: str = ""):
     """Build a section dataclass from a nested dict, validating keys and types.
+
+    Values are checked and converted by the one converter of this project,
+    :func:`scenes.schema.convert_value` (shared with the scene specs); nested sections
+    and arrays of tables are read by this function, recursively.
 
     Parameters
     ----------
@@ -206,6 +160,10 @@ def from_dict(cls, data: dict, source: str = "<config>", prefix: str = ""):
         raise _fail(source, prefix or "<root>", f"expected a table, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
+
+    def table(tp, value, key):
+        return from_dict(tp, value, source, key)
+
     kwargs = {}
     for key, value in data.items():
         dotted = f"{prefix}.{key}" if prefix else key
@@ -214,18 +172,10 @@ def from_dict(cls, data: dict, source: str = "<config>", prefix: str = ""):
             raise UnknownKeyError(
                 f"{source}: {dotted}: unknown key {key!r} in {where}; known keys: {', '.join(names)}"
             )
-        tp = hints[key]
-        origin = typing.get_origin(tp)
-        if origin in (list, tuple):
-            args = [a for a in typing.get_args(tp) if a is not Ellipsis]
-            if args and dataclasses.is_dataclass(args[0]):
-                if not isinstance(value, (list, tuple)):
-                    raise _fail(source, dotted, f"expected an array of tables, got {value!r}")
-                kwargs[key] = tuple(
-                    from_dict(args[0], v, source, f"{dotted}[{i}]") for i, v in enumerate(value)
-                )
-                continue
-        kwargs[key] = _convert(value, tp, dotted, source)
+        try:
+            kwargs[key] = convert_value(value, hints[key], dotted, empty_is_none=True, table=table)
+        except ValueTypeError as exc:
+            raise _fail(source, exc.key, exc.problem) from None
     try:
         return cls(**kwargs)
     except ConfigError as exc:

@@ -170,7 +170,7 @@ def headline_html(metrics: dict) -> list[str]:
     Parameters
     ----------
     metrics : dict
-        ``metrics.json`` with a ``heldout`` section (see ``pipeline.stages_model``).
+        ``metrics.json`` with a ``heldout`` section (see ``pipeline.stages.evaluation``).
     """
     held = metrics["heldout"]
     fig7 = metrics.get("fig7") or {}

@@ -25,12 +25,14 @@ The run directory never lies:
 - A directory that is not a run directory is refused (:func:`pipeline.runstore.open_run_dir`),
   a run directory of another config is reported with the keys that differ, and one
   that cannot be written raises :class:`pipeline.runstore.RunDirError` (one line).
-- ``checks`` (for the full study: :func:`check_antenna_mounts`) run before the first
-  stage that is not an ``always`` stage, so a config that cannot work on its scene
-  fails before anything is traced.
+- ``checks`` (for the full study: :func:`pipeline.stages.check_antenna_mounts`) run
+  before the first stage that is not an ``always`` stage, so a config that cannot work
+  on its scene fails before anything is traced.
 
-Orchestration only: the stages call ``scenes``, ``propagation``, ``fuzzymodel`` and
-the ``pipeline`` sub-packages (see :mod:`pipeline.stages`).
+The engine takes its stage list as an argument and imports no stage: the study's
+stages are :data:`pipeline.stages.STAGES` (:func:`pipeline.stages.run_full_study` runs
+them); they call ``scenes``, ``propagation``, ``fuzzymodel`` and the ``pipeline``
+sub-packages.
 """
 
 from __future__ import annotations
@@ -72,7 +74,6 @@ __all__ = [
     "StageInputError",
     "StudyInterrupted",
     "StudyResult",
-    "check_antenna_mounts",
     "config_changes",
     "config_slice",
     "peak_rss_mib",
@@ -413,81 +414,12 @@ def _previous_run(store: RunStore, config: StudyConfig, result: StudyResult) -> 
                      "these keys re-run", store.root, shown, more)
 
 
-def check_antenna_mounts(ctx: StageContext) -> None:
-    """Every antenna mount lies in the scene's free space for a robot on the route.
-
-    The robot stands at points every 0.5 m along the study route (both headings, as the
-    tour drives up and back); each antenna's world position must be free
-    (:func:`scenes.geometry.is_free`: inside the free volume, outside every solid).
-
-    Raises
-    ------
-    pipeline.config.ConfigError
-        Naming the key (``robot.antennas[0].z_m``), its value, the antenna and where it
-        would be: above the ceiling, below the floor, or inside a solid.
-    """
-    import numpy as np
-
-    from pipeline.stages_data import load_scene, study_route
-    from scenes.geometry import in_free_space, solid_material_at
-
-    cfg = ctx.config
-    sc = load_scene(ctx)
-    route = study_route(sc, cfg)
-    lo, hi = sc.bounds_m
-    if route is None or len(route) < 2:
-        xy = np.array([(lo[:2] + hi[:2]) / 2.0])
-        heading = np.zeros(1)
-        check_xy = False
-    else:
-        pts, hd = [], []
-        for a, b in zip(route[:-1], route[1:], strict=True):
-            seg = b - a
-            n = max(1, int(np.ceil(np.hypot(*seg) / 0.5)))
-            t = np.linspace(0.0, 1.0, n + 1)
-            pts.append(a + t[:, None] * seg)
-            hd.append(np.full(n + 1, np.arctan2(seg[1], seg[0])))
-        xy = np.concatenate(pts * 2)
-        heading = np.concatenate(hd + [h + np.pi for h in hd])
-        check_xy = True
-    boxes = sc.free_space_m if getattr(sc, "free_space_m", None) is not None and len(sc.free_space_m) \
-        else sc.bounds_m[None]
-    z_top, z_bottom = float(np.max(boxes[:, 1, 2])), float(np.min(boxes[:, 0, 2]))
-    c, s_ = np.cos(heading), np.sin(heading)
-    for i, a in enumerate(cfg.robot.antennas):
-        key = f"robot.antennas[{i}]"
-        if a.z_m >= z_top:
-            raise ConfigError(f"{key}.z_m = {a.z_m}: antenna {a.name!r} would be above the ceiling "
-                              f"of scene {sc.name!r} (free space ends at z = {z_top:.3g} m)")
-        if a.z_m <= z_bottom:
-            raise ConfigError(f"{key}.z_m = {a.z_m}: antenna {a.name!r} would be below the floor "
-                              f"of scene {sc.name!r} (free space starts at z = {z_bottom:.3g} m)")
-        if not check_xy:
-            continue
-        world = np.column_stack([xy[:, 0] + c * a.x_m - s_ * a.y_m,
-                                 xy[:, 1] + s_ * a.x_m + c * a.y_m, np.full(len(xy), a.z_m)])
-        free = in_free_space(sc, world)
-        mats = np.full(len(world), "", dtype=object)
-        if np.any(free):
-            mats[free] = solid_material_at(sc, world[free])
-        bad = np.flatnonzero(~free | (mats != ""))
-        if len(bad):
-            j = bad[0]
-            where = (f"inside {mats[j]!r} solid geometry" if free[j]
-                     else "outside the scene's free space")
-            raise ConfigError(
-                f"{key} ({a.name!r}: x_m = {a.x_m}, y_m = {a.y_m}, z_m = {a.z_m}): with the robot "
-                f"on the route at ({xy[j, 0]:.2f}, {xy[j, 1]:.2f}) m the antenna would be at "
-                f"({world[j, 0]:.2f}, {world[j, 1]:.2f}, {world[j, 2]:.2f}) m, {where} of scene "
-                f"{sc.name!r}")
-
-
 def _write_error(exc: OSError, store: RunStore) -> OSError | RunDirError:
     err = write_error(exc, store.root)
     return exc if err is None else err
 
 
-def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stage] | None = None,
+def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage], *,
               progress: bool = False, force: Sequence[str] = (),
               command_line: Sequence[str] | None = None,
               manifest_extra: Callable[[StudyConfig], dict] | None = None,
@@ -502,8 +434,9 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
     run_dir : path
         Run directory: missing (created), empty, or a run directory of this tool.
         ``config.toml`` and ``manifest.json`` are (re)written there.
-    stages : sequence of Stage, optional
-        Stage list (default: :data:`pipeline.stages.STAGES`, the full study).
+    stages : sequence of Stage
+        The stages, in order (the full study: :data:`pipeline.stages.STAGES`, or call
+        :func:`pipeline.stages.run_full_study`).
     progress : bool
         Draw rich progress bars on stderr.
     force : sequence of str
@@ -511,14 +444,14 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
     command_line : sequence of str, optional
         Recorded in the manifest (default ``sys.argv``).
     manifest_extra : callable, optional
-        ``f(config) -> dict`` merged into the manifest (default: package versions and
-        the Dr.Jit backend, see :func:`pipeline.stages.manifest_info`).
+        ``f(config) -> dict`` merged into the manifest (the full study: package versions
+        and the Dr.Jit backend, :func:`pipeline.stages.manifest_info`).
     force_dir : bool
         Run into a non-empty directory that is not a run directory.
     checks : sequence of callable, optional
         ``f(ctx)`` run once before the first stage that is not ``always`` (after the
-        scene stage); they raise :class:`~pipeline.config.ConfigError` naming a key.
-        Default: ``(check_antenna_mounts,)`` for the full study, none for ``stages``.
+        scene stage); they raise :class:`~pipeline.config.ConfigError` naming a key
+        (the full study: :data:`pipeline.stages.CHECKS`).
 
     Returns
     -------
@@ -538,13 +471,6 @@ def run_study(config: StudyConfig, run_dir: str | Path, *, stages: Sequence[Stag
     pipeline.config.ConfigError
         A check failed (the message names the key and value).
     """
-    if stages is None:
-        from pipeline.stages import STAGES, manifest_info
-
-        stages = STAGES
-        manifest_extra = manifest_extra or manifest_info
-        if checks is None:
-            checks = (check_antenna_mounts,)
     checks = tuple(checks or ())
     known = {s.name for s in stages}
     unknown = [f for f in force if f not in known]

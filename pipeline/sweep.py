@@ -274,12 +274,12 @@ def run_point(config: dict, run_dir: str) -> dict:
         ``status`` ("complete" or "failed"), ``error``, ``elapsed_s`` and the summary
         numbers of :func:`pipeline.stages.run_summary`.
     """
-    from pipeline.stages import run_summary
-    from pipeline.study import run_study
+    from pipeline.stages import run_full_study, run_summary
 
     cfg = from_dict(StudyConfig, config, source=f"sweep point {run_dir}")
     try:
-        res = run_study(cfg, run_dir, progress=False, command_line=["rfidstudy", "sweep", "(point)"])
+        res = run_full_study(cfg, run_dir, progress=False,
+                             command_line=["rfidstudy", "sweep", "(point)"])
     except Exception as exc:  # one failed point must not sink the sweep
         log.error("sweep point %s failed: %s", run_dir, exc)
         return {"status": "failed", "error": str(exc), "elapsed_s": float("nan")}

@@ -26,7 +26,7 @@ __all__ = ["LinkBudget"]
 
 @dataclass(frozen=True)
 class LinkBudget:
-    """RFID link budget; every field overridable from a study TOML.
+    """RFID link budget (the study sets powers, sensitivities and losses in its [reader] table).
 
     Attributes
     ----------
@@ -76,15 +76,6 @@ class LinkBudget:
             raise ValueError(f"LinkBudget.polarization_loss_db must be >= 0, got {self.polarization_loss_db!r}")
         if self.modulation_loss_db > 0:
             raise ValueError(f"LinkBudget.modulation_loss_db must be <= 0 dB, got {self.modulation_loss_db!r}")
-
-    @classmethod
-    def from_dict(cls, values: dict) -> LinkBudget:
-        """Build from a mapping (e.g. a TOML table), rejecting unknown keys by name."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown LinkBudget key(s) {unknown}; known: {sorted(known)}")
-        return cls(**values)
 
     def tag_power_dbm(self, gain_db):
         """Power reaching the tag chip, P_tx + G - L_pol [dBm], same shape as ``gain_db``."""

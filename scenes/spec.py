@@ -45,13 +45,13 @@ sets the construction of the corridor's ``wall_material``.
 from __future__ import annotations
 
 import dataclasses
-import math
-import types
 import typing
 from dataclasses import dataclass, field
 
 from scenes.materials import UnknownMaterialError, resolve_material_name
 from scenes.radio import CONSTRUCTIONS, RADIO_GEOMETRIES, THIN_BOX_FACES
+from scenes.schema import ValueTypeError
+from scenes.schema import convert_value as _convert
 
 __all__ = [
     "SegmentSpec",
@@ -374,52 +374,16 @@ def _fail(where: str, msg: str) -> SpecError:
     return SpecError(f"{where}: {msg}")
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
 def convert_value(value, tp, where: str, key: str):
-    """Check ``value`` against annotation ``tp`` and convert it (lists -> tuples)."""
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        inner = [a for a in args if a is not type(None)]
-        return convert_value(value, inner[0], where, key)
-    if tp is float:
-        if not _is_number(value):
-            raise _fail(where, f"key {key!r} must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise _fail(where, f"key {key!r} must be a finite number, got {value!r}")
-        return float(value)
-    if tp is int:
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise _fail(where, f"key {key!r} must be an integer, got {value!r}")
-        return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise _fail(where, f"key {key!r} must be true or false, got {value!r}")
-        return value
-    if tp is str:
-        if not isinstance(value, str):
-            raise _fail(where, f"key {key!r} must be a string, got {value!r}")
-        return value
-    if origin is dict:
-        if not isinstance(value, dict) or not all(
-            isinstance(k, str) and isinstance(v, str) for k, v in value.items()
-        ):
-            raise _fail(where, f"key {key!r} must be a table of strings, got {value!r}")
-        return dict(value)
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise _fail(where, f"key {key!r} must be an array, got {value!r}")
-        if any(_is_number(v) and not math.isfinite(v) for v in value):
-            raise _fail(where, f"key {key!r} must hold finite numbers, got {list(value)!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(convert_value(v, args[0], where, key) for v in value)
-        if len(value) != len(args):
-            raise _fail(where, f"key {key!r} must have {len(args)} elements, got {value!r}")
-        return tuple(convert_value(v, a, where, key) for v, a in zip(value, args, strict=True))
-    raise TypeError(f"unsupported annotation {tp!r}")  # pragma: no cover
+    """Check ``value`` against annotation ``tp`` and convert it (lists -> tuples).
+
+    The shared converter :func:`scenes.schema.convert_value`, its message prefixed
+    with ``where`` (``"f.toml: [corridor]: key 'width_m' must be a number, got 'wide'"``).
+    """
+    try:
+        return _convert(value, tp, key)
+    except ValueTypeError as exc:
+        raise _fail(where, str(exc)) from None
 
 
 def _material_constructions(table: dict, where: str) -> dict[str, str]:

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.acquisition.config import ReaderConfig
+from pipeline.acquisition.config import ReaderConfig, reader_metadata
 from pipeline.acquisition.readlog import POSE_COLUMNS, READ_COLUMNS, ReadLog
 from pipeline.acquisition.track import PoseTrack, as_pose_track, interpolate_poses
 from propagation import antenna_frame_angles
@@ -87,7 +87,8 @@ def reader_response(
         One-way channel power gains in dB (both antenna patterns included), any shape;
         -inf for links that were not traced.
     reader : ReaderConfig
-        Reader (thresholds come from ``reader.budget``).
+        Reader (thresholds come from ``reader.link_budget()``; they do not depend on
+        the carrier frequency).
     rng : numpy.random.Generator
         Source of the anti-collision losses and RSSI noise. Exactly two arrays of
         ``gain_db.size`` draws are taken (uniform, then standard normal), whatever the
@@ -98,7 +99,7 @@ def reader_response(
     ReaderResponse
     """
     g = np.asarray(gain_db, dtype=float)
-    b = reader.budget
+    b = reader.link_budget()
     u = rng.random(g.shape)
     z = rng.standard_normal(g.shape)
     with np.errstate(invalid="ignore"):
@@ -180,18 +181,19 @@ def read_attempts(track: PoseTrack, mounts: list, reader: ReaderConfig) -> ReadA
     return ReadAttempts(t, cycle, antenna, true_robot, est_robot, true_ant, est_ant)
 
 
-def in_range_mask(d_m: np.ndarray, reader: ReaderConfig) -> np.ndarray:
+def in_range_mask(d_m: np.ndarray, reader: ReaderConfig, frequency_hz: float | None = None
+                  ) -> np.ndarray:
     """Pairs that could possibly be read, hence worth tracing: ``d <= max_range``.
 
-    ``max_range = reader.budget.max_range_m(margin_db=reader.range_margin_db)``: the
-    free-space distance at which a tag seen with both antennas' maximum gains, plus the
-    margin for constructive multipath, receives exactly its sensitivity.
+    ``max_range = reader.link_budget(frequency_hz).max_range_m(margin_db=reader.range_margin_db)``:
+    the free-space distance at which a tag seen with both antennas' maximum gains, plus
+    the margin for constructive multipath, receives exactly its sensitivity.
     """
-    r = float(reader.budget.max_range_m(margin_db=reader.range_margin_db))
+    r = float(reader.link_budget(frequency_hz).max_range_m(margin_db=reader.range_margin_db))
     return np.asarray(d_m) <= r
 
 
-def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, reader: ReaderConfig,
+def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, frequency_hz: float,
                  trace: dict):
     """Trace the masked pairs (unique antenna poses only); gains (n, m) in dB and traced."""
     from propagation import trace_links
@@ -211,7 +213,7 @@ def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, reader: Read
         scene,
         uniq,
         tags.positions_m,
-        frequency_hz=reader.budget.frequency_hz,
+        frequency_hz=frequency_hz,
         pairs=umask,
         **kw,
     )
@@ -308,6 +310,7 @@ def simulate_reads(
     trace: dict | None = None,
     cache_dir: str | Path | None = None,
     tags=None,
+    frequency_hz: float | None = None,
 ) -> ReadLog:
     """Simulate the reader along a robot track in a ray-traced scene.
 
@@ -323,18 +326,21 @@ def simulate_reads(
         :func:`pipeline.acquisition.track.as_pose_track`; a tuple is
         ``(true_poses, est_poses, t_s)``.
     reader : ReaderConfig
-        Read rate, antenna multiplexing, noise, quantisation, losses and link budget.
+        Read rate, antenna multiplexing, noise, quantisation, powers, sensitivities and
+        losses (the study's ``[reader]``).
     rng : numpy.random.Generator
         Source of anti-collision losses and RSSI noise.
     trace : dict, optional
         Keyword arguments for :func:`propagation.trace_links` (``max_depth``,
         ``samples_per_src``, ``reader_pattern``, ``tag_pattern``, ...);
-        ``frequency_hz`` comes from ``reader.budget`` and ``pairs`` from the range mask.
+        ``frequency_hz`` is the argument below and ``pairs`` comes from the range mask.
     cache_dir : str or Path, optional
         Trace cache directory passed to :func:`propagation.trace_links`.
     tags : scenes.TagSet, optional
         The tags this tour can read (e.g. only the training or only the held-out
         layout); default ``scene.tags``.
+    frequency_hz : float, optional
+        Carrier frequency [Hz] (default: :class:`propagation.LinkBudget`'s).
 
     Returns
     -------
@@ -350,27 +356,29 @@ def simulate_reads(
             raise ValueError(f"simulate_reads: trace[{key!r}] is set by the reader, remove it")
     if cache_dir is not None:
         trace["cache_dir"] = cache_dir
+    budget = reader.link_budget(frequency_hz)
     mounts = list(robot.antennas)
     att = read_attempts(trk, mounts, reader)
     tags = scene.tags if tags is None else tags
     n, m = len(att.time_s), len(tags)
     d_true = antenna_frame_angles(att.true_antenna, tags.positions_m).d_m
-    mask = in_range_mask(d_true, reader)
-    gain_db, traced, n_traced = _trace_gains(scene, tags, att.true_antenna, mask, reader, trace)
+    mask = in_range_mask(d_true, reader, budget.frequency_hz)
+    gain_db, traced, n_traced = _trace_gains(scene, tags, att.true_antenna, mask,
+                                             budget.frequency_hz, trace)
     reads = reads_from_gains(att, tags, gain_db, traced, reader, rng)
-    excess_db = _check_margin(gain_db, traced, d_true, reader)
+    excess_db = _check_margin(gain_db, traced, d_true, reader.range_margin_db, budget)
     meta = {
         "scene": scene.name,
         "scene_hash": scene.content_hash(),
         "antennas": [getattr(a, "name", str(i)) for i, a in enumerate(mounts)],
         "tag_ids": [str(i) for i in tags.ids],
-        "reader": reader.to_dict(),
+        "reader": reader_metadata(reader, budget),
         "trace": {k: v for k, v in trace.items() if k not in ("cache_dir", "progress")},
         "n_slots": int(n),  # (cycle, active antenna) slots; rows = n_slots * n_tags
         "n_pairs": int(n * m),
         "n_pairs_in_range": int(mask.sum()),
         "n_pairs_traced": int(n_traced),
-        "max_range_m": float(reader.budget.max_range_m(margin_db=reader.range_margin_db)),
+        "max_range_m": float(budget.max_range_m(margin_db=reader.range_margin_db)),
         "range_margin_db": float(reader.range_margin_db),
         "max_excess_over_free_space_db": excess_db,
     }
@@ -385,7 +393,7 @@ def simulate_reads(
     return ReadLog(reads=reads, poses=_poses_frame(trk), metadata=meta)
 
 
-def _check_margin(gain_db, traced, d_m, reader: ReaderConfig) -> float | None:
+def _check_margin(gain_db, traced, d_m, range_margin_db: float, budget) -> float | None:
     """Largest excess of a traced gain over free space with maximum pattern gains [dB].
 
     Links beyond ``max_range_m(range_margin_db)`` are not traced; an excess above the
@@ -397,7 +405,7 @@ def _check_margin(gain_db, traced, d_m, reader: ReaderConfig) -> float | None:
         return None
     from propagation import free_space_gain_db
 
-    b = reader.budget
+    b = budget
     fs = free_space_gain_db(
         d_m[traced],
         b.frequency_hz,
@@ -405,12 +413,12 @@ def _check_margin(gain_db, traced, d_m, reader: ReaderConfig) -> float | None:
         gain_rx_dbi=b.tag_antenna_gain_dbi,
     )
     excess = float(np.max(gain_db[traced] - fs))
-    if excess > reader.range_margin_db:
+    if excess > range_margin_db:
         logger.info(
             "ray-traced gain exceeds free space with maximum pattern gains by %.1f dB, more "
             "than range_margin_db = %.1f dB: tags beyond the traced range might have been "
             "readable (recorded in metrics.json reads.range_margin)",
             excess,
-            reader.range_margin_db,
+            range_margin_db,
         )
     return excess

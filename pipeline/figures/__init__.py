@@ -6,6 +6,9 @@ Every ``fig_*(run_dir, out_dir=None) -> list[Path]`` reads only files in
 :class:`MissingInput` when an input is absent, which :func:`draw_all` turns
 into a logged warning. No statistics are computed here: model surfaces are
 evaluated from the saved models, errors come from :mod:`pipeline.evaluation`.
+:func:`draw_all` draws the figures side by side in forked processes, one per CPU
+(in this process where another thread runs), and each figure's layout is solved once
+for both its files (:func:`pipeline.figures.common.save_figure`).
 """
 
 from .common import DPI, MissingInput

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import matplotlib as mpl
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -60,7 +61,15 @@ def new_figure(width_in: float = 6.4, height_in: float = 4.8) -> Figure:
 
 
 def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
-    """Write ``out_dir/name.png`` (DPI) and ``out_dir/name.pdf`` atomically; returns both paths."""
+    """Write ``out_dir/name.png`` (DPI) and ``out_dir/name.pdf`` atomically; returns both paths.
+
+    The figure's constrained layout is solved once, at the PNG's resolution, before
+    either file is drawn; the figure then has no layout engine, so neither ``savefig``
+    draws the whole figure a second time to lay it out (what it does for a figure with
+    an engine). The layout depends on sizes in inches and points only, so the PDF's
+    axes sit where the PNG's do.
+    """
+    _solve_layout(fig)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -70,6 +79,21 @@ def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
             fig.savefig(tmp, format=ext, dpi=DPI)
         paths.append(path)
     return paths
+
+
+def _solve_layout(fig: Figure) -> None:
+    """Run the figure's layout engine once at :data:`DPI`, then remove the engine."""
+    engine = fig.get_layout_engine()
+    if engine is None:
+        return
+    dpi = fig.dpi
+    try:
+        fig.set_dpi(DPI)
+        engine.execute(fig)
+    finally:
+        fig.set_dpi(dpi)
+    with mpl.rc_context({"figure.autolayout": False, "figure.constrained_layout.use": False}):
+        fig.set_layout_engine(None)  # keep the positions just computed
 
 
 def load_sensor(run_dir, name: str = "anfis"):

@@ -49,7 +49,10 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
     files = files[:_MAX_POSES]
     sensor = None
     fig = new_figure(12.0, 3.2 * len(files))
-    axes = np.atleast_2d(fig.subplots(len(files), 3))
+    # the three panels of a row show the same place: shared axes, tick labels outside only;
+    # one colour bar for both rho columns and one for the difference
+    axes = np.atleast_2d(fig.subplots(len(files), 3, sharex="row", sharey="row"))
+    meshes = {}
     for row, f in zip(axes, files, strict=True):
         rp = RhoPoints.load(f)
         with np.load(f, allow_pickle=False) as z:
@@ -58,26 +61,29 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
             sensor = sensor or load_sensor(run_dir, "anfis")
             learned = np.asarray(sensor.rho(rp.d_m, rp.alpha_rad), dtype=float)
         x, y = rp.points_m[:, 0], rp.points_m[:, 1]
-        for ax, val, title, cmap, lim in (
+        for j, (ax, val, title, cmap, lim) in enumerate((
             (row[0], rp.rho_true, "true rho", "viridis", (0, 1)),
             (row[1], learned, "learned rho = fs * fT", "viridis", (0, 1)),
             (row[2], learned - rp.rho_true, "learned - true", "RdBu_r", (-1, 1)),
-        ):
+        )):
             if rp.grid_shape is not None:
                 m = ax.pcolormesh(x.reshape(rp.grid_shape), y.reshape(rp.grid_shape),
                                   val.reshape(rp.grid_shape), shading="gouraud", cmap=cmap,
                                   vmin=lim[0], vmax=lim[1], rasterized=True)
             else:
                 m = ax.scatter(x, y, c=val, s=12, cmap=cmap, vmin=lim[0], vmax=lim[1])
+            meshes["rho" if j < 2 else "diff"] = m
             p = rp.antenna_pose
             ax.plot(p[0], p[1], "k^", ms=7)
             ax.annotate("", xy=(p[0] + 0.5 * np.cos(p[3]), p[1] + 0.5 * np.sin(p[3])),
-                        xytext=(p[0], p[1]), arrowprops={"arrowstyle": "->"})
+                        xytext=(p[0], p[1]), arrowprops={"arrowstyle": "->"}
+                        ).set_in_layout(False)  # inside the panel: nothing to make room for
             ax.set_aspect("equal")
             ax.set_title(f"{f.stem}: {title}", fontsize=9)
             ax.set_xlabel("x [m]")
-            ax.set_ylabel("y [m]")
-            fig.colorbar(m, ax=ax, label="rho [-]")
+        row[0].set_ylabel("y [m]")
+    fig.colorbar(meshes["rho"], ax=axes[:, :2], label="rho [-]", shrink=0.8)
+    fig.colorbar(meshes["diff"], ax=axes[:, 2], label="learned - true rho [-]", shrink=0.8)
     fig.suptitle("Fig. 6 (free-space view at antenna height, not where tags are): rho around "
                  "evaluation-tour antenna poses")
     return save_figure(fig, out_dir or run_dir / "figures", "rho_vs_truth")

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import logging
+import multiprocessing
+import os
+import threading
 from pathlib import Path
 
 from .common import MissingInput
@@ -36,7 +39,29 @@ FIGURES = {
 }
 
 
-def draw_all(run_dir, out_dir=None, names=None) -> list[Path]:
+def _draw_one(name: str, run_dir: Path, out_dir: Path) -> tuple[list[Path], str | None]:
+    """One figure: its files, or none and why (its input is missing)."""
+    try:
+        return list(FIGURES[name](run_dir, out_dir)), None
+    except MissingInput as exc:
+        return [], str(exc)
+
+
+def _n_workers(workers: int | None, n_figures: int) -> int:
+    """Worker processes for :func:`draw_all`: one per CPU (at most one per figure), and
+    none (draw here) where forking is not safe or not allowed: another thread is running
+    (a progress bar, a dask worker), this is a daemonic process, or the platform cannot
+    fork."""
+    if workers is not None:
+        return max(1, min(int(workers), n_figures))
+    if (threading.active_count() > 1 or multiprocessing.current_process().daemon
+            or "fork" not in multiprocessing.get_all_start_methods()):
+        return 1
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(cpus or 1, n_figures))
+
+
+def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> list[Path]:
     """Draw every figure (or those in `names`) from the run directory's files.
 
     Parameters
@@ -47,12 +72,17 @@ def draw_all(run_dir, out_dir=None, names=None) -> list[Path]:
         Where to write; default ``run_dir/figures``.
     names : iterable of str, optional
         Subset of :data:`FIGURES`.
+    workers : int, optional
+        Processes drawing figures side by side (forked from this one; every figure is
+        independent and its bytes do not depend on where it is drawn). Default: one per
+        CPU, or 1 (draw in this process) when another thread is running here.
 
     Returns
     -------
     list of pathlib.Path
-        The PNG and PDF files written. A figure whose input files are missing is
-        skipped with a logged warning naming them; other errors propagate.
+        The PNG and PDF files written, in the order of `names`. A figure whose input
+        files are missing is skipped with a logged warning naming them; other errors
+        propagate.
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -62,10 +92,23 @@ def draw_all(run_dir, out_dir=None, names=None) -> list[Path]:
     unknown = sorted(set(names) - set(FIGURES))
     if unknown:
         raise ValueError(f"unknown figure(s) {unknown}; known {sorted(FIGURES)}")
+    n = _n_workers(workers, len(names))
+    if n > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+            futures = [pool.submit(_draw_one, name, run_dir, out_dir) for name in names]
+            try:
+                results = [f.result() for f in futures]
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+    else:
+        results = [_draw_one(name, run_dir, out_dir) for name in names]
     written: list[Path] = []
-    for name in names:
-        try:
-            written.extend(FIGURES[name](run_dir, out_dir))
-        except MissingInput as exc:
-            log.warning("figure %s skipped: %s", name, exc)
+    for name, (paths, missing) in zip(names, results, strict=True):
+        if missing is not None:
+            log.warning("figure %s skipped: %s", name, missing)
+        written.extend(paths)
     return written

@@ -92,16 +92,19 @@ def _three_panels(run_dir, out_dir, name, title, truth, model, d_e, a_e, label, 
     fig = new_figure(12.0, 3.8)
     axes = fig.subplots(1, 3, sharey=True)
     diff = model - truth
-    for ax, Z, t, lab, lim, cmap in (
-        (axes[0], truth, "ray-traced truth", label, vlim, "viridis"),
-        (axes[1], model, "learned (FCM + ANFIS, MCL poses)", label, vlim, "viridis"),
-        (axes[2], diff, "learned - truth", diff_label, (-dlim, dlim), "RdBu_r"),
+    meshes = []
+    for ax, Z, t, lim, cmap in (
+        (axes[0], truth, "ray-traced truth", vlim, "viridis"),
+        (axes[1], model, "learned (FCM + ANFIS, MCL poses)", vlim, "viridis"),
+        (axes[2], diff, "learned - truth", (-dlim, dlim), "RdBu_r"),
     ):
-        m = ax.pcolormesh(deg(a_e), d_e, np.ma.masked_invalid(Z), cmap=cmap, vmin=lim[0],
-                          vmax=lim[1], rasterized=True)
+        meshes.append(ax.pcolormesh(deg(a_e), d_e, np.ma.masked_invalid(Z), cmap=cmap,
+                                    vmin=lim[0], vmax=lim[1], rasterized=True))
         ax.set_title(t)
         ax.set_xlabel("alpha [deg]")
-        fig.colorbar(m, ax=ax, label=lab)
+    # truth and model share their colour scale: one bar for both, one for the difference
+    fig.colorbar(meshes[1], ax=list(axes[:2]), label=label)
+    fig.colorbar(meshes[2], ax=axes[2], label=diff_label)
     axes[0].set_ylabel("d [m]")
     fig.suptitle(title)
     return save_figure(fig, out_dir or Path(run_dir) / "figures", name)

@@ -40,8 +40,9 @@ from pipeline.robot.robotmap import (
     robot_map,
     wall_lines,
 )
-from pipeline.robot.simulate import LocalizationConfig, laser_map, simulate_localisation
+from pipeline.robot.simulate import LocalisationConfig, laser_map, simulate_localisation
 from pipeline.robot.trajectory import (
+    DriveProfile,
     TourConfig,
     Trajectory,
     check_trajectory,
@@ -52,8 +53,9 @@ from pipeline.robot.trajectory import (
 
 __all__ = [
     "AntennaMount",
+    "DriveProfile",
     "LaserScanner",
-    "LocalizationConfig",
+    "LocalisationConfig",
     "LocalizationResult",
     "MCLConfig",
     "MapError",

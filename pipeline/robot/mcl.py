@@ -49,13 +49,15 @@ class MCLConfig:
     Attributes
     ----------
     n_particles : int
-        Number of particles.
+        Number of particles (the default is the study's ``localisation.n_particles``).
     motion_noise : OdometryNoise
         Motion-model noise the filter assumes (a bit larger than the robot's true noise).
     n_beams_used : int
         Beams of each scan used by the likelihood field (evenly spread).
     sigma_hit_m : float
-        Standard deviation of the hit component [m] (laser noise plus map discretisation).
+        Standard deviation of the hit component [m] (laser noise, map discretisation and
+        the map's own error: keep it >= the map's wall-offset std); the default is the
+        study's ``localisation.sigma_hit_m``.
     z_hit, z_rand : float
         Mixture weights of the hit and random components.
     max_field_distance_m : float
@@ -80,12 +82,12 @@ class MCLConfig:
         uniformly too; otherwise track from the given start pose.
     """
 
-    n_particles: int = 1000
+    n_particles: int = 500
     motion_noise: OdometryNoise = field(
         default_factory=lambda: OdometryNoise(0.05, 0.05, 0.05, 0.005)
     )
     n_beams_used: int = 30
-    sigma_hit_m: float = 0.05
+    sigma_hit_m: float = 0.10
     z_hit: float = 0.95
     z_rand: float = 0.05
     max_field_distance_m: float = 1.0

@@ -415,7 +415,7 @@ def draw_robot_map(scene, config, rng: np.random.Generator) -> RobotMap:
     Parameters
     ----------
     scene : scenes.Scene
-    config : pipeline.robot.LocalizationConfig
+    config : pipeline.robot.LocalisationConfig
         Uses ``scanner.height_m``, ``map_resolution_m``, ``map_error_m``,
         ``map_scale_error``, ``map_noise_m`` and ``map_noise_correlation_m``.
     rng : numpy.random.Generator

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
+import math
 
 import numpy as np
 
-from pipeline.configschema import from_dict
+from pipeline.configschema import ConfigError, option, section
 from pipeline.robot.kinematics import Robot
 from pipeline.robot.laser import LaserScanner
 from pipeline.robot.mcl import LocalizationResult, MCLConfig, run_mcl
@@ -18,66 +16,96 @@ from pipeline.robot.robotmap import draw_robot_map
 from pipeline.robot.trajectory import Trajectory
 from scenes import floor_plan_segments
 
-__all__ = ["LocalizationConfig", "laser_map", "simulate_localisation"]
+__all__ = ["LocalisationConfig", "laser_map", "simulate_localisation"]
 
 
-@dataclass(frozen=True)
-class LocalizationConfig:
-    """Sensors and filter of a localisation run.
+@section
+class LocalisationConfig:
+    """Odometry noise, the laser scanner and Monte Carlo Localization (pipeline.robot).
 
-    Attributes
-    ----------
-    odometry_noise : OdometryNoise
-        The robot's true odometry error (what the simulated wheels report).
-    scanner : LaserScanner
-        The laser scanner (SICK LMS-like defaults).
-    mcl : MCLConfig
-        Particle filter settings.
-    map_resolution_m : float
-        Cell size of the laser map / likelihood field [m].
-    map_error_m : float
-        Standard deviation of the signed offset of each wall line of the robot's map
-        along its normal [m] (:func:`pipeline.robot.robotmap.draw_robot_map`): a real
-        robot localises in a map whose walls are a few centimetres off (survey or SLAM
-        error, as-built tolerances), which biases its poses near them. 0 = every wall
-        where it is.
-    map_scale_error : float
-        Standard deviation of the fractional scale error of the map [1] (the map is the
-        building scaled by ``1 + s`` about its centre); 0 = none.
-    map_noise_m : float
-        Standard deviation of a smooth random displacement of the map's likelihood field
-        added on top of the wall offsets [m] (:meth:`OccupancyMap.with_surface_error`:
-        unsigned, no systematic offset); 0 = none.
-    map_noise_correlation_m : float
-        Correlation length of that smooth displacement along the surfaces [m].
+    The study's ``[localisation]`` section; what it configures is built from it:
+    :attr:`odometry` (:class:`OdometryNoise`), :attr:`scanner` (:class:`LaserScanner`)
+    and :attr:`mcl` (:class:`MCLConfig`). The defaults of the keys that configure those
+    are theirs (one default per key); the rest of the filter and the scanner's mount keep
+    their own defaults. The robot's map (:func:`pipeline.robot.robotmap.draw_robot_map`)
+    is drawn from the ``map_*`` keys: a real robot localises in a map whose walls are a
+    few centimetres off (survey or SLAM error, as-built tolerances), which biases its
+    poses near them.
     """
 
-    odometry_noise: OdometryNoise = field(default_factory=OdometryNoise)
-    scanner: LaserScanner = field(default_factory=LaserScanner)
-    mcl: MCLConfig = field(default_factory=MCLConfig)
-    map_resolution_m: float = 0.05
-    map_error_m: float = 0.02
-    map_scale_error: float = 0.0
-    map_noise_m: float = 0.0
-    map_noise_correlation_m: float = 1.0
+    enabled: bool = option(True, "Run MCL; if false the estimated poses equal the true poses.")
+    n_particles: int = option(MCLConfig.n_particles, "MCL particles.")
+    n_beams_used: int = option(MCLConfig.n_beams_used, "Laser beams per scan used by the likelihood field.")
+    laser_beams: int = option(LaserScanner.n_beams, "Laser beams over the field of view (SICK LMS-200: 181).")
+    laser_fov_deg: float = option(math.degrees(LaserScanner.fov_rad), "Laser field of view [deg].")
+    laser_max_range_m: float = option(LaserScanner.max_range_m, "Laser maximum range [m].")
+    laser_noise_m: float = option(LaserScanner.range_noise_m, "Laser range noise standard deviation [m].")
+    odometry_noise: tuple[float, ...] = option(
+        (OdometryNoise.alpha1, OdometryNoise.alpha2, OdometryNoise.alpha3, OdometryNoise.alpha4),
+        "Robot odometry noise alpha1..alpha4 (Thrun et al. 2005, Table 5.6).",
+    )
+    map_resolution_m: float = option(0.05, "Likelihood-field grid resolution [m].")
+    map_error_m: float = option(
+        0.05,
+        "Std of the signed offset of each wall of the robot's map along its normal (one draw "
+        "per wall line, once per building, shared by both tours; survey/SLAM error, as-built "
+        "tolerances) [m]; 0 = every wall where it is.",
+    )
+    map_scale_error: float = option(
+        0.0, "Std of the fractional scale error of the robot's map (scaled about the building's "
+        "centre by 1 + s; 0.001 = 1 mm per metre) [1]; 0 = none.",
+    )
+    map_noise_m: float = option(
+        0.0, "Std of a smooth, unsigned random displacement of the map's likelihood field on top "
+        "of the wall offsets [m]; 0 = none.",
+    )
+    map_noise_correlation_m: float = option(
+        1.0, "Correlation length of that smooth displacement along surfaces [m]."
+    )
+    sigma_hit_m: float = option(
+        MCLConfig.sigma_hit_m,
+        "Likelihood-field std of the MCL laser model [m]; keep it >= map_error_m (corridor_lab, "
+        "per-wall offsets of 0.05 m std: MCL tracks at 0.05 and 0.10, position error median "
+        "3-8 cm; at 0.2 m std the p90 reached 2-6 m on 2 of 3 maps).",
+    )
+    max_position_error_median_m: float = option(
+        0.5, "The tour stage fails when the MCL position error median of either tour exceeds "
+        "this (MCL lost track: lower the map error or widen sigma_hit_m) [m].",
+    )
+    max_position_error_p90_m: float = option(
+        1.0, "The tour stage fails when the 90th percentile of the MCL position error of either "
+        "tour exceeds this [m].",
+    )
 
-    def __post_init__(self) -> None:
-        for k in ("map_error_m", "map_scale_error", "map_noise_m"):
-            if not getattr(self, k) >= 0:
-                raise ValueError(f"LocalizationConfig: {k}={getattr(self, k)} must be >= 0")
-        for k in ("map_resolution_m", "map_noise_correlation_m"):
+    def __post_init__(self):
+        for k in ("n_particles", "n_beams_used", "laser_beams", "laser_fov_deg",
+                  "laser_max_range_m", "map_resolution_m", "map_noise_correlation_m", "sigma_hit_m",
+                  "max_position_error_median_m", "max_position_error_p90_m"):
             if not getattr(self, k) > 0:
-                raise ValueError(f"LocalizationConfig: {k}={getattr(self, k)} must be > 0")
+                raise ConfigError(f"{k} must be > 0, got {getattr(self, k)!r}")
+        for k in ("laser_noise_m", "map_error_m", "map_scale_error", "map_noise_m"):
+            if not getattr(self, k) >= 0:
+                raise ConfigError(f"{k} must be >= 0, got {getattr(self, k)!r}")
+        if len(self.odometry_noise) != 4 or min(self.odometry_noise) < 0:
+            raise ConfigError(f"odometry_noise must be 4 values >= 0, got {self.odometry_noise}")
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any], where: str = "") -> LocalizationConfig:
-        """Build from a (TOML-like) mapping; nested tables for the sub-configs.
+    @property
+    def odometry(self) -> OdometryNoise:
+        """The robot's true odometry error (what the simulated wheels report)."""
+        return OdometryNoise(*self.odometry_noise)
 
-        Unknown keys and wrong types raise :class:`pipeline.configschema.ConfigError`
-        (a ValueError) naming ``where``, the dotted key and the value
-        (:func:`pipeline.configschema.from_dict`).
-        """
-        return from_dict(cls, dict(data), source=where or "<dict>")
+    @property
+    def scanner(self) -> LaserScanner:
+        """The laser scanner: ``laser_*`` keys, the SICK LMS mount of :class:`LaserScanner`."""
+        return LaserScanner(n_beams=self.laser_beams, fov_rad=float(np.deg2rad(self.laser_fov_deg)),
+                            max_range_m=self.laser_max_range_m, range_noise_m=self.laser_noise_m)
+
+    @property
+    def mcl(self) -> MCLConfig:
+        """The particle filter: ``n_particles``, ``n_beams_used``, ``sigma_hit_m``; the rest
+        :class:`MCLConfig`'s own settings."""
+        return MCLConfig(n_particles=self.n_particles, n_beams_used=self.n_beams_used,
+                         sigma_hit_m=self.sigma_hit_m)
 
 
 def laser_map(scene, scanner: LaserScanner, resolution_m: float = 0.05, route_m=None):
@@ -91,7 +119,7 @@ def simulate_localisation(
     robot: Robot,
     trajectory: Trajectory,
     rng: np.random.Generator,
-    config: LocalizationConfig | None = None,
+    config: LocalisationConfig | None = None,
     occupancy_map: OccupancyMap | None = None,
 ) -> LocalizationResult:
     """Simulate odometry and laser scans along a true trajectory, then localise with MCL.
@@ -113,7 +141,9 @@ def simulate_localisation(
     trajectory : Trajectory
         True path, poses (n, 3) [x_m, y_m, theta_rad].
     rng : numpy.random.Generator
-    config : LocalizationConfig, optional
+    config : LocalisationConfig, optional
+        Odometry noise, scanner, filter and (without ``occupancy_map``) the map error;
+        ``enabled`` and the tracking limits are the study stage's business.
     occupancy_map : OccupancyMap, optional
         The map MCL localises in, cut at the scanner's height.
 
@@ -127,13 +157,14 @@ def simulate_localisation(
     ValueError
         When ``occupancy_map`` was not cut at the scanner's height.
     """
-    cfg = LocalizationConfig() if config is None else config
+    cfg = LocalisationConfig() if config is None else config
+    scanner, mcl = cfg.scanner, cfg.mcl
     rng_odo, rng_laser, rng_mcl, rng_map = rng.spawn(4)
     if occupancy_map is None:
         lmap = draw_robot_map(scene, cfg, rng_map).occupancy_map
     else:
         z0, z1 = occupancy_map.z_range_m
-        h = cfg.scanner.height_m
+        h = scanner.height_m
         if not z0 - 1e-6 <= h <= z1 + 1e-6:
             raise ValueError(
                 f"simulate_localisation: the map was cut at z in {occupancy_map.z_range_m} m, "
@@ -141,18 +172,18 @@ def simulate_localisation(
             )
         lmap = occupancy_map
     truth = np.asarray(trajectory.poses, dtype=float)
-    odo = simulate_odometry(truth, cfg.odometry_noise, rng_odo)
-    segments = floor_plan_segments(scene, cfg.scanner.height_m)
-    scans = cfg.scanner.scan(segments, truth, rng_laser)
-    start = None if cfg.mcl.global_init else truth[0]
+    odo = simulate_odometry(truth, cfg.odometry, rng_odo)
+    segments = floor_plan_segments(scene, scanner.height_m)
+    scans = scanner.scan(segments, truth, rng_laser)
+    start = None if mcl.global_init else truth[0]
     return run_mcl(
         lmap,
-        cfg.scanner,
+        scanner,
         odo,
         scans,
         start,
         rng_mcl,
-        config=cfg.mcl,
+        config=mcl,
         true_poses=truth,
         t_s=trajectory.t_s,
     )

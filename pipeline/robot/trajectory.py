@@ -18,11 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from pipeline.configschema import ConfigError, option, section
 from pipeline.robot.kinematics import Robot, footprint_points, wrap_angle
 from pipeline.robot.occupancy import OccupancyMap, _densify
 
 __all__ = [
     "held_out_lane",
+    "DriveProfile",
     "TourConfig",
     "Trajectory",
     "check_trajectory",
@@ -79,101 +81,97 @@ class Trajectory:
         return cls(t, p, v, w, pi)
 
 
-@dataclass(frozen=True)
+@section
 class TourConfig:
-    """How a guided tour drives the corridor.
+    """The guided training tour and the held-out evaluation path (pipeline.robot).
+
+    The study's ``[tour]`` section, as :func:`guided_tour` and :func:`evaluation_path`
+    take it. How the robot drives (ramps, accelerations, turn-arounds, stop length,
+    clearance) is its :class:`DriveProfile`, not a study key.
+    """
+
+    n_passes: int = option(
+        2, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 9)."
+    )
+    lane_fractions: tuple[float, ...] = option(
+        (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
+    )
+    lane_changes_per_pass: int = option(1, "Lane changes inside each pass.")
+    stops_per_pass: int = option(1, "Stops inside each pass.")
+    speed_m_per_s: float = option(0.3, "Cruise speed [m/s] (the chapter's robot: about 0.3 m/s).")
+    dt_s: float = option(0.1, "Pose sampling period (one laser scan / MCL update per pose) [s].")
+    max_length_m: float = option(
+        0.0, "Drive only the first max_length_m metres of the scene's route (0 = whole route) [m]."
+    )
+    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path (chapter Fig. 7: 200).")
+
+    def __post_init__(self):
+        for k in ("n_passes", "speed_m_per_s", "dt_s", "n_eval_poses"):
+            if not getattr(self, k) > 0:
+                raise ConfigError(f"{k} must be > 0, got {getattr(self, k)!r}")
+        for k in ("max_length_m", "lane_changes_per_pass", "stops_per_pass"):
+            if not getattr(self, k) >= 0:
+                raise ConfigError(f"{k} must be >= 0, got {getattr(self, k)!r}")
+        if not self.lane_fractions or any(abs(f) > 1 for f in self.lane_fractions):
+            raise ConfigError(f"lane_fractions must be non-empty and in [-1, 1], got {self.lane_fractions}")
+        if self.n_eval_poses < 2:
+            raise ConfigError(f"n_eval_poses must be >= 2, got {self.n_eval_poses}")
+
+    def check_robot(self, robot: Robot, profile: DriveProfile | None = None) -> None:
+        """Raise ValueError naming the key if the tour exceeds the robot's limits."""
+        prof = DriveProfile() if profile is None else profile
+        limits = {
+            "speed_m_per_s": (self.speed_m_per_s, robot.max_speed_m_per_s),
+            "accel_m_per_s2": (prof.accel_m_per_s2, robot.max_accel_m_per_s2),
+            "turn_rate_rad_per_s": (prof.turn_rate_rad_per_s, robot.max_turn_rate_rad_per_s),
+            "turn_accel_rad_per_s2": (prof.turn_accel_rad_per_s2, robot.max_turn_accel_rad_per_s2),
+        }
+        for k, (v, lim) in limits.items():
+            if v > lim:
+                raise ValueError(f"TourConfig: {k}={v} exceeds robot {robot.name!r} limit {lim}")
+
+
+@dataclass(frozen=True)
+class DriveProfile:
+    """How the robot drives a tour (not study keys: the Pioneer's habits).
 
     Attributes
     ----------
-    n_passes : int
-        Passes along the route, alternating direction (2 = up and back). The chapter's
-        12,395 training samples need many passes: with ~25 tags and two antennas at a
-        few read cycles per second, plan tens of passes.
-    lane_fractions : tuple[float, ...]
-        Lateral lane positions as fractions of the feasible band, in [-1, 1]
-        (-1 right edge looking along the route, 0 middle, +1 left edge).
-    lane_changes_per_pass : int
-        Lane changes inside each pass, at random stations.
     lane_change_length_m : float
         Length of the cosine ramp of a lane change [m]; also the smoothing length of the band.
     lane_jitter : float
         Uniform random jitter added to each lane fraction visit (fraction units).
-    speed_m_per_s : float
-        Cruise speed [m/s] (the chapter's robot toured at about 0.3 m/s).
     accel_m_per_s2 : float
         Acceleration and deceleration of the trapezoidal speed profile [m/s^2].
     turn_rate_rad_per_s : float
         Peak turn rate of the turn-arounds [rad/s].
     turn_accel_rad_per_s2 : float
         Angular acceleration of the turn-arounds [rad/s^2].
-    stops_per_pass : int
-        Stops inside each pass (at random places), each ``stop_duration_s`` long.
     stop_duration_s : float
         Duration of a stop [s].
-    dt_s : float
-        Sampling period of the trajectory [s] (one pose per laser scan / MCL update).
     clearance_m : float
         Minimum clearance between the robot's turning disc and obstacles [m].
     resolution_m : float
         Cell size of the collision map [m].
     """
 
-    n_passes: int = 2
-    lane_fractions: tuple[float, ...] = (-0.6, 0.0, 0.6)
-    lane_changes_per_pass: int = 1
     lane_change_length_m: float = 2.0
     lane_jitter: float = 0.1
-    speed_m_per_s: float = 0.3
     accel_m_per_s2: float = 0.3
     turn_rate_rad_per_s: float = 0.6
     turn_accel_rad_per_s2: float = 1.0
-    stops_per_pass: int = 1
     stop_duration_s: float = 2.0
-    dt_s: float = 0.1
     clearance_m: float = 0.10
     resolution_m: float = 0.05
 
     def __post_init__(self) -> None:
-        if int(self.n_passes) < 1:
-            raise ValueError(f"TourConfig: n_passes={self.n_passes} must be >= 1")
-        if len(self.lane_fractions) < 1 or any(abs(f) > 1 for f in self.lane_fractions):
-            raise ValueError(
-                f"TourConfig: lane_fractions={self.lane_fractions} must be non-empty, in [-1, 1]"
-            )
-        for k in (
-            "lane_change_length_m",
-            "speed_m_per_s",
-            "accel_m_per_s2",
-            "turn_rate_rad_per_s",
-            "turn_accel_rad_per_s2",
-            "dt_s",
-            "resolution_m",
-        ):
+        for k in ("lane_change_length_m", "accel_m_per_s2", "turn_rate_rad_per_s",
+                  "turn_accel_rad_per_s2", "resolution_m"):
             if not getattr(self, k) > 0:
-                raise ValueError(f"TourConfig: {k}={getattr(self, k)} must be > 0")
-        for k in (
-            "lane_changes_per_pass",
-            "stops_per_pass",
-            "stop_duration_s",
-            "clearance_m",
-            "lane_jitter",
-        ):
+                raise ValueError(f"DriveProfile: {k}={getattr(self, k)} must be > 0")
+        for k in ("stop_duration_s", "clearance_m", "lane_jitter"):
             if not getattr(self, k) >= 0:
-                raise ValueError(f"TourConfig: {k}={getattr(self, k)} must be >= 0")
-
-    def check_robot(self, robot: Robot) -> None:
-        """Raise ValueError naming the key if the tour exceeds the robot's limits."""
-        limits = {
-            "speed_m_per_s": robot.max_speed_m_per_s,
-            "accel_m_per_s2": robot.max_accel_m_per_s2,
-            "turn_rate_rad_per_s": robot.max_turn_rate_rad_per_s,
-            "turn_accel_rad_per_s2": robot.max_turn_accel_rad_per_s2,
-        }
-        for k, lim in limits.items():
-            if getattr(self, k) > lim:
-                raise ValueError(
-                    f"TourConfig: {k}={getattr(self, k)} exceeds robot {robot.name!r} limit {lim}"
-                )
+                raise ValueError(f"DriveProfile: {k}={getattr(self, k)} must be >= 0")
 
 
 def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None) -> OccupancyMap:
@@ -239,7 +237,7 @@ class _Band:
     i1: int  # last feasible station (inclusive)
 
 
-def _route_band(scene, robot: Robot, cfg: TourConfig, cmap: OccupancyMap, route_m) -> _Band:
+def _route_band(scene, robot: Robot, cfg: DriveProfile, cmap: OccupancyMap, route_m) -> _Band:
     route = scene.route_m if route_m is None else route_m
     if route is None or len(route) < 2:
         raise ValueError(
@@ -351,12 +349,12 @@ def _trapezoid(distance: float, vmax: float, amax: float):
     return total, pos
 
 
-def _drive(path: np.ndarray, cfg: TourConfig):
+def _drive(path: np.ndarray, cfg: TourConfig, prof: DriveProfile):
     """Primitive: drive along path (k, 2) with heading from its tangent."""
     sig = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
     tan = np.gradient(path, axis=0)
     th = np.unwrap(np.arctan2(tan[:, 1], tan[:, 0]))
-    total, pos = _trapezoid(sig[-1], cfg.speed_m_per_s, cfg.accel_m_per_s2)
+    total, pos = _trapezoid(sig[-1], cfg.speed_m_per_s, prof.accel_m_per_s2)
 
     def at(tau):
         p = pos(tau)
@@ -367,8 +365,8 @@ def _drive(path: np.ndarray, cfg: TourConfig):
     return total, at
 
 
-def _turn(pose: np.ndarray, dtheta: float, cfg: TourConfig):
-    total, pos = _trapezoid(abs(dtheta), cfg.turn_rate_rad_per_s, cfg.turn_accel_rad_per_s2)
+def _turn(pose: np.ndarray, dtheta: float, prof: DriveProfile):
+    total, pos = _trapezoid(abs(dtheta), prof.turn_rate_rad_per_s, prof.turn_accel_rad_per_s2)
 
     def at(tau):
         a = pose[2] + np.sign(dtheta) * pos(tau)
@@ -410,6 +408,7 @@ def guided_tour(
     rng: np.random.Generator,
     config: TourConfig | None = None,
     route_m: np.ndarray | None = None,
+    profile: DriveProfile | None = None,
 ) -> Trajectory:
     """A guided tour up and down the corridor along the scene's route.
 
@@ -421,8 +420,12 @@ def guided_tour(
     rng : numpy.random.Generator
         Draws lane order, lane-change and stop places, lane jitter.
     config : TourConfig, optional
+        Passes, lanes, lane changes, stops, speed and sampling period (the study's
+        ``[tour]``; ``max_length_m`` and ``n_eval_poses`` are not used here).
     route_m : numpy.ndarray, optional
         Route polyline (k, 2) overriding ``scene.route_m``.
+    profile : DriveProfile, optional
+        How the robot drives (default :class:`DriveProfile`).
 
     Returns
     -------
@@ -436,11 +439,12 @@ def guided_tour(
         the construction fail) a pose leaving free space.
     """
     cfg = TourConfig() if config is None else config
-    cfg.check_robot(robot)
-    cmap = collision_map(scene, robot, cfg.resolution_m, route_m)
-    band = _route_band(scene, robot, cfg, cmap, route_m)
+    prof = DriveProfile() if profile is None else profile
+    cfg.check_robot(robot, prof)
+    cmap = collision_map(scene, robot, prof.resolution_m, route_m)
+    band = _route_band(scene, robot, prof, cmap, route_m)
     n_st = band.i1 - band.i0 + 1
-    ramp = max(2, int(round(cfg.lane_change_length_m / cfg.resolution_m)))
+    ramp = max(2, int(round(prof.lane_change_length_m / prof.resolution_m)))
     lanes = np.asarray(cfg.lane_fractions, dtype=float)
     lane = int(rng.integers(len(lanes)))
     last_val = None
@@ -452,7 +456,7 @@ def guided_tour(
             choices = [i for i in range(len(lanes)) if i != seq[-1]] or [seq[-1]]
             seq.append(int(rng.choice(choices)))
         lane = seq[-1]
-        jitter = rng.uniform(-cfg.lane_jitter, cfg.lane_jitter, len(seq))
+        jitter = rng.uniform(-prof.lane_jitter, prof.lane_jitter, len(seq))
         vals = np.clip(lanes[seq] + jitter, -1, 1)
         if last_val is not None:
             vals[0] = last_val  # continuity with where the previous pass ended
@@ -468,17 +472,17 @@ def guided_tour(
         for j, (a, b) in enumerate(zip(cuts[:-1], cuts[1:], strict=True)):
             if b - a < 2:
                 continue
-            dur, at = _drive(path[a : b + 1], cfg)
+            dur, at = _drive(path[a : b + 1], cfg, prof)
             prims.append((dur, at, k))
             if j < len(cuts) - 2:
-                prims.append((*_wait(at(np.array([dur]))[0], cfg.stop_duration_s), k))
+                prims.append((*_wait(at(np.array([dur]))[0], prof.stop_duration_s), k))
         if k < cfg.n_passes - 1:
             end = prims[-1][1](np.array([prims[-1][0]]))[0]
-            prims.append((*_turn(end, np.pi if k % 2 == 0 else -np.pi, cfg), -1))
+            prims.append((*_turn(end, np.pi if k % 2 == 0 else -np.pi, prof), -1))
     total = sum(p[0] for p in prims)
     times = np.arange(0.0, total + 1e-9, cfg.dt_s)
     traj = _sample(prims, times)
-    check_trajectory(cmap, traj, robot, clearance_m=cfg.clearance_m - cmap.resolution_m)
+    check_trajectory(cmap, traj, robot, clearance_m=prof.clearance_m - cmap.resolution_m)
     return traj
 
 
@@ -499,43 +503,52 @@ def evaluation_path(
     scene,
     robot: Robot,
     rng: np.random.Generator,
-    n_poses: int = 200,
+    n_poses: int | None = None,
     lane_fraction: float | None = None,
     config: TourConfig | None = None,
     route_m: np.ndarray | None = None,
+    profile: DriveProfile | None = None,
 ) -> Trajectory:
     """The held-out evaluation path: one pass in a lane the tour does not use (chapter Fig. 7).
 
     Parameters
     ----------
     scene, robot, rng : see :func:`guided_tour`
-    n_poses : int
-        Number of poses, equally spaced in time over the pass (chapter: 200).
+    n_poses : int, optional
+        Number of poses, equally spaced in time over the pass; default
+        ``config.n_eval_poses`` (chapter: 200).
     lane_fraction : float, optional
         Lane fraction in [-1, 1]; default :func:`held_out_lane` of the tour's
         ``config.lane_fractions`` (+-0.3 for the default lanes -0.6, 0, 0.6).
     config : TourConfig, optional
-        Speeds, clearance and resolution; lanes, stops and passes are ignored.
+        Speed, the tour's lanes (for the held-out lane) and ``n_eval_poses``; passes,
+        lane changes and stops are ignored.
+    route_m : numpy.ndarray, optional
+        Route polyline (k, 2) overriding ``scene.route_m``.
+    profile : DriveProfile, optional
+        How the robot drives (default :class:`DriveProfile`).
 
     Returns
     -------
     Trajectory
         ``n_poses`` poses of one forward pass without stops or lane changes.
     """
+    cfg = TourConfig() if config is None else config
+    prof = DriveProfile() if profile is None else profile
+    n_poses = cfg.n_eval_poses if n_poses is None else n_poses
     if int(n_poses) < 2:
         raise ValueError(f"evaluation_path: n_poses={n_poses} must be >= 2")
-    cfg = TourConfig() if config is None else config
-    cfg.check_robot(robot)
+    cfg.check_robot(robot, prof)
     if lane_fraction is None:
         lane_fraction = held_out_lane(cfg.lane_fractions, rng)
     if abs(lane_fraction) > 1:
         raise ValueError(f"evaluation_path: lane_fraction={lane_fraction} outside [-1, 1]")
-    cmap = collision_map(scene, robot, cfg.resolution_m, route_m)
-    band = _route_band(scene, robot, cfg, cmap, route_m)
+    cmap = collision_map(scene, robot, prof.resolution_m, route_m)
+    band = _route_band(scene, robot, prof, cmap, route_m)
     n_st = band.i1 - band.i0 + 1
     path = _pass_path(band, np.full(n_st, lane_fraction), True)
-    dur, at = _drive(path, cfg)
+    dur, at = _drive(path, cfg, prof)
     times = np.linspace(0.0, dur, int(n_poses))
     traj = _sample([(dur, at, 0)], times)
-    check_trajectory(cmap, traj, robot, clearance_m=cfg.clearance_m - cmap.resolution_m)
+    check_trajectory(cmap, traj, robot, clearance_m=prof.clearance_m - cmap.resolution_m)
     return traj

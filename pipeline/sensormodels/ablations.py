@@ -6,7 +6,7 @@ ANFIS (Jang 1993). Two ablations isolate the two steps; both return a
 ``fuzzymodel.SensorModel`` (which saves itself), fitted on the same training sets
 (``training/ssm_est.parquet``, ``training/tdm_est.parquet``) with the same subsampling
 (``max_samples``, SSM only) and the same training / checking split as
-``pipeline.stages_model._fit``:
+``pipeline.stages.models._fit``:
 
 ``"fcm_only"``
     The initial FIS straight from FCM, no ANFIS epochs: ``ANFIS.from_fcm`` on the
@@ -35,7 +35,7 @@ _INPUTS = ["d_m", "alpha_rad"]
 
 
 def _split(X, y, frac: float, rng):
-    """Same rule as ``pipeline.stages_model._split``: a random ``frac`` as checking data."""
+    """Same rule as ``pipeline.stages.models._split``: a random ``frac`` as checking data."""
     n = len(y)
     n_check = int(round(frac * n))
     if n_check < 1 or n - n_check < 2:

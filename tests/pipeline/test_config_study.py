@@ -62,14 +62,14 @@ def test_unknown_top_level_section(tmp_path):
 def test_wrong_type_named(tmp_path):
     p = tmp_path / "study.toml"
     p.write_text('[tracing]\nmax_depth = "five"\n')
-    with pytest.raises(ConfigError, match=r"study\.toml: tracing\.max_depth: expected int, got str 'five'"):
+    with pytest.raises(ConfigError, match=r"study\.toml: tracing\.max_depth: must be an integer, got 'five'"):
         load_config(p)
 
 
 def test_bool_is_not_int(tmp_path):
     p = tmp_path / "study.toml"
     p.write_text("seed = true\n")
-    with pytest.raises(ConfigError, match="seed: expected int"):
+    with pytest.raises(ConfigError, match="seed: must be an integer, got True"):
         load_config(p)
 
 
@@ -130,3 +130,46 @@ def test_shipped_configs_load(name):
     if not p.exists():
         pytest.skip(f"{name} not shipped yet")
     load_config(p)
+
+
+def test_package_sections_are_the_packages_own_configs_with_one_default_per_key():
+    """[tour], [localisation] and [reader] are the dataclasses the packages consume, and
+    what they build from their defaults is the packages' defaults (no second default)."""
+    from pipeline.acquisition import ReaderConfig
+    from pipeline.robot import (
+        LaserScanner,
+        LocalisationConfig,
+        MCLConfig,
+        OdometryNoise,
+        TourConfig,
+        default_antennas,
+    )
+    from propagation import DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC, LinkBudget
+
+    cfg = StudyConfig()
+    assert type(cfg.tour) is TourConfig
+    assert type(cfg.localisation) is LocalisationConfig
+    assert type(cfg.reader) is ReaderConfig
+    loc = cfg.localisation
+    assert loc.mcl == MCLConfig() and loc.scanner == LaserScanner() and loc.odometry == OdometryNoise()
+    assert cfg.reader.link_budget(cfg.frequency_hz) == LinkBudget()
+    assert (cfg.tracing.max_depth, cfg.tracing.samples_per_src) == (DEFAULT_MAX_DEPTH,
+                                                                     DEFAULT_SAMPLES_PER_SRC)
+    robot = [(a.name, a.x_m, a.y_m, a.z_m) for a in cfg.robot.antennas]
+    assert robot == [(m.name, m.x_m, m.y_m, m.z_m) for m in default_antennas()]
+
+
+def test_one_value_converter_for_scenes_and_config(tmp_path):
+    """The study config and the scene specs check values with scenes.schema.convert_value."""
+    import pipeline.configschema
+    import scenes.spec
+    from scenes.schema import ValueTypeError, convert_value
+
+    assert pipeline.configschema.convert_value is convert_value
+    assert scenes.spec._convert is convert_value
+    with pytest.raises(ValueTypeError, match=r"key 'lanes\[1\]' must be a number, got 'x'"):
+        convert_value([0.5, "x"], tuple[float, ...], "lanes")
+    p = tmp_path / "study.toml"
+    p.write_text("[tour]\nlane_fractions = [0.0, nan]\n")
+    with pytest.raises(ConfigError, match=r"study\.toml: tour\.lane_fractions: must hold finite"):
+        load_config(p)

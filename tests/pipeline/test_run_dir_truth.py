@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.config import load_config, replace_path
-from pipeline.study import run_study
+from pipeline.stages import run_full_study
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -64,10 +64,10 @@ def study(tmp_path_factory):
     cfg = replace_path(cfg, "tracing.deterministic", True)
     assert cfg.evaluation.n_sample_poses == 1 and cfg.evaluation.n_field_poses == 1
     reused, fresh = base / "reused", base / "fresh"
-    run_study(replace_path(cfg, "evaluation.n_sample_poses", 2), reused, command_line=["pytest"])
+    run_full_study(replace_path(cfg, "evaluation.n_sample_poses", 2), reused, command_line=["pytest"])
     before = _files(reused)
-    res = run_study(cfg, reused, command_line=["pytest"])
-    run_study(cfg, fresh, command_line=["pytest"])
+    res = run_full_study(cfg, reused, command_line=["pytest"])
+    run_full_study(cfg, fresh, command_line=["pytest"])
     return cfg, base, before, res
 
 
@@ -101,13 +101,13 @@ def test_no_field_after_a_run_with_one(study):
     run = base / "reused"
     assert (run / "fields" / "field_00.npz").is_file()
     assert "coverage" in json.loads((run / "metrics.json").read_text())
-    res = run_study(replace_path(cfg, "evaluation.n_field_poses", 0), run, command_line=["pytest"])
+    res = run_full_study(replace_path(cfg, "evaluation.n_field_poses", 0), run, command_line=["pytest"])
     assert res.changed_keys == ["evaluation.n_field_poses"]
     assert not (run / "fields" / "field_00.npz").exists()
     assert not list(run.rglob("field_*.npz"))
     assert "coverage" not in json.loads((run / "metrics.json").read_text())
     assert _manifest_files(run) == _files(run) - {"manifest.json"}
-    run_study(cfg, run, command_line=["pytest"])  # back to the module's config
+    run_full_study(cfg, run, command_line=["pytest"])  # back to the module's config
 
 
 def test_refitting_the_models_writes_the_same_bytes_and_later_stages_skip(study):
@@ -115,7 +115,7 @@ def test_refitting_the_models_writes_the_same_bytes_and_later_stages_skip(study)
     run = base / "fresh"
     models = {p: p.read_bytes() for p in (run / "models").glob("*.json")}
     assert models and not any(b"date_utc" in v for v in models.values())
-    res = run_study(cfg, run, force=["models"], command_line=["pytest"])
+    res = run_full_study(cfg, run, force=["models"], command_line=["pytest"])
     assert res.ran == ["models"]
     assert {p: p.read_bytes() for p in (run / "models").glob("*.json")} == models
     for later in ("truth", "evaluation", "figures", "report"):

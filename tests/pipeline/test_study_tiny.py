@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 
 from pipeline.config import load_config, replace_path
-from pipeline.stages import run_summary, stage_names
+from pipeline.stages import run_full_study, run_summary, stage_names
 from pipeline.study import StageError, run_study
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,7 +28,7 @@ def tiny(tmp_path_factory):
     base = tmp_path_factory.mktemp("tiny")
     cfg = load_config(ROOT / "configs" / "tiny.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(base / "cache"))
-    res = run_study(cfg, base / "run", command_line=["pytest"])
+    res = run_full_study(cfg, base / "run", command_line=["pytest"])
     return cfg, base, res
 
 
@@ -62,7 +62,7 @@ def test_first_run_produces_the_run_directory(tiny):
 
 def test_second_run_skips_every_stage(tiny):
     cfg, base, _ = tiny
-    res = run_study(cfg, base / "run", command_line=["pytest"])
+    res = run_full_study(cfg, base / "run", command_line=["pytest"])
     assert res.ran == [] and res.cached == stage_names()
 
 
@@ -84,7 +84,7 @@ def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(base / "run", run)
     before = (run / "reads.parquet").stat().st_mtime_ns
-    res = run_study(replace_path(cfg, "training.epochs", 4), run, command_line=["pytest"])
+    res = run_full_study(replace_path(cfg, "training.epochs", 4), run, command_line=["pytest"])
     assert res.cached == ["scene", "tour", "reads", "training_sets"]
     assert res.ran == ["models", "truth", "evaluation", "figures", "report"]
     assert (run / "reads.parquet").stat().st_mtime_ns == before
@@ -99,12 +99,12 @@ def test_failed_stage_keeps_outputs_and_resumes(tiny, tmp_path):
     # more clusters than training samples: the training_sets stage must fail ...
     bad = replace_path(cfg, "training.n_clusters", 100000)
     with pytest.raises(StageError, match="stage 'training_sets' failed"):
-        run_study(bad, run, command_line=["pytest"])
+        run_full_study(bad, run, command_line=["pytest"])
     assert (run / "reads.parquet").is_file() and (run / "models" / "ssm.json").is_file()
     man = json.loads((run / "manifest.json").read_text())
     assert man["status"] == "failed" and man["failure"]["stage"] == "training_sets"
     # ... and the fixed config resumes from the failed stage without re-tracing
-    res = run_study(cfg, run, command_line=["pytest"])
+    res = run_full_study(cfg, run, command_line=["pytest"])
     assert "reads" in res.cached and "tour" in res.cached
     assert json.loads((run / "manifest.json").read_text())["status"] == "complete"
 
@@ -115,7 +115,7 @@ def test_corrupt_output_is_named_and_rerun(tiny, tmp_path, caplog):
     shutil.copytree(base / "run", run)
     (run / "models" / "tdm.json").write_text("{ truncated")
     with caplog.at_level(logging.WARNING):
-        res = run_study(cfg, run, command_line=["pytest"])
+        res = run_full_study(cfg, run, command_line=["pytest"])
     assert "tdm.json was modified or is corrupt" in caplog.text
     assert "models" in res.ran and "reads" in res.cached
     json.loads((run / "models" / "tdm.json").read_text())
@@ -127,7 +127,7 @@ def test_corrupt_upstream_input_names_file(tiny, tmp_path):
     shutil.copytree(base / "run", run)
     (run / "reads.parquet").write_bytes(b"PAR1 not really")
     # the reads stage notices its output changed and re-creates it from the cache
-    res = run_study(cfg, run, command_line=["pytest"])
+    res = run_full_study(cfg, run, command_line=["pytest"])
     assert "reads" in res.ran
     assert len(pd.read_parquet(run / "reads.parquet")) > 0
 

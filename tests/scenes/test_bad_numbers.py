@@ -60,7 +60,7 @@ def test_non_finite_items_name_the_item(tmp_path):
         scenes.load(_spec(tmp_path, extra=door))
     route = _spec(tmp_path).read_text().replace('name = "s"', 'name = "s"\nroute_m = [[0.5, 1.0], [nan, 1.0]]')
     (tmp_path / "r.toml").write_text(route)
-    with pytest.raises(SpecError, match=r"r\.toml: key 'route_m' must hold finite numbers"):
+    with pytest.raises(SpecError, match=r"r\.toml: key 'route_m\[1\]' must hold finite numbers"):
         scenes.load(tmp_path / "r.toml")
 
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pipeline.acquisition import ReaderConfig, reader_response
+from pipeline.config import config_from_mapping
 from propagation import LinkBudget
 
 # Numbers chosen so every dB sum below is exact in binary floating point:
@@ -18,16 +19,15 @@ BUDGET = dict(
 
 
 def _reader(**kw):
-    budget = LinkBudget(**{**BUDGET, **kw.pop("budget", {})})
     base = dict(rssi_noise_db=0.0, rssi_resolution_db=0.0, anticollision_miss_probability=0.0)
-    return ReaderConfig(budget=budget, **{**base, **kw})
+    return ReaderConfig(**{**BUDGET, **base, **kw.pop("budget", {}), **kw})
 
 
 def test_budget_equations_as_in_design():
     r = _reader()
     g = np.array([-45.0, -30.0])
-    np.testing.assert_array_equal(r.budget.tag_power_dbm(g), [-18.0, -3.0])
-    np.testing.assert_array_equal(r.budget.reader_rssi_dbm(g), [-72.0, -42.0])
+    np.testing.assert_array_equal(r.link_budget().tag_power_dbm(g), [-18.0, -3.0])
+    np.testing.assert_array_equal(r.link_budget().reader_rssi_dbm(g), [-72.0, -42.0])
 
 
 def test_forward_link_threshold_exact():
@@ -109,23 +109,27 @@ def test_same_seed_same_response():
 @pytest.mark.parametrize("rate", [0.0, -1.0, float("nan")])
 def test_read_rate_must_be_positive(rate):
     with pytest.raises(ValueError, match="read_rate_hz"):
-        ReaderConfig(read_rate_hz=rate, budget=LinkBudget())
+        ReaderConfig(read_rate_hz=rate)
 
 
 def test_config_errors_name_key_and_file():
-    with pytest.raises(KeyError, match=r"study.toml.*read_rate"):
-        ReaderConfig.from_dict({"read_rate": 5.0}, source="study.toml")
+    # the study's [reader] section is the reader's config: read by the study's schema
+    with pytest.raises(KeyError, match=r"study.toml.*reader.read_rate"):
+        config_from_mapping({"reader": {"read_rate": 5.0}}, source="study.toml")
     with pytest.raises(ValueError, match=r"study.toml.*read_rate_hz"):
-        ReaderConfig.from_dict({"read_rate_hz": 0}, source="study.toml")
-    with pytest.raises(KeyError, match=r"budget.*tx_power"):
-        ReaderConfig.from_dict({"budget": {"tx_power": 1.0}}, source="study.toml")
+        config_from_mapping({"reader": {"read_rate_hz": 0}}, source="study.toml")
+    with pytest.raises(KeyError, match=r"reader.tx_power.*tx_power_dbm"):
+        config_from_mapping({"reader": {"tx_power": 1.0}}, source="study.toml")
     with pytest.raises(ValueError, match="anticollision_miss_probability"):
-        ReaderConfig(anticollision_miss_probability=1.0, budget=LinkBudget())
+        ReaderConfig(anticollision_miss_probability=1.0)
 
 
-def test_reader_config_roundtrip():
-    cfg = ReaderConfig.from_dict(
-        {"read_rate_hz": 8.0, "budget": {"tx_power_dbm": 25.0}}, source="study.toml"
-    )
-    assert cfg.read_rate_hz == 8.0 and cfg.budget.tx_power_dbm == 25.0
-    assert ReaderConfig.from_dict(cfg.to_dict()) == cfg
+def test_reader_config_is_the_study_section_and_builds_the_budget():
+    cfg = config_from_mapping({"frequency_hz": 866e6,
+                               "reader": {"read_rate_hz": 8.0, "tx_power_dbm": 25.0}}, source="study.toml")
+    r = cfg.reader
+    assert isinstance(r, ReaderConfig) and r.read_rate_hz == 8.0
+    b = r.link_budget(cfg.frequency_hz)
+    assert b.tx_power_dbm == 25.0 and b.frequency_hz == 866e6
+    # one default per key: the budget keys default to LinkBudget's
+    assert ReaderConfig().link_budget() == LinkBudget()

@@ -119,13 +119,13 @@ def test_tdm_weights_are_attempts_and_survive_parquet(tmp_path):
 def test_model_fit_weights_tdm_cells_by_attempts_split_with_their_cells():
     from types import SimpleNamespace
 
-    from pipeline.stages_model import _fit
+    from pipeline.stages.models import _fit
 
     ts = _tdm_set(1)
     cfg = SimpleNamespace(n_clusters=2, fcm_exponent=2.0, epochs=5, step_size=0.01,
                           check_fraction=0.25, max_samples=0)
     model, hist = _fit(ts, cfg, np.random.default_rng(5), lambda **_: None)
-    # the same split as stages_model._split draws from the same generator
+    # the same split as pipeline.stages.models._split draws from the same generator
     n = len(ts)
     n_check = int(round(0.25 * n))
     perm = np.random.default_rng(5).permutation(n)

@@ -213,3 +213,21 @@ def test_draw_all_errors(tmp_path):
         draw_all(tmp_path / "nope")
     with pytest.raises(ValueError, match="unknown figure.*'fig99'"):
         draw_all(tmp_path, names=["fig99"])
+
+
+def test_figures_drawn_side_by_side_are_the_same_bytes(run_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")  # as the figures stage runs
+    one = draw_all(run_dir, out_dir=tmp_path / "one", workers=1)
+    two = draw_all(run_dir, out_dir=tmp_path / "two", workers=2)
+    assert [p.name for p in one] == [p.name for p in two]
+    for a, b in zip(one, two, strict=True):
+        assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_a_failing_figure_fails_draw_all_from_a_worker(run_dir, tmp_path, monkeypatch):
+    def broken(run_dir, out_dir=None):
+        raise RuntimeError("broken figure")
+
+    monkeypatch.setitem(FIGURES, "baselines", broken)
+    with pytest.raises(RuntimeError, match="broken figure"):
+        draw_all(run_dir, out_dir=tmp_path / "x", workers=2)

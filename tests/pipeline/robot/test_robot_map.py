@@ -8,7 +8,7 @@ import pytest
 import pipeline.robot.simulate as simulate_mod
 from pipeline.evaluation.localisation import pose_error_summary
 from pipeline.robot import (
-    LocalizationConfig,
+    LocalisationConfig,
     MapError,
     Robot,
     Trajectory,
@@ -82,7 +82,7 @@ def test_map_error_is_drawn_once_per_generator_and_streams_are_independent(corri
 
 
 def test_zero_map_error_gives_the_true_map_exactly(corridor):
-    cfg = LocalizationConfig(map_error_m=0.0, map_scale_error=0.0, map_noise_m=0.0)
+    cfg = LocalisationConfig(map_error_m=0.0, map_scale_error=0.0, map_noise_m=0.0)
     rm = draw_robot_map(corridor, cfg, np.random.default_rng(0))
     true = laser_map(corridor, cfg.scanner, cfg.map_resolution_m)
     assert rm.error.is_zero
@@ -101,7 +101,7 @@ def _shift_south_wall(scene, shift_m, height_m=0.35):
 
 def test_shifted_wall_moves_the_likelihood_field(hall):
     occ = robot_map(hall, _shift_south_wall(hall, 0.1))
-    true = laser_map(hall, LocalizationConfig().scanner)
+    true = laser_map(hall, LocalisationConfig().scanner)
     x, y = np.meshgrid(np.linspace(2.0, 7.0, 11), np.linspace(-0.05, 1.5, 32))
     p = np.stack([x.ravel(), y.ravel()], 1)  # nearer the south wall than any other
     # the map's field is the true one moved 0.1 m north (two cells: the same interpolation)
@@ -115,7 +115,7 @@ def test_simulate_localisation_uses_a_given_map_unchanged(corridor, monkeypatch)
     n = 60
     poses = np.column_stack([np.linspace(2.0, 3.8, n), np.full(n, 1.2), np.zeros(n)])
     traj = Trajectory.from_poses(np.arange(n) * 0.1, poses)
-    cfg = LocalizationConfig(map_error_m=0.05)
+    cfg = LocalisationConfig(map_error_m=0.05)
     # without a map, simulate_localisation draws one from the 4th of its spawned streams
     drawn = draw_robot_map(corridor, cfg, np.random.default_rng(5).spawn(4)[3]).occupancy_map
     own = simulate_localisation(corridor, robot, traj, np.random.default_rng(5), cfg)
@@ -146,7 +146,7 @@ def test_wall_shifted_by_10cm_biases_mcl_laterally_by_10cm(hall):
     n = 200  # 6 m east at 0.3 m/s, 1 m from the south wall
     poses = np.column_stack([np.linspace(1.5, 7.5, n), np.full(n, 1.0), np.zeros(n)])
     traj = Trajectory.from_poses(np.arange(n) * 0.1, poses)
-    cfg = LocalizationConfig(map_error_m=0.0)
+    cfg = LocalisationConfig(map_error_m=0.0)
     lateral = {}
     for shift in (0.0, 0.1, -0.1):
         occ = robot_map(hall, _shift_south_wall(hall, shift))

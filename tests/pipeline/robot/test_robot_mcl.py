@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from pipeline.config import config_from_mapping
 from pipeline.robot import (
     LaserScanner,
-    LocalizationConfig,
+    LocalisationConfig,
     MCLConfig,
     OdometryNoise,
     Robot,
@@ -136,7 +137,9 @@ def test_bad_inputs_raise(corridor):
     lm = laser_map(corridor, scanner)
     with pytest.raises(ValueError, match="odometry has 3 poses but scans has 2"):
         run_mcl(lm, scanner, np.zeros((3, 3)), np.zeros((2, 181)), None, np.random.default_rng(0))
-    with pytest.raises(ValueError, match="sigma_hitm"):
-        LocalizationConfig.from_dict({"mcl": {"sigma_hitm": 0.1}}, where="study.toml")
-    cfg = LocalizationConfig.from_dict({"mcl": {"n_particles": 50}, "scanner": {"n_beams": 91}})
+    with pytest.raises(ValueError, match=r"study.toml: localisation.sigma_hitm: unknown key"):
+        config_from_mapping({"localisation": {"sigma_hitm": 0.1}}, source="study.toml")
+    cfg = config_from_mapping({"localisation": {"n_particles": 50, "laser_beams": 91}}).localisation
+    assert isinstance(cfg, LocalisationConfig)  # the study's section is what the robot consumes
     assert cfg.mcl.n_particles == 50 and cfg.scanner.n_beams == 91
+    assert cfg.mcl.sigma_hit_m == MCLConfig().sigma_hit_m  # one default per key

@@ -9,7 +9,7 @@ import pytest
 import pipeline.robot as robot_pkg
 import scenes
 from pipeline.config import config_from_mapping
-from pipeline.stages_data import stage_tour
+from pipeline.stages.tour import stage_tour
 
 KEYS = {"position_error_median_m", "position_error_p90_m", "heading_error_median_deg",
         "mean_offset_along_m", "mean_offset_lateral_m", "mean_offset_x_m", "mean_offset_y_m",

@@ -1,0 +1,86 @@
+"""The study's stages, in order, and what the CLI and sweeps need around them.
+
+Stages, one module each (inputs in brackets; each also depends on its upstream stages)::
+
+    scene         load the scene, write scene/ (summary, tags, floor plan)   [scene]
+    tour          guided tour + evaluation path, odometry, laser, MCL        [robot, tour, localisation]
+    reads         ray-traced reader simulation -> reads/poses Parquet         [reader, tracing]
+    training_sets SSM / TDM samples (MCL and true poses)                       [training bins]
+    models        FCM + ANFIS (SSM, TDM; MCL and true poses), baselines        [training fit]
+    truth         detection truth grid, Fig. 6 traced points, RSSI fields      [evaluation]
+    evaluation    metrics.json                                                 [evaluation]
+    figures       figures/*.png (pipeline.figures.draw_all)
+    report        report.html
+
+Each module defines its ``STAGE`` (name, config keys, upstream stages, version) beside
+the function it runs; helpers they share are in :mod:`pipeline.stages.common`. The
+engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` hands it
+:data:`STAGES`, :data:`CHECKS` and :func:`manifest_info`.
+
+The scene stage always runs (it is cheap) so an edited scene file changes its
+outputs' digest and everything downstream re-runs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pipeline.config import StudyConfig
+from pipeline.stages import (
+    evaluation,
+    figures,
+    models,
+    reads,
+    report,
+    scene,
+    tour,
+    training_sets,
+    truth,
+)
+from pipeline.stages.checks import CHECKS, check_antenna_mounts
+from pipeline.stages.common import manifest_info, resolve_cache_dir
+from pipeline.stages.figures import draw_figures, draw_scene_top_view
+from pipeline.stages.summary import corridor_coverage, run_summary
+from pipeline.study import Stage, StudyResult, run_study
+
+__all__ = [
+    "CHECKS",
+    "STAGES",
+    "check_antenna_mounts",
+    "corridor_coverage",
+    "draw_figures",
+    "draw_scene_top_view",
+    "manifest_info",
+    "resolve_cache_dir",
+    "run_full_study",
+    "run_summary",
+    "stage_names",
+]
+
+#: The study's stages, in order.
+STAGES: tuple[Stage, ...] = (
+    scene.STAGE,
+    tour.STAGE,
+    reads.STAGE,
+    training_sets.STAGE,
+    models.STAGE,
+    truth.STAGE,
+    evaluation.STAGE,
+    figures.STAGE,
+    report.STAGE,
+)
+
+
+def stage_names() -> list[str]:
+    """Names of the study's stages, in order."""
+    return [s.name for s in STAGES]
+
+
+def run_full_study(config: StudyConfig, run_dir: str | Path, **kwargs) -> StudyResult:
+    """Run (or resume) the whole study into ``run_dir``: :func:`pipeline.study.run_study`
+    with :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info` (package versions and the
+    Dr.Jit backend in the manifest). Keyword arguments go to ``run_study`` and override
+    those (``checks=()``, ``manifest_extra=None``)."""
+    kwargs.setdefault("checks", CHECKS)
+    kwargs.setdefault("manifest_extra", manifest_info)
+    return run_study(config, run_dir, STAGES, **kwargs)

@@ -1,0 +1,253 @@
+"""What the stages share: random streams, the study scene and route, the robot, the
+reader's link budget, tracing options, the propagation cache, read logs and poses.
+
+Orchestration only: these helpers turn the study config into the packages' objects
+(``scenes``, ``pipeline.robot``, ``propagation``) and read the run directory's files.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as _md
+import logging
+import os
+import platform
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.acquisition.config import POSE_SOURCES
+from pipeline.config import StudyConfig
+
+__all__ = [
+    "POSE_SOURCES",
+    "TRACING_KEYS",
+    "antenna_tilts",
+    "build_robot",
+    "link_budget",
+    "load_scene",
+    "manifest_info",
+    "read_reads",
+    "resolve_cache_dir",
+    "sample_poses",
+    "select_backend",
+    "split_tags",
+    "stage_rng",
+    "study_route",
+    "study_scene",
+    "trace_options",
+]
+
+log = logging.getLogger(__name__)
+
+#: Config keys every traced result depends on (the reads and the truth stages).
+TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
+                "tracing.reader_pattern", "tracing.tag_pattern", "tracing.reader_polarization",
+                "tracing.backend")
+
+#: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
+#: and heights are not those of any lattice the training tags or truth sites use.
+_EVAL_TAG_SPACING_M = 0.1
+
+
+def stage_rng(cfg: StudyConfig, stage: str) -> np.random.Generator:
+    """The random generator of one stage: seeded by (study seed, crc32 of the stage name).
+
+    Every stage draws from its own stream, so re-running one stage reproduces it
+    bit for bit whatever ran before it.
+    """
+    return np.random.default_rng([int(cfg.seed), zlib.crc32(stage.encode())])
+
+
+def resolve_cache_dir(cfg: StudyConfig) -> Path:
+    """The shared propagation cache: tracing.cache_dir, $RFIDSTUDY_CACHE or ~/.cache/rfidstudy."""
+    if cfg.tracing.cache_dir:
+        return Path(cfg.tracing.cache_dir).expanduser().resolve()
+    env = os.environ.get("RFIDSTUDY_CACHE")
+    if env:
+        return Path(env).expanduser().resolve()
+    return (Path.home() / ".cache" / "rfidstudy").resolve()
+
+
+def study_scene(cfg: StudyConfig):
+    """The scene with the study's two tag layouts, and which tag belongs to which.
+
+    The scene's own tags are the training layout; ``evaluation.n_eval_tags`` held-out
+    tags are drawn on its walls, boxes and cabinets (:func:`scenes.tagsites.draw_tags`,
+    stream ``stage_rng(cfg, "eval_tags")``), at least ``eval_tag_min_separation_m`` from
+    every other tag and at heights in ``eval_tag_heights_m``, so the evaluation tour
+    reads tags at positions and heights the training tour never read.
+
+    Returns
+    -------
+    scene : scenes.Scene
+        A copy whose ``tags`` are the training tags followed by the held-out ones.
+    split : numpy.ndarray, shape (n_tags,), str
+        ``"train"`` or ``"eval"`` per tag, in ``scene.tags`` order.
+    """
+    import dataclasses
+
+    import scenes
+    from scenes.scene import TagSet
+    from scenes.tagsites import draw_tags, tag_sites
+
+    sc = scenes.load(cfg.scene)
+    ev = cfg.evaluation
+    train = sc.tags
+    sites = tag_sites(sc, spacing_m=_EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
+    route = study_route(sc, cfg)
+    if route is not None:  # only where the evaluation tour passes within the models' domain
+        sites = sites.subset(_route_distance_m(sites.positions_m[:, :2], route) <= cfg.training.d_max_m)
+    held = draw_tags(sites, ev.n_eval_tags, stage_rng(cfg, "eval_tags"), avoid_m=train.positions_m,
+                     min_separation_m=ev.eval_tag_min_separation_m, prefix="E",
+                     where=f"{sc.name}: evaluation.n_eval_tags = {ev.n_eval_tags}")
+    clash = sorted(set(train.ids.tolist()) & set(held.ids.tolist()))
+    if clash:
+        raise ValueError(f"{sc.name}: held-out tag ids {clash} are already used by the scene's tags")
+    tags = TagSet(np.concatenate([train.ids, held.ids]),
+                  np.vstack([train.positions_m, held.positions_m]),
+                  np.vstack([train.normals, held.normals]))
+    split = np.array(["train"] * len(train) + ["eval"] * len(held))
+    return dataclasses.replace(sc, tags=tags), split
+
+
+def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:
+    """Horizontal distance of points (k, 2) to a polyline (n, 2) [m]."""
+    a, b = route[:-1], route[1:]
+    ab = b - a
+    t = np.einsum("kij,ij->ki", xy[:, None, :] - a[None], ab) / np.maximum(
+        np.einsum("ij,ij->i", ab, ab), 1e-12)
+    proj = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.min(np.linalg.norm(xy[:, None, :] - proj, axis=2), axis=1)
+
+
+def load_scene(ctx):
+    """The study's scene with both tag layouts (:func:`study_scene`), memoised per run."""
+    sc = ctx.memo.get("scene")
+    if sc is None:
+        sc, split = study_scene(ctx.config)
+        ctx.memo["scene"] = sc
+        ctx.memo["tag_split"] = split
+    return sc
+
+
+def split_tags(ctx, which: str):
+    """The tags of one layout (``"train"`` or ``"eval"``) of the study scene (a TagSet)."""
+    sc = load_scene(ctx)
+    return sc.tags.subset(ctx.memo["tag_split"] == which)
+
+
+def study_route(scene, cfg: StudyConfig) -> np.ndarray | None:
+    """The scene's route, cut to its first ``tour.max_length_m`` metres when set.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Polyline (k, 2) [m].
+    """
+    route = None if scene.route_m is None else np.asarray(scene.route_m, dtype=float)
+    L = cfg.tour.max_length_m
+    if route is None or L <= 0:
+        return route
+    seg = np.linalg.norm(np.diff(route, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if L >= s[-1]:
+        return route
+    k = int(np.searchsorted(s, L))
+    t = (L - s[k - 1]) / seg[k - 1]
+    end = route[k - 1] + t * (route[k] - route[k - 1])
+    return np.vstack([route[:k], end[None]])
+
+
+def build_robot(cfg: StudyConfig):
+    """``pipeline.robot.Robot`` with the config's antenna mounts (degrees -> radians)."""
+    from pipeline.robot import AntennaMount, Robot
+
+    mounts = [
+        AntennaMount(a.name, x_m=a.x_m, y_m=a.y_m, z_m=a.z_m, yaw_rad=float(np.deg2rad(a.yaw_deg)),
+                     tilt_rad=float(np.deg2rad(a.tilt_deg)))
+        for a in cfg.robot.antennas
+    ]
+    return Robot(antennas=mounts)
+
+
+def link_budget(cfg: StudyConfig):
+    """``propagation.LinkBudget`` of the [reader] section at the study's carrier frequency."""
+    return cfg.reader.link_budget(cfg.frequency_hz)
+
+
+def trace_options(cfg: StudyConfig) -> dict:
+    """Keyword arguments for ``propagation.trace_links`` from the [tracing] section."""
+    t = cfg.tracing
+    return {
+        "max_depth": t.max_depth,
+        "samples_per_src": t.samples_per_src,
+        "reader_pattern": t.reader_pattern,
+        "tag_pattern": t.tag_pattern,
+        "reader_polarization": t.reader_polarization,
+        "memory_budget_bytes": int(t.memory_budget_mb * 2**20),
+    }
+
+
+def select_backend(cfg: StudyConfig) -> str:
+    """Select the Dr.Jit variant (``propagation.select_variant``) before any tracing."""
+    import propagation
+
+    variant = propagation.select_variant(prefer=cfg.tracing.backend)
+    propagation.set_deterministic(cfg.tracing.deterministic)
+    return variant
+
+
+def read_reads(ctx, prefix: str = ""):
+    """``(frame, metadata)`` of the run's ``<prefix>reads.parquet`` (an error names the file)."""
+    from pipeline.acquisition import read_table
+
+    path = ctx.input(f"{prefix}reads.parquet")
+    try:
+        df, meta = read_table(path)
+    except Exception as exc:
+        raise ValueError(f"{path}: cannot read the read log ({type(exc).__name__}: {exc}); "
+                         "delete it to re-run the reads stage") from None
+    return df, meta
+
+
+def sample_poses(reads, n: int, tilt_rad: dict) -> np.ndarray:
+    """``n`` true antenna poses (x, y, z, yaw, pitch, roll) spread evenly over the tour."""
+    cols = ["true_ant_x_m", "true_ant_y_m", "true_ant_z_m", "true_ant_yaw_rad"]
+    att = reads.drop_duplicates(["time_s", "antenna"])
+    poses = att[cols].to_numpy(float)
+    pitch = np.array([tilt_rad[int(a)] for a in att["antenna"]])
+    poses = np.column_stack([poses, pitch, np.zeros(len(poses))])
+    idx = np.linspace(0, len(poses) - 1, n + 2)[1:-1].round().astype(int)
+    return poses[idx]
+
+
+def antenna_tilts(cfg: StudyConfig) -> dict:
+    """Antenna index (as in reads.parquet) -> tilt [rad]."""
+    return {i: float(np.deg2rad(a.tilt_deg)) for i, a in enumerate(cfg.robot.antennas)}
+
+
+def _version(dist: str) -> str | None:
+    try:
+        return _md.version(dist)
+    except _md.PackageNotFoundError:
+        return None
+
+
+def manifest_info(cfg: StudyConfig) -> dict:
+    """Package versions, platform and the Dr.Jit backend for ``manifest.json``."""
+    dists = ["rfidstudy", "sionna-rt", "mitsuba", "drjit", "numpy", "scipy", "scikit-fuzzy",
+             "trimesh", "pandas", "pyarrow", "matplotlib", "dask", "distributed"]
+    info = {
+        "versions": {d: _version(d) for d in dists},
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cache_dir": str(resolve_cache_dir(cfg)),
+    }
+    try:
+        import propagation
+
+        info["backend"] = propagation.backend_info()
+    except Exception as exc:  # the manifest must not fail the study
+        info["backend"] = {"error": f"{type(exc).__name__}: {exc}"}
+    return info

@@ -1,0 +1,165 @@
+"""Stage ``evaluation``: every model against the truth on held-out data
+(``pipeline.evaluation``); writes ``metrics.json``, ``truth/fig7_errors.parquet`` and
+``truth/site_errors.parquet``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from pipeline.runstore import atomic_write_json
+from pipeline.stages.common import antenna_tilts, link_budget, load_scene, read_reads
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "field_coverage", "stage_evaluation"]
+
+
+def field_coverage(cfg, scene, field_paths) -> dict | None:
+    """Corridor coverage of the saved RSSI fields (pipeline.evaluation.detection_coverage).
+
+    Cells outside the scene's free space are left out. Returns None without fields, else
+    ``{"corridor_fraction": mean over fields, "fields": [CoverageResult dicts]}``.
+    """
+    import propagation
+    from pipeline.evaluation.coverage import detection_coverage
+    from scenes.geometry import is_free
+
+    if not field_paths:
+        return None
+    budget = link_budget(cfg)
+    per_field = []
+    for path in field_paths:
+        field = propagation.RssiField.load(path)
+        free = is_free(scene, field.plane_centers_m.reshape(-1, 3))
+        per_field.append(detection_coverage(
+            field.plane_gain_db, budget, free,
+            miss_probability=cfg.reader.anticollision_miss_probability).to_dict())
+    return {"corridor_fraction": float(np.mean([c["fraction"] for c in per_field])),
+            "fields": per_field}
+
+
+def stage_evaluation(ctx) -> dict:
+    """Every model against the truth; write metrics.json and the Fig. 7 / tag-site tables.
+
+    ``metrics.json`` sections: ``heldout`` (every model and the floor on the held-out tag
+    layout read by the evaluation tour; the headline), ``fig7`` (chapter Sec. 5 on the
+    evaluation tour, per model), ``tag_sites`` (truth where tags are, per model),
+    ``error_budget``, ``localisation`` (MCL pose error and bias per tour), ``in_sample``
+    (the same comparisons on the training tour's reads: labelled, not the headline),
+    ``free_space_view`` (the chapter's Fig. 6 plane at antenna height), ``coverage``.
+    """
+    import pandas as pd
+
+    from fuzzymodel import SensorModel
+    from pipeline.evaluation.baselines import BaselineSensorModel
+    from pipeline.evaluation.comparison import RhoPoints, rho_vs_truth
+    from pipeline.evaluation.evaluate import EvaluationInputs, evaluate_all
+    from pipeline.evaluation.fig7 import fig7_errors
+    from pipeline.evaluation.heldout import error_budget, heldout_scores
+    from pipeline.evaluation.metrics import nan_to_none
+    from pipeline.evaluation.sites import SiteTruth, site_comparison
+    from pipeline.evaluation.tables import read_tags, write_parquet_atomic
+    from pipeline.evaluation.truth import TruthGrid
+
+    cfg = ctx.config
+    budget = link_budget(cfg)
+    reads, meta = read_reads(ctx)
+    eval_reads, eval_meta = read_reads(ctx, "eval_")
+    tags = read_tags(ctx.input("scene/tags.parquet"))
+    _check_split(tags, reads, eval_reads, ctx.store.path("scene/tags.parquet"))
+    eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
+    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
+    sensors = {
+        "anfis": SensorModel.load(ctx.input("models/sensor.json")),
+        "anfis_truepose": SensorModel.load(ctx.input("models/sensor_truepose.json")),
+        "log_distance": base,
+        "grid_count": base,
+    }
+    from pipeline.sensormodels import ABLATIONS, COMPETITORS, load_competitor
+
+    sensors.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
+    sensors.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
+    extra = (*COMPETITORS, *ABLATIONS)
+    rssi_names = ("anfis", "anfis_truepose", "log_distance",
+                  *(n for n in extra if getattr(sensors[n], "predicts_rssi", True)))
+    train_truth = TruthGrid.load(ctx.input("truth/detection_grid.npz"))
+    eval_truth = TruthGrid.load(ctx.input("truth/detection_grid_eval.npz"))
+    tr = cfg.training
+    heldout = heldout_scores(sensors, eval_reads, train_truth, eval_truth, budget,
+                             d_max_m=tr.d_max_m, min_attempts=tr.min_attempts,
+                             rssi_models=rssi_names,
+                             detection_models=("anfis", "anfis_truepose", "grid_count", *extra))
+    metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
+               "reads": {"range_margin": _range_margin(meta, eval_meta)}}
+    fig7 = {}
+    for name in rssi_names:
+        f7 = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
+                         pose_times_s=eval_poses["time_s"].to_numpy(float),
+                         antenna_pitch_rad=antenna_tilts(cfg), d_max_m=tr.d_max_m)
+        fig7[name] = f7.to_dict()
+        if name == "anfis":  # the Fig. 7 figure reads it instead of recomputing
+            f7.write_table(ctx.out("truth/fig7_errors.parquet"))
+    metrics["fig7"] = fig7
+    site_truth = SiteTruth.load(ctx.input("truth/site_truth.npz"))
+    q = cfg.reader.anticollision_miss_probability
+    metrics["tag_sites"] = {}
+    for name in rssi_names:
+        sc_ = site_comparison(site_truth, sensors[name], budget, miss_probability=q,
+                              d_max_m=tr.d_max_m)
+        metrics["tag_sites"][name] = sc_.to_dict()
+        if name == "anfis":
+            write_parquet_atomic(sc_.per_site, ctx.out("truth/site_errors.parquet"))
+    loc = ctx.store.path("tour/localisation.json")
+    if loc.is_file():
+        metrics["localisation"] = json.loads(loc.read_text())
+    # in-sample: the training tour's own reads (labelled; not the headline)
+    insample = evaluate_all(
+        {"anfis": sensors["anfis"], "anfis_truepose": sensors["anfis_truepose"],
+         "baselines": base,
+         "baselines_truepose": BaselineSensorModel.load(ctx.input("models/baselines_truepose.json"))},
+        EvaluationInputs(reads=reads, truth=train_truth, budget=budget,
+                         d_max_m=tr.d_max_m, min_attempts=tr.min_attempts)).to_dict()
+    insample["note"] = ("in_sample: scored on the training tour's reads of the training tags, "
+                        "which the models were fitted on")
+    metrics["in_sample"] = insample
+    rho_points = [RhoPoints.load(p) for p in sorted(ctx.store.path("truth").glob("rho_points_*.npz"))]
+    metrics["free_space_view"] = {
+        name: rho_vs_truth(rho_points, sensors[name]).to_dict() for name in rssi_names
+    } if rho_points else None
+    fields = sorted(ctx.store.path("fields").glob("field_*.npz"))
+    coverage = field_coverage(cfg, load_scene(ctx), fields)
+    if coverage is not None:
+        metrics["coverage"] = coverage
+    atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
+    return {"models": sorted(sensors)}
+
+
+def _range_margin(*metas) -> dict:
+    """Did any traced link exceed free space by more than the range margin (the untraced
+    links beyond it might then have been readable)? From the read logs' metadata."""
+    vals = [m.get("max_excess_over_free_space_db") for m in metas if isinstance(m, dict)]
+    vals = [float(v) for v in vals if v is not None]
+    margin = next((m.get("range_margin_db") for m in metas if isinstance(m, dict)), None)
+    worst = max(vals) if vals else None
+    return {"range_margin_db": margin, "max_excess_over_free_space_db": worst,
+            "margin_holds": None if worst is None or margin is None else bool(worst <= margin)}
+
+
+def _check_split(tags, reads, eval_reads, path) -> None:
+    """No tag read in training appears in evaluation, and each tour reads only its layout."""
+    if "split" not in tags.columns:
+        raise ValueError(f"{path}: no 'split' column; rerun the scene stage")
+    split = dict(zip(tags["tag_id"].astype(str), tags["split"].astype(str), strict=True))
+    for name, df, want in (("reads.parquet", reads, "train"), ("eval_reads.parquet", eval_reads, "eval")):
+        ids = set(df["tag_id"].astype(str))
+        wrong = sorted(t for t in ids if split.get(t) != want)
+        if wrong:
+            raise ValueError(f"{name} holds tags {wrong[:5]} whose split in {path} is not {want!r}: "
+                             "training and held-out layouts mix; rerun the reads stage")
+
+
+STAGE = Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
+              ("scene", "tour", "reads", "models", "truth"),
+              version=5,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections; 5: range margin
+              description="metrics")

@@ -1,0 +1,47 @@
+"""Stage ``figures``: every figure from the run directory's files alone
+(``pipeline.figures``); writes ``figures/*.png`` and ``*.pdf``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "draw_figures", "draw_scene_top_view", "stage_figures"]
+
+
+def draw_figures(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
+    """Every figure of a run, from the run directory's files alone (pipeline.figures.draw_all).
+
+    Returns
+    -------
+    list of pathlib.Path
+        Files written under ``out_dir``.
+    """
+    from pipeline.figures import draw_all
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    res = draw_all(Path(run_dir), out_dir=out)
+    if isinstance(res, dict):
+        res = [p for v in res.values() for p in (v if isinstance(v, (list, tuple)) else [v])]
+    return [Path(p) for p in (res or [])]
+
+
+def draw_scene_top_view(scene, png: str | Path) -> Path:
+    """Top view of a scene (walls at laser height, tags, route) as PNG, via pipeline.figures."""
+    from pipeline.figures import scene_top_view
+
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    return Path(scene_top_view(scene, png))
+
+
+def stage_figures(ctx) -> dict:
+    """Draw every figure into the stage's staging area."""
+    paths = draw_figures(ctx.store.root, ctx.staging_dir / "figures")
+    return {"n_files": len(paths)}
+
+
+STAGE = Stage("figures", stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
+              description="figures")

@@ -1,0 +1,120 @@
+"""Stage ``models``: FCM + ANFIS for the SSM and the TDM (MCL-pose and true-pose; TDM
+weighted by read attempts), the baselines, the chapter's competitors and the ablations
+(``fuzzymodel``, ``pipeline.evaluation``, ``pipeline.sensormodels``); writes ``models/``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.runstore import atomic_write_json
+from pipeline.stages.common import POSE_SOURCES, read_reads, stage_rng
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "stage_models"]
+
+
+def _split(X, y, frac: float, rng):
+    n = len(y)
+    n_check = int(round(frac * n))
+    if n_check < 1 or n - n_check < 2:
+        return X, y, None, None
+    perm = rng.permutation(n)
+    c, t = perm[:n_check], perm[n_check:]
+    return X[t], y[t], X[c], y[c]
+
+
+def _fit(ts, cfg, rng, progress):
+    """FCM-initialised ANFIS (fuzzymodel) on one training set; returns (model, history dict).
+
+    A TDM set's samples are weighted by their read attempts n+ + n-
+    (``TrainingSet.weights``): the FCM, the least squares and the gradient all weigh
+    a cell that saw 200 attempts 100 times one that saw 2, and the RMSEs in the
+    history are weighted. SSM samples (one per read) are unweighted.
+    """
+    from fuzzymodel import ANFIS
+
+    X, y = ts.X, ts.y
+    w = None if ts.weights is None else np.asarray(ts.weights, dtype=float)
+    if ts.kind == "ssm" and cfg.max_samples and len(y) > cfg.max_samples:
+        keep = np.sort(rng.choice(len(y), cfg.max_samples, replace=False))
+        X, y = X[keep], y[keep]
+        w = None if w is None else w[keep]
+    if w is None:
+        Xt, yt, Xc, yc = _split(X, y, cfg.check_fraction, rng)
+        wt = wc = None
+    else:  # the weights ride along as a third column, so they split with their cells
+        XWt, yt, XWc, yc = _split(np.column_stack([X, w]), y, cfg.check_fraction, rng)
+        Xt, wt = XWt[:, :-1], XWt[:, -1]
+        Xc, wc = (None, None) if XWc is None else (XWc[:, :-1], XWc[:, -1])
+    model = ANFIS.from_fcm(Xt, yt, n_clusters=cfg.n_clusters, m=cfg.fcm_exponent, rng=rng,
+                           input_names=["d_m", "alpha_rad"], sample_weight=wt)
+    hist = model.fit(Xt, yt, epochs=cfg.epochs, X_check=Xc, y_check=yc, step_size=cfg.step_size,
+                     sample_weight=wt, check_sample_weight=wc)
+    progress(advance=1)
+    return model, {
+        "n_train": int(len(yt)),
+        "n_check": 0 if yc is None else int(len(yc)),
+        "weighted": wt is not None,
+        "train_weight_sum": None if wt is None else float(wt.sum()),
+        "train_rmse": np.asarray(hist.train_rmse, float).tolist(),
+        "check_rmse": [None if not np.isfinite(v) else float(v) for v in np.asarray(hist.check_rmse)],
+        "step_size": np.asarray(hist.step_size, float).tolist(),
+        "best_epoch": int(hist.best_epoch),
+    }
+
+
+def stage_models(ctx) -> dict:
+    """FCM + ANFIS for SSM and TDM (MCL and true poses) and the baselines; write models/."""
+    from fuzzymodel import SensorModel
+    from pipeline.acquisition import TrainingSet
+    from pipeline.evaluation.baselines import fit_baselines
+    from pipeline.evaluation.cells import CellGrid
+
+    cfg = ctx.config.training
+    rng = stage_rng(ctx.config, "models")
+    progress = ctx.progress("FCM + ANFIS", total=2 * len(POSE_SOURCES))
+    histories, info = {}, {}
+    rssi_range = None
+    for pose in POSE_SOURCES:
+        suffix = "" if pose == "est" else "_truepose"
+        ssm_set = TrainingSet.from_parquet(ctx.input(f"training/ssm_{pose}.parquet"))
+        tdm_set = TrainingSet.from_parquet(ctx.input(f"training/tdm_{pose}.parquet"))
+        rssi_range = tuple(ssm_set.rssi_range_dbm)
+        ssm, h_ssm = _fit(ssm_set, cfg, rng, progress)
+        tdm, h_tdm = _fit(tdm_set, cfg, rng, progress)
+        ssm.save(ctx.out(f"models/ssm{suffix}.json"))
+        tdm.save(ctx.out(f"models/tdm{suffix}.json"))
+        SensorModel(ssm, tdm, rssi_range_dbm=rssi_range).save(ctx.out(f"models/sensor{suffix}.json"))
+        histories[f"ssm{suffix}"] = h_ssm
+        histories[f"tdm{suffix}"] = h_tdm
+        info[pose] = {"ssm_train_rmse": h_ssm["train_rmse"][h_ssm["best_epoch"]],
+                      "tdm_train_rmse": h_tdm["train_rmse"][h_tdm["best_epoch"]]}
+    atomic_write_json(ctx.out("models/training_history.json"), histories)
+    reads, _ = read_reads(ctx)
+    grid = CellGrid(d_max_m=cfg.d_max_m, d_bin_m=cfg.d_bin_m, alpha_bin_deg=cfg.alpha_bin_deg)
+    base = fit_baselines(reads, rssi_range, grid=grid, pose="est")
+    base.save(ctx.out("models/baselines.json"))
+    base_true = fit_baselines(reads, rssi_range, grid=grid, pose="true")
+    base_true.save(ctx.out("models/baselines_truepose.json"))
+    # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
+    # so the ANFIS fits above stay bit-identical
+    from pipeline.sensormodels import ABLATIONS, fit_ablation, fit_competitors
+
+    comps = fit_competitors(reads, rssi_range, d_max_m=cfg.d_max_m, grid=grid,
+                            rng=stage_rng(ctx.config, "competitors"))
+    for name, model in comps.items():
+        model.save(ctx.out(f"models/{name}.json"))
+    ssm_set = TrainingSet.from_parquet(ctx.input("training/ssm_est.parquet"))
+    tdm_set = TrainingSet.from_parquet(ctx.input("training/tdm_est.parquet"))
+    for kind in ABLATIONS:
+        fit_ablation(kind, ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{kind}"),
+                     epochs=cfg.epochs, n_clusters=cfg.n_clusters, fcm_exponent=cfg.fcm_exponent,
+                     check_fraction=cfg.check_fraction, max_samples=cfg.max_samples,
+                     step_size=cfg.step_size).save(ctx.out(f"models/{kind}.json"))
+    info["competitors"] = sorted(comps) + list(ABLATIONS)
+    return info
+
+
+STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
+              version=2,  # 2: competitors and ablations (pipeline.sensormodels)
+              description="FCM + ANFIS")

@@ -1,0 +1,18 @@
+"""Stage ``report``: the self-contained ``report.html`` (figures embedded, ``pipeline.report``)."""
+
+from __future__ import annotations
+
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "stage_report"]
+
+
+def stage_report(ctx) -> dict:
+    """Write ``report.html`` from the run directory's files."""
+    from pipeline.report import write_report
+
+    write_report(ctx.store.root, out=ctx.out("report.html"))
+    return {}
+
+
+STAGE = Stage("report", stage_report, (), ("figures", "evaluation"), description="report.html")

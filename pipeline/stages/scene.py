@@ -1,0 +1,52 @@
+"""Stage ``scene``: load the scene, draw the held-out tag layout, write ``scene/``.
+
+It always runs (it is cheap), so an edited scene file changes its outputs' digest and
+everything downstream re-runs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.runstore import atomic_write_json, save_npz
+from pipeline.stages.common import load_scene, study_route
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "stage_scene"]
+
+
+def stage_scene(ctx) -> dict:
+    """Load the scene; write ``scene/scene.json``, ``scene/tags.parquet``, floor plan."""
+    from pipeline.evaluation.tables import write_tags
+    from scenes.geometry import floor_plan_segments
+
+    sc = load_scene(ctx)
+    cfg = ctx.config
+    lo, hi = sc.bounds_m
+    route = study_route(sc, cfg)
+    summary = {
+        "name": sc.name,
+        "source": str(sc.source),
+        "content_hash": sc.content_hash(),
+        "bounds_m": [lo.tolist(), hi.tolist()],
+        "materials": sc.materials,
+        "n_tags": len(sc.tags),
+        "n_tags_train": int(np.sum(ctx.memo["tag_split"] == "train")),
+        "n_tags_eval": int(np.sum(ctx.memo["tag_split"] == "eval")),
+        "route_m": None if route is None else np.round(route, 6).tolist(),
+    }
+    atomic_write_json(ctx.out("scene/scene.json"), summary)
+    write_tags(ctx.out("scene/tags.parquet"), sc.tags.ids, sc.tags.positions_m, sc.tags.normals,
+               split=ctx.memo["tag_split"])
+    heights = sorted({0.35, 1.0})
+    segs = {f"segments_z{int(h * 100):03d}cm": floor_plan_segments(sc, h) for h in heights}
+    save_npz(ctx.out("scene/floorplan.npz"), heights_m=np.asarray(heights),
+             route_m=np.zeros((0, 2)) if route is None else route, **segs)
+    return {"scene": sc.name, "n_tags": len(sc.tags), "content_hash": summary["content_hash"][:16]}
+
+
+STAGE = Stage("scene", stage_scene, ("scene", "seed", "tour.max_length_m", "evaluation.n_eval_tags",
+                                     "evaluation.eval_tag_min_separation_m",
+                                     "evaluation.eval_tag_heights_m", "training.d_max_m"),
+              (), version=2,  # 2: held-out tag layout (tags.parquet split)
+              description="load the scene", always=True)

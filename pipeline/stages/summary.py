@@ -1,0 +1,105 @@
+"""What sweeps read from a finished run directory: one summary row per run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["corridor_coverage", "run_summary"]
+
+
+def run_summary(run_dir: str | Path) -> dict:
+    """One sweep-summary row from a finished run directory's files.
+
+    Read rate, tag coverage and corridor coverage come from ``metrics.json`` where the
+    evaluation wrote them, else they are counted from ``reads.parquet`` (reads over
+    in-range attempts; tags read at least once over all tags). Model errors are taken
+    from ``metrics.json``.
+    """
+    import json
+
+    import pandas as pd
+
+    run = Path(run_dir)
+    row: dict = {}
+    reads = pd.read_parquet(run / "reads.parquet", columns=["tag_id", "read", "in_range"])
+    scene_info = json.loads((run / "scene" / "scene.json").read_text())
+    n_tags = scene_info.get("n_tags_train", scene_info["n_tags"])  # the training tour's layout
+    in_range = reads["in_range"].to_numpy(bool)
+    read = reads["read"].to_numpy(bool)
+    row["n_attempts_in_range"] = int(in_range.sum())
+    row["n_reads"] = int(read.sum())
+    row["read_rate"] = float(read.sum() / max(in_range.sum(), 1))
+    row["tag_coverage"] = float(reads.loc[read, "tag_id"].nunique() / max(n_tags, 1))
+    mpath = run / "metrics.json"
+    if mpath.exists():
+        metrics = json.loads(mpath.read_text())
+        row.update(_metric_columns(metrics))
+    cov = corridor_coverage(run)
+    if cov is not None:
+        row["corridor_coverage"] = cov
+    return row
+
+
+def _find(d, *path):
+    for p in path:
+        if not isinstance(d, dict) or p not in d:
+            return None
+        d = d[p]
+    return d if isinstance(d, (int, float)) else None
+
+
+def _metric_columns(metrics: dict) -> dict:
+    """Sweep columns from metrics.json: the learned model's HELD-OUT scores (older run
+    directories without a ``heldout`` section: their single ``models`` section)."""
+    m = metrics.get("evaluation", metrics)
+    out = {}
+    if isinstance(m.get("heldout"), dict):
+        paths = {
+            "ssm_rmse_db": ("heldout", "models", "anfis", "rssi_dbm", "rmse"),
+            "tdm_rmse": ("heldout", "models", "anfis", "detection", "rmse"),
+            "brier": ("heldout", "models", "anfis", "detection", "brier"),
+            "floor_rmse_db": ("heldout", "floor", "rssi_dbm", "rmse"),
+            "rho_rmse": ("tag_sites", "anfis", "all", "rho", "rmse"),
+            "fig7_median_pct": ("fig7", "anfis", "median_pct"),
+            "mcl_error_median_m": ("localisation", "eval", "position_error_median_m"),
+        }
+    else:
+        paths = {k: ("models", "anfis", *v) for k, v in {
+            "ssm_rmse_db": ("rssi_dbm", "rmse"), "tdm_rmse": ("detection", "rmse"),
+            "rho_rmse": ("rho", "rmse")}.items()}
+    for key, path in paths.items():
+        v = _find(m, *path)
+        if v is not None:
+            out[key] = float(v)
+    return out
+
+
+def corridor_coverage(run_dir: str | Path) -> float | None:
+    """Fraction of the RSSI-field plane cells (inside the scene's free space) where a tag
+    would be read with probability > 0.5, averaged over the run's field poses; None
+    without fields.
+
+    Read from ``metrics.json`` (``coverage.corridor_fraction``, written by the evaluation
+    stage with :func:`pipeline.evaluation.detection_coverage`); computed from
+    ``fields/*.npz`` the same way for runs whose metrics predate it.
+    """
+    import json
+    import tomllib
+
+    import scenes
+    from pipeline.config import config_from_mapping
+    from pipeline.stages.evaluation import field_coverage
+
+    run = Path(run_dir)
+    mpath = run / "metrics.json"
+    if mpath.exists():
+        cov = json.loads(mpath.read_text()).get("coverage")
+        if isinstance(cov, dict) and "corridor_fraction" in cov:
+            return float(cov["corridor_fraction"])
+    files = sorted((run / "fields").glob("field_*.npz"))
+    if not files:
+        return None
+    cfg = config_from_mapping(tomllib.loads((run / "config.toml").read_text()),
+                              source=str(run / "config.toml"))
+    cov = field_coverage(cfg, scenes.load(cfg.scene), files)
+    return None if cov is None else cov["corridor_fraction"]
