@@ -36,6 +36,7 @@ from propagation.tracing import DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC
 __all__ = [
     "AntennaMountConfig",
     "ConfigError",
+    "DownstreamConfig",
     "EvaluationConfig",
     "LocalisationConfig",
     "ReaderConfig",
@@ -225,6 +226,30 @@ class EvaluationConfig:
 
 
 @section
+class DownstreamConfig:
+    """The downstream benchmark: localise the held-out tags, then the robot, with each
+    sensor model and the ray-traced oracle (pipeline.localisation)."""
+
+    enabled: bool = option(True, "Run the downstream benchmark stage.")
+    candidate_spacing_m: float = option(
+        0.05, "Grid of candidate tag positions on the scene's surfaces for the models [m].")
+    oracle: bool = option(
+        False, "Also localise with the ray-traced oracle. It traces candidate windows around each "
+        "tag's true position and the learned model's estimate (about 36,000 links, 4 minutes on "
+        "2 cores for the default study), so its error is bounded by the window: it shows how "
+        "sharply the reads pin a tag down locally, not a global search.")
+    oracle_window_m: float = option(0.2, "Radius of the oracle's candidate windows [m].")
+    oracle_reach_m: float = option(
+        4.0, "Evaluation-tour slots whose antenna is within this distance of a window are traced "
+        "for the oracle [m].")
+    robot_particles: int = option(2000, "Particles of the RFID-only robot filter.")
+
+    def __post_init__(self):
+        _positive(self, "candidate_spacing_m", "oracle_window_m", "oracle_reach_m",
+                  "robot_particles")
+
+
+@section
 class StudyConfig:
     """A whole study: scene, robot, tour, reader, tracing, training and evaluation."""
 
@@ -238,6 +263,8 @@ class StudyConfig:
     tracing: TracingConfig = option(doc="Ray tracing.", factory=TracingConfig)
     training: TrainingConfig = option(doc="Training sets and models.", factory=TrainingConfig)
     evaluation: EvaluationConfig = option(doc="Evaluation.", factory=EvaluationConfig)
+    downstream: DownstreamConfig = option(doc="Downstream localisation benchmark.",
+                                          factory=DownstreamConfig)
 
     def __post_init__(self):
         if not self.scene:

@@ -210,6 +210,18 @@ def headline_html(metrics: dict) -> list[str]:
         out.append(_table_html("MCL pose error and bias (biased map)", ["tour"] + cols,
                                [[k] + [v.get(c) for c in cols] for k, v in loc.items()
                                 if isinstance(v, dict)]))
+    for key, title, cols in (
+            ("tag_localisation", "downstream: held-out tags localised from the evaluation tour's "
+             "reads (MAP over candidate sites; 3-D error)",
+             ("median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "horizontal_median_m",
+              "n_tags")),
+            ("robot_localisation", "downstream: RFID-only robot localisation (unknown start, "
+             "kidnapped halfway)", ("median_m", "p90_m", "converge_s", "recover_s",
+                                    "heading_median_deg"))):
+        sec = metrics.get(key)
+        if isinstance(sec, dict) and sec:
+            out.append(_table_html(title, ["model", *cols],
+                                   [[n, *[(v or {}).get(c) for c in cols]] for n, v in sec.items()]))
     sites = metrics.get("tag_sites")
     if isinstance(sites, dict) and sites:
         rows = []
@@ -337,7 +349,8 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         rest = dict(body)
         if isinstance(body.get("heldout"), dict):
             parts.extend(headline_html(body))
-            for key in ("heldout", "fig7", "error_budget", "localisation", "tag_sites"):
+            for key in ("heldout", "fig7", "error_budget", "localisation", "tag_sites",
+                        "tag_localisation", "robot_localisation"):
                 rest.pop(key, None)
             if isinstance(rest.get("in_sample"), dict):
                 parts.append("<h3>In-sample (training tour, training tags)</h3><p class='muted'>"

@@ -13,6 +13,7 @@ for both its files (:func:`pipeline.figures.common.save_figure`).
 
 from .common import DPI, MissingInput
 from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
+from .downstream import fig_downstream
 from .drawall import FIGURES, draw_all
 from .scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
 from .sites import fig_site_errors
@@ -29,6 +30,7 @@ __all__ = [
     "MissingInput",
     "draw_all",
     "fig_baselines",
+    "fig_downstream",
     "fig_fields",
     "fig_fig7_error",
     "fig_learned_vs_truth_detection",

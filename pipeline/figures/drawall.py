@@ -10,6 +10,7 @@ from pathlib import Path
 
 from .common import MissingInput
 from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
+from .downstream import fig_downstream
 from .scene import fig_fields, fig_mcl_error, fig_scene_top_view
 from .sites import fig_site_errors
 from .surfaces import (
@@ -36,6 +37,7 @@ FIGURES = {
     "mcl_error": fig_mcl_error,
     "baselines": fig_baselines,
     "site_errors": fig_site_errors,
+    "downstream": fig_downstream,
 }
 
 

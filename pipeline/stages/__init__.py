@@ -8,6 +8,7 @@ Stages, one module each (inputs in brackets; each also depends on its upstream s
     training_sets SSM / TDM samples (MCL and true poses)                       [training bins]
     models        FCM + ANFIS (SSM, TDM; MCL and true poses), baselines        [training fit]
     truth         detection truth grid, Fig. 6 traced points, RSSI fields      [evaluation]
+    downstream    held-out tags, then the robot, localised with each model     [downstream]
     evaluation    metrics.json                                                 [evaluation]
     figures       figures/*.png (pipeline.figures.draw_all)
     report        report.html
@@ -27,6 +28,7 @@ from pathlib import Path
 
 from pipeline.config import StudyConfig
 from pipeline.stages import (
+    downstream,
     evaluation,
     figures,
     models,
@@ -65,6 +67,7 @@ STAGES: tuple[Stage, ...] = (
     training_sets.STAGE,
     models.STAGE,
     truth.STAGE,
+    downstream.STAGE,
     evaluation.STAGE,
     figures.STAGE,
     report.STAGE,

@@ -20,6 +20,7 @@ from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.config import StudyConfig
 
 __all__ = [
+    "EVAL_TAG_SPACING_M",
     "POSE_SOURCES",
     "TRACING_KEYS",
     "antenna_tilts",
@@ -47,7 +48,7 @@ TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
 
 #: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
 #: and heights are not those of any lattice the training tags or truth sites use.
-_EVAL_TAG_SPACING_M = 0.1
+EVAL_TAG_SPACING_M = 0.1
 
 
 def stage_rng(cfg: StudyConfig, stage: str) -> np.random.Generator:
@@ -94,7 +95,7 @@ def study_scene(cfg: StudyConfig):
     sc = scenes.load(cfg.scene)
     ev = cfg.evaluation
     train = sc.tags
-    sites = tag_sites(sc, spacing_m=_EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
+    sites = tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
     route = study_route(sc, cfg)
     if route is not None:  # only where the evaluation tour passes within the models' domain
         sites = sites.subset(_route_distance_m(sites.positions_m[:, :2], route) <= cfg.training.d_max_m)

@@ -110,6 +110,11 @@ def stage_evaluation(ctx) -> dict:
         metrics["tag_sites"][name] = sc_.to_dict()
         if name == "anfis":
             write_parquet_atomic(sc_.per_site, ctx.out("truth/site_errors.parquet"))
+    scores = ctx.store.path("downstream/scores.json")
+    if scores.is_file():  # the downstream stage's results (absent when it is disabled)
+        down = json.loads(scores.read_text())
+        metrics["tag_localisation"] = down["tag_localisation"]
+        metrics["robot_localisation"] = down["robot_localisation"]
     loc = ctx.store.path("tour/localisation.json")
     if loc.is_file():
         metrics["localisation"] = json.loads(loc.read_text())
@@ -160,6 +165,7 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 
 STAGE = Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
-              ("scene", "tour", "reads", "models", "truth"),
-              version=5,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections; 5: range margin
+              ("scene", "tour", "reads", "models", "truth", "downstream"),
+              version=6,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              # 5: range margin; 6: tag_localisation / robot_localisation
               description="metrics")

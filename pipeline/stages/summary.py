@@ -63,6 +63,11 @@ def _metric_columns(metrics: dict) -> dict:
             "fig7_median_pct": ("fig7", "anfis", "median_pct"),
             "mcl_error_median_m": ("localisation", "eval", "position_error_median_m"),
         }
+        # the downstream score: an antenna-placement what-if judged by localisation
+        for name in (m.get("tag_localisation") or {}):
+            paths[f"tag_localisation.{name}.median_m"] = ("tag_localisation", name, "median_m")
+        for name in (m.get("robot_localisation") or {}):
+            paths[f"robot_localisation.{name}.median_m"] = ("robot_localisation", name, "median_m")
     else:
         paths = {k: ("models", "anfis", *v) for k, v in {
             "ssm_rmse_db": ("rssi_dbm", "rmse"), "tdm_rmse": ("detection", "rmse"),

@@ -86,7 +86,7 @@ def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path):
     before = (run / "reads.parquet").stat().st_mtime_ns
     res = run_full_study(replace_path(cfg, "training.epochs", 4), run, command_line=["pytest"])
     assert res.cached == ["scene", "tour", "reads", "training_sets"]
-    assert res.ran == ["models", "truth", "evaluation", "figures", "report"]
+    assert res.ran == ["models", "truth", "downstream", "evaluation", "figures", "report"]
     assert (run / "reads.parquet").stat().st_mtime_ns == before
     hist = json.loads((run / "models" / "training_history.json").read_text())
     assert len(hist["ssm"]["train_rmse"]) == 4
@@ -188,4 +188,10 @@ def test_metrics_have_the_heldout_sections(tiny):
     assert m["heldout"]["floor"]["rssi_dbm"]["n"] > 0
     assert m["error_budget"]["total"]["rmse_db"] == models["anfis"]["rssi_dbm"]["rmse"]
     assert m["tag_sites"]["anfis"]["all"]["n_pairs"] > 0
+    # the downstream benchmark: every model and the oracle localise every held-out tag
+    keys = {"median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "n_tags"}
+    for name in ("anfis", "oracle", "log_distance", "grid_count", "joho2009"):
+        assert keys <= set(m["tag_localisation"][name]), name
+        assert m["tag_localisation"][name]["n_tags"] == 16
+    assert {"median_m", "p90_m", "converge_s"} <= set(m["robot_localisation"]["anfis"])
     assert "held-out" in (base / "run" / "report.html").read_text()

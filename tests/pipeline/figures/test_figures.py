@@ -151,6 +151,15 @@ def run_dir(tmp_path_factory):
     site["rho_abs_error_mean"] = site["rho_error_mean"].abs()
     site["obstructed_fraction"] = (site["x_m"] > 8).astype(float)
     write_parquet_atomic(site, run / "truth" / "site_errors.parquet")
+    # downstream errors as the downstream stage writes them; synthetic
+    write_parquet_atomic(pd.DataFrame({"model": np.repeat(["anfis", "oracle"], 8),
+                                       "tag_id": [f"E{i:02d}" for i in range(8)] * 2,
+                                       "error_m": np.r_[rng.gamma(2, 0.3, 8), rng.gamma(2, 0.1, 8)]}),
+                         run / "downstream" / "tag_errors.parquet")
+    t = np.arange(0, 40, 0.25)
+    write_parquet_atomic(pd.DataFrame({"model": np.repeat(["anfis"], len(t)), "t_s": t,
+                                       "error_m": 5 * np.exp(-t / 5) + 0.2}),
+                         run / "downstream" / "robot_error.parquet")
     # a planar field written by propagation.RssiField.save (values: a closed-form falloff)
     from propagation import RssiField
 

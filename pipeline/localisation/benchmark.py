@@ -1,0 +1,142 @@
+"""The downstream benchmark of a study: localise held-out tags, then the robot, per model.
+
+Chapter outlook (Cicirelli, Milella & Di Paola 2011, Sec. 6): "automatic localization of
+tags displaced in unknown positions and, successively, absolute robot localization" with
+the learned sensor model. Here every sensor model of the study and the ray-traced
+oracle answer both questions on the evaluation tour's reads of the held-out tags:
+
+- **tag localisation**: each held-out tag's posterior over candidate sites on the
+  scene's surfaces (:func:`~.tags.localise_tags`), from the tour's read / not-read
+  outcomes and RSSI with the MCL antenna poses; the MAP estimate's 3-D error;
+- **robot localisation**: an RFID-only particle filter (odometry and reads, no laser)
+  with the held-out tags as the known map, from an unknown start and once more after a
+  kidnapping (:func:`~.robot.run_rfid_mcl`).
+
+The oracle's likelihood needs the true gain of every (slot, candidate) pair, which only
+the ray tracer gives; tracing every candidate is out of reach (about 10^7 pairs), so the
+oracle scores candidate windows around each tag's true position and around the learned
+model's estimate (:func:`~.oracle.oracle_plan`): it says how sharply the reads pin a tag
+down where the physics is known exactly, not how often a global search would be fooled.
+The robot filter needs gains at every particle, so it runs with the models only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .likelihood import ModelLikelihood, fit_far_detection, rssi_residual_std
+from .observations import Observations
+from .robot import RfidMCLConfig, filter_metrics, run_rfid_mcl
+from .tags import localisation_summary, tag_position_errors
+
+__all__ = ["DetectionOnly", "model_sources", "robot_localisation", "tag_localisation_scores"]
+
+
+class DetectionOnly:
+    """A sensor model's detection part alone (``predicts_rssi`` False): Hähnel et al.
+    2004 localise with detection counts only."""
+
+    predicts_rssi = False
+
+    def __init__(self, model):
+        self._m = model
+        self.rssi_range_dbm = model.rssi_range_dbm
+
+    def fT(self, d, alpha):  # noqa: N802 - the chapter's name
+        return self._m.fT(d, alpha)
+
+    def fs_dbm(self, d, alpha):
+        return np.full(np.broadcast(np.asarray(d), np.asarray(alpha)).shape, np.nan)
+
+    def fs(self, d, alpha):
+        return np.ones(np.broadcast(np.asarray(d), np.asarray(alpha)).shape)
+
+    def rho(self, d, alpha):
+        return self.fT(d, alpha)
+
+
+def model_sources(models: dict, train_reads: pd.DataFrame, d_max_m: float) -> dict:
+    """A :class:`~.likelihood.ModelLikelihood` per model, fitted on TRAINING reads only.
+
+    The RSSI spread of a model without its own (``rssi_sigma_db`` / ``log_likelihood``)
+    is its residual std on the training reads; beyond ``d_max_m`` every model uses the
+    same far rule (:func:`~.likelihood.fit_far_detection` on the training reads).
+    """
+    p_far, d_far = fit_far_detection(train_reads, d_max_m)
+    out = {}
+    for name, m in models.items():
+        needs_sigma = (getattr(m, "predicts_rssi", True)
+                       and not callable(getattr(m, "rssi_sigma_db", None))
+                       and not callable(getattr(m, "log_likelihood", None)))
+        sigma = rssi_residual_std(m, train_reads, d_max_m) if needs_sigma else None
+        out[name] = ModelLikelihood(m, sigma_rssi_db=sigma, d_max_m=d_max_m, p_far=p_far,
+                                    d_far_m=d_far, name=name)
+    return out
+
+
+def tag_localisation_scores(posteriors: dict, tag_map) -> dict:
+    """Per source: the 3-D MAP error summary (``median_m``, ``p90_m``, ``rmse_m``,
+    ``within_0_5m``, ``within_1m``, ``n_tags``) plus ``horizontal_median_m`` (a model of
+    (d, alpha) cannot tell heights mirrored about the antenna's) and per-tag errors."""
+    out = {}
+    for name, post in posteriors.items():
+        e3 = tag_position_errors(post, tag_map, estimate="map")
+        e2 = tag_position_errors(post, tag_map, estimate="map", horizontal=True)
+        s = localisation_summary(e3)
+        s["horizontal_median_m"] = float(np.median(e2)) if len(e2) else float("nan")
+        s["per_tag_m"] = {str(t): float(v) for t, v in zip(post.tag_ids, e3, strict=True)}
+        out[name] = s
+    return out
+
+
+def robot_localisation(sources: dict, obs: Observations, tag_map, eval_poses: pd.DataFrame,
+                       mounts, free_space, rng: np.random.Generator, *,
+                       config: RfidMCLConfig | None = None) -> dict:
+    """RFID-only global localisation with a kidnapping halfway, per model.
+
+    Parameters
+    ----------
+    sources : dict of str -> ModelLikelihood
+    obs : Observations
+        The evaluation tour's outcomes (slot times, antennas, reads).
+    tag_map : TagSet
+        The held-out tags' true positions (the known map).
+    eval_poses : pandas.DataFrame
+        ``eval_poses.parquet``: time_s, odom_x_m/_y_m/_theta_rad, true_x_m/_y_m/_theta_rad.
+    mounts : sequence of AntennaMount
+    free_space : see :func:`~.robot.run_rfid_mcl`
+    rng : numpy.random.Generator
+        Split into one stream per model.
+    config : RfidMCLConfig, optional
+
+    Returns
+    -------
+    dict
+        Per model :func:`~.robot.filter_metrics` (``median_m``, ``p90_m``, ``converge_s``,
+        ``converged``, ``recover_s``, ...), plus ``error_m`` / ``t_s`` lists for the figure.
+    """
+    t = eval_poses["time_s"].to_numpy(float)
+    odo = eval_poses[["odom_x_m", "odom_y_m", "odom_theta_rad"]].to_numpy(float)
+    true = eval_poses[["true_x_m", "true_y_m", "true_theta_rad"]].to_numpy(float)
+    t_kid = float(t[0] + 0.5 * (t[-1] - t[0]))
+    # the filter is moved 3 m along the corridor's long axis, towards its middle
+    mid = np.asarray(true[:, :2].mean(axis=0))
+    k = int(np.searchsorted(t, t_kid))
+    p = true[min(k, len(true) - 1), :2]
+    axis = 0 if np.ptp(true[:, 0]) >= np.ptp(true[:, 1]) else 1
+    offset = np.zeros(3)
+    offset[axis] = 3.0 if p[axis] < mid[axis] else -3.0
+    out = {}
+    for (name, src), r in zip(sources.items(), rng.spawn(len(sources)), strict=True):
+        res = run_rfid_mcl(src, obs, tag_map, odo, t, mounts, free_space, r, config=config,
+                           initial_pose=None, kidnap_time_s=t_kid, kidnap_offset=offset)
+        true_at = np.column_stack([np.interp(res.t_s, t, true[:, j]) for j in range(2)]
+                                  + [np.interp(res.t_s, t, np.unwrap(true[:, 2]))])
+        m = filter_metrics(res.t_s, res.est_poses, true_at, kidnap_time_s=t_kid)
+        err = np.hypot(res.est_poses[:, 0] - true_at[:, 0], res.est_poses[:, 1] - true_at[:, 1])
+        m["t_s"] = np.round(np.asarray(res.t_s, float) - t[0], 3).tolist()
+        m["error_m"] = np.round(err, 4).tolist()
+        m["kidnap_s"] = t_kid - t[0]
+        out[name] = m
+    return out

@@ -1,0 +1,149 @@
+"""Stage ``downstream``: localise the held-out tags, then the robot, with each sensor model
+and the ray-traced oracle (:mod:`pipeline.localisation.benchmark`); writes
+``downstream/scores.json``, ``downstream/tag_errors.parquet`` and
+``downstream/robot_error.parquet``, which the evaluation stage copies into
+``metrics.json`` (``tag_localisation.<model>``, ``robot_localisation.<model>``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.runstore import atomic_write_json
+from pipeline.stages.common import (
+    EVAL_TAG_SPACING_M,
+    TRACING_KEYS,
+    antenna_tilts,
+    build_robot,
+    load_scene,
+    read_reads,
+    resolve_cache_dir,
+    select_backend,
+    split_tags,
+    stage_rng,
+    trace_options,
+)
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "stage_downstream"]
+
+
+def _models(ctx) -> dict:
+    """The sensor models localised with: the learned one, both baselines, Joho 2009."""
+    from fuzzymodel import SensorModel
+    from pipeline.evaluation.baselines import BaselineSensorModel
+    from pipeline.localisation.benchmark import DetectionOnly
+    from pipeline.sensormodels import load_competitor
+
+    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
+    return {
+        "anfis": SensorModel.load(ctx.input("models/sensor.json")),
+        # log-distance RSSI with the grid-count detection; Hähnel's grid count alone
+        "log_distance": base,
+        "grid_count": DetectionOnly(base),
+        "joho2009": load_competitor(ctx.input("models/joho2009.json")),
+    }
+
+
+def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, map_m) -> tuple[dict, int]:
+    """Oracle posteriors over windows around each tag's truth and the learned estimate."""
+    import propagation
+    from pipeline.localisation import (
+        OracleLikelihood,
+        localise_tags,
+        observations_from_reads,
+        oracle_plan,
+    )
+    from scenes.tagsites import tag_sites
+
+    cfg = ctx.config
+    dn = cfg.downstream
+    sc = load_scene(ctx)
+    sites = tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M,
+                      z_range_m=tuple(cfg.evaluation.eval_tag_heights_m))
+    index = {t: i for i, t in enumerate(eval_tags.ids.tolist())}
+    true_pos = eval_tags.positions_m[[index[t] for t in obs.tag_ids]]
+    centres = [np.vstack([true_pos[i], map_m[i]]) for i in range(obs.n_tags)]
+    plan = oracle_plan(obs, sites, centres, window_m=dn.oracle_window_m, reach_m=dn.oracle_reach_m)
+    true_obs = observations_from_reads(eval_reads, "true", tag_ids=list(obs.tag_ids),
+                                       pitch_rad=antenna_tilts(cfg))
+    links = propagation.trace_links(sc, true_obs.slot_poses, plan.candidates_m,
+                                    frequency_hz=cfg.frequency_hz, pairs=plan.pairs,
+                                    tag_normals=sites.normals[plan.site_index],
+                                    cache_dir=resolve_cache_dir(cfg), **trace_options(cfg))
+    gains = np.where(plan.pairs & np.asarray(links.traced, bool),
+                     np.asarray(links.gain_db, float), -np.inf)
+    oracle = OracleLikelihood.from_reader(cfg.reader, frequency_hz=cfg.frequency_hz)
+    post = localise_tags(obs, plan.candidates_m, {"oracle": oracle.with_gains(gains)},
+                         log_prior=plan.log_prior)
+    return post, plan.n_pairs
+
+
+def stage_downstream(ctx) -> dict:
+    """Tag localisation (every model + oracle) and RFID-only robot localisation."""
+    import pandas as pd
+
+    from pipeline.evaluation.tables import write_parquet_atomic
+    from pipeline.localisation import (
+        RfidMCLConfig,
+        as_free_space,
+        localise_tags,
+        observations_from_reads,
+    )
+    from pipeline.localisation.benchmark import (
+        model_sources,
+        robot_localisation,
+        tag_localisation_scores,
+    )
+    from pipeline.robot import collision_map
+    from scenes.tagsites import tag_sites
+
+    cfg = ctx.config
+    dn = cfg.downstream
+    if not dn.enabled:
+        return {"enabled": False}
+    select_backend(cfg)
+    sc = load_scene(ctx)
+    robot = build_robot(cfg)
+    eval_tags = split_tags(ctx, "eval")
+    reads, _ = read_reads(ctx)
+    eval_reads, _ = read_reads(ctx, "eval_")
+    sources = model_sources(_models(ctx), reads, cfg.training.d_max_m)
+    obs = observations_from_reads(eval_reads, "est", tag_ids=list(eval_tags.ids),
+                                  pitch_rad=antenna_tilts(cfg))
+    cand = tag_sites(sc, spacing_m=dn.candidate_spacing_m,
+                     z_range_m=tuple(cfg.evaluation.eval_tag_heights_m))
+    update = ctx.progress("tags and robot", total=3)
+    posts = localise_tags(obs, cand, sources)
+    update(advance=1)
+    info = {"n_tags": int(len(eval_tags)), "n_candidates": int(len(cand))}
+    if dn.oracle:
+        post_o, n_pairs = _oracle_posteriors(ctx, obs, eval_reads, eval_tags, posts["anfis"].map_m)
+        posts.update(post_o)
+        info["oracle_pairs_traced"] = n_pairs
+    update(advance=1)
+    tag_scores = tag_localisation_scores(posts, eval_tags)
+    eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
+    free = as_free_space(collision_map(sc, robot))
+    robot_scores = robot_localisation(sources, obs, eval_tags, eval_poses, list(robot.antennas),
+                                      free, stage_rng(cfg, "downstream"),
+                                      config=RfidMCLConfig(n_particles=dn.robot_particles))
+    update(advance=1)
+    rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
+            for t, e in s.pop("per_tag_m").items()]
+    write_parquet_atomic(pd.DataFrame(rows), ctx.out("downstream/tag_errors.parquet"))
+    rrows = []
+    for n, s in robot_scores.items():
+        t, e = s.pop("t_s"), s.pop("error_m")
+        rrows += [{"model": n, "t_s": a, "error_m": b} for a, b in zip(t, e, strict=True)]
+    write_parquet_atomic(pd.DataFrame(rrows), ctx.out("downstream/robot_error.parquet"))
+    atomic_write_json(ctx.out("downstream/scores.json"),
+                      {"tag_localisation": tag_scores, "robot_localisation": robot_scores,
+                       "info": info})
+    return info
+
+
+STAGE = Stage("downstream", stage_downstream,
+              ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
+               "robot") + TRACING_KEYS,
+              ("scene", "tour", "reads", "models"), version=1,
+              description="downstream localisation (tags, robot)")
