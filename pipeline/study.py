@@ -39,19 +39,22 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import json
 import logging
-import os
 import resource
 import sys
 import time
-import tomllib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pipeline.config import ConfigError, StudyConfig, config_to_dict, config_to_toml
+from pipeline.runlog import (
+    config_changes,
+    describe_previous_run,
+    final_paths_in_logs,
+    reproducible_outputs,
+)
 from pipeline.runstore import (
     MANIFEST,
     RECORD_DIR,
@@ -309,111 +312,6 @@ def _progress_bars(enabled: bool):
         yield prog
 
 
-@contextlib.contextmanager
-def _reproducible_outputs():
-    """``SOURCE_DATE_EPOCH=0`` while a stage runs, unless set (dates in PDF metadata)."""
-    if "SOURCE_DATE_EPOCH" in os.environ:
-        yield
-        return
-    os.environ["SOURCE_DATE_EPOCH"] = "0"
-    try:
-        yield
-    finally:
-        os.environ.pop("SOURCE_DATE_EPOCH", None)
-
-
-class _FinalPaths(logging.Filter):
-    """Log lines naming a file in the staging area name its final place instead."""
-
-    def __init__(self, staged: Path, root: Path):
-        super().__init__()
-        self._from, self._to = str(staged), str(root)
-
-    def _fix(self, v):
-        if isinstance(v, (str, Path)) and self._from in str(v):
-            return str(v).replace(self._from, self._to)
-        return v
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if isinstance(record.msg, str):
-            record.msg = self._fix(record.msg)
-        if isinstance(record.args, tuple):
-            record.args = tuple(self._fix(a) for a in record.args)
-        return True
-
-
-@contextlib.contextmanager
-def _final_paths_in_logs(staged: Path, root: Path):
-    filt = _FinalPaths(staged, root)
-    handlers = list(logging.getLogger().handlers)
-    for h in handlers:
-        h.addFilter(filt)
-    try:
-        yield
-    finally:
-        for h in handlers:
-            h.removeFilter(filt)
-
-
-def _flatten(obj, prefix: str = "") -> dict:
-    out = {}
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
-    elif isinstance(obj, (list, tuple)) and obj and all(isinstance(v, dict) for v in obj):
-        for i, v in enumerate(obj):
-            out.update(_flatten(v, f"{prefix}[{i}]"))
-    else:
-        out[prefix] = list(obj) if isinstance(obj, tuple) else obj
-    return out
-
-
-def config_changes(old: dict, new: dict) -> dict[str, tuple]:
-    """Dotted keys whose values differ between two config dicts: key -> (old, new).
-
-    A key missing on one side shows as ``None`` there.
-    """
-    a, b = _flatten(old), _flatten(new)
-    return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
-
-
-def _previous_run(store: RunStore, config: StudyConfig, result: StudyResult) -> None:
-    """Name what the previous run in this directory left, and how its config differs."""
-    man_path = store.path(MANIFEST)
-    if man_path.is_file():
-        try:
-            man = json.loads(man_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            man = None
-            log.warning("%s is unreadable; the stage records decide what re-runs", man_path)
-        if isinstance(man, dict):
-            status = man.get("status")
-            stage = man.get("stage") or (man.get("failure") or {}).get("stage")
-            at = f" during stage {stage}" if stage else ""
-            if status == "running":
-                result.previous = f"the previous run stopped{at}"
-                log.warning("%s (killed?); resuming", result.previous)
-            elif status == "interrupted":
-                result.previous = f"the previous run was interrupted{at}"
-                log.info("%s; resuming", result.previous)
-            elif status == "failed":
-                result.previous = f"the previous run failed{' at stage ' + stage if stage else ''}"
-                log.info("%s; resuming", result.previous)
-    cfg_path = store.path("config.toml")
-    if cfg_path.is_file():
-        try:
-            old = tomllib.loads(cfg_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return
-        diff = config_changes(old, config_to_dict(config))
-        if diff:
-            result.changed_keys = list(diff)
-            shown = "; ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in list(diff.items())[:8])
-            more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
-            log.info("%s holds a run of another config (%s%s); the stages that depend on "
-                     "these keys re-run", store.root, shown, more)
-
-
 def _write_error(exc: OSError, store: RunStore) -> OSError | RunDirError:
     err = write_error(exc, store.root)
     return exc if err is None else err
@@ -480,7 +378,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
     t0 = time.perf_counter()
     started = _utc_now()
     result = StudyResult(run_dir=store.root)
-    _previous_run(store, config, result)
+    describe_previous_run(store, config, result)
     memo: dict = {}
     digests: dict[str, str] = {}
     current: str | None = None
@@ -526,7 +424,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                     ctx = StageContext(config, store, st.name, staged, prog, memo)
                     ts = time.perf_counter()
                     try:
-                        with _reproducible_outputs(), _final_paths_in_logs(staged, store.root):
+                        with reproducible_outputs(), final_paths_in_logs(staged, store.root):
                             info = st.func(ctx) or {}
                     except Exception as exc:
                         store.discard(st.name)
