@@ -28,20 +28,23 @@ __all__ = ["STAGE", "stage_downstream"]
 
 
 def _models(ctx) -> dict:
-    """The sensor models localised with: the learned one, both baselines, Joho 2009."""
+    """The sensor models localised with: the learned one, both baselines, the chapter's
+    competitors and the ablations (every model the study fitted)."""
     from fuzzymodel import SensorModel
     from pipeline.evaluation.baselines import BaselineSensorModel
     from pipeline.localisation.benchmark import DetectionOnly
-    from pipeline.sensormodels import load_competitor
+    from pipeline.sensormodels import ABLATIONS, COMPETITORS, load_competitor
 
     base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
-    return {
+    models = {
         "anfis": SensorModel.load(ctx.input("models/sensor.json")),
         # log-distance RSSI with the grid-count detection; Hähnel's grid count alone
         "log_distance": base,
         "grid_count": DetectionOnly(base),
-        "joho2009": load_competitor(ctx.input("models/joho2009.json")),
     }
+    models.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
+    models.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
+    return models
 
 
 def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, map_m) -> tuple[dict, int]:
@@ -145,5 +148,5 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=1,
+              ("scene", "tour", "reads", "models"), version=2,  # 2: every fitted model
               description="downstream localisation (tags, robot)")
