@@ -27,15 +27,19 @@ import numpy as np
 
 from fuzzymodel import ANFIS, SensorModel
 
-__all__ = ["ABLATIONS", "fit_ablation"]
+__all__ = ["ABLATIONS", "fit_ablation", "train_check_split"]
 
 #: Names of the ablations.
 ABLATIONS = ("fcm_only", "anfis_gridinit")
 _INPUTS = ["d_m", "alpha_rad"]
 
 
-def _split(X, y, frac: float, rng):
-    """Same rule as ``pipeline.stages.models._split``: a random ``frac`` as checking data."""
+def train_check_split(X, y, frac: float, rng: np.random.Generator):
+    """A random ``frac`` of the samples as ANFIS checking data (the models stage's rule too).
+
+    Returns ``(X_train, y_train, X_check, y_check)``; the checking pair is ``None`` when
+    ``frac`` leaves no checking sample or fewer than 2 training samples.
+    """
     n = len(y)
     n_check = int(round(frac * n))
     if n_check < 1 or n - n_check < 2:
@@ -51,7 +55,7 @@ def _fit_one(kind: str, ts, rng, epochs: int, n_clusters: int, fcm_exponent: flo
     if ts.kind == "ssm" and max_samples and len(y) > max_samples:
         keep = np.sort(rng.choice(len(y), max_samples, replace=False))
         X, y = X[keep], y[keep]
-    Xt, yt, Xc, yc = _split(X, y, check_fraction, rng)
+    Xt, yt, Xc, yc = train_check_split(X, y, check_fraction, rng)
     if kind == "fcm_only":
         model = ANFIS.from_fcm(Xt, yt, n_clusters=n_clusters, m=fcm_exponent, rng=rng,
                                input_names=_INPUTS)

@@ -14,13 +14,9 @@ __all__ = ["STAGE", "stage_models"]
 
 
 def _split(X, y, frac: float, rng):
-    n = len(y)
-    n_check = int(round(frac * n))
-    if n_check < 1 or n - n_check < 2:
-        return X, y, None, None
-    perm = rng.permutation(n)
-    c, t = perm[:n_check], perm[n_check:]
-    return X[t], y[t], X[c], y[c]
+    from pipeline.sensormodels.ablations import train_check_split
+
+    return train_check_split(X, y, frac, rng)
 
 
 def _fit(ts, cfg, rng, progress):
