@@ -32,7 +32,8 @@ from .metrics import brier_score, error_stats, nan_to_none
 from .tables import require_columns
 from .truth import TruthGrid, true_detected, true_rssi_dbm
 
-__all__ = ["detection_floor", "error_budget", "heldout_scores", "reader_noise_stats"]
+__all__ = ["detection_floor", "error_budget", "floor_link_mask", "heldout_scores",
+           "reader_noise_stats"]
 
 
 def detection_floor(eval_reads: pd.DataFrame, train_truth: TruthGrid, eval_truth: TruthGrid,
@@ -69,6 +70,19 @@ def detection_floor(eval_reads: pd.DataFrame, train_truth: TruthGrid, eval_truth
     outcome = eval_reads["read"].to_numpy(bool)[covered]
     return {"mae": cells.mae, "rmse": cells.rmse, "bias": cells.bias, "n_cells": int(ok.sum()),
             "brier": brier_score(p, outcome), "n_attempts": int(covered.sum())}
+
+
+def floor_link_mask(eval_reads: pd.DataFrame, train_truth: TruthGrid, budget, d_max_m: float,
+                    min_count: int) -> np.ndarray:
+    """Rows of `eval_reads` the floor can score: closing links within ``d_max_m`` whose
+    (d, alpha) cell holds at least ``min_count`` closing links in the TRAINING truth
+    (:func:`~.comparison.rssi_cell_mean_floor`'s own selection), shape (n_rows,) bool."""
+    g = eval_reads["gain_db"].to_numpy(float)
+    d = eval_reads["d_true_m"].to_numpy(float)
+    keep = true_detected(g, budget) & (d < float(d_max_m))
+    idx = train_truth.grid.index(d, eval_reads["alpha_true_rad"].to_numpy(float))
+    covered = idx.valid & (train_truth.n_closed.ravel()[np.maximum(idx.flat, 0)] >= int(min_count))
+    return keep & covered
 
 
 def reader_noise_stats(eval_reads: pd.DataFrame, budget, d_max_m: float) -> dict:
@@ -119,10 +133,15 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
     rssi_models = set(names if rssi_models is None else rssi_models)
     detection_models = set(names if detection_models is None else detection_models)
     models = {}
+    on_floor = eval_reads.loc[floor_link_mask(eval_reads, train_truth, budget, d_max_m,
+                                              min_attempts)]
     for name, s in sensors.items():
         models[name] = {
             "rssi_dbm": (rssi_vs_truth(eval_reads, s, budget, d_max_m=d_max_m).to_dict()
                          if name in rssi_models else None),
+            # the same model on exactly the links the floor scores (matched comparison)
+            "rssi_dbm_floor_links": (rssi_vs_truth(on_floor, s, budget, d_max_m=d_max_m).to_dict()
+                                     if name in rssi_models else None),
             "detection": (detection_vs_truth(eval_reads, s, eval_truth,
                                              min_attempts=min_attempts).to_dict()
                           if name in detection_models else None),
@@ -147,8 +166,9 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
 def error_budget(heldout: dict, est: str = "anfis", true: str = "anfis_truepose") -> dict:
     """Split the learned model's held-out RSSI RMSE into its sources.
 
-    Each term is a held-out RMSE [dB] against the noise-free truth, and its increment
-    over the term before it (``step_db``, plain difference; ``step_quadrature_db`` =
+    Each term is a held-out RMSE [dB] against the noise-free truth, all of them (but the
+    reader noise and the total) on the SAME links: those the floor can score (a training
+    cell with enough closing links; ``n_links``), and its increment over the term before it (``step_db``, plain difference; ``step_quadrature_db`` =
     sqrt(b^2 - a^2) when b > a, the part that adds independently):
 
     1. ``reader_noise``: reported RSSI against noise-free RSSI (noise + quantisation);
@@ -177,8 +197,10 @@ def error_budget(heldout: dict, est: str = "anfis", true: str = "anfis_truepose"
     m = heldout["models"]
     noise = rmse(heldout["data"]["reader_noise"])
     floor = rmse(heldout["floor"]["rssi_dbm"])
-    t = rmse(m.get(true, {}).get("rssi_dbm"))
-    e = rmse(m.get(est, {}).get("rssi_dbm"))
+    # matched: every term on the links the floor scores (cells the training truth covers)
+    t = rmse(m.get(true, {}).get("rssi_dbm_floor_links"))
+    e = rmse(m.get(est, {}).get("rssi_dbm_floor_links"))
+    n_links = (heldout["floor"]["rssi_dbm"] or {}).get("n")
 
     def step(a, b):
         if a is None or b is None:
@@ -195,5 +217,9 @@ def error_budget(heldout: dict, est: str = "anfis", true: str = "anfis_truepose"
     }.items():
         s, sq = step(a, b)
         out[key] = {"rmse_db": b, "step_db": s, "step_quadrature_db": sq, "how": how}
-    out["total"] = {"rmse_db": e, "how": f"{est} held-out RSSI RMSE against the noise-free truth"}
+    out["total"] = {"rmse_db": rmse(m.get(est, {}).get("rssi_dbm")),
+                    "how": f"{est} held-out RSSI RMSE against the noise-free truth, all links"}
+    out["n_links"] = {"value": n_links, "how": "links of the matched terms (representation, "
+                      "model form, localisation): held-out closing links whose training cell "
+                      "holds enough closing links for a cell mean"}
     return nan_to_none(out)

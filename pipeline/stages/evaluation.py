@@ -166,6 +166,6 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "models", "truth", "downstream"),
-              version=6,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
-              # 5: range margin; 6: tag_localisation / robot_localisation
+              version=7,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget
               description="metrics")

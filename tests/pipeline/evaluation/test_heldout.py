@@ -38,14 +38,19 @@ def test_floor_comes_from_the_training_truth():
     closed = budget.detected(held["gain_db"].to_numpy())
     np.testing.assert_allclose(out["models"]["m"]["rssi_dbm"]["bias"],
                                np.mean(-50.0 - truth[closed]), rtol=1e-9)
+    # matched comparison: the model scored on exactly the floor's links
+    assert out["models"]["m"]["rssi_dbm_floor_links"]["n"] == out["floor"]["rssi_dbm"]["n"]
 
 
 def test_error_budget_steps():
-    held = {"models": {"anfis": {"rssi_dbm": {"rmse": 5.0}},
-                       "anfis_truepose": {"rssi_dbm": {"rmse": 4.0}}},
-            "floor": {"rssi_dbm": {"rmse": 3.0}}, "data": {"reader_noise": {"rmse": 1.0}}}
+    held = {"models": {"anfis": {"rssi_dbm": {"rmse": 6.0}, "rssi_dbm_floor_links": {"rmse": 5.0}},
+                       "anfis_truepose": {"rssi_dbm": {"rmse": 6.5},
+                                          "rssi_dbm_floor_links": {"rmse": 4.0}}},
+            "floor": {"rssi_dbm": {"rmse": 3.0, "n": 10}}, "data": {"reader_noise": {"rmse": 1.0}}}
     b = error_budget(held)
     assert b["model_form"]["step_db"] == pytest.approx(1.0)
     assert b["model_form"]["step_quadrature_db"] == pytest.approx(np.sqrt(16 - 9))
     assert b["localisation"]["step_quadrature_db"] == pytest.approx(3.0)
-    assert b["total"]["rmse_db"] == 5.0 and b["reader_noise"]["rmse_db"] == 1.0
+    # the steps compare matched links; the total is the model on all links
+    assert b["total"]["rmse_db"] == 6.0 and b["reader_noise"]["rmse_db"] == 1.0
+    assert b["n_links"]["value"] == 10
