@@ -84,17 +84,22 @@ def check_target(y, n_samples: int, name: str = "y") -> np.ndarray:
     FuzzyModelError
         On a length mismatch, more than one output column, or NaN/inf.
     """
+    return _finite_vector(y, n_samples, name, "samples", allow_column=True)
+
+
+def _finite_vector(v, n_samples: int, name: str, unit: str, allow_column: bool) -> np.ndarray:
+    """`v` as a finite float64 vector of length `n_samples` (errors name `name`)."""
     try:
-        arr = np.asarray(y, dtype=np.float64)
+        arr = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise FuzzyModelError(f"{name} is not numeric: {exc}") from exc
-    if arr.ndim == 2 and arr.shape[1] == 1:
+    if allow_column and arr.ndim == 2 and arr.shape[1] == 1:
         arr = arr[:, 0]
     if arr.ndim != 1:
         raise FuzzyModelError(f"{name} must be 1-D (n_samples,), got shape {arr.shape}")
     if arr.shape[0] != n_samples:
         raise FuzzyModelError(
-            f"{name} has {arr.shape[0]} samples but the inputs have {n_samples} rows"
+            f"{name} has {arr.shape[0]} {unit} but the inputs have {n_samples} rows"
         )
     bad = ~np.isfinite(arr)
     if bad.any():
@@ -129,23 +134,7 @@ def check_weights(w, n_samples: int, name: str = "sample_weight") -> np.ndarray:
         If `w` is not 1-D of length `n_samples`, holds NaN, inf or a negative
         value (the message gives the first), or is all zero.
     """
-    try:
-        arr = np.asarray(w, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise FuzzyModelError(f"{name} is not numeric: {exc}") from exc
-    if arr.ndim != 1:
-        raise FuzzyModelError(f"{name} must be 1-D (n_samples,), got shape {arr.shape}")
-    if arr.shape[0] != n_samples:
-        raise FuzzyModelError(
-            f"{name} has {arr.shape[0]} weights but the inputs have {n_samples} rows"
-        )
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        idx = int(np.flatnonzero(bad)[0])
-        raise FuzzyModelError(
-            f"{name} holds {int(bad.sum())} non-finite value(s) (NaN or inf); "
-            f"first at index {idx}: {arr[idx]}"
-        )
+    arr = _finite_vector(w, n_samples, name, "weights", allow_column=False)
     neg = arr < 0
     if neg.any():
         idx = int(np.flatnonzero(neg)[0])
