@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from propagation.backend import ensure_variant
+from propagation.extrapolate import lattice_points, shift_source, subset_tags
 from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import (
     PATTERNS,
@@ -40,10 +41,14 @@ from propagation.sionna_scene import check_antenna_positions, load_sionna_scene
 __all__ = [
     "DEFAULT_MAX_DEPTH",
     "DEFAULT_SAMPLES_PER_SRC",
+    "LinkChannels",
     "LinkSet",
+    "PathSet",
     "bytes_per_source",
+    "link_channels",
     "tag_dipole_axes",
     "trace_links",
+    "trace_paths",
 ]
 
 logger = logging.getLogger(__name__)
@@ -96,6 +101,15 @@ class LinkSet:
         Sionna ``PathSolver`` calls made by this call.
     trace_s : float
         Wall time spent in Sionna, s.
+    settings : dict
+        Solver settings and how the call was split (see :class:`PathSet`).
+    h : numpy.ndarray
+        Complex one-way channel coefficient, shape (n, m), complex128, at each pose's
+        channel (``channel_hz``); 0 where not traced. ``|h|^2 = gain``; the backscatter
+        (two-way) channel of a monostatic reader is ``h^2``.
+    dh_dpos : numpy.ndarray or None
+        d h / d (antenna position), shape (n, m, 3), complex128, 1/m, when
+        ``channel_gradient`` was asked (:class:`LinkChannels`).
     """
 
     gain: np.ndarray
@@ -113,6 +127,8 @@ class LinkSet:
     n_solver_calls: int = 0
     trace_s: float = 0.0
     settings: dict = field(default_factory=dict)
+    h: np.ndarray | None = None
+    dh_dpos: np.ndarray | None = None
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -266,16 +282,74 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
     return out
 
 
-def _apply_patterns(src_paths, pos_index, tag_index, poses, tags, frequency_hz, reader_pattern,
-                    reader_polarization, tag_pattern, tag_axes):
-    """Coherent gain, path count and LOS flag of links (pose_i, tag_j) from cached paths.
+@dataclass(frozen=True)
+class LinkChannels:
+    """Coherent one-way channels of a list of links, from their paths.
 
+    Attributes
+    ----------
+    h : numpy.ndarray
+        Complex one-way channel coefficient incl. both antenna patterns, shape (L,),
+        complex128 (``|h|^2`` is the gain; ``arg h`` the one-way phase, e^{j omega t}).
+    dh_dpos : numpy.ndarray or None
+        Derivative of ``h`` with respect to the antenna position, shape (L, 3),
+        complex128, 1/m (each path's phase term only: ``j 2 pi f / c k_tx``; the
+        amplitude and pattern terms are smaller by ``1 / (k l)``); None unless asked.
+    n_paths : numpy.ndarray
+        Paths per link, (L,), int64.
+    los : numpy.ndarray
+        A line-of-sight path exists, (L,), bool.
+    """
+
+    h: np.ndarray
+    dh_dpos: np.ndarray | None
+    n_paths: np.ndarray
+    los: np.ndarray
+
+
+def link_channels(src_paths, pos_index, tag_index, poses, tags, frequency_hz, reader_pattern: str,
+                  reader_polarization: str, tag_pattern: str, tag_axes, gradient: bool = False
+                  ) -> LinkChannels:
+    """Coherent channels of links (pose, tag) from their path sets, patterns re-applied.
+
+    Parameters
+    ----------
+    src_paths : list of SourcePaths
+        Path sets per antenna position (:attr:`PathSet.paths`).
+    pos_index, tag_index : numpy.ndarray
+        Per link (L,), int: the path set (antenna position) and the tag row.
+    poses : numpy.ndarray
+        Per link antenna pose (L, 6) [x, y, z, yaw, pitch, roll]; only the orientation is
+        used (the position is that of the path set).
+    tags : numpy.ndarray
+        Tag positions (m, 3), metres (matched exactly against the path sets).
+    frequency_hz : float or numpy.ndarray
+        Frequency of each link's coherent sum, scalar or (L,), Hz: the channel of a
+        hopping reader. The paths' amplitudes keep the materials of the traced carrier
+        (ITU-R P.2040 permittivities change by well under 1 % across a UHF RFID band).
+    reader_pattern, reader_polarization, tag_pattern : str
+        As in :func:`trace_links`.
+    tag_axes : numpy.ndarray
+        Tag dipole axes (m, 3) (:func:`tag_dipole_axes`).
+    gradient : bool
+        Also return ``dh_dpos``.
+
+    Returns
+    -------
+    LinkChannels
+
+    Notes
+    -----
     Vectorised over links in batches of about ``_PATHS_PER_BATCH`` paths (the per-source
     arrays are gathered into one array per batch), so the cost is per path, not per
     antenna position.
     """
+    pos_index = np.asarray(pos_index, dtype=np.int64)
+    tag_index = np.asarray(tag_index, dtype=np.int64)
     n_links = len(pos_index)
-    gain = np.zeros(n_links)
+    freq = np.broadcast_to(np.asarray(frequency_hz, dtype=float), (n_links,))
+    h_all = np.zeros(n_links, complex)
+    dh_all = np.zeros((n_links, 3), complex) if gradient else None
     los = np.zeros(n_links, bool)
     starts = np.zeros(n_links, np.int64)
     counts = np.zeros(n_links, np.int64)
@@ -316,17 +390,57 @@ def _apply_patterns(src_paths, pos_index, tag_index, poses, tags, frequency_hz, 
         lk = links[link]
         c_tx = pattern_field_world(reader_pattern, reader_polarization, r_reader[lk], k_tx[pidx])
         g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[lk]], k_rx[pidx])
+        f_path = freq[lk]
         amp = np.einsum("pr,prt,pt->p", np.conj(g_rx), transfer[pidx], c_tx)
-        amp = amp * np.exp(-2j * np.pi * frequency_hz * tau[pidx])
+        amp = amp * np.exp(-2j * np.pi * f_path * tau[pidx])
         h_re = np.bincount(link, weights=amp.real, minlength=len(links))
         h_im = np.bincount(link, weights=amp.imag, minlength=len(links))
-        gain[links] = h_re**2 + h_im**2
+        h_all[links] = h_re + 1j * h_im
+        if gradient:
+            # d/dp exp(-j 2 pi f l / c) with dl/dp = -k_tx
+            damp = (2j * np.pi * f_path / _SPEED_OF_LIGHT * amp)[:, None] * k_tx[pidx]
+            for ax in range(3):
+                dh_all[links, ax] = (np.bincount(link, weights=damp[:, ax].real, minlength=len(links))
+                                     + 1j * np.bincount(link, weights=damp[:, ax].imag,
+                                                        minlength=len(links)))
         src_of_link = np.concatenate([np.full(len(sel), i) for i, sel in enumerate(batch)])
         src_pos = np.stack([sp.source_m for sp in srcs])[src_of_link]
         d = np.linalg.norm(tags[tag_index[links]] - src_pos, axis=1)[link]
         is_los = np.abs(tau[pidx] * _SPEED_OF_LIGHT - d) < 1e-3 + 1e-6 * d
         los[links] = np.bincount(link, weights=is_los, minlength=len(links)) > 0
-    return gain, counts, los
+    return LinkChannels(h=h_all, dh_dpos=dh_all, n_paths=counts, los=los)
+
+
+def _lattice_plan(scene, positions_m: np.ndarray, need: np.ndarray, spacing_m: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Where to trace each antenna position: its lattice point, or itself where that fails.
+
+    Returns the trace positions (k, 3) and, per position, the index of its trace position.
+    A lattice point is not used when it lies outside the scene's bounds or inside a solid,
+    or when the segment to the exact position crosses a surface (the paths would belong
+    to the other side).
+    """
+    from scenes.geometry import raycast, solid_material_at
+
+    lat, lat_of = lattice_points(positions_m, spacing_m)
+    lo, hi = scene.bounds_m
+    bad_lat = (np.any((lat[:, :2] <= lo[:2]) | (lat[:, :2] >= hi[:2]), axis=1) | (lat[:, 2] <= lo[2])
+               | (solid_material_at(scene, lat) != ""))
+    bad = bad_lat[lat_of] | ~need.any(axis=1)
+    step = lat[lat_of] - positions_m
+    dist = np.linalg.norm(step, axis=1)
+    moved = np.flatnonzero(~bad & (dist > 0))
+    if len(moved):
+        hit = raycast(scene, positions_m[moved], step[moved], max_range_m=float(dist[moved].max()))
+        bad[moved[hit <= dist[moved]]] = True
+    keep = np.unique(lat_of[~bad])
+    renum = np.full(len(lat), -1, np.int64)
+    renum[keep] = np.arange(len(keep))
+    own = np.flatnonzero(bad)
+    at = np.concatenate([lat[keep], positions_m[own]])
+    traced_at = renum[lat_of]
+    traced_at[own] = len(keep) + np.arange(len(own))
+    return at, traced_at
 
 
 def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6,
@@ -334,7 +448,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
                 reader_pattern: str = "tr38901", tag_pattern: str = "hw_dipole",
                 tag_normals=None, pairs=None, cache_dir=None, memory_budget_bytes=None,
                 progress=None, reader_polarization: str = "V", seed: int = 42,
-                refraction: bool = True) -> LinkSet:
+                refraction: bool = True, lattice_spacing_m: float | None = None,
+                channel_hz=None, channel_gradient: bool = False) -> LinkSet:
     """Ray-trace the one-way channel gain between antenna poses and tags.
 
     Parameters
@@ -381,6 +496,20 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         Trace transmission through surfaces (Sionna ``refraction``). True (default) is the
         physics; False drops every path that crosses a wall, cabinet or box (faster, see
         ``bench/trace.py``; links inside one corridor change little).
+    lattice_spacing_m : float, optional
+        Trace on a cubic lattice of this spacing instead of at every antenna position:
+        each position is traced at its nearest lattice point and its paths are carried
+        to the exact position by their geometry (:mod:`propagation.extrapolate`: exact
+        for every chain that stays valid over the shift of at most ``spacing * sqrt(3) /
+        2``). A position whose lattice point lies outside the scene, inside a solid, or
+        behind a surface (the segment between them crosses geometry) is traced where it
+        is. None (default): every position is traced where it is.
+    channel_hz : float or array_like, optional
+        Frequency of each pose's coherent sum (n,), Hz (a hopping reader's channel): one
+        trace at ``frequency_hz`` (materials evaluated there) serves every channel; the
+        gain and ``h`` are those at the channel. Default: ``frequency_hz``.
+    channel_gradient : bool
+        Also compute ``LinkSet.dh_dpos`` (the Doppler of a moving antenna).
 
     Returns
     -------
@@ -401,35 +530,135 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     if reader_polarization not in POLARIZATIONS:
         raise ValueError(f"unknown reader_polarization {reader_polarization!r}; "
                          f"known: {', '.join(POLARIZATIONS)}")
-    if not (np.isfinite(frequency_hz) and frequency_hz > 0):
-        raise ValueError(f"frequency_hz must be positive, got {frequency_hz!r}")
-    if int(max_depth) < 0 or int(samples_per_src) < 1:
-        raise ValueError(f"need max_depth >= 0 and samples_per_src >= 1, got {max_depth}, {samples_per_src}")
-    tag_axes = tag_dipole_axes(tag_normals, len(tags))
     n, m = pairs.shape
-    settings = {"frequency_hz": float(frequency_hz), "max_depth": int(max_depth),
-                "samples_per_src": int(samples_per_src), "seed": int(seed),
-                "los": True, "specular_reflection": True, "refraction": bool(refraction),
-                "diffuse_reflection": False, "diffraction": False}
+    if channel_hz is None:
+        channel = np.full(n, float(frequency_hz))
+    else:
+        channel = np.broadcast_to(np.asarray(channel_hz, dtype=float), (n,)).copy()
+        if not np.all(np.isfinite(channel) & (channel > 0)):
+            raise ValueError("channel_hz must be positive and finite")
+    tag_axes = tag_dipole_axes(tag_normals, len(tags))
     active = np.flatnonzero(pairs.any(axis=1))
     if len(active):
         check_antenna_positions(scene, poses[active, :3])
-
     uniq, inv = np.unique(poses[:, :3], axis=0, return_inverse=True)
     inv = inv.reshape(-1)
     need = np.zeros((len(uniq), m), dtype=bool)
     np.logical_or.at(need, inv, pairs)
+    ps = trace_paths(scene, uniq, tags, need, frequency_hz=frequency_hz, max_depth=max_depth,
+                     samples_per_src=samples_per_src, cache_dir=cache_dir,
+                     memory_budget_bytes=memory_budget_bytes, progress=progress, seed=seed,
+                     refraction=refraction, lattice_spacing_m=lattice_spacing_m)
+
+    ii, jj = np.nonzero(pairs)
+    gain = np.zeros((n, m))
+    h = np.zeros((n, m), complex)
+    dh = np.zeros((n, m, 3), complex) if channel_gradient else None
+    n_paths = np.zeros((n, m), np.int64)
+    los = np.zeros((n, m), bool)
+    if len(ii):
+        ch = link_channels(ps.paths, inv[ii], jj, poses[ii], tags, channel[ii], reader_pattern,
+                           reader_polarization, tag_pattern, tag_axes, gradient=channel_gradient)
+        h[ii, jj] = ch.h
+        gain[ii, jj] = ch.h.real**2 + ch.h.imag**2
+        n_paths[ii, jj], los[ii, jj] = ch.n_paths, ch.los
+        if channel_gradient:
+            dh[ii, jj] = ch.dh_dpos
+    with np.errstate(divide="ignore"):
+        gain_db = np.where(pairs, 10.0 * np.log10(gain), -np.inf)
+    return LinkSet(
+        gain=gain, gain_db=gain_db, n_paths=n_paths, los=los, traced=pairs.copy(),
+        frequency_hz=float(frequency_hz), max_depth=int(max_depth),
+        samples_per_src=int(samples_per_src), reader_pattern=reader_pattern,
+        tag_pattern=tag_pattern, reader_polarization=reader_polarization,
+        n_traced_sources=ps.n_traced_sources, n_solver_calls=ps.n_solver_calls,
+        trace_s=ps.trace_s, settings=ps.settings, h=h, dh_dpos=dh,
+    )
+
+
+@dataclass(frozen=True)
+class PathSet:
+    """Traced paths from antenna positions to tags (what :func:`trace_paths` returns).
+
+    Attributes
+    ----------
+    positions_m : numpy.ndarray
+        The antenna positions asked for, (k, 3), float64, metres.
+    paths : list of SourcePaths
+        Per position its paths to the tags it needs, at the exact position (carried there
+        from a lattice point when ``lattice_spacing_m`` is set).
+    n_traced_sources : int
+        Positions (lattice points) ray-traced by this call (0 when all came from the cache).
+    n_solver_calls : int
+        Sionna ``PathSolver`` calls made.
+    trace_s : float
+        Wall time spent in Sionna, s.
+    settings : dict
+        Solver settings, memory budget, sources per call, lattice spacing and the number
+        of positions traced (``n_trace_positions``).
+    """
+
+    positions_m: np.ndarray
+    paths: list
+    n_traced_sources: int
+    n_solver_calls: int
+    trace_s: float
+    settings: dict
+
+
+def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz: float = 865e6,
+                max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
+                cache_dir=None, memory_budget_bytes=None, progress=None, seed: int = 42,
+                refraction: bool = True, lattice_spacing_m: float | None = None) -> PathSet:
+    """Paths from antenna positions to tags: from the cache, traced, or carried from a lattice.
+
+    The tracing half of :func:`trace_links` (same parameters); the positions must be
+    distinct and already checked (:func:`propagation.sionna_scene.check_antenna_positions`).
+
+    Parameters
+    ----------
+    positions_m : array_like
+        Distinct antenna positions (k, 3), metres.
+    tag_positions_m : array_like
+        Tag positions (m, 3), metres.
+    need : array_like of bool, optional
+        (k, m): the tags each position needs; default all.
+
+    Returns
+    -------
+    PathSet
+    """
+    uniq = np.asarray(positions_m, dtype=float).reshape(-1, 3)
+    tags = np.asarray(tag_positions_m, dtype=float).reshape(-1, 3)
+    m = len(tags)
+    need = np.ones((len(uniq), m), bool) if need is None else np.asarray(need, bool)
+    if need.shape != (len(uniq), m):
+        raise ValueError(f"need must have shape ({len(uniq)}, {m}), got {need.shape}")
+    if not (np.isfinite(frequency_hz) and frequency_hz > 0):
+        raise ValueError(f"frequency_hz must be positive, got {frequency_hz!r}")
+    if int(max_depth) < 0 or int(samples_per_src) < 1:
+        raise ValueError(f"need max_depth >= 0 and samples_per_src >= 1, got {max_depth}, {samples_per_src}")
+    settings = {"frequency_hz": float(frequency_hz), "max_depth": int(max_depth),
+                "samples_per_src": int(samples_per_src), "seed": int(seed),
+                "los": True, "specular_reflection": True, "refraction": bool(refraction),
+                "diffuse_reflection": False, "diffraction": False}
+    if lattice_spacing_m is not None:
+        at, traced_at = _lattice_plan(scene, uniq, need, float(lattice_spacing_m))
+    else:
+        at, traced_at = uniq, np.arange(len(uniq))
+    need_at = np.zeros((len(at), m), dtype=bool)
+    np.logical_or.at(need_at, traced_at, need)
 
     cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
-    cached = cache.load(uniq) if cache is not None else [None] * len(uniq)
+    cached = cache.load(at) if cache is not None else [None] * len(at)
     src_paths: list[SourcePaths] = []
     missing: list[np.ndarray] = []
-    for u in range(len(uniq)):
-        sp = cached[u] if cached[u] is not None else SourcePaths.empty(uniq[u])
+    for u in range(len(at)):
+        sp = cached[u] if cached[u] is not None else SourcePaths.empty(at[u])
         src_paths.append(sp)
-        want = np.flatnonzero(need[u])
+        want = np.flatnonzero(need_at[u])
         missing.append(want[sp.index_of(tags[want]) < 0] if len(want) else want)
-    todo = [u for u in range(len(uniq)) if len(missing[u])]
+    todo = [u for u in range(len(at)) if len(missing[u])]
 
     budget = int(memory_budget_bytes) if memory_budget_bytes else _default_budget()
     per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
@@ -441,7 +670,7 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
             chunk = todo[c0:c0 + per_chunk]
             rec = np.unique(np.concatenate([missing[u] for u in chunk]))
             t0 = time.perf_counter()
-            fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
+            fresh = _trace_chunk(rt_scene, at[chunk], tags[rec], max_depth, samples_per_src, seed,
                                  refraction)
             t_trace += time.perf_counter() - t0
             n_calls += 1
@@ -455,23 +684,19 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
                         min(c0 + per_chunk, len(todo)), len(todo), len(rec), t_trace)
     elif progress is not None:
         progress(0, 0)
-
-    ii, jj = np.nonzero(pairs)
-    gain = np.zeros((n, m))
-    n_paths = np.zeros((n, m), np.int64)
-    los = np.zeros((n, m), bool)
-    if len(ii):
-        g, npth, lo = _apply_patterns(src_paths, inv[ii], jj, poses[ii], tags, float(frequency_hz),
-                                      reader_pattern, reader_polarization, tag_pattern, tag_axes)
-        gain[ii, jj], n_paths[ii, jj], los[ii, jj] = g, npth, lo
-    with np.errstate(divide="ignore"):
-        gain_db = np.where(pairs, 10.0 * np.log10(gain), -np.inf)
-    return LinkSet(
-        gain=gain, gain_db=gain_db, n_paths=n_paths, los=los, traced=pairs.copy(),
-        frequency_hz=float(frequency_hz), max_depth=int(max_depth),
-        samples_per_src=int(samples_per_src), reader_pattern=reader_pattern,
-        tag_pattern=tag_pattern, reader_polarization=reader_polarization,
-        n_traced_sources=len(todo), n_solver_calls=n_calls, trace_s=t_trace,
+    if lattice_spacing_m is not None:
+        # carry each lattice point's paths (only the tags this position needs) to the
+        # exact antenna position
+        src_paths = [
+            shift_source(subset_tags(src_paths[traced_at[u]],
+                                     src_paths[traced_at[u]].index_of(tags[need[u]])), uniq[u])
+            for u in range(len(uniq))
+        ]
+    return PathSet(
+        positions_m=uniq, paths=src_paths, n_traced_sources=len(todo), n_solver_calls=n_calls,
+        trace_s=t_trace,
         settings={**settings, "memory_budget_bytes": budget, "sources_per_call": per_chunk,
+                  "lattice_spacing_m": None if lattice_spacing_m is None else float(lattice_spacing_m),
+                  "n_trace_positions": len(at),
                   "cache_dir": str(cache_dir) if cache_dir else None},
     )
