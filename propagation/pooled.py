@@ -1,0 +1,358 @@
+"""Shoot rays from a few lattice points, solve exact paths at every antenna position.
+
+Sionna RT's ``PathSolver`` works in two steps: shoot-and-bounce rays from each source to
+collect *candidate* chains (the sequence of surfaces a ray reflected on or crossed, per
+source and target), then the image method turns each candidate into the exact path for
+that source and target and tests it with the scene's own visibility (every segment is
+re-traced; a chain whose reflection point leaves its triangle, or that something
+occludes, is dropped). The shooting is what costs; the image method is cheap.
+
+The antenna moves millimetres to centimetres between reads, so neighbouring positions
+see the same chains. :func:`trace_pooled` therefore shoots rays only from lattice points
+and gives every exact antenna position the union of the candidates found at its nearest
+lattice points (duplicates removed), then runs Sionna's image method and field
+calculator at the exact position. The paths are exact (the image method's, not an
+extrapolation), and a chain that one lattice point's ray sampling missed is recovered
+from a neighbour's: pooling lowers the seed-to-seed noise of the truth instead of
+raising it. Line-of-sight paths are solved directly at the exact positions.
+
+This uses Sionna RT's path-solver internals (``SBCandidateGenerator``, ``ImageMethod``,
+``FieldCalculator``, ``PathsBuffer``) of the pinned sionna-rt 2.2.0 (``constraints.txt``);
+:func:`pooled_supported` says whether the installed version provides them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from propagation.pathcache import SourcePaths
+
+__all__ = ["PoolChunk", "lattice_points", "pooled_supported", "pooling_plan", "trace_pooled"]
+
+_SPEED_OF_LIGHT = 299_792_458.0
+
+
+def lattice_points(positions_m, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Snap positions to a cubic lattice of the given spacing.
+
+    Parameters
+    ----------
+    positions_m : array_like
+        Positions (n, 3), metres.
+    spacing_m : float
+        Lattice spacing, metres (> 0).
+
+    Returns
+    -------
+    points : numpy.ndarray
+        The distinct lattice points used, (k, 3), float64, metres, in lexicographic order.
+    index : numpy.ndarray
+        Nearest lattice point of each position, (n,), int64.
+    """
+    s = float(spacing_m)
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"lattice spacing must be positive, got {spacing_m!r}")
+    p = np.asarray(positions_m, dtype=float).reshape(-1, 3)
+    cells = np.round(p / s).astype(np.int64)
+    uniq, index = np.unique(cells, axis=0, return_inverse=True)
+    return uniq.astype(float) * s, index.reshape(-1).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class PoolChunk:
+    """One solver call of pooled tracing.
+
+    Attributes
+    ----------
+    positions : numpy.ndarray
+        Rows of the antenna positions solved in this call, (p,), int64.
+    shoot_m : numpy.ndarray
+        Points rays are shot from, (k, 3), float64, metres.
+    neighbours : list of numpy.ndarray
+        Per solved position, the rows of ``shoot_m`` whose candidates it pools.
+    """
+
+    positions: np.ndarray
+    shoot_m: np.ndarray
+    neighbours: list
+
+
+def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
+                 radius_factor: float = 1.2) -> list[PoolChunk]:
+    """Which lattice points each antenna position pools, split into solver calls.
+
+    A position pools the lattice points (nearest points of the positions) within
+    ``radius_factor * spacing_m``; lattice points outside the scene's bounds or inside
+    a solid are not shot from, and a position whose nearest lattice point is such a
+    point shoots its own rays as well. Calls hold whole lattice cells in lexicographic
+    order and at most ``max_shoot_per_call`` shooting points (a cell's neighbours from
+    the previous call are shot again).
+    """
+    from scipy.spatial import cKDTree
+
+    from scenes.geometry import solid_material_at
+
+    pos = np.asarray(positions_m, dtype=float).reshape(-1, 3)
+    lat, nearest = lattice_points(pos, spacing_m)
+    lo, hi = scene.bounds_m
+    usable = ~(np.any((lat[:, :2] <= lo[:2]) | (lat[:, :2] >= hi[:2]), axis=1) | (lat[:, 2] <= lo[2])
+               | (solid_material_at(scene, lat) != ""))
+    tree = cKDTree(lat)
+    near = tree.query_ball_point(pos, r=radius_factor * float(spacing_m))
+    chunks: list[PoolChunk] = []
+    cur_pos: list[int] = []
+    cur_shoot: dict = {}
+
+    def flush():
+        if not cur_pos:
+            return
+        keys = list(cur_shoot)
+        shoot = np.array([lat[k] if isinstance(k, (int, np.integer)) else pos[k[1]] for k in keys])
+        slot = {k: i for i, k in enumerate(keys)}
+        nbs = []
+        for i in cur_pos:
+            own = [slot[k] for k in _sources_of(i, near, usable, nearest)]
+            nbs.append(np.asarray(own, np.int64))
+        chunks.append(PoolChunk(np.asarray(cur_pos, np.int64), shoot, nbs))
+        cur_pos.clear()
+        cur_shoot.clear()
+
+    for cell in range(len(lat)):  # lattice_points returns them in lexicographic order
+        members = np.flatnonzero(nearest == cell)
+        new = {k for i in members for k in _sources_of(i, near, usable, nearest)} - set(cur_shoot)
+        if cur_pos and len(cur_shoot) + len(new) > max(1, int(max_shoot_per_call)):
+            flush()
+            new = {k for i in members for k in _sources_of(i, near, usable, nearest)}
+        for k in sorted(new, key=str):
+            cur_shoot[k] = True
+        cur_pos.extend(int(i) for i in members)
+    flush()
+    return chunks
+
+
+def _sources_of(i, near, usable, nearest) -> list:
+    """Shooting points of position i: usable lattice neighbours, or itself ("own", i)."""
+    srcs = [int(k) for k in near[i] if usable[k] and k != nearest[i]]
+    first = [int(nearest[i])] if usable[nearest[i]] else [("own", int(i))]
+    return first + srcs
+
+
+def pooled_supported() -> bool:
+    """Whether the installed Sionna RT has the internals :func:`trace_pooled` uses."""
+    try:
+        from sionna.rt.path_solvers.field_calculator import FieldCalculator  # noqa: F401
+        from sionna.rt.path_solvers.image_method import ImageMethod  # noqa: F401
+        from sionna.rt.path_solvers.paths_buffer import PathsBuffer  # noqa: F401
+        from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _points(a) -> object:
+    import mitsuba as mi
+
+    a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
+    return mi.Point3f(a[:, 0], a[:, 1], a[:, 2])
+
+
+def _candidate_keys(buf) -> np.ndarray:
+    """Per candidate row: its chain (interaction types, shapes, primitives) as one key."""
+    types = buf.interaction_types.numpy().astype(np.int64)
+    shapes = buf.shapes.numpy().astype(np.int64)
+    prims = buf.primitives.numpy().astype(np.int64)
+    return np.concatenate([types, shapes, prims], axis=1)
+
+
+def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, max_depth: int,
+                 samples_per_src: int, seed: int, refraction: bool = True) -> list[SourcePaths]:
+    """Exact paths at ``positions_m`` from candidates shot at ``lattice_m``.
+
+    Parameters
+    ----------
+    rt_scene : sionna.rt.Scene
+        The loaded scene (:func:`propagation.sionna_scene.load_sionna_scene`).
+    lattice_m : array_like
+        Shooting positions (k, 3), metres.
+    positions_m : array_like
+        Antenna positions (n, 3), metres, where paths are solved.
+    neighbours : list of array_like
+        Per position the lattice rows whose candidates it pools.
+    targets_m : array_like
+        Tag positions (m, 3), metres.
+    need : array_like of bool
+        (n, m): the tags each position needs (other links are not solved).
+    max_depth, samples_per_src, seed, refraction
+        As for Sionna's ``PathSolver``.
+
+    Returns
+    -------
+    list of SourcePaths
+        Per position, paths to every tag it needs (``tag_positions_m`` in target order).
+    """
+    import drjit as dr
+    import mitsuba as mi
+    import sionna.rt as rt
+    from sionna.rt.path_solvers.field_calculator import FieldCalculator
+    from sionna.rt.path_solvers.image_method import ImageMethod
+    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
+
+    from propagation.sionna_scene import clear_devices
+
+    lat = np.asarray(lattice_m, float).reshape(-1, 3)
+    pos = np.asarray(positions_m, float).reshape(-1, 3)
+    tgt = np.asarray(targets_m, float).reshape(-1, 3)
+    need = np.asarray(need, bool)
+    n, m = len(pos), len(tgt)
+    clear_devices(rt_scene)
+    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
+    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
+    mi_scene = rt_scene.mi_scene
+    tgt_mi = _points(tgt)
+
+    # 1. candidates from the lattice points
+    gen = SBCandidateGenerator()
+    cand = gen(mi_scene, _points(lat), tgt_mi, samples_per_src=int(samples_per_src),
+               max_num_paths_per_src=int(samples_per_src) * (int(max_depth) + 1),
+               max_depth=int(max_depth), los=False, specular_reflection=True,
+               diffuse_reflection=False, refraction=bool(refraction), diffraction=False,
+               edge_diffraction=False, seed=int(seed))
+    cand.schedule()
+    dr.eval()
+    cand.shrink()
+    cand.detach_geometry()
+    c_src = cand.source_indices.numpy().astype(np.int64)
+    c_tgt = cand.target_indices.numpy().astype(np.int64)
+    c_ok = ~cand.valid.numpy().astype(bool)  # candidates (not already-final paths)
+    keys = _candidate_keys(cand) if len(c_src) else np.zeros((0, 1), np.int64)
+    if len(c_src):
+        # Keep the chains that are valid paths at their own lattice point: ~7 % of the
+        # candidates on corridor_lab, so pooling several neighbours stays cheap. A chain
+        # valid at an antenna position but at none of its lattice neighbours is lost.
+        probe = cand.gather(mi.UInt(np.arange(len(c_src), dtype=np.uint32)))
+        probe = ImageMethod()(mi_scene, probe, False, True, _points(lat), tgt_mi)
+        _field(probe, rt_scene, _points(lat), tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
+               discard=False)
+        c_valid = c_ok & probe.valid.numpy().astype(bool)
+        del probe
+    else:
+        c_valid = c_ok
+    # the first neighbour (the nearest lattice point) gives all its candidates, the
+    # others only the chains valid where they were shot
+    all_of = [np.flatnonzero(c_ok & (c_src == k)) for k in range(len(lat))]
+    by_lat = [np.flatnonzero(c_valid & (c_src == k)) for k in range(len(lat))]
+
+    # 2. per exact position: the union of its neighbours' candidates for the tags it needs
+    rows, new_src = [], []
+    for i in range(n):
+        nb = np.asarray(neighbours[i], np.int64)
+        r = np.concatenate([all_of[nb[0]]] + [by_lat[k] for k in nb[1:]]) \
+            if len(nb) else np.zeros(0, np.int64)
+        r = r[need[i, c_tgt[r]]]
+        if len(r) == 0:
+            continue
+        key = np.concatenate([c_tgt[r, None], keys[r]], axis=1)
+        _, first = np.unique(key, axis=0, return_index=True)
+        r = r[np.sort(first)]
+        rows.append(r)
+        new_src.append(np.full(len(r), i, np.int64))
+    out_paths = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
+    pos_mi = _points(pos)
+    if rows:
+        rows = np.concatenate(rows)
+        new_src = np.concatenate(new_src)
+        buf = cand.gather(mi.UInt(rows.astype(np.uint32)))
+        buf._src_indices = mi.UInt(new_src.astype(np.uint32))  # noqa: SLF001 - re-targeted
+        buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
+        _field(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+        _collect(buf, out_paths)
+    # 3. line of sight, directly at the exact positions
+    los = SBCandidateGenerator()(mi_scene, pos_mi, tgt_mi, samples_per_src=1,
+                                 max_num_paths_per_src=m, max_depth=0, los=True,
+                                 specular_reflection=False, diffuse_reflection=False,
+                                 refraction=False, diffraction=False, edge_diffraction=False,
+                                 seed=int(seed))
+    los.schedule()
+    dr.eval()
+    los.shrink()
+    if los.buffer_size:
+        _field(los, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+        _collect(los, out_paths)
+    clear_devices(rt_scene)
+    return _to_source_paths(out_paths, pos, tgt, need)
+
+
+def _field(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_calculator,
+           discard: bool = True) -> None:
+    import mitsuba as mi
+
+    zeros_n = mi.Point3f(np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros(n, np.float32))
+    zeros_m = mi.Point3f(np.zeros(m, np.float32), np.zeros(m, np.float32), np.zeros(m, np.float32))
+    field_calculator()(rt_scene.wavelength, buf, int(samples_per_src), False, pos_mi, tgt_mi,
+                       zeros_n, zeros_m, rt_scene.tx_array.antenna_pattern.patterns,
+                       rt_scene.rx_array.antenna_pattern.patterns)
+    if discard:
+        buf.discard_invalid()
+
+
+def _collect(buf, out: dict) -> None:
+    if buf.buffer_size == 0:
+        return
+    a = np.empty((buf.buffer_size, 2, 2), complex)
+    for r in range(2):
+        for t in range(2):
+            z = buf.a[r][t]
+            a[:, r, t] = np.asarray(z.real, np.float64) + 1j * np.asarray(z.imag, np.float64)
+    out["a"].append(a)
+    out["src"].append(buf.source_indices.numpy().astype(np.int64))
+    out["tgt"].append(buf.target_indices.numpy().astype(np.int64))
+    out["tau"].append(buf.tau.numpy().astype(np.float64))
+    out["k_tx"].append(np.asarray(buf.k_tx.numpy(), np.float64).reshape(3, -1).T
+                       if np.asarray(buf.k_tx.numpy()).shape[0] == 3 else np.asarray(buf.k_tx.numpy(), np.float64))
+    out["k_rx"].append(np.asarray(buf.k_rx.numpy(), np.float64).reshape(3, -1).T
+                       if np.asarray(buf.k_rx.numpy()).shape[0] == 3 else np.asarray(buf.k_rx.numpy(), np.float64))
+
+
+def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
+    if out["src"]:
+        src = np.concatenate(out["src"])
+        tg = np.concatenate(out["tgt"])
+        a = np.concatenate(out["a"])
+        tau = np.concatenate(out["tau"])
+        k_tx = np.concatenate(out["k_tx"])
+        k_rx = np.concatenate(out["k_rx"])
+    else:
+        src = tg = np.zeros(0, np.int64)
+        a, tau = np.zeros((0, 2, 2), complex), np.zeros(0)
+        k_tx = k_rx = np.zeros((0, 3))
+    keep = need[src, tg]  # line-of-sight rows were solved for every pair
+    src, tg, a, tau, k_tx, k_rx = src[keep], tg[keep], a[keep], tau[keep], k_tx[keep], k_rx[keep]
+    order = np.lexsort((tau, tg, src))
+    src, tg, a, tau, k_tx, k_rx = src[order], tg[order], a[order], tau[order], k_tx[order], k_rx[order]
+    # The image method accepts a chain on any triangle of the reflecting plane, so the
+    # same physical path can come from two pooled candidates (a wall's two triangles seen
+    # from two lattice points). One path per (position, tag, length, departure direction):
+    # two distinct geometric-optics paths cannot leave a point in the same direction
+    # with the same length. 0.1 mm / 1e-4 rad is far above the solver's float32 noise
+    # and far below any real path separation.
+    key = np.column_stack([src, tg, np.round(tau * _SPEED_OF_LIGHT / 1e-4),
+                           np.round(k_tx / 1e-4)]).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    src, tg, a, tau, k_tx, k_rx = src[first], tg[first], a[first], tau[first], k_tx[first], k_rx[first]
+    result = []
+    bounds = np.searchsorted(src, np.arange(len(pos) + 1))
+    for i in range(len(pos)):
+        s0, s1 = bounds[i], bounds[i + 1]
+        cols = np.flatnonzero(need[i])
+        t_i = tg[s0:s1]
+        counts = np.array([np.sum(t_i == j) for j in cols], np.int64)
+        result.append(SourcePaths(
+            source_m=pos[i].copy(),
+            tag_positions_m=tgt[cols].copy(),
+            offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+            transfer=a[s0:s1], tau_s=tau[s0:s1], k_tx=k_tx[s0:s1], k_rx=k_rx[s0:s1],
+        ))
+    return result
