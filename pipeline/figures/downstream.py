@@ -26,7 +26,8 @@ def fig_downstream(run_dir, out_dir=None) -> list[Path]:
     ax1, ax2 = fig.subplots(1, 2)
     for i, (name, sub) in enumerate(tags.groupby("model", sort=True)):
         e = np.sort(sub["error_m"].to_numpy(float))
-        ax1.step(e, np.arange(1, len(e) + 1) / len(e), where="post", color=f"C{i}",
+        ax1.step(e, np.arange(1, len(e) + 1) / len(e), where="post", color=f"C{i % 10}",
+                 ls="-" if i < 10 else "--",  # more models than colours (phase, oracle)
                  label=f"{name} (median {np.median(e):.2f} m)")
     ax1.set_xscale("symlog", linthresh=0.1)
     ax1.set_xlabel("tag position error [m]")

@@ -6,6 +6,9 @@
 * :mod:`.observations` - the read log as tags x attempt slots (:class:`Observations`);
 * :mod:`.tags` - posteriors of tag positions over candidate sites, estimates and error
   summaries (:func:`localise_tags`, :func:`localisation_summary`);
+* :mod:`.phase` - tag positions from the reads' backscatter phases, a synthetic-aperture
+  estimator robust to the reader's pi ambiguity and unknown per-(antenna, channel)
+  offsets (:func:`localise_tags_phase`, :func:`phase_reads_from_table`);
 * :mod:`.oracle` - which (slot, candidate) pairs to ray trace for the oracle
   (:func:`oracle_plan`);
 * :mod:`.robot` - RFID-only robot localisation, a particle filter with global
@@ -28,6 +31,15 @@ from .likelihood import (
 )
 from .observations import Observations, as_pose6, observations_from_reads, pair_geometry
 from .oracle import OraclePlan, oracle_plan
+from .phase import (
+    PhaseColumnsMissing,
+    PhasePosteriors,
+    PhaseReads,
+    combine_posteriors,
+    localise_tags_phase,
+    phase_reads_from_table,
+    simulate_phase_rad,
+)
 from .robot import (
     BoxFreeSpace,
     RfidMCLConfig,
@@ -59,6 +71,9 @@ __all__ = [
     "OracleLikelihood",
     "OraclePlan",
     "OwnTerms",
+    "PhaseColumnsMissing",
+    "PhasePosteriors",
+    "PhaseReads",
     "RfidMCLConfig",
     "RfidMCLResult",
     "RfidParticleFilter",
@@ -66,15 +81,19 @@ __all__ = [
     "as_free_space",
     "as_pose6",
     "as_tag_map",
+    "combine_posteriors",
     "filter_metrics",
     "fit_far_detection",
     "localisation_summary",
     "localise_tags",
+    "localise_tags_phase",
     "observations_from_reads",
     "oracle_plan",
     "pair_geometry",
+    "phase_reads_from_table",
     "read_region_mask",
     "rssi_residual_std",
     "run_rfid_mcl",
+    "simulate_phase_rad",
     "tag_position_errors",
 ]

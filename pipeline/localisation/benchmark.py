@@ -8,6 +8,9 @@ oracle answer both questions on the evaluation tour's reads of the held-out tags
 - **tag localisation**: each held-out tag's posterior over candidate sites on the
   scene's surfaces (:func:`~.tags.localise_tags`), from the tour's read / not-read
   outcomes and RSSI with the MCL antenna poses; the MAP estimate's 3-D error;
+- **phase**: where the read log has the reads' backscatter phases, the synthetic-aperture
+  estimator (:func:`~.phase.localise_tags_phase`) alone (``phase``) and times the learned
+  model's read / RSSI likelihood (``phase_anfis``, :func:`phase_posteriors`);
 - **robot localisation**: an RFID-only particle filter (odometry and reads, no laser)
   with the held-out tags as the known map, from an unknown start and once more after a
   kidnapping (:func:`~.robot.run_rfid_mcl`).
@@ -27,10 +30,22 @@ import pandas as pd
 
 from .likelihood import ModelLikelihood, fit_far_detection, rssi_residual_std
 from .observations import Observations
+from .phase import (
+    PhaseColumnsMissing,
+    combine_posteriors,
+    localise_tags_phase,
+    phase_reads_from_table,
+)
 from .robot import RfidMCLConfig, filter_metrics, run_rfid_mcl
 from .tags import localisation_summary, tag_position_errors
 
-__all__ = ["DetectionOnly", "model_sources", "robot_localisation", "tag_localisation_scores"]
+__all__ = [
+    "DetectionOnly",
+    "model_sources",
+    "phase_posteriors",
+    "robot_localisation",
+    "tag_localisation_scores",
+]
 
 
 class DetectionOnly:
@@ -73,6 +88,58 @@ def model_sources(models: dict, train_reads: pd.DataFrame, d_max_m: float) -> di
         out[name] = ModelLikelihood(m, sigma_rssi_db=sigma, d_max_m=d_max_m, p_far=p_far,
                                     d_far_m=d_far, name=name)
     return out
+
+
+def phase_posteriors(reads: pd.DataFrame, tag_ids, candidates, *, reach_m: float | None,
+                     combine_with=None, combined_name: str = "phase_anfis",
+                     **kwargs) -> tuple[dict, dict]:
+    """The phase estimator's posteriors of the tags of a read table, or why there are none.
+
+    Parameters
+    ----------
+    reads : pandas.DataFrame
+        ``eval_reads.parquet`` (MCL antenna poses ``est_ant_*``), with ``frequency_hz`` and
+        ``phase_rad`` where the reader simulation wrote them.
+    tag_ids : sequence of str
+        The tags, in the order of the other sources' posteriors.
+    candidates : array_like (C, 3) or TagSites
+    reach_m : float or None
+        The reader's range [m] (:func:`~.phase.localise_tags_phase`).
+    combine_with : TagPosteriors, optional
+        A read / RSSI model's posteriors over the same tags and candidates (uniform
+        prior): also returns their product with the phase posterior as
+        `combined_name` (:func:`~.phase.combine_posteriors`). Why: the range to a
+        straight track, all the phase measures, is the same on a circle about it, so
+        phase alone can take a tag for a point on the opposite wall; which antenna read
+        it and how strongly tell the walls apart, and the two are independent evidence.
+    **kwargs
+        Passed to :func:`~.phase.localise_tags_phase`.
+
+    Returns
+    -------
+    posteriors : dict of str -> TagPosteriors
+        ``{"phase": ..., combined_name: ...}``; empty when the table has no phases.
+    info : dict
+        ``run`` (bool); ``reason`` when not run; else the phase reads used, tags without
+        any, the concentration kappa, ``reach_m`` and the estimator's ``elapsed_s``.
+    """
+    import time
+
+    try:
+        rd = phase_reads_from_table(reads, "est", tag_ids=list(tag_ids))
+    except PhaseColumnsMissing as exc:
+        return {}, {"run": False, "reason": str(exc)}
+    t0 = time.perf_counter()
+    post = localise_tags_phase(rd, candidates, reach_m=reach_m, **kwargs)
+    out = {"phase": post}
+    if combine_with is not None:
+        out[combined_name] = combine_posteriors(post, combine_with, name=combined_name)
+    info = {"run": True, "n_reads_with_phase": int(rd.n_reads.sum()),
+            "tags_without_phase": int(np.sum(rd.n_reads == 0)),
+            "kappa": round(float(post.kappa), 3),
+            "reach_m": None if reach_m is None else round(float(reach_m), 3),
+            "elapsed_s": round(time.perf_counter() - t0, 3)}
+    return out, info
 
 
 def tag_localisation_scores(posteriors: dict, tag_map) -> dict:

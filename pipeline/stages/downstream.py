@@ -1,8 +1,9 @@
-"""Stage ``downstream``: localise the held-out tags, then the robot, with each sensor model
-and the ray-traced oracle (:mod:`pipeline.localisation.benchmark`); writes
-``downstream/scores.json``, ``downstream/tag_errors.parquet`` and
-``downstream/robot_error.parquet``, which the evaluation stage copies into
-``metrics.json`` (``tag_localisation.<model>``, ``robot_localisation.<model>``)."""
+"""Stage ``downstream``: localise the held-out tags, then the robot, with each sensor model,
+the ray-traced oracle and, where the read table has phases, the phase estimator
+(:mod:`pipeline.localisation.phase`; ``tag_localisation.phase`` says why when it did not
+run); writes ``downstream/scores.json``, ``downstream/tag_errors.parquet`` and
+``downstream/robot_error.parquet``, which the evaluation stage copies into ``metrics.json``
+(``tag_localisation.<model>``, ``robot_localisation.<model>``)."""
 
 from __future__ import annotations
 
@@ -94,6 +95,7 @@ def stage_downstream(ctx) -> dict:
     )
     from pipeline.localisation.benchmark import (
         model_sources,
+        phase_posteriors,
         robot_localisation,
         tag_localisation_scores,
     )
@@ -119,12 +121,25 @@ def stage_downstream(ctx) -> dict:
     posts = localise_tags(obs, cand, sources)
     update(advance=1)
     info = {"n_tags": int(len(eval_tags)), "n_candidates": int(len(cand))}
+    # the phase estimator's candidates: within the farthest training read of a pose that
+    # read the tag; sub-apertures of 1 m of antenna travel (MCL drifts: on the tiny study
+    # they halve the horizontal error against whole-track groups, on exact poses they
+    # cost nothing)
+    d_read = reads.loc[reads["read"].to_numpy(bool), "d_est_m"].to_numpy(float)
+    reach = float(np.max(d_read)) if len(d_read) else None
+    post_p, info["phase"] = phase_posteriors(eval_reads, list(eval_tags.ids), cand,
+                                             reach_m=reach, combine_with=posts["anfis"],
+                                             segment_m=1.0)
+    posts.update(post_p)
     if dn.oracle:
         post_o, n_pairs = _oracle_posteriors(ctx, obs, eval_reads, eval_tags, posts["anfis"].map_m)
         posts.update(post_o)
         info["oracle_pairs_traced"] = n_pairs
     update(advance=1)
     tag_scores = tag_localisation_scores(posts, eval_tags)
+    if not info["phase"]["run"]:  # recorded, never silently left out
+        for name in ("phase", "phase_anfis"):
+            tag_scores[name] = {"not_run": info["phase"]["reason"]}
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
     free = as_free_space(collision_map(sc, robot))
     robot_scores = robot_localisation(sources, obs, eval_tags, eval_poses, list(robot.antennas),
@@ -132,7 +147,7 @@ def stage_downstream(ctx) -> dict:
                                       config=RfidMCLConfig(n_particles=dn.robot_particles))
     update(advance=1)
     rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
-            for t, e in s.pop("per_tag_m").items()]
+            for t, e in s.pop("per_tag_m", {}).items()]
     write_parquet_atomic(pd.DataFrame(rows), ctx.out("downstream/tag_errors.parquet"))
     rrows = []
     for n, s in robot_scores.items():
@@ -148,5 +163,6 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=2,  # 2: every fitted model
+              ("scene", "tour", "reads", "models"), version=3,
+              # 2: every fitted model; 3: the phase estimator (phase, phase_anfis)
               description="downstream localisation (tags, robot)")
