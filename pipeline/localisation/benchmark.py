@@ -121,15 +121,13 @@ def phase_posteriors(reads: pd.DataFrame, tag_ids, candidates, *, reach_m: float
         ``{"phase": ..., combined_name: ...}``; empty when the table has no phases.
     info : dict
         ``run`` (bool); ``reason`` when not run; else the phase reads used, tags without
-        any, the concentration kappa, ``reach_m`` and the estimator's ``elapsed_s``.
+        any, the concentration kappa, ``reach_m``.
     """
-    import time
 
     try:
         rd = phase_reads_from_table(reads, "est", tag_ids=list(tag_ids))
     except PhaseColumnsMissing as exc:
         return {}, {"run": False, "reason": str(exc)}
-    t0 = time.perf_counter()
     post = localise_tags_phase(rd, candidates, reach_m=reach_m, **kwargs)
     out = {"phase": post}
     if combine_with is not None:
@@ -137,8 +135,7 @@ def phase_posteriors(reads: pd.DataFrame, tag_ids, candidates, *, reach_m: float
     info = {"run": True, "n_reads_with_phase": int(rd.n_reads.sum()),
             "tags_without_phase": int(np.sum(rd.n_reads == 0)),
             "kappa": round(float(post.kappa), 3),
-            "reach_m": None if reach_m is None else round(float(reach_m), 3),
-            "elapsed_s": round(time.perf_counter() - t0, 3)}
+            "reach_m": None if reach_m is None else round(float(reach_m), 3)}
     return out, info
 
 
