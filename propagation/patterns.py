@@ -26,6 +26,7 @@ __all__ = [
     "POLARIZATIONS",
     "AntennaFrameAngles",
     "antenna_frame_angles",
+    "as_pose6",
     "dipole_rotation",
     "pattern_amplitude",
     "pattern_gain_db",
@@ -139,7 +140,14 @@ def sionna_orientation(yaw, pitch, roll) -> np.ndarray:
     return np.stack(np.broadcast_arrays(yaw, -np.asarray(pitch, dtype=float), roll), axis=-1)
 
 
-def _pose6(antenna_poses) -> np.ndarray:
+def as_pose6(antenna_poses) -> np.ndarray:
+    """Antenna poses as (n, 6) [x, y, z, yaw, pitch, roll]; (n, 4) gets pitch = roll = 0.
+
+    Raises
+    ------
+    ValueError
+        Any other shape.
+    """
     poses = np.asarray(antenna_poses, dtype=float)
     if poses.ndim == 1:
         poses = poses[None, :]
@@ -158,7 +166,7 @@ def pose_rotation(antenna_poses) -> np.ndarray:
 
     ``antenna_poses`` is (n, 4) [x, y, z, yaw] or (n, 6) [x, y, z, yaw, pitch, roll] [m, rad].
     """
-    p = _pose6(antenna_poses)
+    p = as_pose6(antenna_poses)
     return rotation_matrix(p[:, 3], -p[:, 4], p[:, 5])
 
 
@@ -266,7 +274,7 @@ def antenna_frame_angles(antenna_poses, points) -> AntennaFrameAngles:
     Uses the full antenna frame ``R = Rz(yaw) Ry(-pitch) Rx(roll)``; with pitch = roll = 0
     alpha is the bearing relative to the yaw direction in the horizontal plane.
     """
-    poses = _pose6(antenna_poses)
+    poses = as_pose6(antenna_poses)
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     rot = pose_rotation(poses)
     diff = pts[None, :, :] - poses[:, None, :3]

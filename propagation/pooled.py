@@ -29,9 +29,13 @@ import numpy as np
 
 from propagation.pathcache import SourcePaths
 
-__all__ = ["PoolChunk", "lattice_points", "pooled_supported", "pooling_plan", "trace_pooled"]
+__all__ = ["POOL_RADIUS_FACTOR", "PoolChunk", "lattice_points", "pooled_supported", "pooling_plan", "trace_pooled"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
+#: Pooling radius over lattice spacing: at 1.2 a position on a tour pools its ~3
+#: nearest lattice points (measured, docs/pooled_tracing.md); wider adds candidates,
+#: not accuracy.
+POOL_RADIUS_FACTOR = 1.2
 
 
 def lattice_points(positions_m, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -80,7 +84,7 @@ class PoolChunk:
 
 
 def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
-                 radius_factor: float = 1.2) -> list[PoolChunk]:
+                 radius_factor: float = POOL_RADIUS_FACTOR) -> list[PoolChunk]:
     """Which lattice points each antenna position pools, split into solver calls.
 
     A position pools the lattice points (nearest points of the positions) within
@@ -211,10 +215,11 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
     mi_scene = rt_scene.mi_scene
     tgt_mi = _points(tgt)
+    lat_mi = _points(lat)
 
     # 1. candidates from the lattice points
     gen = SBCandidateGenerator()
-    cand = gen(mi_scene, _points(lat), tgt_mi, samples_per_src=int(samples_per_src),
+    cand = gen(mi_scene, lat_mi, tgt_mi, samples_per_src=int(samples_per_src),
                max_num_paths_per_src=int(samples_per_src) * (int(max_depth) + 1),
                max_depth=int(max_depth), los=False, specular_reflection=True,
                diffuse_reflection=False, refraction=bool(refraction), diffraction=False,
@@ -232,8 +237,8 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
         # candidates on corridor_lab, so pooling several neighbours stays cheap. A chain
         # valid at an antenna position but at none of its lattice neighbours is lost.
         probe = cand.gather(mi.UInt(np.arange(len(c_src), dtype=np.uint32)))
-        probe = ImageMethod()(mi_scene, probe, False, True, _points(lat), tgt_mi)
-        _field(probe, rt_scene, _points(lat), tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
+        probe = ImageMethod()(mi_scene, probe, False, True, lat_mi, tgt_mi)
+        _field(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
                discard=False)
         c_valid = c_ok & probe.valid.numpy().astype(bool)
         del probe
@@ -286,12 +291,10 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
 
 def _field(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_calculator,
            discard: bool = True) -> None:
-    import mitsuba as mi
 
-    zeros_n = mi.Point3f(np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros(n, np.float32))
-    zeros_m = mi.Point3f(np.zeros(m, np.float32), np.zeros(m, np.float32), np.zeros(m, np.float32))
+    # unrotated antennas at both ends (orientations are applied later, in NumPy)
     field_calculator()(rt_scene.wavelength, buf, int(samples_per_src), False, pos_mi, tgt_mi,
-                       zeros_n, zeros_m, rt_scene.tx_array.antenna_pattern.patterns,
+                       _points(np.zeros((n, 3))), _points(np.zeros((m, 3))), rt_scene.tx_array.antenna_pattern.patterns,
                        rt_scene.rx_array.antenna_pattern.patterns)
     if discard:
         buf.discard_invalid()
@@ -309,10 +312,9 @@ def _collect(buf, out: dict) -> None:
     out["src"].append(buf.source_indices.numpy().astype(np.int64))
     out["tgt"].append(buf.target_indices.numpy().astype(np.int64))
     out["tau"].append(buf.tau.numpy().astype(np.float64))
-    out["k_tx"].append(np.asarray(buf.k_tx.numpy(), np.float64).reshape(3, -1).T
-                       if np.asarray(buf.k_tx.numpy()).shape[0] == 3 else np.asarray(buf.k_tx.numpy(), np.float64))
-    out["k_rx"].append(np.asarray(buf.k_rx.numpy(), np.float64).reshape(3, -1).T
-                       if np.asarray(buf.k_rx.numpy()).shape[0] == 3 else np.asarray(buf.k_rx.numpy(), np.float64))
+    # Dr.Jit's Vector3f.numpy() is (3, P)
+    out["k_tx"].append(np.asarray(buf.k_tx.numpy(), np.float64).T)
+    out["k_rx"].append(np.asarray(buf.k_rx.numpy(), np.float64).T)
 
 
 def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
@@ -347,8 +349,8 @@ def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
     for i in range(len(pos)):
         s0, s1 = bounds[i], bounds[i + 1]
         cols = np.flatnonzero(need[i])
-        t_i = tg[s0:s1]
-        counts = np.array([np.sum(t_i == j) for j in cols], np.int64)
+        # tg is sorted within a position and holds only needed tags
+        counts = np.diff(np.searchsorted(tg[s0:s1], np.append(cols, len(tgt))))
         result.append(SourcePaths(
             source_m=pos[i].copy(),
             tag_positions_m=tgt[cols].copy(),

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from propagation.patterns import pose_rotation
+from propagation.patterns import as_pose6, pose_rotation
 
 __all__ = [
     "Observations",
@@ -31,18 +31,6 @@ __all__ = [
     "observations_from_reads",
     "pair_geometry",
 ]
-
-
-def as_pose6(antenna_poses) -> np.ndarray:
-    """Antenna poses as (n, 6) [x, y, z, yaw, pitch, roll]; (n, 4) gets pitch = roll = 0."""
-    p = np.asarray(antenna_poses, dtype=np.float64)
-    if p.ndim == 1:
-        p = p[None, :]
-    if p.ndim != 2 or p.shape[1] not in (4, 6):
-        raise ValueError(f"antenna poses must have shape (n, 4) or (n, 6), got {p.shape}")
-    if p.shape[1] == 4:
-        p = np.concatenate([p, np.zeros((len(p), 2))], axis=1)
-    return p
 
 
 def pair_geometry(antenna_poses, points, alpha_within_m: float = np.inf):

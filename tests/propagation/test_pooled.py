@@ -5,9 +5,11 @@ import pytest
 from propagation_scenes import make_corridor
 
 from propagation import free_space_gain_db, trace_links, two_ray_gain_db
+from propagation.channels import link_channels
+from propagation.pathsolve import _trace_chunk, bytes_per_source
 from propagation.pooled import lattice_points, pooling_plan, trace_pooled
 from propagation.sionna_scene import load_sionna_scene
-from propagation.tracing import _trace_chunk, bytes_per_source, link_channels, tag_dipole_axes
+from propagation.tracing import tag_dipole_axes
 from scenes import material
 
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
