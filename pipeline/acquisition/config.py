@@ -9,15 +9,20 @@ and their defaults are that class's.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
+from pipeline.acquisition.channels import REGIONS, channel_plan
+from pipeline.acquisition.gen2 import Gen2Config
 from pipeline.configschema import ConfigError, option, section
 from propagation.linkbudget import LinkBudget
 
-__all__ = ["ANTENNA_MODES", "POSE_SOURCES", "ReaderConfig", "reader_metadata"]
+__all__ = ["ANTENNA_MODES", "INVENTORY_MODES", "POSE_SOURCES", "ReaderConfig", "reader_metadata"]
 
 #: How the reader multiplexes its antenna ports, see :class:`ReaderConfig`.
 ANTENNA_MODES = ("round_robin", "all")
+#: How misses between powered, audible tags arise, see :class:`ReaderConfig`.
+INVENTORY_MODES = ("fixed", "gen2")
 #: Which antenna poses the training sets use: MCL estimates or ground truth.
 POSE_SOURCES = ("est", "true")
 
@@ -50,6 +55,33 @@ class ReaderConfig:
     phase); 10 dB covers that, and :func:`~pipeline.acquisition.simulate_reads` records
     when a traced gain exceeds it. The power, sensitivity and loss keys are those of
     :class:`propagation.LinkBudget` (defaults and sources there).
+
+    ``region``: the regulatory channel plan (:mod:`pipeline.acquisition.channels`):
+    ``"ETSI"`` (EN 302 208: 865.7, 866.3, 866.9, 867.5 MHz, 2 W ERP, at most 4 s per
+    channel), ``"FCC"`` (15.247: 50 channels 902.75-927.25 MHz, 4 W EIRP, 0.4 s) or
+    ``"none"`` (every attempt at the study's carrier ``frequency_hz``: the reader of
+    studies before hopping). The reader hops in a pseudo-random order drawn once per read
+    log; every attempt records its channel (``frequency_hz`` column). One trace at the
+    study's carrier serves every channel (the path delays give each channel's phase). The
+    power is not changed by the region: for FCC set ``tx_power_dbm = 28`` (36 dBm EIRP
+    with the 8 dBi antenna); a budget above the region's limit is logged.
+    ``phase_noise_rad``: phase-based RFID localisation work with Impinj readers models the
+    reported phase with a Gaussian noise of about 0.1 rad at good SNR (e.g. Buffi, Nepa &
+    Lombardini, "A phase-based technique for localization of UHF-RFID tags moving on a
+    conveyor belt", IEEE Sensors J. 15(1), 2015); ``phase_resolution_rad``: Impinj readers
+    report the phase in 12 bits (Speedway "Low Level User Data Support" note).
+    ``inventory``: ``"fixed"`` misses a powered, audible tag with
+    ``anticollision_miss_probability`` per attempt; ``"gen2"`` runs the EPC Gen2 Q
+    algorithm for the antenna's dwell in each slot (:mod:`pipeline.acquisition.gen2`,
+    ``[reader.gen2]``): reads (``seen_count``) and misses follow from the tags in the field.
+    ``"fixed"`` stays the default because the truth, evaluation and localisation stages
+    model misses as that constant probability. Tag population (:mod:`pipeline.acquisition.population`):
+    a 1 dB spread of chip sensitivity and of backscatter among tags of one model is an
+    assumption of the order of tag-to-tag spreads in tag benchmarks; a metal detuning
+    loss of ~10 dB is Griffin & Durgin's (2009) order of magnitude for a dipole tag on
+    metal. All three default to 0: the held-out truth (``pipeline.evaluation.truth``)
+    judges detection with the nominal budget, so with spreads on it is the nominal tag's
+    truth, not each tag's.
     """
 
     read_rate_hz: float = option(
@@ -80,6 +112,26 @@ class ReaderConfig:
     range_margin_db: float = option(
         10.0, "Margin over the free-space budget when choosing which links can be read and are traced [dB]."
     )
+    region: str = option("ETSI", "Regulatory channel plan: 'ETSI' (4 channels), 'FCC' (50, hopping) or 'none'.")
+    channels_hz: tuple[float, ...] = option(
+        (), "Channel centres [Hz] replacing the region's (each inside its band); empty: the region's.")
+    channel_dwell_s: float | None = option(
+        None, "Time on one channel before hopping [s]; default the region's maximum (ETSI 4, FCC 0.4).")
+    phase_noise_rad: float = option(0.1, "Standard deviation of the reported phase's noise [rad].")
+    phase_resolution_rad: float = option(
+        2.0 * math.pi / 4096, "Reported phase quantisation step [rad] (Impinj: 12 bits); 0: none.")
+    doppler_noise_hz: float = option(0.0, "Standard deviation of the reported Doppler's noise [Hz].")
+    inventory: str = option(
+        "fixed", "Misses: 'fixed' (anticollision_miss_probability) or 'gen2' (Q-algorithm inventory).")
+    gen2: Gen2Config = option(factory=Gen2Config, doc="EPC Gen2 link timing and Q algorithm.")
+    tag_sensitivity_spread_db: float = option(
+        0.0, "Standard deviation of each tag's chip sensitivity around tag_sensitivity_dbm [dB].")
+    tag_modulation_spread_db: float = option(
+        0.0, "Standard deviation of each tag's modulation factor around modulation_loss_db [dB].")
+    metal_detuning_loss_db: float = option(
+        0.0, "Tag gain penalty of tags on detuning materials [dB] (Griffin & Durgin 2009: ~10).")
+    detuning_materials: tuple[str, ...] = option(
+        ("metal",), "Surface materials that detune a tag stuck on them.")
 
     def __post_init__(self):
         if not self.read_rate_hz > 0:
@@ -91,6 +143,22 @@ class ReaderConfig:
             raise ConfigError(f"antenna_mode must be 'round_robin' or 'all', got {self.antenna_mode!r}")
         if not 0.0 <= self.anticollision_miss_probability < 1.0:
             raise ConfigError("anticollision_miss_probability must be in [0, 1)")
+        if self.region not in REGIONS:
+            raise ConfigError(f"region must be one of {sorted(REGIONS)}, got {self.region!r}")
+        channel_plan(self.region, self.channels_hz, self.channel_dwell_s)  # checks, naming the key
+        for name in ("phase_noise_rad", "phase_resolution_rad", "doppler_noise_hz",
+                     "tag_sensitivity_spread_db", "tag_modulation_spread_db", "metal_detuning_loss_db"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.inventory not in INVENTORY_MODES:
+            raise ConfigError(f"inventory must be 'fixed' or 'gen2', got {self.inventory!r}")
+        if self.inventory == "gen2" and self.antenna_mode == "round_robin":
+            self.gen2.dwell_s(1.0 / self.read_rate_hz)  # a dwell that cannot fit: named error
+
+    def channel_plan(self, frequency_hz: float | None = None):
+        """The reader's channels (:func:`pipeline.acquisition.channels.channel_plan`), in
+        listed order; ``frequency_hz`` is the carrier of region ``"none"``."""
+        return channel_plan(self.region, self.channels_hz, self.channel_dwell_s, frequency_hz)
 
     def link_budget(self, frequency_hz: float | None = None) -> LinkBudget:
         """The link budget of this reader at the carrier ``frequency_hz`` (default:
@@ -113,5 +181,8 @@ def reader_metadata(reader: ReaderConfig, budget: LinkBudget) -> dict[str, Any]:
     budget it read with (``budget``: every :class:`~propagation.LinkBudget` field)."""
     out = {f.name: getattr(reader, f.name) for f in dataclasses.fields(reader)
            if f.name not in _BUDGET_KEYS}
+    out["gen2"] = dataclasses.asdict(reader.gen2)
+    out["channels_hz"] = list(reader.channels_hz)
+    out["detuning_materials"] = list(reader.detuning_materials)
     out["budget"] = dataclasses.asdict(budget)
     return out

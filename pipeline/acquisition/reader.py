@@ -9,10 +9,18 @@ backscatter link budget of ``docs/physics.md``:
 - backscatter power at the reader ``P_rx = P_tx + 2 G(g) + M - 2 L_pol``; the reader
   hears it only if ``P_rx >= reader_sensitivity_dbm`` (reverse link);
 - a powered and heard tag is still lost with probability
-  ``anticollision_miss_probability`` (Gen2 slot collisions), independently per attempt;
+  ``anticollision_miss_probability`` (``inventory = "fixed"``), independently per
+  attempt, or is singulated ``seen_count`` times by the EPC Gen2 Q algorithm during the
+  antenna's dwell (``inventory = "gen2"``, :mod:`pipeline.acquisition.gen2`);
 - a read reports ``RSSI = Q(P_rx + N(0, rssi_noise_db^2))`` with ``Q`` rounding to the
   reader's resolution. The thresholds act on the noise-free powers: the RSSI noise is
-  the reader's measurement error, not a change of the link.
+  the reader's measurement error, not a change of the link;
+- each tag deviates from the nominal one (:mod:`pipeline.acquisition.population`):
+  its sensitivity and modulation factor are offset, and a tag on metal loses gain;
+- every attempt happens on a channel of the reader's regional hop sequence
+  (:mod:`pipeline.acquisition.channels`), the gain is the coherent sum at that channel,
+  and a read also reports the backscatter phase and the Doppler shift
+  (:mod:`pipeline.acquisition.phase`).
 
 Pairs farther apart than the budget's free-space maximum range (maximum pattern gains,
 plus ``range_margin_db`` for constructive multipath) cannot be read and are not traced.
@@ -20,16 +28,23 @@ plus ``range_margin_db`` for constructive multipath) cannot be read and are not 
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pipeline.acquisition.config import ReaderConfig, reader_metadata
-from pipeline.acquisition.readlog import POSE_COLUMNS, READ_COLUMNS, ReadLog
-from pipeline.acquisition.track import PoseTrack, as_pose_track, interpolate_poses
+from pipeline.acquisition.channels import ChannelPlan, channel_schedule
+from pipeline.acquisition.config import ReaderConfig
+from pipeline.acquisition.gen2 import InventoryStats, inventory_counts
+from pipeline.acquisition.phase import (
+    antenna_velocity,
+    doppler_hz,
+    phase_offsets,
+    reported_phase_rad,
+)
+from pipeline.acquisition.population import TagPopulation
+from pipeline.acquisition.readlog import READ_COLUMNS
+from pipeline.acquisition.track import PoseTrack, interpolate_poses
 from propagation import antenna_frame_angles
 
 __all__ = [
@@ -39,10 +54,7 @@ __all__ = [
     "read_attempts",
     "reader_response",
     "reads_from_gains",
-    "simulate_reads",
 ]
-
-logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -65,6 +77,9 @@ class ReaderResponse:
         bool, ``powered & heard & ~collided``.
     rssi_dbm : numpy.ndarray
         Reported RSSI with noise and quantisation, float64, dBm; NaN where not read.
+    seen_count : numpy.ndarray
+        Times the tag was singulated in the attempt, int64 (``read`` as 0/1 in the
+        ``"fixed"`` inventory).
     """
 
     tag_power_dbm: np.ndarray
@@ -74,10 +89,12 @@ class ReaderResponse:
     collided: np.ndarray
     read: np.ndarray
     rssi_dbm: np.ndarray
+    seen_count: np.ndarray
 
 
 def reader_response(
-    gain_db: np.ndarray, reader: ReaderConfig, rng: np.random.Generator
+    gain_db: np.ndarray, reader: ReaderConfig, rng: np.random.Generator, *,
+    sensitivity_offset_db=0.0, modulation_offset_db=0.0, tag_loss_db=0.0, inventory=None,
 ) -> ReaderResponse:
     """Apply the backscatter link budget, anti-collision losses, noise and quantisation.
 
@@ -93,6 +110,13 @@ def reader_response(
         Source of the anti-collision losses and RSSI noise. Exactly two arrays of
         ``gain_db.size`` draws are taken (uniform, then standard normal), whatever the
         gains, so runs are reproducible and independent of which links read.
+    sensitivity_offset_db, modulation_offset_db, tag_loss_db : array_like
+        Per-entry tag deviations (broadcast to ``gain_db``; :class:`TagPopulation`): the
+        tag's threshold is ``tag_sensitivity_dbm + sensitivity_offset_db``; ``P_tag`` loses
+        ``tag_loss_db``; ``P_rx`` loses ``2 tag_loss_db`` and gains ``modulation_offset_db``.
+    inventory : callable, optional
+        ``inventory(powered, heard) -> seen_count`` (same shape, int): the Gen2 inventory
+        replacing ``anticollision_miss_probability`` (the uniform draws are still taken).
 
     Returns
     -------
@@ -103,17 +127,26 @@ def reader_response(
     u = rng.random(g.shape)
     z = rng.standard_normal(g.shape)
     with np.errstate(invalid="ignore"):
-        p_tag = np.asarray(b.tag_power_dbm(g), dtype=float)
-        p_rx = np.asarray(b.reader_rssi_dbm(g), dtype=float)
-    powered = p_tag >= b.tag_sensitivity_dbm
+        p_tag = np.asarray(b.tag_power_dbm(g), dtype=float) - tag_loss_db
+        p_rx = (np.asarray(b.reader_rssi_dbm(g), dtype=float) - 2.0 * np.asarray(tag_loss_db)
+                + modulation_offset_db)
+    p_tag = np.broadcast_to(p_tag, g.shape).astype(float)
+    p_rx = np.broadcast_to(p_rx, g.shape).astype(float)
+    powered = p_tag >= b.tag_sensitivity_dbm + np.asarray(sensitivity_offset_db)
     heard = p_rx >= b.reader_sensitivity_dbm
-    collided = powered & heard & (u < reader.anticollision_miss_probability)
-    read = powered & heard & ~collided
+    if inventory is None:
+        collided = powered & heard & (u < reader.anticollision_miss_probability)
+        read = powered & heard & ~collided
+        seen = read.astype(np.int64)
+    else:
+        seen = np.asarray(inventory(powered, heard), dtype=np.int64).reshape(g.shape)
+        read = powered & heard & (seen > 0)
+        collided = powered & heard & ~read
     rssi = p_rx + reader.rssi_noise_db * z
     if reader.rssi_resolution_db > 0:
         rssi = np.round(rssi / reader.rssi_resolution_db) * reader.rssi_resolution_db
     rssi = np.where(read, rssi, np.nan)
-    return ReaderResponse(p_tag, p_rx, powered, heard, collided, read, rssi)
+    return ReaderResponse(p_tag, p_rx, powered, heard, collided, read, rssi, seen)
 
 
 @dataclass(frozen=True)
@@ -136,6 +169,17 @@ class ReadAttempts:
         True pose of the active antenna, shape (n, 6) [x, y, z, yaw, pitch, roll].
     est_antenna : numpy.ndarray
         Active antenna pose composed from the estimated robot pose, shape (n, 6).
+    channel_index : numpy.ndarray
+        Index into ``plan.channels_hz`` of each attempt's channel, shape (n,), int64.
+    frequency_hz : numpy.ndarray
+        Channel of each attempt, shape (n,), float64, Hz.
+    antenna_velocity_mps : numpy.ndarray
+        True velocity of the active antenna, shape (n, 3), float64, m/s.
+    slot_s : float
+        Length of one antenna slot [s] (``1 / read_rate_hz``, divided by the antennas in
+        ``"all"`` mode): the time the antenna inventories, switching included.
+    plan : ChannelPlan
+        The channels in hop order and the dwell.
     """
 
     time_s: np.ndarray
@@ -145,16 +189,25 @@ class ReadAttempts:
     est_robot: np.ndarray
     true_antenna: np.ndarray
     est_antenna: np.ndarray
+    channel_index: np.ndarray
+    frequency_hz: np.ndarray
+    antenna_velocity_mps: np.ndarray
+    slot_s: float
+    plan: ChannelPlan
 
 
-def read_attempts(track: PoseTrack, mounts: list, reader: ReaderConfig) -> ReadAttempts:
+def read_attempts(track: PoseTrack, mounts: list, reader: ReaderConfig,
+                  plan: ChannelPlan | None = None, frequency_hz: float | None = None) -> ReadAttempts:
     """Read-attempt schedule along a track, with true and estimated antenna poses.
 
     Cycle ``k`` starts at ``t_0 + k / read_rate_hz`` for every start within the track.
     ``round_robin``: one attempt per cycle, antenna ``k mod n_antennas``. ``all``: one
     attempt per antenna, antenna ``a`` at ``t_k + a / (read_rate_hz n_antennas)``.
     Robot poses are interpolated linearly (heading along the shortest arc) and composed
-    with the mounts by :func:`pipeline.robot.antenna_poses`.
+    with the mounts by :func:`pipeline.robot.antenna_poses`. Each attempt's channel
+    follows ``plan`` (default: the reader's channels in listed order, region ``"none"``
+    at ``frequency_hz``) from the track's start; the antenna's velocity is the central
+    difference of its true pose over +-10 ms (one-sided at the track's ends).
     """
     from pipeline.robot.kinematics import antenna_poses
 
@@ -178,64 +231,30 @@ def read_attempts(track: PoseTrack, mounts: list, reader: ReaderConfig) -> ReadA
     rows = np.arange(len(t))
     true_ant = antenna_poses(true_robot, mounts)[rows, antenna]
     est_ant = antenna_poses(est_robot, mounts)[rows, antenna]
-    return ReadAttempts(t, cycle, antenna, true_robot, est_robot, true_ant, est_ant)
+
+    def pose_at(tq):
+        return antenna_poses(interpolate_poses(track.t_s, track.true_poses, tq), mounts)[rows, antenna]
+
+    vel = antenna_velocity(t, pose_at, t_range_s=(t0, t1))
+    plan = reader.channel_plan(frequency_hz) if plan is None else plan
+    ch = channel_schedule(t, plan, t0)
+    slot = 1.0 / reader.read_rate_hz / (1 if reader.antenna_mode == "round_robin" else n_ant)
+    return ReadAttempts(t, cycle, antenna, true_robot, est_robot, true_ant, est_ant, ch,
+                        plan.channels_hz[ch], vel, float(slot), plan)
 
 
-def in_range_mask(d_m: np.ndarray, reader: ReaderConfig, frequency_hz: float | None = None
-                  ) -> np.ndarray:
+def in_range_mask(d_m: np.ndarray, reader: ReaderConfig, frequency_hz: float | None = None,
+                  extra_margin_db=0.0) -> np.ndarray:
     """Pairs that could possibly be read, hence worth tracing: ``d <= max_range``.
 
     ``max_range = reader.link_budget(frequency_hz).max_range_m(margin_db=reader.range_margin_db)``:
     the free-space distance at which a tag seen with both antennas' maximum gains, plus
     the margin for constructive multipath, receives exactly its sensitivity.
+    ``extra_margin_db`` (broadcast to ``d_m``, e.g. per tag (m,)) widens it: a tag more
+    sensitive than nominal reaches farther.
     """
     r = float(reader.link_budget(frequency_hz).max_range_m(margin_db=reader.range_margin_db))
-    return np.asarray(d_m) <= r
-
-
-def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, frequency_hz: float,
-                 trace: dict):
-    """Trace the masked pairs (unique antenna poses only); gains (n, m) in dB and traced."""
-    from propagation import trace_links
-
-    n, m = mask.shape
-    gain_db = np.full((n, m), -np.inf)
-    traced = np.zeros((n, m), dtype=bool)
-    rows = np.flatnonzero(mask.any(axis=1))
-    if len(rows) == 0:
-        return gain_db, traced, 0
-    uniq, inv = np.unique(poses6[rows], axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    umask = np.zeros((len(uniq), m), dtype=bool)
-    np.logical_or.at(umask, inv, mask[rows])
-    kw = {"tag_normals": tags.normals, **trace}
-    links = trace_links(
-        scene,
-        uniq,
-        tags.positions_m,
-        frequency_hz=frequency_hz,
-        pairs=umask,
-        **kw,
-    )
-    g = np.asarray(links.gain_db, dtype=float)[inv]
-    t = np.asarray(links.traced, dtype=bool)[inv]
-    sel = mask[rows] & t
-    gain_db[rows] = np.where(sel, g, -np.inf)
-    traced[rows] = sel
-    return gain_db, traced, int(np.asarray(links.traced).sum())
-
-
-def _poses_frame(track: PoseTrack) -> pd.DataFrame:
-    cols = {"time_s": track.t_s}
-    for prefix, arr in (
-        ("true", track.true_poses),
-        ("odom", track.odom_poses),
-        ("est", track.est_poses),
-    ):
-        cols[f"{prefix}_x_m"] = arr[:, 0]
-        cols[f"{prefix}_y_m"] = arr[:, 1]
-        cols[f"{prefix}_theta_rad"] = arr[:, 2]
-    return pd.DataFrame(cols, columns=list(POSE_COLUMNS)).astype(POSE_COLUMNS)
+    return np.asarray(d_m) <= r * 10.0 ** (np.asarray(extra_margin_db, dtype=float) / 20.0)
 
 
 def reads_from_gains(
@@ -245,22 +264,44 @@ def reads_from_gains(
     traced: np.ndarray,
     reader: ReaderConfig,
     rng: np.random.Generator,
+    *,
+    h: np.ndarray | None = None,
+    dh_dpos: np.ndarray | None = None,
+    population: TagPopulation | None = None,
+    offsets_rad: np.ndarray | None = None,
+    aux_rng: np.random.Generator | None = None,
+    info: dict | None = None,
 ) -> pd.DataFrame:
     """The read table of a schedule whose gains are known (traced or from a cache).
 
     Parameters
     ----------
     attempts : ReadAttempts
-        Schedule and antenna poses, n attempts.
+        Schedule, channels and antenna poses, n attempts.
     tags : scenes.TagSet
         m tags.
     gain_db : numpy.ndarray
-        One-way gains (n, m), dB; -inf where not traced.
+        One-way gains (n, m) at each attempt's channel, dB; -inf where not traced.
     traced : numpy.ndarray
         bool (n, m), pairs that were traced (``in_range`` column).
     reader : ReaderConfig
     rng : numpy.random.Generator
-        Passed to :func:`reader_response`.
+        Passed to :func:`reader_response` (the RSSI noise and fixed-mode misses).
+    h, dh_dpos : numpy.ndarray, optional
+        Channel coefficients (n, m) and their position derivative (n, m, 3) at each
+        attempt's channel; without them ``phase_rad`` and ``doppler_hz`` are NaN.
+    population : TagPopulation, optional
+        Per-tag deviations; default the nominal tag.
+    offsets_rad : numpy.ndarray, optional
+        Phase offset per (antenna, channel index), (n_antennas, n_channels); default
+        drawn from ``aux_rng`` (:func:`pipeline.acquisition.phase.phase_offsets`).
+    aux_rng : numpy.random.Generator, optional
+        Phase offsets and noise, the pi ambiguity, Doppler noise and the Gen2 slot
+        counters; default a child of ``rng`` (``rng.spawn``: ``rng``'s own stream, hence the
+        RSSI noise and fixed-mode misses, are those of a reader without them).
+    info : dict, optional
+        Filled with JSON-able facts for the read log's metadata: the phase offsets
+        (``phase_offsets_rad``) and, for the Gen2 inventory, its dwell and slot counts.
 
     Returns
     -------
@@ -269,19 +310,58 @@ def reads_from_gains(
     """
     att = attempts
     n, m = len(att.time_s), len(tags)
+    aux = rng.spawn(1)[0] if aux_rng is None else aux_rng
     geo_t = antenna_frame_angles(att.true_antenna, tags.positions_m)
     geo_e = antenna_frame_angles(att.est_antenna, tags.positions_m)
-    resp = reader_response(np.asarray(gain_db, dtype=float).reshape(-1), reader, rng)
+    tag_row = np.tile(np.arange(m), n)
+    pop = {} if population is None else {
+        "sensitivity_offset_db": population.sensitivity_offset_db[tag_row],
+        "modulation_offset_db": population.modulation_offset_db[tag_row],
+        "tag_loss_db": population.detuning_loss_db[tag_row]}
+    info = {} if info is None else info
+    inventory = None
+    if reader.inventory == "gen2":
+        stats = InventoryStats()
+        dwell = reader.gen2.dwell_s(att.slot_s)
+
+        def inventory(powered, heard):
+            return inventory_counts(powered.reshape(n, m), heard.reshape(n, m), dwell,
+                                    reader.gen2, aux, stats=stats)
+
+        info["gen2"] = {"dwell_s": dwell, "stats": stats}
+    resp = reader_response(np.asarray(gain_db, dtype=float).reshape(-1), reader, rng,
+                           inventory=inventory, **pop)
+    if "gen2" in info:
+        st = info["gen2"].pop("stats")
+        info["gen2"].update(n_empty=st.n_empty, n_single=st.n_single, n_collided=st.n_collided,
+                            slot_efficiency=st.efficiency, inventory_time_s=st.time_s)
+    if offsets_rad is None:
+        offsets_rad = phase_offsets(max(int(att.antenna.max(initial=0)) + 1, 1),
+                                    len(att.plan.channels_hz), aux)
+    info["phase_offsets_rad"] = np.asarray(offsets_rad).tolist()
     rep = np.repeat
+    if h is None:
+        phase = np.full(n * m, np.nan)
+        dop = np.full(n * m, np.nan)
+    else:
+        hh = np.asarray(h, complex).reshape(-1)
+        off = np.asarray(offsets_rad)[att.antenna, att.channel_index]
+        phase = reported_phase_rad(hh, rep(off, m), reader.phase_noise_rad, aux,
+                                   reader.phase_resolution_rad)
+        dop = np.full(n * m, np.nan) if dh_dpos is None else doppler_hz(
+            hh, np.asarray(dh_dpos, complex).reshape(-1, 3), rep(att.antenna_velocity_mps, m, axis=0))
+        dop = dop + reader.doppler_noise_hz * aux.standard_normal(n * m)
     cols = {
         "time_s": rep(att.time_s, m),
         "cycle": rep(att.cycle, m),
         "antenna": rep(att.antenna, m),
-        "tag_id": pd.Categorical.from_codes(
-            np.tile(np.arange(m), n), categories=[str(i) for i in tags.ids]
-        ),
+        "tag_id": pd.Categorical.from_codes(tag_row, categories=[str(i) for i in tags.ids]),
         "read": resp.read,
         "rssi_dbm": resp.rssi_dbm,
+        "frequency_hz": rep(att.frequency_hz, m),
+        "phase_rad": np.where(resp.read, phase, np.nan),
+        "doppler_hz": np.where(resp.read, dop, np.nan),
+        "seen_count": resp.seen_count,
     }
     for prefix, p in (("true", att.true_antenna), ("est", att.est_antenna)):
         for j, name in enumerate(("x_m", "y_m", "z_m", "yaw_rad")):
@@ -298,127 +378,3 @@ def reads_from_gains(
         in_range=np.asarray(traced, dtype=bool).reshape(-1),
     )
     return pd.DataFrame(cols, columns=list(READ_COLUMNS)).astype(READ_COLUMNS)
-
-
-def simulate_reads(
-    scene,
-    robot,
-    track,
-    reader: ReaderConfig,
-    rng: np.random.Generator,
-    *,
-    trace: dict | None = None,
-    cache_dir: str | Path | None = None,
-    tags=None,
-    frequency_hz: float | None = None,
-) -> ReadLog:
-    """Simulate the reader along a robot track in a ray-traced scene.
-
-    Parameters
-    ----------
-    scene : scenes.Scene
-        The scene; its tags are the population the reader inventories unless `tags`
-        is given.
-    robot : pipeline.robot.Robot
-        Supplies the antenna mounts (``robot.antennas``).
-    track : PoseTrack, LocalizationResult, Trajectory or tuple
-        True and estimated robot poses over time, see
-        :func:`pipeline.acquisition.track.as_pose_track`; a tuple is
-        ``(true_poses, est_poses, t_s)``.
-    reader : ReaderConfig
-        Read rate, antenna multiplexing, noise, quantisation, powers, sensitivities and
-        losses (the study's ``[reader]``).
-    rng : numpy.random.Generator
-        Source of anti-collision losses and RSSI noise.
-    trace : dict, optional
-        Keyword arguments for :func:`propagation.trace_links` (``max_depth``,
-        ``samples_per_src``, ``reader_pattern``, ``tag_pattern``, ...);
-        ``frequency_hz`` is the argument below and ``pairs`` comes from the range mask.
-    cache_dir : str or Path, optional
-        Trace cache directory passed to :func:`propagation.trace_links`.
-    tags : scenes.TagSet, optional
-        The tags this tour can read (e.g. only the training or only the held-out
-        layout); default ``scene.tags``.
-    frequency_hz : float, optional
-        Carrier frequency [Hz] (default: :class:`propagation.LinkBudget`'s).
-
-    Returns
-    -------
-    ReadLog
-        One row per (attempt, tag) with columns :data:`READ_COLUMNS`; rows of untraced
-        (out-of-range) pairs have ``in_range`` False, ``read`` False, ``gain_db`` -inf.
-        ``metadata`` counts the traced pairs (``n_pairs_traced``).
-    """
-    trk = as_pose_track(track)
-    trace = dict(trace or {})
-    for key in ("frequency_hz", "pairs"):
-        if key in trace:
-            raise ValueError(f"simulate_reads: trace[{key!r}] is set by the reader, remove it")
-    if cache_dir is not None:
-        trace["cache_dir"] = cache_dir
-    budget = reader.link_budget(frequency_hz)
-    mounts = list(robot.antennas)
-    att = read_attempts(trk, mounts, reader)
-    tags = scene.tags if tags is None else tags
-    n, m = len(att.time_s), len(tags)
-    d_true = antenna_frame_angles(att.true_antenna, tags.positions_m).d_m
-    mask = in_range_mask(d_true, reader, budget.frequency_hz)
-    gain_db, traced, n_traced = _trace_gains(scene, tags, att.true_antenna, mask,
-                                             budget.frequency_hz, trace)
-    reads = reads_from_gains(att, tags, gain_db, traced, reader, rng)
-    excess_db = _check_margin(gain_db, traced, d_true, reader.range_margin_db, budget)
-    meta = {
-        "scene": scene.name,
-        "scene_hash": scene.content_hash(),
-        "antennas": [getattr(a, "name", str(i)) for i, a in enumerate(mounts)],
-        "tag_ids": [str(i) for i in tags.ids],
-        "reader": reader_metadata(reader, budget),
-        "trace": {k: v for k, v in trace.items() if k not in ("cache_dir", "progress")},
-        "n_slots": int(n),  # (cycle, active antenna) slots; rows = n_slots * n_tags
-        "n_pairs": int(n * m),
-        "n_pairs_in_range": int(mask.sum()),
-        "n_pairs_traced": int(n_traced),
-        "max_range_m": float(budget.max_range_m(margin_db=reader.range_margin_db)),
-        "range_margin_db": float(reader.range_margin_db),
-        "max_excess_over_free_space_db": excess_db,
-    }
-    logger.info(
-        "simulate_reads: %d antenna slots x %d tags, %d pairs in range (%d unique traced), %d reads",
-        n,
-        m,
-        int(mask.sum()),
-        n_traced,
-        int(reads["read"].sum()),
-    )
-    return ReadLog(reads=reads, poses=_poses_frame(trk), metadata=meta)
-
-
-def _check_margin(gain_db, traced, d_m, range_margin_db: float, budget) -> float | None:
-    """Largest excess of a traced gain over free space with maximum pattern gains [dB].
-
-    Links beyond ``max_range_m(range_margin_db)`` are not traced; an excess above the
-    margin on the traced links says some of them might have been readable. The value is
-    recorded in the read log's metadata and reported (metrics ``reads.range_margin``,
-    report); the log says so at INFO level. None when nothing was traced.
-    """
-    if not traced.any():
-        return None
-    from propagation import free_space_gain_db
-
-    b = budget
-    fs = free_space_gain_db(
-        d_m[traced],
-        b.frequency_hz,
-        gain_tx_dbi=b.reader_antenna_gain_dbi,
-        gain_rx_dbi=b.tag_antenna_gain_dbi,
-    )
-    excess = float(np.max(gain_db[traced] - fs))
-    if excess > range_margin_db:
-        logger.info(
-            "ray-traced gain exceeds free space with maximum pattern gains by %.1f dB, more "
-            "than range_margin_db = %.1f dB: tags beyond the traced range might have been "
-            "readable (recorded in metrics.json reads.range_margin)",
-            excess,
-            range_margin_db,
-        )
-    return excess

@@ -34,6 +34,10 @@ READ_COLUMNS: dict[str, str] = {
     "tag_id": "category",  # tag identifier
     "read": "bool",  # reported by the reader in this attempt
     "rssi_dbm": "float32",  # reported RSSI (noise, quantisation); NaN if not read
+    "frequency_hz": "float64",  # channel of the attempt (regional hop sequence) [Hz]
+    "phase_rad": "float32",  # reported backscatter phase in [0, 2 pi), mod(-arg h^2 + ...); NaN if not read
+    "doppler_hz": "float32",  # reported Doppler shift, positive approaching; NaN if not read
+    "seen_count": "int16",  # singulations of the tag in the attempt (Gen2 inventory; 0/1 fixed)
     "true_ant_x_m": "float32",
     "true_ant_y_m": "float32",
     "true_ant_z_m": "float32",

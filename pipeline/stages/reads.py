@@ -37,7 +37,8 @@ def stage_reads(ctx) -> dict:
     """Simulate the reader along both tracks (ray-traced); write reads/poses Parquet files.
 
     The ``[reader]`` section is the acquisition package's own
-    :class:`pipeline.acquisition.ReaderConfig`, read at the study's ``frequency_hz``.
+    :class:`pipeline.acquisition.ReaderConfig`, traced at the study's ``frequency_hz``;
+    each attempt's gain, phase and Doppler are those of its regional channel.
     """
     from pipeline.acquisition import simulate_reads
 
@@ -65,5 +66,6 @@ def stage_reads(ctx) -> dict:
 
 
 STAGE = Stage("reads", stage_reads, ("seed", "robot", "reader") + TRACING_KEYS, ("scene", "tour"),
-              version=2,  # 2: each tour reads its own tag layout; range-margin check in metadata
+              version=3,  # 3: channel hopping, phase, Doppler, tag population, Gen2 inventory
+              # (2: each tour reads its own tag layout; range-margin check in metadata)
               description="ray-traced reader simulation")

@@ -54,7 +54,9 @@ def _reader(**kw):
 
 
 def test_out_of_range_tags_are_not_traced(scene, track, tmp_path):
-    reader = _reader(budget=SHORT_BUDGET, range_margin_db=6.0)
+    # the carrier only and nominal tags: the range is the budget's at 865 MHz
+    reader = _reader(budget=SHORT_BUDGET, range_margin_db=6.0, region="none",
+                     tag_sensitivity_spread_db=0.0)
     assert reader.link_budget().max_range_m(margin_db=6.0) == pytest.approx(2.5, rel=0.01)
     log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(0), trace=TRACE)
     r = log.reads
@@ -79,9 +81,13 @@ def test_reads_consistent_and_geometry(scene, track):
     assert not (r["read"] & ~(r["powered"] & r["in_range"])).any()
     np.testing.assert_array_equal(r["rssi_dbm"].isna(), ~r["read"])
     assert r["read"].sum() > 0  # near tags at 1-2 m are read by a 27 dBm reader
-    # Every read satisfies both thresholds of the budget (before RSSI noise).
+    # Every read satisfies both thresholds of the budget (before RSSI noise), the tag's
+    # own sensitivity (drawn per tag, recorded in the metadata); float32 storage.
     rd = r[r["read"]]
-    assert (rd["tag_power_dbm"] >= reader.tag_sensitivity_dbm).all()
+    pop = log.metadata["tag_population"]
+    offset = dict(zip(pop["tag_ids"], pop["sensitivity_offset_db"], strict=True))
+    threshold = reader.tag_sensitivity_dbm + rd["tag_id"].astype(str).map(offset).astype(float)
+    assert (rd["tag_power_dbm"] >= threshold - 1e-4).all()
     assert (rd["rx_power_dbm"] >= reader.reader_sensitivity_dbm).all()
     # Geometry columns equal the antenna-frame geometry of the composed antenna poses.
     ant = antenna_poses(track.true_poses, Robot().antennas)[np.arange(21), np.arange(21) % 2]
@@ -156,3 +162,49 @@ def test_trace_keys_owned_by_reader(scene, track):
         simulate_reads(
             scene, Robot(), track, _reader(), np.random.default_rng(0), trace={"frequency_hz": 1e9}
         )
+
+
+def test_channels_phase_and_doppler_columns(scene, track, tmp_path):
+    reader = _reader(channel_dwell_s=0.5)  # ETSI: 4 channels, a hop every 0.5 s of the 2 s track
+    log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(2), trace=TRACE,
+                         cache_dir=tmp_path / "cache")
+    r = log.reads
+    hops = log.metadata["channels"]["hop_sequence_hz"]
+    assert sorted(hops) == [865.7e6, 866.3e6, 866.9e6, 867.5e6]
+    # attempt at t uses hop floor(t / 0.5) of the sequence
+    k = np.floor(r["time_s"].to_numpy() / 0.5 + 1e-9).astype(int) % 4
+    np.testing.assert_array_equal(r["frequency_hz"].to_numpy(), np.asarray(hops)[k])
+    rd = r["read"].to_numpy()
+    ph = r["phase_rad"].to_numpy()
+    assert rd.sum() > 0
+    assert np.all((ph[rd] >= 0) & (ph[rd] < 2 * np.pi)) and np.isnan(ph[~rd]).all()
+    dop = r["doppler_hz"].to_numpy()
+    # 0.4 m/s antenna: |f_D| <= 2 v / lambda = 2.3 Hz for every path (the direction
+    # derivative of each path's phase is bounded by the wavenumber)
+    assert np.isfinite(dop[rd]).all() and np.isnan(dop[~rd]).all()
+    assert np.abs(dop[rd]).max() <= 2 * 0.4 * 867.5e6 / 299_792_458.0 * 1.001
+    np.testing.assert_array_equal(r["seen_count"].to_numpy(), rd.astype(int))  # fixed inventory
+    assert len(log.metadata["phase_offsets_rad"]) == 2 and len(log.metadata["phase_offsets_rad"][0]) == 4
+    assert len(log.metadata["tag_population"]["sensitivity_offset_db"]) == 3
+    # one trace per antenna position: another region on the same cache traces nothing new
+    packs = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*") if p.is_file()}
+    assert packs
+    fcc = simulate_reads(scene, Robot(), track, _reader(region="FCC", tx_power_dbm=28.0),
+                         np.random.default_rng(2), trace=TRACE, cache_dir=tmp_path / "cache")
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*") if p.is_file()} == packs
+    assert fcc.reads["frequency_hz"].between(902e6, 928e6).all()
+    log.write(tmp_path / "run")
+    back = ReadLog.read(tmp_path / "run")
+    np.testing.assert_array_equal(back.reads["phase_rad"].isna(), ~rd)
+
+
+def test_gen2_inventory_along_a_track(scene, track):
+    reader = _reader(inventory="gen2")
+    log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(3), trace=TRACE)
+    r = log.reads
+    g2 = log.metadata["gen2"]
+    assert g2["dwell_s"] == pytest.approx(0.1 - 0.005)  # 10 Hz slots less the switching time
+    assert g2["n_single"] == int(r["seen_count"].sum()) > 0
+    # a powered, heard tag in a 95 ms dwell with at most two others is read many times
+    assert r.loc[r["read"], "seen_count"].min() >= 1 and r["seen_count"].max() > 5
+    assert not (r["read"] & ~r["powered"]).any()

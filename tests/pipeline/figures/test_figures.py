@@ -61,6 +61,8 @@ def _reads(poses, tags_xyz, rng):
             rows.append({
                 "time_s": p.time_s, "cycle": int(_), "antenna": 0, "tag_id": f"T{k}",
                 "read": read, "rssi_dbm": rssi + rng.normal(0, 1) if read else np.nan,
+                "frequency_hz": 866.3e6, "phase_rad": rng.uniform(0, 2 * np.pi) if read else np.nan,
+                "doppler_hz": 0.0 if read else np.nan, "seen_count": int(read),
                 "true_ant_x_m": p.true_x_m, "true_ant_y_m": p.true_y_m, "true_ant_z_m": 1.0,
                 "true_ant_yaw_rad": p.true_theta_rad, "est_ant_x_m": p.est_x_m,
                 "est_ant_y_m": p.est_y_m, "est_ant_z_m": 1.0, "est_ant_yaw_rad": p.est_theta_rad,
