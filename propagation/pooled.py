@@ -105,6 +105,13 @@ def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
                | (solid_material_at(scene, lat) != ""))
     tree = cKDTree(lat)
     near = tree.query_ball_point(pos, r=radius_factor * float(spacing_m))
+    # A lattice point that only one position would pool saves no shooting: that
+    # position shoots its own rays (its candidates are then its own, as in direct tracing).
+    users = np.zeros(len(lat), np.int64)
+    for i in range(len(pos)):
+        users[[k for k in near[i] if usable[k]] or [nearest[i]]] += 1
+    lone = np.array([users[nearest[i]] == 1 and all(not usable[k] or k == nearest[i] for k in near[i])
+                     for i in range(len(pos))], bool)
     chunks: list[PoolChunk] = []
     cur_pos: list[int] = []
     cur_shoot: dict = {}
@@ -117,7 +124,7 @@ def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
         slot = {k: i for i, k in enumerate(keys)}
         nbs = []
         for i in cur_pos:
-            own = [slot[k] for k in _sources_of(i, near, usable, nearest)]
+            own = [slot[k] for k in _sources_of(i, near, usable, nearest, lone)]
             nbs.append(np.asarray(own, np.int64))
         chunks.append(PoolChunk(np.asarray(cur_pos, np.int64), shoot, nbs))
         cur_pos.clear()
@@ -125,10 +132,10 @@ def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
 
     for cell in range(len(lat)):  # lattice_points returns them in lexicographic order
         members = np.flatnonzero(nearest == cell)
-        new = {k for i in members for k in _sources_of(i, near, usable, nearest)} - set(cur_shoot)
+        new = {k for i in members for k in _sources_of(i, near, usable, nearest, lone)} - set(cur_shoot)
         if cur_pos and len(cur_shoot) + len(new) > max(1, int(max_shoot_per_call)):
             flush()
-            new = {k for i in members for k in _sources_of(i, near, usable, nearest)}
+            new = {k for i in members for k in _sources_of(i, near, usable, nearest, lone)}
         for k in sorted(new, key=str):
             cur_shoot[k] = True
         cur_pos.extend(int(i) for i in members)
@@ -136,8 +143,10 @@ def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
     return chunks
 
 
-def _sources_of(i, near, usable, nearest) -> list:
+def _sources_of(i, near, usable, nearest, lone) -> list:
     """Shooting points of position i: usable lattice neighbours, or itself ("own", i)."""
+    if lone[i]:
+        return [("own", int(i))]
     srcs = [int(k) for k in near[i] if usable[k] and k != nearest[i]]
     first = [int(nearest[i])] if usable[nearest[i]] else [("own", int(i))]
     return first + srcs
@@ -232,18 +241,22 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     c_tgt = cand.target_indices.numpy().astype(np.int64)
     c_ok = ~cand.valid.numpy().astype(bool)  # candidates (not already-final paths)
     keys = _candidate_keys(cand) if len(c_src) else np.zeros((0, 1), np.int64)
-    if len(c_src):
-        # Keep the chains that are valid paths at their own lattice point: ~7 % of the
-        # candidates on corridor_lab, so pooling several neighbours stays cheap. A chain
-        # valid at an antenna position but at none of its lattice neighbours is lost.
-        probe = cand.gather(mi.UInt(np.arange(len(c_src), dtype=np.uint32)))
+    # Keep the chains that are valid paths at their own lattice point: ~7 % of the
+    # candidates on corridor_lab, so pooling several neighbours stays cheap. A chain valid
+    # at an antenna position but at none of its lattice neighbours is lost. Only lattice
+    # points some position pools as a further neighbour need this test.
+    further = np.zeros(len(lat), bool)
+    for nb in neighbours:
+        further[np.asarray(nb, np.int64)[1:]] = True
+    c_valid = np.zeros(len(c_src), bool)
+    probed = np.flatnonzero(c_ok & further[c_src]) if len(c_src) else np.zeros(0, np.int64)
+    if len(probed):
+        probe = cand.gather(mi.UInt(probed.astype(np.uint32)))
         probe = ImageMethod()(mi_scene, probe, False, True, lat_mi, tgt_mi)
         _field(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
                discard=False)
-        c_valid = c_ok & probe.valid.numpy().astype(bool)
+        c_valid[probed] = probe.valid.numpy().astype(bool)
         del probe
-    else:
-        c_valid = c_ok
     # the first neighbour (the nearest lattice point) gives all its candidates, the
     # others only the chains valid where they were shot
     all_of = [np.flatnonzero(c_ok & (c_src == k)) for k in range(len(lat))]

@@ -96,6 +96,13 @@ def test_pooling_plan_chunks_and_neighbours(corridor_scene):
             # nearest lattice point first, all within the pooling radius
             np.testing.assert_allclose(c.shoot_m[nb[0]], lat[nearest[i]])
             assert np.all(np.linalg.norm(c.shoot_m[nb] - pos[i], axis=1) <= 1.2 * 0.25 + 1e-9)
+    # a lone position (no other position pools its lattice point) shoots its own rays:
+    # a lattice point would save nothing and its candidates come from up to 0.22 m away
+    lone = np.array([[2.0, 1.2, 0.7], [6.0, 1.1, 0.9]])
+    plan = pooling_plan(corridor_scene, lone, 0.25, max_shoot_per_call=6)
+    for c in plan:
+        for i, nb in zip(c.positions, c.neighbours, strict=True):
+            np.testing.assert_allclose(c.shoot_m[nb], lone[i][None])
     with pytest.raises(ValueError, match="lattice spacing"):
         lattice_points(pos, 0.0)
 
