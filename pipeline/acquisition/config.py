@@ -45,7 +45,8 @@ class ReaderConfig:
     Support", rev. 3.0, 2013), below the several-dB small-scale fading the ray tracer
     itself produces. ``rssi_resolution_db``: the step Impinj Speedway readers report RSSI
     in (same note); 0 disables quantisation. ``anticollision_miss_probability``: slot
-    collisions and lost replies in the Gen2 Q algorithm, independent per attempt.
+    collisions and lost replies lumped into one probability, independent per attempt
+    (``inventory = "fixed"`` only).
     ``range_margin_db``: added to the free-space link budget (maximum pattern gains) when
     deciding which antenna-tag pairs could possibly be read and so need tracing. The
     two-ray bound (20 log10(2) = 6 dB) is not enough in a corridor: traced on
@@ -70,12 +71,14 @@ class ReaderConfig:
     Lombardini, "A phase-based technique for localization of UHF-RFID tags moving on a
     conveyor belt", IEEE Sensors J. 15(1), 2015); ``phase_resolution_rad``: Impinj readers
     report the phase in 12 bits (Speedway "Low Level User Data Support" note).
-    ``inventory``: ``"fixed"`` misses a powered, audible tag with
-    ``anticollision_miss_probability`` per attempt; ``"gen2"`` runs the EPC Gen2 Q
-    algorithm for the antenna's dwell in each slot (:mod:`pipeline.acquisition.gen2`,
-    ``[reader.gen2]``): reads (``seen_count``) and misses follow from the tags in the field.
-    ``"fixed"`` stays the default because the truth, evaluation and localisation stages
-    model misses as that constant probability. Tag population (:mod:`pipeline.acquisition.population`):
+    ``inventory``: ``"gen2"`` (the default) runs the EPC Gen2 Q algorithm for the
+    antenna's dwell in each slot (:mod:`pipeline.acquisition.gen2`, ``[reader.gen2]``):
+    reads (``seen_count``) and misses follow from the tags in the field and the link
+    budget, and the truth, evaluation and localisation stages miss a closing tag with
+    ``1 - p_singulated(n)``, ``n`` the tags whose links close in that antenna slot
+    (:mod:`pipeline.acquisition.singulation`); ``"fixed"`` (the reader of studies before
+    Gen2) misses a powered, audible tag with ``anticollision_miss_probability`` per
+    attempt, independently, and the truth with that constant. Tag population (:mod:`pipeline.acquisition.population`):
     a 1 dB spread of chip sensitivity and of backscatter among tags of one model is an
     assumption of the order of tag-to-tag spreads in tag benchmarks; a metal detuning
     loss of ~10 dB is Griffin & Durgin's (2009) order of magnitude for a dipole tag on
@@ -93,7 +96,7 @@ class ReaderConfig:
     rssi_noise_db: float = option(1.0, "Reader RSSI noise standard deviation [dB].")
     rssi_resolution_db: float = option(0.5, "Reader RSSI quantisation step [dB].")
     anticollision_miss_probability: float = option(
-        0.05, "Probability that a powered, audible tag is still missed in a cycle."
+        0.05, "Probability that a powered, audible tag is still missed in a cycle ('fixed' inventory)."
     )
     tx_power_dbm: float = option(
         LinkBudget.tx_power_dbm,
@@ -122,7 +125,7 @@ class ReaderConfig:
         2.0 * math.pi / 4096, "Reported phase quantisation step [rad] (Impinj: 12 bits); 0: none.")
     doppler_noise_hz: float = option(0.0, "Standard deviation of the reported Doppler's noise [Hz].")
     inventory: str = option(
-        "fixed", "Misses: 'fixed' (anticollision_miss_probability) or 'gen2' (Q-algorithm inventory).")
+        "gen2", "Misses: 'gen2' (Q-algorithm inventory) or 'fixed' (anticollision_miss_probability).")
     gen2: Gen2Config = option(factory=Gen2Config, doc="EPC Gen2 link timing and Q algorithm.")
     tag_sensitivity_spread_db: float = option(
         0.0, "Standard deviation of each tag's chip sensitivity around tag_sensitivity_dbm [dB].")

@@ -194,7 +194,8 @@ class InventoryStats:
 
 
 def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Generator,
-              timing: Gen2Timing | None = None, stats: InventoryStats | None = None) -> np.ndarray:
+              timing: Gen2Timing | None = None, stats: InventoryStats | None = None,
+              until_all_read: bool = False) -> np.ndarray:
     """Singulations of each tag in one antenna dwell of Q-algorithm inventory.
 
     Parameters
@@ -212,6 +213,10 @@ def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Ge
         Default ``link_timing(cfg)``.
     stats : InventoryStats, optional
         Accumulates the slot outcomes when given.
+    until_all_read : bool
+        Stop as soon as every powered, heard tag has been singulated once (the rest of
+        the dwell cannot change which tags were read; ``stats.time_s`` then grows by the
+        time used). The random stream up to that slot is the same as without it.
 
     Returns
     -------
@@ -228,6 +233,9 @@ def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Ge
         st.time_s += dwell_s
         return counts
     audible = heard[players]
+    n_left = int(audible.sum())  # audible tags not yet read once (for until_all_read)
+    if until_all_read and n_left == 0:
+        return counts
     unread = np.ones(len(players), bool)
     qfp = float(cfg.q_initial)
     q = cfg.q_initial
@@ -264,6 +272,11 @@ def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Ge
                 st.n_single += 1
                 counts[players[loud[0]]] += 1
                 unread[loud[0]] = False
+                if until_all_read and counts[players[loud[0]]] == 1:
+                    n_left -= 1
+                    if n_left == 0:
+                        st.time_s += t
+                        return counts
             else:
                 st.n_collided += 1
                 qfp = min(float(_Q_MAX), qfp + c)

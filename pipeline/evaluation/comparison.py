@@ -20,9 +20,9 @@ rho, the chapter's Fig. 6 (:func:`rho_points_truth`, :func:`rho_vs_truth`)
     At world points around an antenna pose with ray-traced gains,
     ``rho_true = fs_true * p_true`` with fs_true the noise-free RSSI normalised
     by the model's range (0 where the link does not close) and
-    ``p_true = closed * (1 - miss_probability)``; the model's
-    ``sensor.rho(d, alpha)`` at the points' (d, alpha) in the TRUE antenna
-    frame. MAE, RMSE, Pearson correlation.
+    ``p_true = closed * (1 - miss_probability)`` (Gen2: :mod:`pipeline.acquisition.singulation`);
+    the model's ``sensor.rho(d, alpha)`` at the points' (d, alpha) in the TRUE
+    antenna frame. MAE, RMSE, Pearson correlation.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from .geometry import antenna_frame_geometry
 from .interface import check_sensor
 from .metrics import ErrorStats, brier_score, error_stats, nan_to_none
 from .tables import require_columns
-from .truth import TruthGrid, true_detected, true_rssi_dbm
+from .truth import TruthGrid, check_miss_probability, true_detected, true_rssi_dbm
 
 __all__ = [
     "DetectionComparison",
@@ -303,7 +303,7 @@ def rho_points_truth(
     gain_db,
     budget,
     rssi_range_dbm,
-    miss_probability: float = 0.0,
+    miss_probability=0.0,
     grid_shape: tuple | None = None,
 ) -> RhoPoints:
     """True rho at `points_m` seen from `antenna_pose` (see module doc).
@@ -319,8 +319,10 @@ def rho_points_truth(
     budget : propagation.LinkBudget
     rssi_range_dbm : (float, float)
         Normalisation range; use the sensor model's.
-    miss_probability : float
-        Anti-collision miss probability in [0, 1).
+    miss_probability : float or array_like, shape (k,)
+        Anti-collision miss probability of a closing link in [0, 1): one for the pose
+        (the ``"fixed"`` reader's constant, or the Gen2 reader's at this pose), or one per
+        point.
     grid_shape : (int, int), optional
         (n_d, n_alpha) when the points are a row-major polar grid (for the figure).
 
@@ -339,9 +341,7 @@ def rho_points_truth(
         raise ValueError(f"gain_db has {g.shape[0]} entries for {pts.shape[0]} points")
     if grid_shape is not None and int(np.prod(grid_shape)) != pts.shape[0]:
         raise ValueError(f"grid_shape {grid_shape} does not match {pts.shape[0]} points")
-    q = float(miss_probability)
-    if not 0.0 <= q < 1.0:
-        raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+    q = check_miss_probability(miss_probability, (pts.shape[0],), "one per point")
     geo = antenna_frame_geometry(pose[None], pts)
     closed = true_detected(g, budget)
     rssi = true_rssi_dbm(np.where(closed, g, 0.0), budget)

@@ -4,7 +4,9 @@ A cell of the planar RSSI field (``propagation.RssiField``) is *covered* when th
 probability of reading a tag there exceeds one half: the backscatter link closes
 (``LinkBudget.detected``: tag power >= tag sensitivity and RSSI >= reader
 sensitivity, docs/physics.md "The backscatter link") and the reader's anti-collision
-miss probability q leaves ``1 - q > 0.5``. The field's gain is the reader side
+miss probability q leaves ``1 - q > 0.5`` (q: the ``"fixed"`` reader's constant, or the
+Gen2 reader's for a tag joining the field pose's antenna slot,
+:func:`pipeline.acquisition.singulation.miss_probability_at_poses`). The field's gain is the reader side
 only (an isotropic receiver), so the tag antenna's gain
 ``budget.tag_antenna_gain_dbi`` is added before the budget decides.
 """
@@ -14,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .truth import check_miss_probability
 
 __all__ = ["CoverageResult", "detection_coverage"]
 
@@ -42,7 +46,7 @@ class CoverageResult:
 
 
 def detection_coverage(plane_gain_db, budget, free=None,
-                       miss_probability: float = 0.0) -> CoverageResult:
+                       miss_probability=0.0) -> CoverageResult:
     """Fraction of field cells where a tag is read with probability > 0.5.
 
     Parameters
@@ -55,9 +59,9 @@ def detection_coverage(plane_gain_db, budget, free=None,
         ``detected`` applies both thresholds.
     free : array_like of bool, same shape, optional
         Cells to consider (e.g. those inside the scene's free space); all if None.
-    miss_probability : float
-        Anti-collision miss probability q in [0, 1); a closed link is read with
-        probability ``1 - q``.
+    miss_probability : float or array_like, same shape as ``plane_gain_db``
+        Anti-collision miss probability q in [0, 1) of a closed link (read with
+        probability ``1 - q``): one for the plane or one per cell.
 
     Returns
     -------
@@ -67,9 +71,8 @@ def detection_coverage(plane_gain_db, budget, free=None,
     mask = np.ones(g.shape, bool) if free is None else np.asarray(free, dtype=bool).ravel()
     if mask.shape != g.shape:
         raise ValueError(f"free has {mask.size} cells, plane_gain_db has {g.size}")
-    q = float(miss_probability)
-    if not 0.0 <= q < 1.0:
-        raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+    q = check_miss_probability(miss_probability, np.shape(plane_gain_db), "one per cell")
+    q = q if np.ndim(q) == 0 else np.asarray(q).ravel()[mask]
     with np.errstate(invalid="ignore"):
         closed = np.asarray(budget.detected(g[mask] + budget.tag_antenna_gain_dbi), dtype=bool)
     covered = closed & ((1.0 - q) > 0.5)

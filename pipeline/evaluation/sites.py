@@ -8,7 +8,9 @@ every tag site in reach (:func:`scenes.tagsites.tag_sites`: a grid on every vert
 surface facing free space, with the tag dipole in the surface plane), and compared with
 the model at each (pose, site) pair:
 
-- ``p_true = closed * (1 - miss_probability)``, ``fs_true`` the noise-free RSSI
+- ``p_true = closed * (1 - miss_probability)`` (the ``"fixed"`` reader's constant, or the
+  Gen2 reader's per pose: a tag at the site joins the pose's antenna slot,
+  :func:`pipeline.acquisition.singulation.miss_probability_at_poses`), ``fs_true`` the noise-free RSSI
   normalised by the model's range (0 where the link does not close), ``rho_true =
   fs_true * p_true`` (as :func:`~.comparison.rho_points_truth`);
 - the model's ``fT``, ``fs``, ``rho`` at the site's (d, alpha) in the TRUE antenna frame.
@@ -33,7 +35,7 @@ from scenes.fileio import atomic_save_npz
 from .geometry import antenna_frame_geometry
 from .interface import check_sensor
 from .metrics import error_stats, nan_to_none
-from .truth import true_detected, true_rssi_dbm
+from .truth import check_miss_probability, true_detected, true_rssi_dbm
 
 __all__ = ["SiteComparison", "SiteTruth", "obstructed_pairs", "site_comparison"]
 
@@ -161,7 +163,7 @@ def _subset_stats(sel, rho_m, rho_t, ft_m, p_t, fs_dbm_m, rssi_t, closed) -> dic
     }
 
 
-def site_comparison(truth: SiteTruth, sensor, budget, miss_probability: float = 0.0,
+def site_comparison(truth: SiteTruth, sensor, budget, miss_probability=0.0,
                     d_max_m: float | None = None) -> SiteComparison:
     """Compare ``sensor`` with the ray-traced truth at every traced (pose, site) pair.
 
@@ -171,8 +173,9 @@ def site_comparison(truth: SiteTruth, sensor, budget, miss_probability: float = 
     sensor : SensorLike
         Its ``rssi_range_dbm`` normalises the true RSSI.
     budget : propagation.LinkBudget
-    miss_probability : float
-        Reader anti-collision miss probability in [0, 1).
+    miss_probability : float or array_like, shape (p,) or (p, s)
+        Reader anti-collision miss probability of a closing link in [0, 1): one for all
+        pairs, one per antenna pose (p,), or one per pair (p, s).
     d_max_m : float, optional
         Only pairs with d <= d_max_m (the model's training domain) are compared.
 
@@ -181,9 +184,11 @@ def site_comparison(truth: SiteTruth, sensor, budget, miss_probability: float = 
     SiteComparison
     """
     sensor = check_sensor(sensor)
-    q = float(miss_probability)
-    if not 0.0 <= q < 1.0:
-        raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+    shape = (len(truth.antenna_poses), len(truth.positions_m))
+    q = np.asarray(miss_probability, dtype=np.float64)
+    if q.ndim == 1 and q.shape[0] == shape[0]:
+        q = q[:, None]  # one per pose
+    q = check_miss_probability(q, shape, "one per pose (p,) or pair (p, s)")
     geo = antenna_frame_geometry(truth.antenna_poses, truth.positions_m)
     d, a = geo.d_m, geo.alpha_rad
     sel = np.asarray(truth.traced, bool).copy()

@@ -6,12 +6,17 @@ gain ``gain_db`` and a ``propagation.LinkBudget`` ``budget``,
 - true RSSI ``budget.reader_rssi_dbm(gain_db)`` [dBm] (no reader noise or quantisation);
 - the link closes where ``budget.detected(gain_db)`` (tag and reader thresholds);
 - the true probability of a read is ``closed * (1 - miss_probability)``, the
-  reader's anti-collision miss probability being the only remaining loss.
+  reader's anti-collision miss probability being the only remaining loss: the constant
+  ``anticollision_miss_probability`` of the ``"fixed"`` inventory, or per attempt for
+  the Gen2 reader, ``1 - p_singulated(n)`` with ``n`` the tags whose links close in the
+  attempt's antenna slot
+  (:func:`pipeline.acquisition.singulation.miss_probability_of_attempts`).
 
 Over the (d, alpha) plane, :func:`detection_truth` bins read attempts by their
 TRUE geometry (``d_true_m``, ``alpha_true_rad``) into a :class:`~.cells.CellGrid`;
-per cell the true detection probability is the fraction of attempts whose
-noise-free link closes, times ``1 - miss_probability``; the true RSSI is the
+per cell the true detection probability is the mean over its attempts of
+``closed * (1 - miss_probability)`` (with a constant: the fraction of attempts whose
+noise-free link closes, times ``1 - miss_probability``); the true RSSI is the
 mean noise-free RSSI of the closing attempts.
 
 The grid and model predictions at its centres are saved as
@@ -34,6 +39,7 @@ from .tables import require_columns
 
 __all__ = [
     "TruthGrid",
+    "check_miss_probability",
     "detection_truth",
     "true_detected",
     "true_rssi_dbm",
@@ -45,6 +51,36 @@ def _gain(gain_db) -> np.ndarray:
     if np.any(np.isnan(g)):
         raise ValueError("gain_db contains NaN (use -inf for links that were not traced)")
     return g
+
+
+def check_miss_probability(miss_probability, shape: tuple, what: str):
+    """A miss probability as a float (scalar given) or a float64 array broadcast to ``shape``.
+
+    Parameters
+    ----------
+    miss_probability : float or array_like
+        Values in [0, 1).
+    shape : tuple of int
+        Shape an array must broadcast to (e.g. ``(rows,)``).
+    what : str
+        What an array holds, for the error message.
+
+    Returns
+    -------
+    float or numpy.ndarray
+        A Python float for a scalar (the constant path, unchanged numbers), else an
+        array of ``shape``.
+    """
+    q = np.asarray(miss_probability, dtype=np.float64)
+    if not np.all((q >= 0.0) & (q < 1.0)):
+        raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+    if q.ndim == 0:
+        return float(q)
+    try:
+        return np.broadcast_to(q, shape)
+    except ValueError:
+        raise ValueError(f"miss_probability has shape {q.shape}, expected a float or {what} "
+                         f"{shape}") from None
 
 
 def true_rssi_dbm(gain_db, budget) -> np.ndarray:
@@ -83,11 +119,14 @@ class TruthGrid:
     n_reads : numpy.ndarray, shape (n_d, n_alpha), int64
         Of those, attempts the simulated reader reported (``read`` column).
     p_detect : numpy.ndarray, shape (n_d, n_alpha), float64
-        ``n_closed / n_attempts * (1 - miss_probability)``; NaN where no attempt.
+        Mean of ``closed * (1 - miss_probability)`` over the cell's attempts
+        (``n_closed / n_attempts * (1 - miss_probability)`` for a constant); NaN where no
+        attempt.
     rssi_dbm : numpy.ndarray, shape (n_d, n_alpha), float64
         Mean noise-free RSSI of the closing attempts [dBm]; NaN where none.
     miss_probability : float
-        Anti-collision miss probability used.
+        Anti-collision miss probability used: the constant, or for a per-attempt one its
+        mean over the closing attempts in the grid (0 where none closes).
     """
 
     grid: CellGrid
@@ -162,7 +201,7 @@ def detection_truth(
     reads: pd.DataFrame,
     budget,
     grid: CellGrid | None = None,
-    miss_probability: float = 0.0,
+    miss_probability=0.0,
 ) -> TruthGrid:
     """Per-cell true detection probability and RSSI from read attempts at TRUE geometry.
 
@@ -174,8 +213,10 @@ def detection_truth(
         Supplies ``detected`` and ``reader_rssi_dbm``.
     grid : CellGrid, optional
         Cells; default ``CellGrid()`` (3 m, 0.25 m, 15 deg).
-    miss_probability : float in [0, 1)
-        Reader anti-collision miss probability.
+    miss_probability : float or array_like, shape (rows,), in [0, 1)
+        Reader anti-collision miss probability of a closing attempt: one for all, or one
+        per row of ``reads`` (the Gen2 reader's,
+        :func:`pipeline.acquisition.singulation.miss_probability_of_attempts`).
 
     Returns
     -------
@@ -183,9 +224,7 @@ def detection_truth(
     """
     require_columns(reads, ("read", "d_true_m", "alpha_true_rad", "gain_db"), "reads")
     grid = CellGrid() if grid is None else grid
-    q = float(miss_probability)
-    if not 0.0 <= q < 1.0:
-        raise ValueError(f"miss_probability must be in [0, 1), got {miss_probability!r}")
+    q = check_miss_probability(miss_probability, (len(reads),), "one per row of reads")
     d = reads["d_true_m"].to_numpy(np.float64)
     a = reads["alpha_true_rad"].to_numpy(np.float64)
     g = reads["gain_db"].to_numpy(np.float64)
@@ -195,8 +234,17 @@ def detection_truth(
     n_closed = grid.count(d, a, closed.astype(float)).astype(np.int64)
     n_reads = grid.count(d, a, reads["read"].to_numpy(bool).astype(float)).astype(np.int64)
     rssi_sum = grid.count(d, a, rssi)
+    if np.ndim(q) == 0:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = np.where(n_att > 0, n_closed / np.maximum(n_att, 1) * (1.0 - q), np.nan)
+        q_used = float(q)
+    else:
+        p_sum = grid.count(d, a, closed * (1.0 - q))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = np.where(n_att > 0, p_sum / np.maximum(n_att, 1), np.nan)
+        in_grid = grid.index(d, a).valid & closed
+        q_used = float(q[in_grid].mean()) if in_grid.any() else 0.0
     with np.errstate(invalid="ignore", divide="ignore"):
-        p = np.where(n_att > 0, n_closed / np.maximum(n_att, 1) * (1.0 - q), np.nan)
         rssi_mean = np.where(n_closed > 0, rssi_sum / np.maximum(n_closed, 1), np.nan)
     return TruthGrid(grid=grid, n_attempts=n_att, n_closed=n_closed, n_reads=n_reads,
-                     p_detect=p, rssi_dbm=rssi_mean, miss_probability=q)
+                     p_detect=p, rssi_dbm=rssi_mean, miss_probability=q_used)

@@ -17,7 +17,9 @@ without the normalisation). Sources of P(read), mu and sigma:
   only. A model with its own ``log_likelihood(d, alpha, read, rssi_dbm)`` is used through
   it (``use_own_likelihood``).
 * :class:`OracleLikelihood`, the reader itself given the true one-way gains (as ray
-  traced) at the candidates: ``P(read) = P(closed) (1 - anticollision miss)``,
+  traced) at the candidates: ``P(read) = P(closed) (1 - anticollision miss)`` (the miss
+  probability of the ``"fixed"`` reader's constant, or per attempt slot for the Gen2
+  reader, :meth:`OracleLikelihood.with_gains`),
   ``mu = reader_rssi_dbm(gain)``, ``sigma^2 = rssi_noise^2 + resolution^2 / 12``. The
   simulated reader closes the link on the noise-free powers, i.e. when
   ``reader_rssi_dbm(gain) >= T`` with ``T = reader_rssi_dbm(budget.min_gain_db())`` (the
@@ -370,7 +372,8 @@ class OracleLikelihood:
     ----------
     budget : propagation.LinkBudget
     miss_probability : float
-        Anti-collision miss probability of a closed link, in [0, 1).
+        Anti-collision miss probability of a closed link, in [0, 1) (the default of
+        :meth:`read_probability`, :meth:`terms` and :meth:`with_gains`).
     rssi_noise_db : float
         Reader RSSI noise std [dB] (>= 0).
     rssi_resolution_db : float
@@ -404,31 +407,48 @@ class OracleLikelihood:
         self.threshold_dbm = float(budget.reader_rssi_dbm(budget.min_gain_db()))
 
     @classmethod
-    def from_reader(cls, reader, frequency_hz: float | None = None, **kw) -> OracleLikelihood:
+    def from_reader(cls, reader, frequency_hz: float | None = None, *,
+                    miss_probability: float | None = None, **kw) -> OracleLikelihood:
         """From a :class:`pipeline.acquisition.config.ReaderConfig` (budget, noise, losses);
         the link budget is ``reader.link_budget(frequency_hz)`` (or ``reader.budget`` of a
-        reader object that holds one)."""
+        reader object that holds one). ``miss_probability`` defaults to the reader's
+        ``anticollision_miss_probability`` with the ``"fixed"`` inventory, and with
+        ``"gen2"`` to a lone tag's ``1 - p_singulated(1)`` in a round-robin antenna dwell
+        (:mod:`pipeline.acquisition.singulation`): the per-slot value of a read log
+        belongs in :meth:`with_gains`."""
         if hasattr(reader, "link_budget"):
             budget = reader.link_budget(frequency_hz)
         else:
             budget = reader.budget
-        return cls(budget, miss_probability=reader.anticollision_miss_probability,
+        if miss_probability is None:
+            miss_probability = reader.anticollision_miss_probability
+            if getattr(reader, "inventory", "fixed") == "gen2":
+                from pipeline.acquisition.singulation import p_singulated, reader_dwell_s
+
+                miss_probability = 1.0 - float(p_singulated(1, reader.gen2, reader_dwell_s(reader)))
+        return cls(budget, miss_probability=miss_probability,
                    rssi_noise_db=reader.rssi_noise_db,
                    rssi_resolution_db=reader.rssi_resolution_db, **kw)
 
-    def read_probability(self, gain_db) -> np.ndarray:
-        """Unclipped P(read) of one-way gains [dB] (-inf: 0)."""
+    def read_probability(self, gain_db, miss_probability=None) -> np.ndarray:
+        """Unclipped P(read) of one-way gains [dB] (-inf: 0).
+
+        ``miss_probability`` (float or array broadcast to the gains' shape, in [0, 1))
+        replaces the oracle's own constant when given.
+        """
+        q = self.miss_probability if miss_probability is None else miss_probability
         mu = np.asarray(self.budget.reader_rssi_dbm(gain_db), dtype=np.float64)
         with np.errstate(invalid="ignore"):
             lc = log_ndtr((mu - self.threshold_dbm) / self.closure_sigma_db)
-        return np.exp(np.nan_to_num(lc, nan=-np.inf)) * (1.0 - self.miss_probability)
+        return np.exp(np.nan_to_num(lc, nan=-np.inf)) * (1.0 - q)
 
-    def terms(self, gain_db) -> GaussianTerms:
-        """Per-pair terms of one-way gains [dB] (any shape; -inf where not traced)."""
+    def terms(self, gain_db, miss_probability=None) -> GaussianTerms:
+        """Per-pair terms of one-way gains [dB] (any shape; -inf where not traced);
+        ``miss_probability`` as in :meth:`read_probability`."""
         g = np.asarray(gain_db, dtype=np.float64)
         if np.any(np.isnan(g)):
             raise ValueError("oracle gains contain NaN (use -inf for untraced pairs)")
-        p = np.clip(self.read_probability(g), self.eps, 1.0 - self.eps)
+        p = np.clip(self.read_probability(g, miss_probability), self.eps, 1.0 - self.eps)
         mu = np.asarray(self.budget.reader_rssi_dbm(g), dtype=np.float64)
         return GaussianTerms(np.log(p), np.log1p(-p), mu, self.sigma_db, 0.0, self.z_clip)
 
@@ -444,9 +464,10 @@ class OracleLikelihood:
         z = rng.standard_normal(g.shape)
         return read, np.where(read, mu + self.sigma_db * z, np.nan)
 
-    def with_gains(self, gain_db) -> OracleGains:
-        """Bind a (slots x candidates) gain matrix for :func:`~pipeline.localisation.localise_tags`."""
-        return OracleGains(self, gain_db)
+    def with_gains(self, gain_db, miss_probability=None) -> OracleGains:
+        """Bind a (slots x candidates) gain matrix for :func:`~pipeline.localisation.localise_tags`;
+        ``miss_probability``: see :class:`OracleGains`."""
+        return OracleGains(self, gain_db, miss_probability)
 
 
 class OracleGains:
@@ -454,9 +475,13 @@ class OracleGains:
 
     Column c must be candidate c of the candidate set, row s slot s of the
     :class:`~pipeline.localisation.Observations` (in their order); -inf where not traced.
+    ``miss_probability`` (optional, in [0, 1)): the miss probability of a closed link per
+    slot, shape (S,) (the Gen2 reader's,
+    :func:`pipeline.acquisition.singulation.miss_probability_at_poses`), or per pair
+    (S, C); default the oracle's constant.
     """
 
-    def __init__(self, oracle: OracleLikelihood, gain_db) -> None:
+    def __init__(self, oracle: OracleLikelihood, gain_db, miss_probability=None) -> None:
         g = np.asarray(gain_db, dtype=np.float64)
         if g.ndim != 2:
             raise ValueError(f"oracle gains must be (slots, candidates), got shape {g.shape}")
@@ -464,10 +489,23 @@ class OracleGains:
             raise ValueError("oracle gains contain NaN (use -inf for untraced pairs)")
         self.oracle = oracle
         self.gain_db = g
+        self.miss_probability = None
+        if miss_probability is not None:
+            q = np.asarray(miss_probability, dtype=np.float64)
+            if q.ndim == 1 and q.shape[0] == g.shape[0]:
+                q = q[:, None]  # one per slot
+            if not np.all((q >= 0.0) & (q < 1.0)):
+                raise ValueError("miss_probability must be in [0, 1)")
+            try:
+                self.miss_probability = np.broadcast_to(q, g.shape)
+            except ValueError:
+                raise ValueError(f"miss_probability has shape {np.shape(miss_probability)}, "
+                                 f"expected (slots,) or {g.shape}") from None
         self.name = "oracle"
 
     def terms_for(self, cols) -> GaussianTerms:
-        return self.oracle.terms(self.gain_db[:, cols])
+        q = None if self.miss_probability is None else self.miss_probability[:, cols]
+        return self.oracle.terms(self.gain_db[:, cols], q)
 
 
 # ----------------------------------------------------------------------------- helpers

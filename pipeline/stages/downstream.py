@@ -15,6 +15,7 @@ from pipeline.stages.common import (
     TRACING_KEYS,
     antenna_tilts,
     build_robot,
+    link_budget,
     load_scene,
     read_reads,
     resolve_cache_dir,
@@ -77,7 +78,16 @@ def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, map_m) -> tuple[dict, in
     gains = np.where(plan.pairs & np.asarray(links.traced, bool),
                      np.asarray(links.gain_db, float), -np.inf)
     oracle = OracleLikelihood.from_reader(cfg.reader, frequency_hz=cfg.frequency_hz)
-    post = localise_tags(obs, plan.candidates_m, {"oracle": oracle.with_gains(gains)},
+    # the Gen2 reader's miss probability per slot: the candidate is the localised tag,
+    # one of the log's (counted where its true link closes)
+    q = None
+    if cfg.reader.inventory == "gen2":
+        from pipeline.acquisition.singulation import miss_probability_at_poses
+
+        q = miss_probability_at_poses(eval_reads, true_obs.slot_poses, cfg.reader,
+                                      link_budget(cfg), extra_tags=0,
+                                      n_antennas=len(cfg.robot.antennas))
+    post = localise_tags(obs, plan.candidates_m, {"oracle": oracle.with_gains(gains, q)},
                          log_prior=plan.log_prior)
     return post, plan.n_pairs
 
@@ -163,6 +173,7 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=3,
-              # 2: every fitted model; 3: the phase estimator (phase, phase_anfis)
+              ("scene", "tour", "reads", "models"), version=4,
+              # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
+              # 4: the oracle's Gen2 miss probability per slot
               description="downstream localisation (tags, robot)")

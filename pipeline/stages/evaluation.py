@@ -15,14 +15,18 @@ from pipeline.study import Stage
 __all__ = ["STAGE", "field_coverage", "stage_evaluation"]
 
 
-def field_coverage(cfg, scene, field_paths) -> dict | None:
+def field_coverage(cfg, scene, field_paths, eval_reads=None) -> dict | None:
     """Corridor coverage of the saved RSSI fields (pipeline.evaluation.detection_coverage).
 
-    Cells outside the scene's free space are left out. Returns None without fields, else
-    ``{"corridor_fraction": mean over fields, "fields": [CoverageResult dicts]}``.
+    Cells outside the scene's free space are left out. The miss probability is the
+    ``"fixed"`` reader's constant, or for the Gen2 reader that of a tag joining the
+    closing tags of the field pose's slot in ``eval_reads`` (required then). Returns None
+    without fields, else ``{"corridor_fraction": mean over fields, "fields":
+    [CoverageResult dicts]}``.
     """
     import propagation
     from pipeline.evaluation.coverage import detection_coverage
+    from pipeline.stages.truth import pose_miss_probability
     from scenes.geometry import is_free
 
     if not field_paths:
@@ -32,9 +36,10 @@ def field_coverage(cfg, scene, field_paths) -> dict | None:
     for path in field_paths:
         field = propagation.RssiField.load(path)
         free = is_free(scene, field.plane_centers_m.reshape(-1, 3))
+        q = pose_miss_probability(cfg, eval_reads, np.asarray(field.antenna_pose)[None], budget)
         per_field.append(detection_coverage(
             field.plane_gain_db, budget, free,
-            miss_probability=cfg.reader.anticollision_miss_probability).to_dict())
+            miss_probability=q if np.ndim(q) == 0 else float(q[0])).to_dict())
     return {"corridor_fraction": float(np.mean([c["fraction"] for c in per_field])),
             "fields": per_field}
 
@@ -61,6 +66,7 @@ def stage_evaluation(ctx) -> dict:
     from pipeline.evaluation.sites import SiteTruth, site_comparison
     from pipeline.evaluation.tables import read_tags, write_parquet_atomic
     from pipeline.evaluation.truth import TruthGrid
+    from pipeline.stages.truth import pose_miss_probability
 
     cfg = ctx.config
     budget = link_budget(cfg)
@@ -102,7 +108,7 @@ def stage_evaluation(ctx) -> dict:
             f7.write_table(ctx.out("truth/fig7_errors.parquet"))
     metrics["fig7"] = fig7
     site_truth = SiteTruth.load(ctx.input("truth/site_truth.npz"))
-    q = cfg.reader.anticollision_miss_probability
+    q = pose_miss_probability(cfg, eval_reads, site_truth.antenna_poses, budget)
     metrics["tag_sites"] = {}
     for name in rssi_names:
         sc_ = site_comparison(site_truth, sensors[name], budget, miss_probability=q,
@@ -133,7 +139,7 @@ def stage_evaluation(ctx) -> dict:
         name: rho_vs_truth(rho_points, sensors[name]).to_dict() for name in rssi_names
     } if rho_points else None
     fields = sorted(ctx.store.path("fields").glob("field_*.npz"))
-    coverage = field_coverage(cfg, load_scene(ctx), fields)
+    coverage = field_coverage(cfg, load_scene(ctx), fields, eval_reads)
     if coverage is not None:
         metrics["coverage"] = coverage
     atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
@@ -166,6 +172,7 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "models", "truth", "downstream"),
-              version=7,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
-              # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget
+              version=8,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
+              # 8: the Gen2 reader's miss probability at tag sites and fields
               description="metrics")

@@ -21,7 +21,7 @@ from pipeline.stages.common import (
 )
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "stage_truth"]
+__all__ = ["STAGE", "pose_miss_probability", "stage_truth"]
 
 
 def _polar_points(pose: np.ndarray, d_m: np.ndarray, alpha_rad: np.ndarray) -> np.ndarray:
@@ -46,17 +46,43 @@ def stage_truth(ctx) -> dict:
     eval_reads, _ = read_reads(ctx, "eval_")
     grid = CellGrid(d_max_m=cfg.training.d_max_m, d_bin_m=cfg.training.d_bin_m,
                     alpha_bin_deg=cfg.training.alpha_bin_deg)
-    q = cfg.reader.anticollision_miss_probability
     # the training truth is what a floor may be fitted on; the held-out one is scored on
-    truth = detection_truth(reads, budget, grid=grid, miss_probability=q)
+    truth = detection_truth(reads, budget, grid=grid,
+                            miss_probability=_miss_probability(cfg, reads, budget))
     truth.save(ctx.out("truth/detection_grid.npz"))
-    eval_truth = detection_truth(eval_reads, budget, grid=grid, miss_probability=q)
+    eval_truth = detection_truth(eval_reads, budget, grid=grid,
+                                 miss_probability=_miss_probability(cfg, eval_reads, budget))
     eval_truth.save(ctx.out("truth/detection_grid_eval.npz"))
     info = {"cells_with_attempts": int((truth.n_attempts > 0).sum()),
             "eval_cells_with_attempts": int((eval_truth.n_attempts > 0).sum())}
     info.update(_trace_sites(ctx, eval_reads))
     info.update(_trace_free_space_view(ctx, eval_reads, budget))
     return info
+
+
+def _miss_probability(cfg, reads, budget):
+    """The truth's miss probability of a closing attempt of ``reads``: the constant of the
+    ``"fixed"`` inventory (a float: the numbers of before), else one per row (Gen2,
+    :func:`pipeline.acquisition.singulation.miss_probability_of_attempts`)."""
+    from pipeline.acquisition.singulation import miss_probability_of_attempts
+
+    if cfg.reader.inventory == "fixed":
+        return cfg.reader.anticollision_miss_probability
+    return miss_probability_of_attempts(reads, cfg.reader, budget,
+                                        n_antennas=len(cfg.robot.antennas))
+
+
+def pose_miss_probability(cfg, eval_reads, poses, budget):
+    """Miss probability of a tag site or point (not in the log) at antenna ``poses`` taken
+    from ``eval_reads``: the ``"fixed"`` constant (a float), or per pose (p,) for Gen2
+    (:func:`pipeline.acquisition.singulation.miss_probability_at_poses`, the site joining
+    the slot's closing tags)."""
+    from pipeline.acquisition.singulation import miss_probability_at_poses
+
+    if cfg.reader.inventory == "fixed":
+        return cfg.reader.anticollision_miss_probability
+    return miss_probability_at_poses(eval_reads, poses, cfg.reader, budget, extra_tags=1,
+                                     n_antennas=len(cfg.robot.antennas))
 
 
 def _trace_sites(ctx, eval_reads) -> dict:
@@ -128,8 +154,9 @@ def _trace_free_space_view(ctx, eval_reads, budget) -> dict:
         gain = np.full(len(pts), -np.inf)
         gain[free] = np.asarray(links.gain_db, float)[0]
         n_free += int(free.sum())
+        q = pose_miss_probability(cfg, eval_reads, pose[None], budget)
         rp = rho_points_truth(pose, pts, gain, budget, rssi_range,
-                              miss_probability=cfg.reader.anticollision_miss_probability,
+                              miss_probability=q if np.ndim(q) == 0 else float(q[0]),
                               grid_shape=(len(d), len(a)))
         rp.save(ctx.out(f"truth/rho_points_{i:02d}.npz"))
         if i < ev.n_field_poses:
@@ -148,5 +175,6 @@ STAGE = Stage("truth", stage_truth,
               ("seed", "reader", "evaluation", "training.d_max_m", "training.d_bin_m",
                "training.alpha_bin_deg", "tracing.field_cell_m", "tracing.field_samples_per_tx")
               + TRACING_KEYS,
-              ("scene", "reads", "models"), version=2,  # 2: held-out grid, tag sites, eval poses
+              ("scene", "reads", "models"), version=3,  # 2: held-out grid, tag sites, eval poses
+              # 3: the Gen2 reader's miss probability from the tags in the field
               description="propagation truth")

@@ -165,7 +165,8 @@ def test_trace_keys_owned_by_reader(scene, track):
 
 
 def test_channels_phase_and_doppler_columns(scene, track, tmp_path):
-    reader = _reader(channel_dwell_s=0.5)  # ETSI: 4 channels, a hop every 0.5 s of the 2 s track
+    # ETSI: 4 channels, a hop every 0.5 s of the 2 s track; the fixed inventory (0/1 counts)
+    reader = _reader(channel_dwell_s=0.5, inventory="fixed")
     log = simulate_reads(scene, Robot(), track, reader, np.random.default_rng(2), trace=TRACE,
                          cache_dir=tmp_path / "cache")
     r = log.reads
