@@ -143,6 +143,12 @@ class TracingConfig:
         "from the candidate chains of its nearest lattice points (propagation.pooled) [m]; "
         "0 = shoot from every position. 0.25 halves the seed-to-seed noise (docs/physics.md).",
     )
+    completion_order: int = option(
+        0,
+        "Also solve every specular reflection path of up to this order (0 = off, 1-3) over the "
+        "scene's large planes with the image method, the paths the ray sampling misses "
+        "(propagation.completion).",
+    )
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
     )
@@ -154,6 +160,8 @@ class TracingConfig:
             raise ConfigError(f"backend must be 'auto', 'cuda' or 'llvm', got {self.backend!r}")
         _positive(self, "max_depth", "samples_per_src", "memory_budget_mb", "field_cell_m",
                   "field_samples_per_tx")
+        if self.completion_order not in (0, 1, 2, 3):
+            raise ConfigError(f"completion_order must be 0 (off), 1, 2 or 3, got {self.completion_order!r}")
         if not (np.isfinite(self.lattice_spacing_m) and 0.0 <= self.lattice_spacing_m <= 1.0):
             raise ConfigError("lattice_spacing_m must be 0 (off) or a spacing in (0, 1] m, "
                               f"got {self.lattice_spacing_m!r}")

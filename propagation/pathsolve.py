@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from propagation.backend import ensure_variant
+from propagation.completion import complete_specular, large_planes, merge_paths
 from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import unit_vec_from_theta_phi
 from propagation.pooled import POOL_RADIUS_FACTOR, pooling_plan, trace_pooled
@@ -37,6 +38,9 @@ DEFAULT_MAX_DEPTH = 5
 #: 260 links/s on 2 shared cores at these defaults.
 DEFAULT_SAMPLES_PER_SRC = 30_000
 _MAX_SOURCES_PER_CALL = 128
+#: Planes of at least this area are completed by the image method (completion_order):
+#: walls, floor, ceiling and large furniture faces; 16 planes on corridor_lab.
+COMPLETION_MIN_AREA_M2 = 1.0
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -157,7 +161,8 @@ class PathSet:
 def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz: float = 865e6,
                 max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
                 cache_dir=None, memory_budget_bytes=None, progress=None, seed: int = 42,
-                refraction: bool = True, lattice_spacing_m: float | None = None) -> PathSet:
+                refraction: bool = True, lattice_spacing_m: float | None = None,
+                completion_order: int = 0) -> PathSet:
     """Paths from antenna positions to tags: from the cache, traced, or carried from a lattice.
 
     The tracing half of :func:`trace_links` (same parameters); the positions must be
@@ -195,6 +200,11 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
             raise ValueError(f"lattice_spacing_m must be positive, got {lattice_spacing_m!r}")
         settings["lattice_spacing_m"] = float(lattice_spacing_m)
         settings["pool_radius_m"] = POOL_RADIUS_FACTOR * float(lattice_spacing_m)
+    if int(completion_order) < 0 or int(completion_order) > 3:
+        raise ValueError(f"completion_order must be 0 (off) to 3, got {completion_order!r}")
+    if int(completion_order) > 0:  # absent at 0: the cache keys of earlier traces stay valid
+        settings["completion_order"] = int(completion_order)
+        settings["completion_min_area_m2"] = COMPLETION_MIN_AREA_M2
 
     cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
     cached = cache.load(uniq) if cache is not None else [None] * len(uniq)
@@ -220,6 +230,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
             plan = None
             chunks = [todo[c0:c0 + per_chunk] for c0 in range(0, len(todo), per_chunk)]
         n_shot = 0
+        planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2) if completion_order else None
         for c, chunk in enumerate(chunks):
             rec = np.unique(np.concatenate([missing[u] for u in chunk]))
             t0 = time.perf_counter()
@@ -234,6 +245,14 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
                 fresh = trace_pooled(rt_scene, plan[c].shoot_m, uniq[chunk], plan[c].neighbours,
                                      tags[rec], want, max_depth, samples_per_src, seed, refraction)
                 n_shot += len(plan[c].shoot_m)
+            if completion_order:
+                want = np.zeros((len(chunk), len(rec)), bool)
+                for r, u in enumerate(chunk):
+                    want[r, np.searchsorted(rec, missing[u])] = True
+                extra = complete_specular(rt_scene, uniq[chunk], tags[rec],
+                                          min(int(completion_order), int(max_depth)),
+                                          planes, need=want)
+                fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
             t_trace += time.perf_counter() - t0
             n_calls += 1
             for u, sp in zip(chunk, fresh, strict=True):
@@ -252,6 +271,6 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         trace_s=t_trace,
         settings={**settings, "memory_budget_bytes": budget, "sources_per_call": per_chunk,
                   "lattice_spacing_m": None if lattice_spacing_m is None else float(lattice_spacing_m),
-                  "n_shooting_points": int(n_shot),
+                  "n_shooting_points": int(n_shot), "completion_order": int(completion_order),
                   "cache_dir": str(cache_dir) if cache_dir else None},
     )

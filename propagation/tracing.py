@@ -165,7 +165,7 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
                 tag_normals=None, pairs=None, cache_dir=None, memory_budget_bytes=None,
                 progress=None, reader_polarization: str = "V", seed: int = 42,
                 refraction: bool = True, lattice_spacing_m: float | None = None,
-                channel_hz=None, channel_gradient: bool = False) -> LinkSet:
+                channel_hz=None, channel_gradient: bool = False, completion_order: int = 0) -> LinkSet:
     """Ray-trace the one-way channel gain between antenna poses and tags.
 
     Parameters
@@ -227,6 +227,16 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         gain and ``h`` are those at the channel. Default: ``frequency_hz``.
     channel_gradient : bool
         Also compute ``LinkSet.dh_dpos`` (the Doppler of a moving antenna).
+    completion_order : int
+        0 (default): the paths Sionna's shoot-and-bounce finds. 1-3: also every specular
+        reflection path of up to this order over the scene's large planes (>= 1 m^2:
+        walls, floor, ceiling, large furniture faces), solved by Sionna's image method
+        and field calculator (:mod:`propagation.completion`) and merged without double
+        counting. At 3e4 rays the sampling misses ~1 % / 26 % / 69 % of the order 1 / 2 /
+        3 reflections off those planes on ``corridor_lab`` (it picks reflection or
+        refraction at each hit by their Fresnel weights, so chains of weak reflections
+        are rarely shot); completion adds them for ~3 % (order 2) / ~15 % (order 3) of
+        the tracing time.
 
     Returns
     -------
@@ -265,7 +275,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     ps = trace_paths(scene, uniq, tags, need, frequency_hz=frequency_hz, max_depth=max_depth,
                      samples_per_src=samples_per_src, cache_dir=cache_dir,
                      memory_budget_bytes=memory_budget_bytes, progress=progress, seed=seed,
-                     refraction=refraction, lattice_spacing_m=lattice_spacing_m)
+                     refraction=refraction, lattice_spacing_m=lattice_spacing_m,
+                     completion_order=completion_order)
 
     ii, jj = np.nonzero(pairs)
     gain = np.zeros((n, m))
