@@ -144,10 +144,11 @@ class TracingConfig:
         "0 = shoot from every position. 0.25 halves the seed-to-seed noise (docs/physics.md).",
     )
     completion_order: int = option(
-        0,
+        3,
         "Also solve every specular reflection path of up to this order (0 = off, 1-3) over the "
-        "scene's large planes with the image method, the paths the ray sampling misses "
-        "(propagation.completion).",
+        "scene's large planes with the image method: the paths the ray sampling misses "
+        "(propagation.completion; at 3 the truth's seed-to-seed p95 on readable links falls "
+        "from 1.5 to 1.1 dB for ~10-25 % more tracing time, docs/physics.md).",
     )
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
