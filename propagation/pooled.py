@@ -348,15 +348,14 @@ def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
     src, tg, a, tau, k_tx, k_rx = src[order], tg[order], a[order], tau[order], k_tx[order], k_rx[order]
     # The image method accepts a chain on any triangle of the reflecting plane, so the
     # same physical path can come from two pooled candidates (a wall's two triangles seen
-    # from two lattice points). One path per (position, tag, length, departure direction):
-    # two distinct geometric-optics paths cannot leave a point in the same direction
-    # with the same length. 0.1 mm / 1e-4 rad is far above the solver's float32 noise
-    # and far below any real path separation.
-    key = np.column_stack([src, tg, np.round(tau * _SPEED_OF_LIGHT / 1e-4),
-                           np.round(k_tx / 1e-4)]).astype(np.int64)
-    _, first = np.unique(key, axis=0, return_index=True)
-    first = np.sort(first)
-    src, tg, a, tau, k_tx, k_rx = src[first], tg[first], a[first], tau[first], k_tx[first], k_rx[first]
+    # from two lattice points). A copy is a path of the same position and tag whose
+    # length (0.1 mm), departure and arrival directions (1e-4) and transfer matrix (1e-3
+    # relative) all agree: far above the solver's float32 noise (~1e-6 m at 20 m), far
+    # below any real path separation. Tolerances, not rounding to a grid (a grid line
+    # splits float32 copies), and all four quantities (Sionna returns distinct paths with
+    # equal length and departure, e.g. a bounce inside a wall slab in either order).
+    keep = ~_copies(src, tg, tau * _SPEED_OF_LIGHT, k_tx, k_rx, a)
+    src, tg, a, tau, k_tx, k_rx = src[keep], tg[keep], a[keep], tau[keep], k_tx[keep], k_rx[keep]
     result = []
     bounds = np.searchsorted(src, np.arange(len(pos) + 1))
     for i in range(len(pos)):
@@ -371,3 +370,23 @@ def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
             transfer=a[s0:s1], tau_s=tau[s0:s1], k_tx=k_tx[s0:s1], k_rx=k_rx[s0:s1],
         ))
     return result
+
+
+def _copies(src, tg, length_m, k_tx, k_rx, transfer, length_tol_m: float = 1e-4,
+            direction_tol: float = 1e-4, transfer_rtol: float = 1e-3) -> np.ndarray:
+    """Rows that repeat an earlier row's path, (P,) bool; rows sorted by (src, tg, length)."""
+    drop = np.zeros(len(length_m), bool)
+    scale = np.abs(transfer).reshape(len(length_m), -1).max(axis=1) if len(length_m) else np.zeros(0)
+    for w in range(1, len(length_m)):  # rows w apart; stops past the widest near-tie
+        i = np.arange(w, len(length_m))
+        j = i - w
+        near = (src[i] == src[j]) & (tg[i] == tg[j]) & (length_m[i] - length_m[j] <= length_tol_m)
+        if not near.any():
+            break
+        i, j = i[near], j[near]
+        same = ((np.abs(k_tx[i] - k_tx[j]).max(axis=1) <= direction_tol)
+                & (np.abs(k_rx[i] - k_rx[j]).max(axis=1) <= direction_tol)
+                & (np.abs(transfer[i] - transfer[j]).reshape(len(i), -1).max(axis=1)
+                   <= transfer_rtol * np.maximum(scale[i], scale[j])))
+        drop[i[same]] = True
+    return drop

@@ -144,3 +144,18 @@ def test_link_channels_rejects_nothing_silently(corridor_scene):
     with pytest.raises(RuntimeError, match="missing"):
         link_channels(sp, np.array([0]), np.array([1]), np.zeros((1, 6)), tags, F, "iso", "V", "iso",
                       tag_dipole_axes(None, 2))
+
+
+def test_copies_are_found_by_tolerance_not_by_grid():
+    """Float32 copies of one path straddling a 0.1 mm grid line are one path; a distinct
+    path with the same length and departure but another arrival direction is kept."""
+    from propagation.pooled import _copies
+
+    k = np.array([0.6, 0.8, 0.0])
+    t = np.eye(2, dtype=complex)[None].repeat(4, axis=0)
+    length = np.array([12.34995, 12.34995 + 2e-6, 12.34995 + 3e-6, 12.34995 + 4e-6])  # grid line at 12.35
+    k_rx = np.array([k, k + 1e-7, [0.0, 0.6, 0.8], k])
+    src = np.zeros(4, np.int64)
+    tg = np.array([0, 0, 0, 1])  # the last row is another tag: never a copy
+    drop = _copies(src, tg, length, np.tile(k, (4, 1)), k_rx, t)
+    np.testing.assert_array_equal(drop, [False, True, False, False])
