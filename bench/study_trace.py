@@ -6,13 +6,16 @@ Prints, from one run on this machine:
    subprocess, a fresh temporary cache and run directory), once per tracing setting
    (direct: every antenna position shoots its own rays; pooled: ``--lattice``), with its
    wall time, the stages' times and the peak memory of its stages;
-2. the *naive* tracing of the same links with bare Sionna RT: every antenna position of
+2. the *naive* tracing of the same links with bare Sionna RT (the tours, the truth's tag
+   sites and free-space view; not the RSSI field maps, which are radio maps, nor the
+   opt-in oracle): every antenna position of
    the two tours a transmitter and every tag a receiver, batches of 50 positions; the
    truth stage's tag-site and free-space links one antenna pose per call, as the study
    traces them (kinder to the naive side than a batch against the union); depth 5, 3e4
    rays, the paths' ``a`` fetched to NumPy;
 3. the ratio study / naive, the links per second of both, and the seed-to-seed noise of
-   the truth on the evaluation tour (seeds 1 and 2 of ``trace_links`` per setting): p50 /
+   the truth on the evaluation tour (seeds 1 and 2 of ``trace_links`` with the study's
+   tracing options, completion included, per setting): p50 /
    p95 |delta gain| over readable links (either seed >= the budget's minimum readable
    gain), p95 over weak links (within 30 dB below it) and the flipped read decisions;
    pooled against direct (same seed) as its extrapolation error.
@@ -110,9 +113,12 @@ def naive_trace(scene, groups, max_depth: int, samples: int) -> dict:
     return out
 
 
-def seed_noise(scene, run: Path, lattice_m: float | None) -> tuple[dict, np.ndarray, float]:
-    """trace_links on the evaluation tour, seeds 1 and 2 (fresh caches)."""
+def seed_noise(scene, run: Path, lattice_m: float | None, cfg) -> tuple[dict, np.ndarray, float]:
+    """trace_links on the evaluation tour with the study's tracing options (patterns,
+    depth, rays, completion), seeds 1 and 2 (fresh caches). Poses are (x, y, z, yaw): the
+    default antennas are not tilted."""
     import propagation as P
+    from pipeline.stages.common import trace_options
 
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
     r = pd.read_parquet(run / "eval_reads.parquet")
@@ -125,8 +131,10 @@ def seed_noise(scene, run: Path, lattice_m: float | None) -> tuple[dict, np.ndar
     for seed in (1, 2):
         with tempfile.TemporaryDirectory() as cd:
             t0 = time.perf_counter()
+            opts = {**trace_options(cfg), "lattice_spacing_m": lattice_m}
+            opts.pop("memory_budget_bytes")
             links = P.trace_links(scene, poses, tpos, tag_normals=nrm, seed=seed, cache_dir=cd,
-                                  lattice_spacing_m=lattice_m)
+                                  frequency_hz=cfg.frequency_hz, **opts)
             secs.append(time.perf_counter() - t0)
         gains[seed] = links.gain_db
     return gains, np.asarray(secs), len(poses) * len(tpos)
@@ -183,8 +191,8 @@ def main() -> None:
               f"({s['wall_s']:.0f} s / {t_naive:.0f} s)")
     if not args.skip_noise:
         thr = cfg.reader.link_budget(cfg.frequency_hz).min_gain_db()
-        g_d, s_d, n = seed_noise(scene, run, None)
-        g_p, s_p, _ = seed_noise(scene, run, args.lattice)
+        g_d, s_d, n = seed_noise(scene, run, None, cfg)
+        g_p, s_p, _ = seed_noise(scene, run, args.lattice, cfg)
         print(f"evaluation tour, {n} links; readable: gain >= {thr:.2f} dB")
         print(f"  direct, seed 1 vs 2 ({s_d.mean():.0f} s per trace, {n / s_d.mean():.0f} links/s): "
               f"{noise_row(g_d[1], g_d[2], thr)}")

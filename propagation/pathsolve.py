@@ -41,6 +41,10 @@ _MAX_SOURCES_PER_CALL = 128
 #: Planes of at least this area are completed by the image method (completion_order):
 #: walls, floor, ceiling and large furniture faces; 16 planes on corridor_lab.
 COMPLETION_MIN_AREA_M2 = 1.0
+#: Versions of the completion and pooling algorithms, part of the cache key: a change
+#: that changes their paths must bump them so no cache serves the old results.
+COMPLETION_ALGORITHM = 1
+POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -202,9 +206,13 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         settings["pool_radius_m"] = POOL_RADIUS_FACTOR * float(lattice_spacing_m)
     if int(completion_order) < 0 or int(completion_order) > 3:
         raise ValueError(f"completion_order must be 0 (off) to 3, got {completion_order!r}")
-    if int(completion_order) > 0:  # absent at 0: the cache keys of earlier traces stay valid
-        settings["completion_order"] = int(completion_order)
+    completion_order = min(int(completion_order), int(max_depth))  # no path beyond max_depth
+    if completion_order > 0:  # absent at 0: the cache keys of earlier traces stay valid
+        settings["completion_order"] = completion_order
         settings["completion_min_area_m2"] = COMPLETION_MIN_AREA_M2
+        settings["completion_algorithm"] = COMPLETION_ALGORITHM
+    if lattice_spacing_m is not None:
+        settings["pooling_algorithm"] = POOLING_ALGORITHM
 
     cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
     cached = cache.load(uniq) if cache is not None else [None] * len(uniq)
@@ -246,12 +254,12 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
                                      tags[rec], want, max_depth, samples_per_src, seed, refraction)
                 n_shot += len(plan[c].shoot_m)
             if completion_order:
-                want = np.zeros((len(chunk), len(rec)), bool)
-                for r, u in enumerate(chunk):
-                    want[r, np.searchsorted(rec, missing[u])] = True
-                extra = complete_specular(rt_scene, uniq[chunk], tags[rec],
-                                          min(int(completion_order), int(max_depth)),
-                                          planes, need=want)
+                # complete every link the chunk traced (and caches): a direct chunk traces
+                # each position against the union of the chunk's tags, pooled only the
+                # position's own; the cache must never hold an uncompleted link
+                done = None if plan is None else want
+                extra = complete_specular(rt_scene, uniq[chunk], tags[rec], completion_order,
+                                          planes, need=done)
                 fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
             t_trace += time.perf_counter() - t0
             n_calls += 1

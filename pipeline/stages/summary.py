@@ -106,5 +106,10 @@ def corridor_coverage(run_dir: str | Path) -> float | None:
         return None
     cfg = config_from_mapping(tomllib.loads((run / "config.toml").read_text()),
                               source=str(run / "config.toml"))
-    cov = field_coverage(cfg, scenes.load(cfg.scene), files)
+    eval_reads = None
+    if (run / "eval_reads.parquet").is_file():  # the Gen2 truth needs the field poses' slots
+        import pandas as pd
+
+        eval_reads = pd.read_parquet(run / "eval_reads.parquet")
+    cov = field_coverage(cfg, scenes.load(cfg.scene), files, eval_reads)
     return None if cov is None else cov["corridor_fraction"]
