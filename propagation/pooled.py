@@ -92,7 +92,10 @@ def pooling_plan(scene, positions_m, spacing_m: float, max_shoot_per_call: int,
     a solid are not shot from, and a position whose nearest lattice point is such a
     point shoots its own rays as well. Calls hold whole lattice cells in lexicographic
     order and at most ``max_shoot_per_call`` shooting points (a cell's neighbours from
-    the previous call are shot again).
+    the previous call are shot again). A lone position, whose lattice point no other
+    position pools and which has no other lattice neighbour, shoots its own rays: a
+    lattice point would save nothing there and its candidates would come from up to
+    ``sqrt(3) / 2 * spacing_m`` away.
     """
     from scipy.spatial import cKDTree
 
