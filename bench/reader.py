@@ -31,23 +31,10 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from route_poses import route_poses  # bench/ is the script's own folder
 
 ETSI_HZ = (865.7e6, 866.3e6, 866.9e6, 867.5e6)
 CARRIER_HZ = 865e6
-
-
-def _poses(scene, n):
-    """Antenna poses along the route, alternating +-45 deg yaw, 0.5 / 1.0 m high (as
-    ``bench/trace.py``)."""
-    lo, hi = scene.bounds_m
-    route = scene.route_m if scene.route_m is not None else np.array([[lo[0] + 1, 1.2], [hi[0] - 1, 1.2]])
-    seg = np.linalg.norm(np.diff(route, axis=0), axis=1)
-    s = np.linspace(0.05, 0.95, n) * seg.sum()
-    cum = np.concatenate([[0], np.cumsum(seg)])
-    xy = np.stack([np.interp(s, cum, route[:, 0]), np.interp(s, cum, route[:, 1])], axis=1)
-    yaw = np.where(np.arange(n) % 2 == 0, np.pi / 4, -np.pi / 4)
-    z = np.where(np.arange(n) % 3 == 0, 0.5, 1.0)
-    return np.column_stack([xy, z, yaw])
 
 
 def main(argv=None) -> None:
@@ -66,7 +53,7 @@ def main(argv=None) -> None:
     print("backend:", P.select_variant())
     scene = scenes.load("corridor_lab")
     tags, normals = scene.tags.positions_m, scene.tags.normals
-    poses = _poses(scene, args.poses)
+    poses = route_poses(scene, args.poses)
     channel = np.asarray(ETSI_HZ)[np.arange(len(poses)) % len(ETSI_HZ)]
     print(f"scene {scene.name}: {len(tags)} tags x {len(poses)} antenna poses, depth {depth}, "
           f"{spp} rays/source, carrier {CARRIER_HZ / 1e6:g} MHz")

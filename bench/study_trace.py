@@ -87,21 +87,15 @@ def naive_trace(scene, groups, max_depth: int, samples: int) -> dict:
     """Bare Sionna PathSolver over the link groups; seconds and links per group name."""
     import sionna.rt as rt
 
-    from propagation.sionna_scene import clear_devices, load_sionna_scene
+    from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
 
     rt_scene = load_sionna_scene(scene, 865e6)
-    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
-    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
     solver = rt.PathSolver()
     out: dict = {}
     for name, pos, rx, per_call in groups:
         t0 = time.perf_counter()
         for c0 in range(0, len(pos), per_call):
-            clear_devices(rt_scene)
-            for k, p in enumerate(pos[c0:c0 + per_call]):
-                rt_scene.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
-            for k, p in enumerate(rx):
-                rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+            place_devices(rt_scene, pos[c0:c0 + per_call], rx, polarization="V")
             paths = solver(rt_scene, max_depth=max_depth, samples_per_src=samples,
                            max_num_paths_per_src=samples * (max_depth + 1), synthetic_array=True,
                            los=True, specular_reflection=True, diffuse_reflection=False,

@@ -17,6 +17,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from route_poses import route_poses  # bench/ is the script's own folder
 
 
 def _scene():
@@ -27,19 +28,6 @@ def _scene():
     except Exception as exc:  # noqa: BLE001 - fall back to a plain corridor
         print(f"corridor_lab unavailable ({exc}); using a generated corridor")
         return scenes.corridor(length_m=25.0, width_m=2.4, height_m=3.0)
-
-
-def _poses(scene, n):
-    """Antenna poses along the corridor centre line, alternating +-45 deg yaw, 0.5 / 1.0 m high."""
-    lo, hi = scene.bounds_m
-    route = scene.route_m if scene.route_m is not None else np.array([[lo[0] + 1, 1.2], [hi[0] - 1, 1.2]])
-    seg = np.linalg.norm(np.diff(route, axis=0), axis=1)
-    s = np.linspace(0.05, 0.95, n) * seg.sum()
-    cum = np.concatenate([[0], np.cumsum(seg)])
-    xy = np.stack([np.interp(s, cum, route[:, 0]), np.interp(s, cum, route[:, 1])], axis=1)
-    yaw = np.where(np.arange(n) % 2 == 0, np.pi / 4, -np.pi / 4)
-    z = np.where(np.arange(n) % 3 == 0, 0.5, 1.0)
-    return np.column_stack([xy, z, yaw])
 
 
 def _maxrss_gb():
@@ -62,7 +50,7 @@ def main() -> None:
     tags = scene.tags.positions_m
     normals = scene.tags.normals
     n_src = 8 if args.quick else 20
-    poses = _poses(scene, n_src)
+    poses = route_poses(scene, n_src)
     print(f"scene {scene.name}: {len(tags)} tags, {n_src} antenna positions, bounds {scene.bounds_m.round(2).tolist()}")
 
     # warm-up (JIT compilation of the kernels) so that timings below are steady-state
@@ -163,7 +151,7 @@ def main() -> None:
     # cache load alone (packed cache: one NPZ + JSON index per solver call), more positions
     from propagation.pathcache import PathCache, settings_key
 
-    many = _poses(scene, args.cache_positions)
+    many = route_poses(scene, args.cache_positions)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         cold = P.trace_links(scene, many, tags, tag_normals=normals, cache_dir=tmp)

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from propagation.pathcache import SourcePaths
-from propagation.pooled import _collect, _field, _points, _to_source_paths
+from propagation.pooled import _collect, _copies, _field, _points, _to_source_paths
 
 __all__ = ["Planes", "complete_specular", "large_planes", "merge_paths"]
 
@@ -229,14 +229,13 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
     """
     import drjit as dr
     import mitsuba as mi
-    import sionna.rt as rt
     from sionna.rt.constants import INVALID_PRIMITIVE, INVALID_SHAPE, InteractionType
     from sionna.rt.path_solvers.field_calculator import FieldCalculator
     from sionna.rt.path_solvers.image_method import ImageMethod
     from sionna.rt.path_solvers.paths_buffer import PathsBuffer
     from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
-    from propagation.sionna_scene import clear_devices
+    from propagation.sionna_scene import clear_devices, place_devices
 
     src = np.asarray(sources_m, float).reshape(-1, 3)
     tgt = np.asarray(targets_m, float).reshape(-1, 3)
@@ -260,9 +259,7 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
     li = np.concatenate(rows_l) if rows_l else np.zeros(0, np.int64)
     ch = np.concatenate(rows_c) if rows_c else np.zeros((0, depth), np.int64)
 
-    clear_devices(rt_scene)
-    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
-    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
+    place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
     src_mi, tgt_mi = _points(src), _points(tgt)
     out = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
@@ -311,8 +308,9 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
     """The paths of ``a`` plus those of ``b`` that ``a`` does not already hold.
 
     A path of ``b`` is dropped when a path of ``a`` (or an earlier one of ``b``) to the
-    same tag has a length within ``length_tol_m`` and a departure direction within
-    ``direction_tol`` per component. Tolerances, not rounding to a grid: the same path
+    same tag has a length within ``length_tol_m`` and departure and arrival directions
+    within ``direction_tol`` per component (the copy test of pooled tracing,
+    ``pooled._copies``, without its transfer-matrix check). Tolerances, not rounding to a grid: the same path
     solved from two candidates differs by float32 noise (~1e-6 m at 20 m), which a
     0.1 mm grid line splits ~2 % of the time. The paths of ``a`` are all kept: Sionna's
     traces hold distinct paths with equal length and departure (a wave bouncing inside
@@ -351,17 +349,9 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
     tr = np.concatenate([a.transfer, b.transfer]).reshape(-1, 2, 2)
     order = np.lexsort((from_b, tau, tag))
     tag, from_b, tau, k_tx, k_rx, tr = tag[order], from_b[order], tau[order], k_tx[order], k_rx[order], tr[order]
-    length = tau * _SPEED_OF_LIGHT
-    drop = np.zeros(len(tau), bool)
-    for w in range(1, len(tau)):  # pairs w apart in (tag, length) order; stops at the widest near-tie
-        i = np.arange(w, len(tau))
-        j = i - w
-        near = (tag[i] == tag[j]) & (length[i] - length[j] <= length_tol_m)
-        if not near.any():
-            break
-        same = near & (np.abs(k_tx[i] - k_tx[j]).max(axis=1) <= direction_tol) & (from_b[i] | from_b[j])
-        i, j = i[same], j[same]
-        drop[np.where(from_b[i], i, j)] = True  # the copy from b (the later one if both are)
+    drop = _copies(np.zeros(len(tau), np.int64), tag, tau * _SPEED_OF_LIGHT, k_tx, k_rx, tr,
+                   droppable=from_b, length_tol_m=length_tol_m, direction_tol=direction_tol,
+                   transfer_rtol=None)
     keep = ~drop
     tag, tau, k_tx, k_rx, tr = tag[keep], tau[keep], k_tx[keep], k_rx[keep], tr[keep]
     counts = np.bincount(tag, minlength=len(tags))

@@ -73,15 +73,9 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
     """One PathSolver call; returns a SourcePaths per source (all receivers)."""
     import sionna.rt as rt
 
-    from propagation.sionna_scene import clear_devices
+    from propagation.sionna_scene import clear_devices, place_devices
 
-    clear_devices(rt_scene)
-    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
-    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
-    for k, p in enumerate(sources):
-        rt_scene.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
-    for k, p in enumerate(receivers):
-        rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+    place_devices(rt_scene, sources, receivers)
     solver = rt.PathSolver()
     paths = solver(
         rt_scene,

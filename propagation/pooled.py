@@ -210,21 +210,18 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     """
     import drjit as dr
     import mitsuba as mi
-    import sionna.rt as rt
     from sionna.rt.path_solvers.field_calculator import FieldCalculator
     from sionna.rt.path_solvers.image_method import ImageMethod
     from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
-    from propagation.sionna_scene import clear_devices
+    from propagation.sionna_scene import clear_devices, place_devices
 
     lat = np.asarray(lattice_m, float).reshape(-1, 3)
     pos = np.asarray(positions_m, float).reshape(-1, 3)
     tgt = np.asarray(targets_m, float).reshape(-1, 3)
     need = np.asarray(need, bool)
     n, m = len(pos), len(tgt)
-    clear_devices(rt_scene)
-    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
-    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
+    place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
     tgt_mi = _points(tgt)
     lat_mi = _points(lat)
@@ -375,9 +372,15 @@ def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
     return result
 
 
-def _copies(src, tg, length_m, k_tx, k_rx, transfer, length_tol_m: float = 1e-4,
+def _copies(src, tg, length_m, k_tx, k_rx, transfer, droppable=None, length_tol_m: float = 1e-4,
             direction_tol: float = 1e-4, transfer_rtol: float = 1e-3) -> np.ndarray:
-    """Rows that repeat an earlier row's path, (P,) bool; rows sorted by (src, tg, length)."""
+    """Rows that repeat another row's path, (P,) bool; rows sorted by (src, tg, length).
+
+    Of two copies the later row is dropped, or, with ``droppable`` ((P,) bool), the
+    droppable one (a pair of two rows not droppable is kept: both are distinct paths a
+    solver returned). ``transfer_rtol`` None: transfer matrices are not compared.
+    """
+    droppable = np.ones(len(length_m), bool) if droppable is None else np.asarray(droppable, bool)
     drop = np.zeros(len(length_m), bool)
     scale = np.abs(transfer).reshape(len(length_m), -1).max(axis=1) if len(length_m) else np.zeros(0)
     for w in range(1, len(length_m)):  # rows w apart; stops past the widest near-tie
@@ -386,10 +389,13 @@ def _copies(src, tg, length_m, k_tx, k_rx, transfer, length_tol_m: float = 1e-4,
         near = (src[i] == src[j]) & (tg[i] == tg[j]) & (length_m[i] - length_m[j] <= length_tol_m)
         if not near.any():
             break
+        near &= droppable[i] | droppable[j]
         i, j = i[near], j[near]
         same = ((np.abs(k_tx[i] - k_tx[j]).max(axis=1) <= direction_tol)
-                & (np.abs(k_rx[i] - k_rx[j]).max(axis=1) <= direction_tol)
-                & (np.abs(transfer[i] - transfer[j]).reshape(len(i), -1).max(axis=1)
-                   <= transfer_rtol * np.maximum(scale[i], scale[j])))
-        drop[i[same]] = True
+                & (np.abs(k_rx[i] - k_rx[j]).max(axis=1) <= direction_tol))
+        if transfer_rtol is not None:
+            same &= (np.abs(transfer[i] - transfer[j]).reshape(len(i), -1).max(axis=1)
+                     <= transfer_rtol * np.maximum(scale[i], scale[j]))
+        i, j = i[same], j[same]
+        drop[np.where(droppable[i], i, j)] = True
     return drop

@@ -71,6 +71,21 @@ def clear_devices(rt_scene) -> None:
         rt_scene.remove(name)
 
 
+def place_devices(rt_scene, sources_m=(), targets_m=(), polarization: str = "VH") -> None:
+    """Clear the scene's devices, set single isotropic antennas of ``polarization`` at
+    both ends (patterns are applied later, in NumPy), and add a transmitter per source
+    and a receiver per target, (k, 3) metres, named ``tx<i>`` / ``rx<j>``."""
+    import sionna.rt as rt
+
+    clear_devices(rt_scene)
+    rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization=polarization)
+    rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization=polarization)
+    for k, p in enumerate(np.asarray(sources_m, float).reshape(-1, 3)):
+        rt_scene.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
+    for k, p in enumerate(np.asarray(targets_m, float).reshape(-1, 3)):
+        rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+
+
 def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> None:
     """Raise if a position is outside the scene's bounds or inside solid geometry.
 

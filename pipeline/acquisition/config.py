@@ -158,6 +158,11 @@ class ReaderConfig:
         if self.inventory == "gen2" and self.antenna_mode == "round_robin":
             self.gen2.dwell_s(1.0 / self.read_rate_hz)  # a dwell that cannot fit: named error
 
+    def antenna_slot_s(self, n_antennas: int) -> float:
+        """One antenna's time slot in a read cycle [s]: ``1 / read_rate_hz`` with
+        ``"round_robin"``, that divided by ``n_antennas`` with ``"all"``."""
+        return 1.0 / self.read_rate_hz / (1 if self.antenna_mode == "round_robin" else int(n_antennas))
+
     def channel_plan(self, frequency_hz: float | None = None):
         """The reader's channels (:func:`pipeline.acquisition.channels.channel_plan`), in
         listed order; ``frequency_hz`` is the carrier of region ``"none"``."""

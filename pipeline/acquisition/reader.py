@@ -238,7 +238,7 @@ def read_attempts(track: PoseTrack, mounts: list, reader: ReaderConfig,
     vel = antenna_velocity(t, pose_at, t_range_s=(t0, t1))
     plan = reader.channel_plan(frequency_hz) if plan is None else plan
     ch = channel_schedule(t, plan, t0)
-    slot = 1.0 / reader.read_rate_hz / (1 if reader.antenna_mode == "round_robin" else n_ant)
+    slot = reader.antenna_slot_s(n_ant)
     return ReadAttempts(t, cycle, antenna, true_robot, est_robot, true_ant, est_ant, ch,
                         plan.channels_hz[ch], vel, float(slot), plan)
 

@@ -179,8 +179,7 @@ def reader_dwell_s(reader: ReaderConfig, n_antennas: int = 1) -> float:
     ``n_antennas`` (``"all"``, :func:`~pipeline.acquisition.read_attempts`); the dwell is
     :meth:`Gen2Config.dwell_s` of it (switching time taken off).
     """
-    slot = 1.0 / reader.read_rate_hz / (1 if reader.antenna_mode == "round_robin" else int(n_antennas))
-    return reader.gen2.dwell_s(slot)
+    return reader.gen2.dwell_s(reader.antenna_slot_s(n_antennas))
 
 
 def _closed(gain_db: np.ndarray, budget) -> np.ndarray:

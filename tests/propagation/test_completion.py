@@ -82,7 +82,7 @@ def test_floor_reflection_is_exact_and_two_ray(floor_scene):
 def test_corridor_completion_contains_the_reference_and_merges_without_duplicates(corridor_scene):
     import sionna.rt as rt
 
-    from propagation.sionna_scene import clear_devices
+    from propagation.sionna_scene import clear_devices, place_devices
 
     rts = load_sionna_scene(corridor_scene, F)
     tags = corridor_scene.tags.positions_m[[1, 5, 10, 14]]
@@ -92,13 +92,7 @@ def test_corridor_completion_contains_the_reference_and_merges_without_duplicate
     # refraction every hit reflects (with it, the solver samples reflection or refraction
     # at each hit and misses weak reflections); a pure-reflection path is valid or not
     # whatever that flag
-    clear_devices(rts)
-    rts.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
-    rts.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
-    for k, p in enumerate(src):
-        rts.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
-    for k, p in enumerate(tags):
-        rts.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+    place_devices(rts, src, tags)
     paths = rt.PathSolver()(rts, max_depth=2, samples_per_src=1_000_000, max_num_paths_per_src=20_000,
                             synthetic_array=True, los=False, specular_reflection=True,
                             diffuse_reflection=False, refraction=False, diffraction=False, seed=3)
