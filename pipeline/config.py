@@ -252,14 +252,17 @@ class DownstreamConfig:
     candidate_spacing_m: float = option(
         0.05, "Grid of candidate tag positions on the scene's surfaces for the models [m].")
     oracle: bool = option(
-        False, "Also localise with the ray-traced oracle. It traces candidate windows around each "
-        "tag's true position and the learned model's estimate (about 36,000 links, 4 minutes on "
-        "2 cores for the default study), so its error is bounded by the window: it shows how "
-        "sharply the reads pin a tag down locally, not a global search.")
-    oracle_window_m: float = option(0.2, "Radius of the oracle's candidate windows [m].")
+        False, "Also localise with the ray-traced oracle: the reader's own likelihood of the reads "
+        "given the true gains, searched over every candidate coarse to fine without looking at "
+        "the truth (a specular image-method model over the large planes finds the modes, the "
+        "study's tracer scores windows around them; pipeline.localisation.global_oracle). It "
+        "costs about 3 minutes on 2 cores for the default study from an empty cache (about "
+        "14,000 traced links), under a minute from the cache.")
+    oracle_window_m: float = option(
+        0.4, "Radius of the oracle's fine windows: candidates carried from each traced centre [m].")
     oracle_reach_m: float = option(
-        4.0, "Evaluation-tour slots whose antenna is within this distance of a window are traced "
-        "for the oracle [m].")
+        16.0, "The oracle's coarse pass scores slots whose antenna is within this distance of a "
+        "candidate cell (beyond the longest read of the tour) [m].")
     robot_particles: int = option(2000, "Particles of the RFID-only robot filter.")
 
     def __post_init__(self):

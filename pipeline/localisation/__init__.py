@@ -9,8 +9,10 @@
 * :mod:`.phase` - tag positions from the reads' backscatter phases, a synthetic-aperture
   estimator robust to the reader's pi ambiguity and unknown per-(antenna, channel)
   offsets (:func:`localise_tags_phase`, :func:`phase_reads_from_table`);
-* :mod:`.oracle` - which (slot, candidate) pairs to ray trace for the oracle
-  (:func:`oracle_plan`);
+* :mod:`.global_oracle` - the oracle over every candidate, a coarse-to-fine search that
+  never looks at the truth (:func:`global_oracle`, the study's ``downstream.oracle``);
+* :mod:`.oracle` - windows of candidates around given centres and the (slot, candidate)
+  pairs to trace for them (:func:`oracle_plan`: a local oracle around known places);
 * :mod:`.robot` - RFID-only robot localisation, a particle filter with global
   initialisation and random-particle injection (:func:`run_rfid_mcl`,
   :func:`filter_metrics`);
@@ -18,6 +20,7 @@
   tests and benchmarks.
 """
 
+from .global_oracle import GlobalOracle, OracleSearch, global_oracle
 from .likelihood import (
     EPS,
     Z_CLIP,
@@ -65,10 +68,12 @@ __all__ = [
     "Z_CLIP",
     "BoxFreeSpace",
     "GaussianTerms",
+    "GlobalOracle",
     "ModelLikelihood",
     "Observations",
     "OracleGains",
     "OracleLikelihood",
+    "OracleSearch",
     "OraclePlan",
     "OwnTerms",
     "PhaseColumnsMissing",
@@ -84,6 +89,7 @@ __all__ = [
     "combine_posteriors",
     "filter_metrics",
     "fit_far_detection",
+    "global_oracle",
     "localisation_summary",
     "localise_tags",
     "localise_tags_phase",

@@ -17,10 +17,10 @@ oracle answer both questions on the evaluation tour's reads of the held-out tags
 
 The oracle's likelihood needs the true gain of every (slot, candidate) pair, which only
 the ray tracer gives; tracing every candidate is out of reach (about 10^7 pairs), so the
-oracle scores candidate windows around each tag's true position and around the learned
-model's estimate (:func:`~.oracle.oracle_plan`): it says how sharply the reads pin a tag
-down where the physics is known exactly, not how often a global search would be fooled.
-The robot filter needs gains at every particle, so it runs with the models only.
+oracle searches coarse to fine (:mod:`~.global_oracle`): a specular image-method model
+over the large planes finds each tag's likely regions, the study's tracer scores windows
+around them, never looking at the truth. The robot filter needs gains at every particle,
+so it runs with the models only.
 """
 
 from __future__ import annotations
