@@ -64,6 +64,8 @@ def anchor_groups(positions_m, normals, spacing_m: float) -> tuple[np.ndarray, n
     nrm = np.asarray(normals, float).reshape(-1, 3)
     if not (np.isfinite(spacing_m) and spacing_m > 0):
         raise ValueError(f"spacing_m must be positive, got {spacing_m!r}")
+    if len(pos) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     key = np.hstack([np.round(nrm, 3), np.floor(pos / float(spacing_m))])
     _, cell = np.unique(key, axis=0, return_inverse=True)
     cell = cell.reshape(-1)
@@ -93,7 +95,9 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
 
     pos = np.asarray(positions_m, float).reshape(-1, 3)
     anchors = np.asarray(anchors_m, float).reshape(-1, 3)
-    need = np.asarray(need, bool).reshape(len(pos), len(anchors))
+    need = np.asarray(need, bool)
+    if need.shape != (len(pos), len(anchors)):
+        raise ValueError(f"need must have shape ({len(pos)}, {len(anchors)}), got {need.shape}")
     settings = {"model": "specular_image_method", "frequency_hz": float(frequency_hz),
                 "max_order": int(max_order), "min_area_m2": COMPLETION_MIN_AREA_M2,
                 "algorithm": COMPLETION_ALGORITHM}

@@ -24,6 +24,11 @@ goes coarse to fine, and never looks at the true tag position:
    oracle's likelihood with its RSSI spread widened by ``fine_sigma_db`` scores them; the
    MAP over all windows is the oracle's estimate.
 
+The search never uses the true tag positions; the one input that depends on them is a
+Gen2 reader's per-slot miss probability (``miss_probability``, counting the tags whose
+true links close in a slot, the localised one included), which is 0 at the default
+dwells (a lone tag is always singulated up to 45 tags in the field).
+
 With the true tag positions given, :func:`global_oracle` also reports per tag whether the
 exactly traced truth scores better than the estimate (``truth_preferred``): a search
 that missed the truth's basin, as opposed to reads that genuinely prefer another place.
@@ -56,7 +61,7 @@ class OracleSearch:
     """Coarse links: slots whose antenna is within this distance of an anchor [m]."""
     coarse_sigma_db: float = 3.0
     """RSSI spread added to the reader's in the coarse pass (fading, model error) [dB]."""
-    n_modes: int = 3
+    n_modes: int = 5
     """Coarse modes traced per tag."""
     mode_separation_m: float = 0.5
     """Smallest distance between two coarse modes of a tag [m]."""
@@ -132,7 +137,8 @@ def _unique_positions(poses) -> tuple[np.ndarray, np.ndarray]:
 
 def coarse_posteriors(obs: Observations, true_poses, sites, scene, oracle: OracleLikelihood, *,
                       search: OracleSearch, frequency_hz: float, pattern_kw: dict,
-                      miss_probability=None, cache_dir=None) -> tuple[TagPosteriors, np.ndarray, np.ndarray, int]:
+                      miss_probability=None, cache_dir=None
+                      ) -> tuple[TagPosteriors, np.ndarray, np.ndarray, np.ndarray, int]:
     """The coarse pass: posterior over anchors from the specular model's local means.
 
     Returns
@@ -141,6 +147,8 @@ def coarse_posteriors(obs: Observations, true_poses, sites, scene, oracle: Oracl
         Over the anchors (source ``"oracle_coarse"``).
     anchors : numpy.ndarray (a,), int64
         Site index of each anchor.
+    member_anchor : numpy.ndarray (K,), int64
+        Per site, its anchor (position in ``anchors``; same surface orientation).
     gain_db : numpy.ndarray (S, a)
         Coarse local-mean gains [dB] (-inf beyond ``reach_m``).
     n_links : int
@@ -148,7 +156,7 @@ def coarse_posteriors(obs: Observations, true_poses, sites, scene, oracle: Oracl
     from propagation.anchored import anchor_groups, anchored_gains_db, specular_model_paths
 
     pos, nrm = np.asarray(sites.positions_m, float), np.asarray(sites.normals, float)
-    anchors, _ = anchor_groups(pos, nrm, search.anchor_spacing_m)
+    anchors, member_anchor = anchor_groups(pos, nrm, search.anchor_spacing_m)
     a_pos = pos[anchors]
     uniq, inv = _unique_positions(true_poses)
     need = np.linalg.norm(uniq[:, None, :] - a_pos[None], axis=2) <= search.reach_m
@@ -162,7 +170,7 @@ def coarse_posteriors(obs: Observations, true_poses, sites, scene, oracle: Oracl
                                        incoherent=True, **pattern_kw)
     coarse = widened(oracle, search.coarse_sigma_db).with_gains(gain, miss_probability)
     post = localise_tags(obs, a_pos, {"oracle_coarse": coarse})["oracle_coarse"]
-    return post, anchors, gain, int(len(s))
+    return post, anchors, member_anchor, gain, int(len(s))
 
 
 def _modes(log_post: np.ndarray, pos: np.ndarray, n: int, sep_m: float) -> np.ndarray:
@@ -219,11 +227,13 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
     from propagation.anchored import trace_anchor_paths
 
     search = search or OracleSearch()
+    if obs.n_tags == 0 or len(sites.positions_m) == 0:
+        raise ValueError("global_oracle: no tags or no candidate sites to localise over")
     pos, nrm = np.asarray(sites.positions_m, float), np.asarray(sites.normals, float)
     poses = np.asarray(true_poses, float)
     if poses.shape != (obs.n_slots, 6):
         raise ValueError(f"true_poses must be ({obs.n_slots}, 6), got {poses.shape}")
-    coarse, anchors, coarse_gain, n_model = coarse_posteriors(
+    coarse, anchors, member_anchor, coarse_gain, n_model = coarse_posteriors(
         obs, poses, sites, scene, oracle, search=search, frequency_hz=frequency_hz,
         pattern_kw=pattern_kw, miss_probability=miss_probability, cache_dir=cache_dir)
     a_pos = pos[anchors]
@@ -247,25 +257,30 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
     for rnd in range(1 + int(search.refine_rounds)):
         centres = np.array([c for cs in centres_of for c in cs], np.int64)
         owner = np.repeat(np.arange(obs.n_tags), [len(cs) for cs in centres_of])
-        # fine links: the owner's read slots and the slots whose coarse gain at the
-        # centre's cell comes within margin_db of the threshold
-        cell = np.argmin(np.sum((pos[centres][:, None] - a_pos[None]) ** 2, axis=2), axis=1)
-        want = (obs.read[owner] | (coarse_gain[:, cell].T >= threshold_db - search.margin_db)).T
+        # fine links: the owner's read slots and the slots whose coarse gain at one of
+        # its centres' cells comes within margin_db of the threshold; every centre of a
+        # tag on the same slots, so that its windows are scored alike (an unscored slot
+        # would count as a certain miss, the best score a missed slot can give)
+        near = coarse_gain[:, member_anchor[centres]] >= threshold_db - search.margin_db  # (S, F)
+        slots_of = np.zeros((obs.n_tags, obs.n_slots), bool)
+        np.logical_or.at(slots_of, owner, near.T)
+        slots_of |= obs.read
+        want = slots_of[owner].T
         need = np.zeros((len(uniq), len(centres)), bool)
         np.logical_or.at(need, inv, want)
         paths = trace_anchor_paths(scene, uniq, pos[centres], need, frequency_hz=frequency_hz,
                                    cache_dir=cache_dir, **trace_kw)
         for t in np.flatnonzero(changed):
-            blocks[t] = _window_posterior(obs, t, np.flatnonzero(owner == t), centres, need[inv], paths,
+            blocks[t] = _window_posterior(obs, t, np.flatnonzero(owner == t), centres, want, paths,
                                           inv, pos, nrm, poses, fine, search.window_m, frequency_hz,
                                           pattern_kw, miss_probability)
         changed[:] = False
         if rnd == int(search.refine_rounds):
             break
-        for t, (member, lp, _) in enumerate(blocks):
+        for t, (member, lp) in enumerate(blocks):
             best = int(member[np.argmax(lp.log_posterior[0])])
             step2 = min(np.sum((pos[best] - pos[c]) ** 2) for c in centres_of[t])
-            if step2 > search.refine_step_m ** 2:  # the estimate is carried: trace it
+            if step2 > search.refine_step_m ** 2 and obs.read[t].any():  # carried: trace it
                 centres_of[t].append(best)
                 changed[t] = True
         if not changed.any():
@@ -273,16 +288,15 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
     cand = np.concatenate([b[0] for b in blocks])
     log_post = np.full((obs.n_tags, len(cand)), -np.inf)
     at = 0
-    for t, (_, lp, _) in enumerate(blocks):
+    for t, (_, lp) in enumerate(blocks):
         log_post[t, at:at + lp.log_posterior.shape[1]] = lp.log_posterior[0]
         at += lp.log_posterior.shape[1]
     post = TagPosteriors("oracle", obs.tag_ids, pos[cand], log_post,
                          np.array([b[1].n_attempts[0] for b in blocks]),
                          np.array([b[1].n_reads[0] for b in blocks]))
-    est_gain = [b[2] for b in blocks]
     preferred = None
     if truth_m is not None:
-        preferred = _truth_preferred(obs, poses, np.stack(est_gain, 1), truth_m, truth_normals,
+        preferred = _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites,
                                      scene, fine, frequency_hz, trace_kw, pattern_kw, cache_dir,
                                      miss_probability)
     return GlobalOracle(post, coarse, tuple(pos[np.array(cs)] for cs in centres_of),
@@ -293,9 +307,9 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
                       frequency_hz, pattern_kw, miss_probability):
     """Tag ``t``'s fine posterior over the sites within ``window_m`` of its centres
     (``centres[mine]``, same orientation), each carried from its nearest centre;
-    ``need`` (S, F): the traced (slot, centre) pairs; ``inv``: each slot's path set.
+    ``need`` (S, F): the (slot, centre) pairs scored; ``inv``: each slot's path set.
 
-    Returns (member site indices, TagPosteriors of one tag, the estimate's gains (S,))."""
+    Returns (member site indices, TagPosteriors of one tag)."""
     from propagation.anchored import anchored_gains_db
 
     c = pos[centres[mine]]
@@ -309,27 +323,38 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
                                    nrm[member[m]], poses[s], frequency_hz, **pattern_kw)
     lp = localise_tags(_tag_obs(obs, t), pos[member],
                        {"oracle": fine.with_gains(gain, miss_probability)})["oracle"]
-    return member, lp, gain[:, int(np.argmax(lp.log_posterior[0]))]
+    return member, lp
 
 
-def _truth_preferred(obs, poses, est_gain, truth_m, truth_normals, scene, fine, frequency_hz,
-                     trace_kw, pattern_kw, cache_dir, miss_probability) -> np.ndarray:
-    """Per tag: the exactly traced truth scores higher than the estimate (fine likelihood);
-    ``est_gain`` (S, T): the estimates' gains."""
+def _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites, scene, fine,
+                     frequency_hz, trace_kw, pattern_kw, cache_dir, miss_probability) -> np.ndarray:
+    """Per tag: the truth scores higher than the estimate, both traced exactly on the
+    tag's fine slots (``slots_of`` (T, S)) and scored with the fine likelihood."""
     from propagation.anchored import anchored_gains_db, trace_anchor_paths
 
     truth = np.asarray(truth_m, float).reshape(obs.n_tags, 3)
-    normals = np.asarray(truth_normals, float).reshape(obs.n_tags, 3)
+    est_site = np.argmin(np.sum((np.asarray(sites.positions_m)[None] - post.map_m[:, None]) ** 2,
+                                axis=2), axis=1)
+    points = np.vstack([truth, post.map_m])  # T truths, then T estimates
+    normals = np.vstack([np.asarray(truth_normals, float).reshape(obs.n_tags, 3),
+                         np.asarray(sites.normals, float)[est_site]])
     uniq, inv = _unique_positions(poses)
-    paths = trace_anchor_paths(scene, uniq, truth, np.ones((len(uniq), obs.n_tags), bool),
-                               frequency_hz=frequency_hz, cache_dir=cache_dir, **trace_kw)
-    s, t = np.nonzero(np.ones((obs.n_slots, obs.n_tags), bool))
-    g_true = anchored_gains_db(paths, inv[s], truth, t, truth[t], normals[t], poses[s], frequency_hz,
-                               **pattern_kw).reshape(obs.n_slots, obs.n_tags)
+    want = np.vstack([slots_of, slots_of]).T  # (S, 2T)
+    targets, col = np.unique(points, axis=0, return_inverse=True)  # an estimate may be the truth
+    col = col.reshape(-1)
+    need = np.zeros((len(uniq), len(targets)), bool)
+    for j in range(len(points)):
+        need[inv[want[:, j]], col[j]] = True
+    paths = trace_anchor_paths(scene, uniq, targets, need, frequency_hz=frequency_hz,
+                               cache_dir=cache_dir, **trace_kw)
+    s, c = np.nonzero(want)
+    gain = np.full((obs.n_slots, 2 * obs.n_tags), -np.inf)
+    gain[s, c] = anchored_gains_db(paths, inv[s], targets, col[c], points[c], normals[c], poses[s],
+                                   frequency_hz, **pattern_kw)
     out = np.zeros(obs.n_tags, bool)
     for k in range(obs.n_tags):
-        two = np.vstack([truth[k], truth[k]])  # positions unused by the oracle's likelihood
-        g = np.stack([est_gain[:, k], g_true[:, k]], 1)
-        lp = localise_tags(_tag_obs(obs, k), two, {"o": fine.with_gains(g, miss_probability)})["o"]
+        g = gain[:, [obs.n_tags + k, k]]  # estimate, truth
+        lp = localise_tags(_tag_obs(obs, k), points[[obs.n_tags + k, k]],
+                           {"o": fine.with_gains(g, miss_probability)})["o"]
         out[k] = lp.log_posterior[0, 1] > lp.log_posterior[0, 0]
     return out

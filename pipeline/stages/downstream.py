@@ -72,14 +72,18 @@ def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, cand) -> tuple[dict, dic
                                       n_antennas=len(cfg.robot.antennas))
     opts = trace_options(cfg)
     pattern_kw = {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+    # the coarse pass must reach every read: at least the longest training read (+10 %)
+    reads, _ = read_reads(ctx)
+    d_read = reads.loc[reads["read"].to_numpy(bool), "d_true_m"].to_numpy(float)
+    reach = max(dn.oracle_reach_m, 1.1 * float(d_read.max()) if len(d_read) else 0.0)
     res = global_oracle(obs, true_obs.slot_poses, cand, sc, oracle,
-                        search=OracleSearch(window_m=dn.oracle_window_m, reach_m=dn.oracle_reach_m),
+                        search=OracleSearch(window_m=dn.oracle_window_m, reach_m=reach),
                         frequency_hz=cfg.frequency_hz, trace_kw=opts, pattern_kw=pattern_kw,
                         cache_dir=resolve_cache_dir(cfg), miss_probability=q,
                         truth_m=eval_tags.positions_m[rows], truth_normals=eval_tags.normals[rows])
     err = np.linalg.norm(res.posteriors.map_m - eval_tags.positions_m[rows], axis=1)
     info = {"model_links": res.n_model_links, "traced_links": res.n_traced_links,
-            "traced_centres": int(sum(len(c) for c in res.centres_m)),
+            "traced_centres": int(sum(len(c) for c in res.centres_m)), "reach_m": reach,
             # the exactly traced truth scores higher than an estimate more than a window
             # away: the search missed the truth's basin (not the reads' ambiguity)
             "search_missed": int(np.sum(res.truth_preferred & (err > dn.oracle_window_m)))}
