@@ -255,9 +255,11 @@ class DownstreamConfig:
         False, "Also localise with the ray-traced oracle: the reader's own likelihood of the reads "
         "given the true gains, searched over every candidate coarse to fine without looking at "
         "the truth (a specular image-method model over the large planes finds the modes, the "
-        "study's tracer scores windows around them; pipeline.localisation.global_oracle). It "
-        "costs about 3 minutes on 2 cores for the default study from an empty cache (about "
-        "14,000 traced links), under a minute from the cache.")
+        "study's tracer scores windows around them; pipeline.localisation.global_oracle), and "
+        "the RFID-only robot filter with the traced local-mean gain field over the free space "
+        "(pipeline.localisation.robot_oracle). It costs about 10 minutes on 2 cores for the "
+        "default study from a cache holding only the study's own traces (about 31,000 traced "
+        "links), about 2 minutes from the cache.")
     oracle_window_m: float = option(
         0.4, "Radius of the oracle's fine windows: candidates carried from each traced centre [m].")
     oracle_reach_m: float = option(

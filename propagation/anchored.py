@@ -34,7 +34,8 @@ import numpy as np
 from propagation.patterns import dipole_rotation, pattern_field_world, pose_rotation
 from propagation.tracing import tag_dipole_axes
 
-__all__ = ["anchor_groups", "anchored_gains_db", "specular_model_paths", "trace_anchor_paths"]
+__all__ = ["anchor_groups", "anchored_gains_db", "moved_antenna_local_mean_db", "specular_model_paths",
+           "trace_anchor_paths"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
 _LINKS_PER_BATCH = 50_000  # ~20 paths per link: ~1 M paths of temporaries per batch
@@ -231,6 +232,81 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
             h = (np.bincount(link, weights=amp.real, minlength=len(sel))
                  + 1j * np.bincount(link, weights=amp.imag, minlength=len(sel)))
             power[sel] = h.real**2 + h.imag**2
+    with np.errstate(divide="ignore"):
+        return 10.0 * np.log10(power)
+
+
+def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals, antenna_poses,
+                                *, reader_pattern: str, reader_polarization: str,
+                                tag_pattern: str) -> np.ndarray:
+    """Local-mean one-way gains [dB] at antenna poses near traced antenna positions.
+
+    The antenna-side twin of :func:`anchored_gains_db`: a path leaves the traced antenna
+    position ``p`` along ``k_tx`` toward an image of the tag at ``p + l k_tx``; from a
+    moved antenna at ``p'`` it has length ``l' = |image - p'|`` and leaves along
+    ``(image - p') / l'``, where the reader pattern is evaluated with the pose's own
+    orientation. Paths are summed in power (the local mean: no phases), each scaled by
+    ``(l / l')^2``; the tag pattern, Fresnel coefficients and bases stay the traced ones.
+
+    Parameters
+    ----------
+    paths : list of SourcePaths
+        Per traced antenna position, its paths to the tags.
+    pos_index : array_like (L,), int
+        Per link, its traced antenna position (path set).
+    tags_m : array_like (m, 3)
+        Tag positions as traced, metres.
+    tag_index : array_like (L,), int
+        Per link, its tag.
+    tag_normals : array_like (m, 3)
+        Tag surface normals (the dipole lies in the tag plane).
+    antenna_poses : array_like (L, 6)
+        Per link, the moved antenna pose [x, y, z, yaw, pitch, roll] [m, rad].
+
+    Returns
+    -------
+    numpy.ndarray (L,), float64
+        Local-mean gains in dB; -inf where no path reaches.
+    """
+    tags = np.asarray(tags_m, float).reshape(-1, 3)
+    pose6 = np.asarray(antenna_poses, float).reshape(-1, 6)
+    n = len(pose6)
+    pos_index = np.asarray(pos_index, np.int64).reshape(n)
+    tag_index = np.asarray(tag_index, np.int64).reshape(n)
+    if n == 0:
+        return np.zeros(0)
+    r_tag = dipole_rotation(tag_dipole_axes(np.asarray(tag_normals, float).reshape(-1, 3), len(tags)))
+    # per (traced position, tag): its paths' tag-side vectors g^H T (the part that does
+    # not move with the antenna), evaluated once
+    key = pos_index * len(tags) + tag_index
+    _, first, u_of = np.unique(key, return_index=True, return_inverse=True)
+    u_of = u_of.reshape(-1)
+    start, count = _path_slices(paths, pos_index[first], tags[tag_index[first]])
+    u_link = np.repeat(np.arange(len(first)), count)
+    row = np.repeat(start - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(int(count.sum()))
+    gathered = _gather(paths, pos_index[first][u_link], row)
+    rep = first[u_link]
+    g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[rep]], gathered["k_rx"])
+    tag_side = np.einsum("pr,prt->pt", np.conj(g_rx), gathered["transfer"])  # (P, 2)
+    length = gathered["tau"] * _SPEED_OF_LIGHT
+    source = np.stack([paths[i].source_m for i in range(len(paths))])
+    image = source[pos_index[rep]] + gathered["k_tx"] * length[:, None]
+    offset = np.concatenate([[0], np.cumsum(count)])
+    r_reader = pose_rotation(pose6)
+    power = np.zeros(n)
+    for lo in range(0, n, _LINKS_PER_BATCH):
+        sel = np.arange(lo, min(n, lo + _LINKS_PER_BATCH))
+        cnt = count[u_of[sel]]
+        link = np.repeat(np.arange(len(sel)), cnt)
+        p = np.repeat(offset[u_of[sel]] - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt) + np.arange(int(cnt.sum()))
+        if len(p) == 0:
+            continue
+        to_image = image[p] - pose6[sel[link], :3]
+        new_length = np.linalg.norm(to_image, axis=1)
+        c_tx = pattern_field_world(reader_pattern, reader_polarization, r_reader[sel[link]],
+                                   to_image / new_length[:, None])
+        amp = np.einsum("pt,pt->p", tag_side[p], c_tx) * (length[p] / new_length)
+        power[sel] = np.bincount(link, weights=amp.real**2 + amp.imag**2, minlength=len(sel))
     with np.errstate(divide="ignore"):
         return 10.0 * np.log10(power)
 

@@ -13,6 +13,8 @@
   never looks at the truth (:func:`global_oracle`, the study's ``downstream.oracle``);
 * :mod:`.oracle` - windows of candidates around given centres and the (slot, candidate)
   pairs to trace for them (:func:`oracle_plan`: a local oracle around known places);
+* :mod:`.robot_oracle` - the robot filter's oracle, a traced local-mean gain field over
+  the free space (:func:`gain_field`, :class:`FieldLikelihood`);
 * :mod:`.robot` - RFID-only robot localisation, a particle filter with global
   initialisation and random-particle injection (:func:`run_rfid_mcl`,
   :func:`filter_metrics`);
@@ -52,6 +54,7 @@ from .robot import (
     filter_metrics,
     run_rfid_mcl,
 )
+from .robot_oracle import FieldLikelihood, GainField, gain_field
 from .tags import (
     ESTIMATORS,
     TagPosteriors,
@@ -67,6 +70,8 @@ __all__ = [
     "ESTIMATORS",
     "Z_CLIP",
     "BoxFreeSpace",
+    "FieldLikelihood",
+    "GainField",
     "GaussianTerms",
     "GlobalOracle",
     "ModelLikelihood",
@@ -89,6 +94,7 @@ __all__ = [
     "combine_posteriors",
     "filter_metrics",
     "fit_far_detection",
+    "gain_field",
     "global_oracle",
     "localisation_summary",
     "localise_tags",

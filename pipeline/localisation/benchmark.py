@@ -19,8 +19,9 @@ The oracle's likelihood needs the true gain of every (slot, candidate) pair, whi
 the ray tracer gives; tracing every candidate is out of reach (about 10^7 pairs), so the
 oracle searches coarse to fine (:mod:`~.global_oracle`): a specular image-method model
 over the large planes finds each tag's likely regions, the study's tracer scores windows
-around them, never looking at the truth. The robot filter needs gains at every particle,
-so it runs with the models only.
+around them, never looking at the truth. The robot filter needs gains at every particle:
+its oracle is the traced local-mean gain field on a grid of robot poses
+(:mod:`~.robot_oracle`).
 """
 
 from __future__ import annotations

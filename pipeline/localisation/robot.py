@@ -198,8 +198,9 @@ class RfidParticleFilter:
 
     def __init__(self, likelihood: ModelLikelihood, tag_positions_m, mounts, free_space,
                  config: RfidMCLConfig | None = None) -> None:
-        if not isinstance(likelihood, ModelLikelihood):
-            raise ValueError(f"likelihood must be a ModelLikelihood, got {type(likelihood).__name__}")
+        if not (isinstance(likelihood, ModelLikelihood) or hasattr(likelihood, "terms_for_particles")):
+            raise ValueError("likelihood must be a ModelLikelihood or a particle likelihood "
+                             f"(terms_for_particles, e.g. the oracle's), got {type(likelihood).__name__}")
         self.likelihood = likelihood
         self.tags = np.asarray(tag_positions_m, dtype=np.float64).reshape(-1, 3)
         if len(self.tags) == 0:
@@ -245,11 +246,15 @@ class RfidParticleFilter:
         read = np.asarray(read, dtype=bool)
         rssi = np.asarray(rssi_dbm, dtype=np.float64)
         tags = self.tags
+        keep = None
         if attempted is not None:
             keep = np.asarray(attempted, dtype=bool)
             tags, read, rssi = tags[keep], read[keep], rssi[keep]
         if len(tags) == 0:
             return np.zeros(len(self.particles))
+        if hasattr(self.likelihood, "terms_for_particles"):  # gains tabulated per robot pose
+            terms = self.likelihood.terms_for_particles(self.particles, int(antenna), keep)
+            return terms.loglik(read[None, :], rssi[None, :]).sum(axis=1)
         ant = antenna_poses(self.particles, self.mounts[[int(antenna)]])[:, 0, :]  # (N, 6)
         d, a = pair_geometry(ant, tags, alpha_within_m=self.likelihood.alpha_needed_within_m)
         terms = self.likelihood.terms(d, a)

@@ -90,6 +90,21 @@ def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, cand) -> tuple[dict, dic
     return {"oracle": res.posteriors}, info
 
 
+def _robot_oracle(ctx, eval_tags, free):
+    """The robot filter's oracle: the traced local-mean gain field over the free space."""
+    from pipeline.localisation import OracleLikelihood
+    from pipeline.localisation.robot_oracle import FieldLikelihood, gain_field
+
+    cfg = ctx.config
+    opts = trace_options(cfg)
+    pattern_kw = {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+    field = gain_field(load_scene(ctx), list(build_robot(cfg).antennas), eval_tags.positions_m,
+                       eval_tags.normals, free, frequency_hz=cfg.frequency_hz, trace_kw=opts,
+                       pattern_kw=pattern_kw, cache_dir=resolve_cache_dir(cfg))
+    oracle = OracleLikelihood.from_reader(cfg.reader, frequency_hz=cfg.frequency_hz)
+    return FieldLikelihood(oracle, field), field.n_traced_links
+
+
 def stage_downstream(ctx) -> dict:
     """Tag localisation (every model + oracle) and RFID-only robot localisation."""
     import pandas as pd
@@ -149,7 +164,10 @@ def stage_downstream(ctx) -> dict:
             tag_scores[name] = {"not_run": info["phase"]["reason"]}
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
     free = as_free_space(collision_map(sc, robot))
-    robot_scores = robot_localisation(sources, obs, eval_tags, eval_poses, list(robot.antennas),
+    robot_sources = dict(sources)
+    if dn.oracle:
+        robot_sources["oracle"], info["oracle"]["robot_field_links"] = _robot_oracle(ctx, eval_tags, free)
+    robot_scores = robot_localisation(robot_sources, obs, eval_tags, eval_poses, list(robot.antennas),
                                       free, stage_rng(cfg, "downstream"),
                                       config=RfidMCLConfig(n_particles=dn.robot_particles))
     update(advance=1)
@@ -170,7 +188,8 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=5,
+              ("scene", "tour", "reads", "models"), version=6,
               # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
-              # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle
+              # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
+              # 6: the robot filter's oracle (gain field)
               description="downstream localisation (tags, robot)")
