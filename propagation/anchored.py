@@ -203,8 +203,7 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
     _, first, u_of = np.unique(key, return_index=True, return_inverse=True)
     u_of = u_of.reshape(-1)
     start, count = _path_slices(paths, pos_index[first], anchors[anchor_index[first]])
-    u_link = np.repeat(np.arange(len(first)), count)
-    row = np.repeat(start - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(int(count.sum()))
+    u_link, row = _rows(start, count)
     gathered = _gather(paths, pos_index[first][u_link], row)
     rep = first[u_link]  # the representative link of each path
     c_tx = pattern_field_world(reader_pattern, reader_polarization, pose_rotation(pose6[rep]),
@@ -218,9 +217,7 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
     power = np.zeros(n)
     for lo in range(0, n, _LINKS_PER_BATCH):
         sel = np.arange(lo, min(n, lo + _LINKS_PER_BATCH))
-        cnt = count[u_of[sel]]
-        link = np.repeat(np.arange(len(sel)), cnt)
-        p = np.repeat(offset[u_of[sel]] - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt) + np.arange(int(cnt.sum()))
+        link, p = _rows(offset[u_of[sel]], count[u_of[sel]])
         if len(p) == 0:
             continue
         new_length = np.linalg.norm(image[p] - tgt[sel[link]], axis=1)
@@ -282,8 +279,7 @@ def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals
     _, first, u_of = np.unique(key, return_index=True, return_inverse=True)
     u_of = u_of.reshape(-1)
     start, count = _path_slices(paths, pos_index[first], tags[tag_index[first]])
-    u_link = np.repeat(np.arange(len(first)), count)
-    row = np.repeat(start - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(int(count.sum()))
+    u_link, row = _rows(start, count)
     gathered = _gather(paths, pos_index[first][u_link], row)
     rep = first[u_link]
     g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[rep]], gathered["k_rx"])
@@ -296,9 +292,7 @@ def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals
     power = np.zeros(n)
     for lo in range(0, n, _LINKS_PER_BATCH):
         sel = np.arange(lo, min(n, lo + _LINKS_PER_BATCH))
-        cnt = count[u_of[sel]]
-        link = np.repeat(np.arange(len(sel)), cnt)
-        p = np.repeat(offset[u_of[sel]] - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt) + np.arange(int(cnt.sum()))
+        link, p = _rows(offset[u_of[sel]], count[u_of[sel]])
         if len(p) == 0:
             continue
         to_image = image[p] - pose6[sel[link], :3]
@@ -309,6 +303,14 @@ def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals
         power[sel] = np.bincount(link, weights=amp.real**2 + amp.imag**2, minlength=len(sel))
     with np.errstate(divide="ignore"):
         return 10.0 * np.log10(power)
+
+
+def _rows(start, count) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``start[i] .. start[i] + count[i] - 1`` of every item i, flattened:
+    (item of each row, row)."""
+    item = np.repeat(np.arange(len(count)), count)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    return item, np.repeat(start - first, count) + np.arange(int(np.sum(count)))
 
 
 def _path_slices(paths, pos_index, anchor_pos) -> tuple[np.ndarray, np.ndarray]:
