@@ -39,6 +39,10 @@ __all__ = ["anchor_groups", "anchored_gains_db", "moved_antenna_local_mean_db", 
 
 _SPEED_OF_LIGHT = 299_792_458.0
 _LINKS_PER_BATCH = 50_000  # ~20 paths per link: ~1 M paths of temporaries per batch
+#: Links per call of the per-anchor-link evaluation (patterns, transfer matrices): every
+#: distinct (position, anchor) link of a call is held with all its paths at once
+#: (~150 B per path, ~20 paths per link: ~300 MB at 100 000 links).
+_LINKS_PER_CALL = 100_000
 
 
 def anchor_groups(positions_m, normals, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -191,6 +195,19 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
         return np.zeros(0)
     pos_index = np.asarray(pos_index, np.int64).reshape(n)
     anchor_index = np.asarray(anchor_index, np.int64).reshape(n)
+    if n > _LINKS_PER_CALL:  # bound the per-path temporaries: chunks of links sharing anchors
+        order = np.argsort(pos_index * len(anchors) + anchor_index, kind="stable")
+        normals = np.asarray(target_normals, float).reshape(n, 3)
+        pose_all = np.asarray(poses, float).reshape(n, -1)
+        out = np.empty(n)
+        for lo in range(0, n, _LINKS_PER_CALL):
+            sel = order[lo:lo + _LINKS_PER_CALL]
+            out[sel] = anchored_gains_db(paths, pos_index[sel], anchors, anchor_index[sel], tgt[sel],
+                                         normals[sel], pose_all[sel], frequency_hz,
+                                         reader_pattern=reader_pattern,
+                                         reader_polarization=reader_polarization,
+                                         tag_pattern=tag_pattern, incoherent=incoherent)
+        return out
     axes = tag_dipole_axes(np.asarray(target_normals, float).reshape(n, 3), n)
     pose6 = np.asarray(poses, float).reshape(n, -1)
     # the patterns and transfer matrices are evaluated once per (position, anchor, tag
