@@ -217,12 +217,7 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
     axis_id, turn_id = axis_id.reshape(-1), turn_id.reshape(-1)
     key = np.ravel_multi_index((pos_index, anchor_index, axis_id, turn_id),
                                (len(paths), len(anchors), axis_id.max() + 1, turn_id.max() + 1))
-    _, first, u_of = np.unique(key, return_index=True, return_inverse=True)
-    u_of = u_of.reshape(-1)
-    start, count = _path_slices(paths, pos_index[first], anchors[anchor_index[first]])
-    u_link, row = _rows(start, count)
-    gathered = _gather(paths, pos_index[first][u_link], row)
-    rep = first[u_link]  # the representative link of each path
+    u_of, count, gathered, rep = _distinct_link_paths(paths, key, pos_index, anchors[anchor_index])
     c_tx = pattern_field_world(reader_pattern, reader_polarization, pose_rotation(pose6[rep]),
                                gathered["k_tx"])
     g_rx = pattern_field_world(tag_pattern, "V", dipole_rotation(axes[rep]), gathered["k_rx"])
@@ -293,12 +288,7 @@ def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals
     # per (traced position, tag): its paths' tag-side vectors g^H T (the part that does
     # not move with the antenna), evaluated once
     key = pos_index * len(tags) + tag_index
-    _, first, u_of = np.unique(key, return_index=True, return_inverse=True)
-    u_of = u_of.reshape(-1)
-    start, count = _path_slices(paths, pos_index[first], tags[tag_index[first]])
-    u_link, row = _rows(start, count)
-    gathered = _gather(paths, pos_index[first][u_link], row)
-    rep = first[u_link]
+    u_of, count, gathered, rep = _distinct_link_paths(paths, key, pos_index, tags[tag_index])
     g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[rep]], gathered["k_rx"])
     tag_side = np.einsum("pr,prt->pt", np.conj(g_rx), gathered["transfer"])  # (P, 2)
     length = gathered["tau"] * _SPEED_OF_LIGHT
@@ -320,6 +310,26 @@ def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals
         power[sel] = np.bincount(link, weights=amp.real**2 + amp.imag**2, minlength=len(sel))
     with np.errstate(divide="ignore"):
         return 10.0 * np.log10(power)
+
+
+def _distinct_link_paths(paths, key, pos_index, end_m):
+    """The paths of each distinct link (equal ``key``: evaluated once).
+
+    Returns
+    -------
+    u_of : numpy.ndarray (L,)
+        Per link, its distinct link.
+    count : numpy.ndarray (u,)
+        Paths per distinct link (its paths are contiguous, in distinct-link order).
+    gathered : dict
+        Path arrays (``transfer``, ``tau``, ``k_tx``, ``k_rx``), one row per path.
+    rep : numpy.ndarray (P,)
+        Per path, the first link of its distinct link (for per-link attributes).
+    """
+    _, first, u_of = np.unique(key, return_index=True, return_inverse=True)
+    start, count = _path_slices(paths, pos_index[first], end_m[first])
+    u_link, row = _rows(start, count)
+    return u_of.reshape(-1), count, _gather(paths, pos_index[first][u_link], row), first[u_link]
 
 
 def _rows(start, count) -> tuple[np.ndarray, np.ndarray]:

@@ -37,7 +37,6 @@ that missed the truth's basin, as opposed to reads that genuinely prefer another
 from __future__ import annotations
 
 import copy
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,11 +122,6 @@ def widened(oracle: OracleLikelihood, extra_sigma_db: float) -> OracleLikelihood
     out.sigma_db = float(np.hypot(oracle.sigma_db, extra_sigma_db))
     out.closure_sigma_db = float(np.hypot(oracle.closure_sigma_db, extra_sigma_db))
     return out
-
-
-def _tag_obs(obs: Observations, t: int) -> Observations:
-    return dataclasses.replace(obs, tag_ids=(obs.tag_ids[t],), read=obs.read[t:t + 1],
-                               rssi_dbm=obs.rssi_dbm[t:t + 1], attempted=obs.attempted[t:t + 1])
 
 
 def _unique_positions(poses) -> tuple[np.ndarray, np.ndarray]:
@@ -321,7 +315,7 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
     gain = np.full((obs.n_slots, len(member)), -np.inf)
     gain[s, m] = anchored_gains_db(paths, inv[s], pos[centres], f[m], pos[member[m]],
                                    nrm[member[m]], poses[s], frequency_hz, **pattern_kw)
-    lp = localise_tags(_tag_obs(obs, t), pos[member],
+    lp = localise_tags(obs.select([obs.tag_ids[t]]), pos[member],
                        {"oracle": fine.with_gains(gain, miss_probability)})["oracle"]
     return member, lp
 
@@ -354,7 +348,7 @@ def _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites, 
     out = np.zeros(obs.n_tags, bool)
     for k in range(obs.n_tags):
         g = gain[:, [obs.n_tags + k, k]]  # estimate, truth
-        lp = localise_tags(_tag_obs(obs, k), points[[obs.n_tags + k, k]],
+        lp = localise_tags(obs.select([obs.tag_ids[k]]), points[[obs.n_tags + k, k]],
                            {"o": fine.with_gains(g, miss_probability)})["o"]
         out[k] = lp.log_posterior[0, 1] > lp.log_posterior[0, 0]
     return out

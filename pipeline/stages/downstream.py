@@ -48,7 +48,13 @@ def _models(ctx) -> dict:
     return models
 
 
-def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, cand) -> tuple[dict, dict]:
+def _solver_and_patterns(cfg) -> tuple[dict, dict]:
+    """The study tracer's options split into solver options and pattern names."""
+    opts = trace_options(cfg)
+    return opts, {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+
+
+def _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand) -> tuple[dict, dict]:
     """The oracle's posteriors (coarse-to-fine global search) and what it cost."""
     from pipeline.localisation import OracleLikelihood, observations_from_reads
     from pipeline.localisation.global_oracle import OracleSearch, global_oracle
@@ -70,10 +76,8 @@ def _oracle_posteriors(ctx, obs, eval_reads, eval_tags, cand) -> tuple[dict, dic
         q = miss_probability_at_poses(eval_reads, true_obs.slot_poses, cfg.reader,
                                       link_budget(cfg), extra_tags=0,
                                       n_antennas=len(cfg.robot.antennas))
-    opts = trace_options(cfg)
-    pattern_kw = {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+    opts, pattern_kw = _solver_and_patterns(cfg)
     # the coarse pass must reach every read: at least the longest training read (+10 %)
-    reads, _ = read_reads(ctx)
     d_read = reads.loc[reads["read"].to_numpy(bool), "d_true_m"].to_numpy(float)
     reach = max(dn.oracle_reach_m, 1.1 * float(d_read.max()) if len(d_read) else 0.0)
     res = global_oracle(obs, true_obs.slot_poses, cand, sc, oracle,
@@ -96,8 +100,7 @@ def _robot_oracle(ctx, eval_tags, free):
     from pipeline.localisation.robot_oracle import FieldLikelihood, gain_field
 
     cfg = ctx.config
-    opts = trace_options(cfg)
-    pattern_kw = {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+    opts, pattern_kw = _solver_and_patterns(cfg)
     field = gain_field(load_scene(ctx), list(build_robot(cfg).antennas), eval_tags.positions_m,
                        eval_tags.normals, free, frequency_hz=cfg.frequency_hz, trace_kw=opts,
                        pattern_kw=pattern_kw, cache_dir=resolve_cache_dir(cfg))
@@ -155,7 +158,7 @@ def stage_downstream(ctx) -> dict:
                                              segment_m=1.0)
     posts.update(post_p)
     if dn.oracle:
-        post_o, info["oracle"] = _oracle_posteriors(ctx, obs, eval_reads, eval_tags, cand)
+        post_o, info["oracle"] = _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand)
         posts.update(post_o)
     update(advance=1)
     tag_scores = tag_localisation_scores(posts, eval_tags)
