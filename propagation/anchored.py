@@ -30,12 +30,13 @@ the same links: p50 0.68 dB, p95 10 dB over readable links.
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
 
 from propagation.patterns import dipole_rotation, pattern_field_world, pose_rotation
 from propagation.tracing import tag_dipole_axes
 
 __all__ = ["anchor_groups", "anchored_gains_db", "moved_antenna_local_mean_db", "specular_model_paths",
-           "trace_anchor_paths"]
+           "trace_anchor_paths", "window_gains_db"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
 _LINKS_PER_BATCH = 50_000  # ~20 paths per link: ~1 M paths of temporaries per batch
@@ -43,6 +44,12 @@ _LINKS_PER_BATCH = 50_000  # ~20 paths per link: ~1 M paths of temporaries per b
 #: distinct (position, anchor) link of a call is held with all its paths at once
 #: (~150 B per path, ~20 paths per link: ~300 MB at 100 000 links).
 _LINKS_PER_CALL = 100_000
+#: Path x target pairs per block of :func:`window_gains_db` (~6 float64 or float32
+#: temporaries of this size: ~150 MB).
+_PAIRS_PER_BLOCK = 1 << 22
+#: Links per call of the specular model's solver (bounds its outputs before they are
+#: sorted into path sets; the solver itself bounds its Dr.Jit temporaries).
+_MODEL_LINKS_PER_CALL = 50_000
 
 
 def anchor_groups(positions_m, normals, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -117,14 +124,17 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
     if len(rows):
         ensure_variant()
         rt_scene = load_sionna_scene(scene, frequency_hz)
-        cols = np.flatnonzero(todo[rows].any(axis=0))
-        fresh = complete_specular(rt_scene, pos[rows], anchors[cols], int(max_order),
-                                  large_planes(rt_scene, COMPLETION_MIN_AREA_M2),
-                                  need=todo[np.ix_(rows, cols)], los=True)
-        for u, sp in zip(rows, fresh, strict=True):
-            out[u] = out[u].merged(sp)
-        if cache is not None:
-            cache.save([out[u] for u in rows])
+        planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2)
+        # positions in groups of <= _MODEL_LINKS_PER_CALL links: the paths of a call are
+        # held several times over while they are sorted into path sets (~1 KB per link)
+        for grp in _groups(rows, todo[rows].sum(axis=1), _MODEL_LINKS_PER_CALL):
+            cols = np.flatnonzero(todo[grp].any(axis=0))
+            fresh = complete_specular(rt_scene, pos[grp], anchors[cols], int(max_order), planes,
+                                      need=todo[np.ix_(grp, cols)], los=True)
+            for u, sp in zip(grp, fresh, strict=True):
+                out[u] = out[u].merged(sp)
+            if cache is not None:
+                cache.save([out[u] for u in grp])
     return out
 
 
@@ -245,6 +255,86 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
         return 10.0 * np.log10(power)
 
 
+def window_gains_db(paths, pos_index, poses, anchor_m, targets_m, target_normal, frequency_hz: float, *,
+                    reader_pattern: str, reader_polarization: str, tag_pattern: str) -> np.ndarray:
+    """Coherent one-way gains [dB] of S antenna poses to M targets carried from one anchor.
+
+    The same gains as :func:`anchored_gains_db` on every (pose, target) pair (test), for
+    a window of targets that share the anchor and the surface normal (one tag dipole
+    axis), computed as dense (paths x targets) blocks: the patterns once per pose and
+    path, the carried lengths by ``|l k_rx - q|^2 = l^2 |k_rx|^2 - 2 l k_rx . q + |q|^2``
+    with ``q = target - anchor`` (one matrix product), the paths of each pose summed with
+    one sparse segment sum; phases reduced in float64, cos/sin in float32 (|h| to ~1e-7
+    relative, 1e-4 dB). Several times faster than the per-link form for a window.
+
+    Parameters
+    ----------
+    paths : list of SourcePaths
+        Per distinct antenna position, its paths (the anchor among their tags).
+    pos_index : array_like (S,), int
+        Per pose, its path set.
+    poses : array_like (S, 6)
+        Antenna poses (orientation used; position that of the path set).
+    anchor_m : array_like (3,)
+        The anchor as traced, metres.
+    targets_m : array_like (M, 3)
+        Tag positions near the anchor, metres.
+    target_normal : array_like (3,)
+        Their common surface normal.
+
+    Returns
+    -------
+    numpy.ndarray (S, M), float64
+        Gains in dB; -inf where no path reaches.
+    """
+    pos_index = np.asarray(pos_index, np.int64).reshape(-1)
+    pose6 = np.asarray(poses, float).reshape(len(pos_index), -1)
+    anchor = np.asarray(anchor_m, float).reshape(3)
+    q = np.asarray(targets_m, float).reshape(-1, 3) - anchor
+    out = np.full((len(pos_index), len(q)), -np.inf)
+    if len(pos_index) == 0 or len(q) == 0:
+        return out
+    start, count = _path_slices(paths, pos_index, np.broadcast_to(anchor, (len(pos_index), 3)))
+    link, row = _rows(start, count)
+    if len(row) == 0:
+        return out
+    g = _gather(paths, pos_index[link], row)
+    axis = tag_dipole_axes(np.asarray(target_normal, float).reshape(1, 3), 1)
+    c_tx = pattern_field_world(reader_pattern, reader_polarization, pose_rotation(pose6[link]), g["k_tx"])
+    g_rx = pattern_field_world(tag_pattern, "V", dipole_rotation(np.repeat(axis, len(row), axis=0)),
+                               g["k_rx"])
+    length = g["tau"] * _SPEED_OF_LIGHT
+    scaled = np.einsum("pr,prt,pt->p", np.conj(g_rx), g["transfer"], c_tx) * length  # weight * l
+    w_re, w_im = (x.astype(np.float32)[:, None] for x in (scaled.real, scaled.imag))
+    l2 = length**2 * np.sum(g["k_rx"] ** 2, axis=1)
+    k0 = 2.0 * np.pi * float(frequency_hz) / _SPEED_OF_LIGHT
+    reached = np.flatnonzero(count > 0)
+    # each reached pose sums its paths: a sparse (poses x paths) matrix of ones
+    segments = sparse.csr_matrix((np.ones(len(row), np.float32), (np.repeat(np.arange(len(reached)),
+                                                                             count[reached]),
+                                                                   np.arange(len(row)))),
+                                 shape=(len(reached), len(row)))
+    step = max(1, _PAIRS_PER_BLOCK // len(row))
+    for m0 in range(0, len(q), step):
+        qb = q[m0:m0 + step]
+        new_length = np.sqrt(np.maximum(
+            l2[:, None] - 2.0 * length[:, None] * (g["k_rx"] @ qb.T) + np.sum(qb**2, axis=1)[None], 0.0))
+        # the phase in float64, reduced to [-pi, pi], then cos/sin in float32 (SIMD: ~6x
+        # faster than float64 here; |h| relative error ~1e-7, 1e-4 dB at most measured)
+        phase = k0 * new_length
+        phase -= 2.0 * np.pi * np.round(phase / (2.0 * np.pi))
+        phase = phase.astype(np.float32)
+        inv = (1.0 / new_length).astype(np.float32)
+        cos, sin = np.cos(phase) * inv, np.sin(phase) * inv
+        # sum_p w_p / l'_p exp(-j k0 l'_p) with w = w_re + j w_im
+        h_re = segments @ (cos * w_re + sin * w_im)
+        h_im = segments @ (cos * w_im - sin * w_re)
+        power = h_re.astype(np.float64) ** 2 + h_im.astype(np.float64) ** 2
+        with np.errstate(divide="ignore"):
+            out[reached, m0:m0 + step] = 10.0 * np.log10(power)
+    return out
+
+
 def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals, antenna_poses,
                                 *, reader_pattern: str, reader_polarization: str,
                                 tag_pattern: str) -> np.ndarray:
@@ -330,6 +420,20 @@ def _distinct_link_paths(paths, key, pos_index, end_m):
     start, count = _path_slices(paths, pos_index[first], end_m[first])
     u_link, row = _rows(start, count)
     return u_of.reshape(-1), count, _gather(paths, pos_index[first][u_link], row), first[u_link]
+
+
+def _groups(items, sizes, limit: int) -> list[np.ndarray]:
+    """``items`` in consecutive groups whose ``sizes`` add up to at most ``limit`` (a
+    single item larger than ``limit`` forms its own group)."""
+    out, lo, acc = [], 0, 0
+    for i, size in enumerate(np.asarray(sizes, np.int64)):
+        if i > lo and acc + size > limit:
+            out.append(items[lo:i])
+            lo, acc = i, 0
+        acc += int(size)
+    if len(items) > lo:
+        out.append(items[lo:])
+    return out
 
 
 def _rows(start, count) -> tuple[np.ndarray, np.ndarray]:

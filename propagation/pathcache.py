@@ -123,7 +123,12 @@ class SourcePaths:
 
     def index_of(self, tag_positions_m) -> np.ndarray:
         """Row in ``tag_positions_m`` of each query position (exact match), -1 if absent."""
-        lookup = {row.tobytes(): i for i, row in enumerate(np.ascontiguousarray(self.tag_positions_m))}
+        lookup = self.__dict__.get("_lookup")
+        if lookup is None or lookup[0] is not self.tag_positions_m:  # built once per array
+            rows = np.ascontiguousarray(self.tag_positions_m)
+            lookup = (self.tag_positions_m, {row.tobytes(): i for i, row in enumerate(rows)})
+            self.__dict__["_lookup"] = lookup
+        lookup = lookup[1]
         q = np.ascontiguousarray(np.asarray(tag_positions_m, dtype=np.float64).reshape(-1, 3))
         return np.array([lookup.get(row.tobytes(), -1) for row in q], dtype=np.int64)
 

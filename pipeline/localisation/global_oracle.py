@@ -304,17 +304,23 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
     ``need`` (S, F): the (slot, centre) pairs scored; ``inv``: each slot's path set.
 
     Returns (member site indices, TagPosteriors of one tag)."""
-    from propagation.anchored import anchored_gains_db
+    from propagation.anchored import window_gains_db
 
     c = pos[centres[mine]]
     d2 = np.sum((pos[:, None, :] - c[None]) ** 2, axis=2)  # (K, k_t)
     d2 = np.where(nrm @ nrm[centres[mine]].T > 0.9, d2, np.inf)
     member = np.flatnonzero(np.min(d2, axis=1) <= window_m ** 2)
     f = mine[np.argmin(d2[member], axis=1)]  # each member's centre (fine anchor)
-    s, m = np.nonzero(need[:, f])
     gain = np.full((obs.n_slots, len(member)), -np.inf)
-    gain[s, m] = anchored_gains_db(paths, inv[s], pos[centres], f[m], pos[member[m]],
-                                   nrm[member[m]], poses[s], frequency_hz, **pattern_kw)
+    # one dense block per (centre, tag axis): its scored slots x its members
+    _, block = np.unique(np.column_stack([f, np.round(nrm[member], 6)]), axis=0, return_inverse=True)
+    for b in range(int(block.max()) + 1 if len(block) else 0):
+        m = np.flatnonzero(block.reshape(-1) == b)
+        s = np.flatnonzero(need[:, f[m[0]]])
+        if len(s):
+            gain[np.ix_(s, m)] = window_gains_db(paths, inv[s], poses[s], pos[centres[f[m[0]]]],
+                                                 pos[member[m]], nrm[member[m[0]]], frequency_hz,
+                                                 **pattern_kw)
     lp = localise_tags(obs.select([obs.tag_ids[t]]), pos[member],
                        {"oracle": fine.with_gains(gain, miss_probability)})["oracle"]
     return member, lp
