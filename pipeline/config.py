@@ -266,10 +266,14 @@ class DownstreamConfig:
         16.0, "The oracle's coarse pass scores slots whose antenna is within this distance of a "
         "candidate cell (beyond the longest read of the tour) [m].")
     robot_particles: int = option(2000, "Particles of the RFID-only robot filter.")
+    robot_runs: int = option(
+        3, "Runs of the RFID-only robot filter per model on independent particle streams; "
+        "robot_localisation reports the median over runs and the spread of the per-run "
+        "median errors (one run is one noisy draw).")
 
     def __post_init__(self):
         _positive(self, "candidate_spacing_m", "oracle_window_m", "oracle_reach_m",
-                  "robot_particles")
+                  "robot_particles", "robot_runs")
 
 
 @section

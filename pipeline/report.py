@@ -224,8 +224,9 @@ def headline_html(metrics: dict) -> list[str]:
              ("median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "horizontal_median_m",
               "n_tags")),
             ("robot_localisation", "downstream: RFID-only robot localisation (unknown start, "
-             "kidnapped halfway)", ("median_m", "p90_m", "converge_s", "recover_s",
-                                    "heading_median_deg"))):
+             "kidnapped halfway; median over filter runs, with the range of the per-run "
+             "medians)", ("median_m", "median_m_min", "median_m_max", "p90_m", "converge_s",
+                          "recover_s", "heading_median_deg", "n_runs"))):
         sec = metrics.get(key)
         if isinstance(sec, dict) and sec:
             out.append(_table_html(title, ["model", *cols],

@@ -172,7 +172,8 @@ def stage_downstream(ctx) -> dict:
         robot_sources["oracle"], info["oracle"]["robot_field_links"] = _robot_oracle(ctx, eval_tags, free)
     robot_scores = robot_localisation(robot_sources, obs, eval_tags, eval_poses, list(robot.antennas),
                                       free, stage_rng(cfg, "downstream"),
-                                      config=RfidMCLConfig(n_particles=dn.robot_particles))
+                                      config=RfidMCLConfig(n_particles=dn.robot_particles),
+                                      n_runs=dn.robot_runs)
     update(advance=1)
     rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
             for t, e in s.pop("per_tag_m", {}).items()]
@@ -191,8 +192,9 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=6,
+              ("scene", "tour", "reads", "models"), version=7,
               # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
               # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
-              # 6: the robot filter's oracle (gain field)
+              # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
+              # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin)
               description="downstream localisation (tags, robot)")

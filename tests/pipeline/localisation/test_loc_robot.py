@@ -160,3 +160,22 @@ def test_oracle_field_filter_recovers_from_a_kidnapping():
     assert m["median_m"] < 0.5
     with pytest.raises(ValueError, match="fading_sigma_db"):
         FieldLikelihood(oracle, field, fading_sigma_db=-1.0)
+
+
+def test_median_over_filter_runs():
+    """Scores over filter runs: the median per metric, a run that never converges
+    counts as infinitely late (the median is NaN when most never converge)."""
+    from pipeline.localisation.benchmark import _median_over_runs
+
+    runs = [{"median_m": 0.2, "p90_m": 1.0, "heading_median_deg": 5.0, "converge_s": 4.0,
+             "recover_s": np.nan},
+            {"median_m": 0.9, "p90_m": 3.0, "heading_median_deg": 9.0, "converge_s": np.nan,
+             "recover_s": 2.0},
+            {"median_m": 0.4, "p90_m": 2.0, "heading_median_deg": 7.0, "converge_s": 6.0,
+             "recover_s": np.nan}]
+    m = _median_over_runs(runs)
+    assert m["median_m"] == 0.4 and m["p90_m"] == 2.0 and m["heading_median_deg"] == 7.0
+    assert m["converge_s"] == 6.0 and m["converged"]  # 4, 6, never -> 6
+    assert np.isnan(m["recover_s"])  # never, 2, never -> never
+    assert (m["median_m_min"], m["median_m_max"], m["n_runs"]) == (0.2, 0.9, 3)
+    assert m["median_m_runs"] == [0.2, 0.9, 0.4]
