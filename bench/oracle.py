@@ -106,8 +106,11 @@ def main() -> None:
         t_per_link = time.perf_counter() - t0
     finally:
         anchored.window_gains_db = dense
-    finite = np.isfinite(per_link.posteriors.log_posterior) & np.isfinite(again.posteriors.log_posterior)
-    d_lp = np.max(np.abs(per_link.posteriors.log_posterior - again.posteriors.log_posterior)[finite])
+    finite = np.isfinite(again.posteriors.log_posterior)
+    assert np.array_equal(finite, np.isfinite(per_link.posteriors.log_posterior)), \
+        "dense and per-link windows differ in which candidates they score"
+    d_lp = float(np.max(np.abs(per_link.posteriors.log_posterior - again.posteriors.log_posterior)[finite],
+                        initial=0.0))
 
     err = np.linalg.norm(res.posteriors.map_m - tags.positions_m, axis=1)
     exhaustive = obs.n_slots * len(cand)
@@ -128,6 +131,7 @@ def main() -> None:
               f"~{exhaustive / rate / 3600:.1f} h")
     else:
         print("the fine links were cached before this run: no tracing rate measured")
+
 
 def _per_link_window(paths, pos_index, poses, anchor_m, targets_m, target_normal, frequency_hz,
                      **pattern_kw):

@@ -44,8 +44,8 @@ _LINKS_PER_BATCH = 50_000  # ~20 paths per link: ~1 M paths of temporaries per b
 #: distinct (position, anchor) link of a call is held with all its paths at once
 #: (~150 B per path, ~20 paths per link: ~300 MB at 100 000 links).
 _LINKS_PER_CALL = 100_000
-#: Path x target pairs per block of :func:`window_gains_db` (~6 float64 or float32
-#: temporaries of this size: ~150 MB).
+#: Path x target pairs per block of :func:`window_gains_db` (float64 and float32
+#: temporaries of this size: ~200 MB measured).
 _PAIRS_PER_BLOCK = 1 << 22
 #: Links per call of the specular model's solver (bounds its outputs before they are
 #: sorted into path sets; the solver itself bounds its Dr.Jit temporaries).
@@ -281,6 +281,10 @@ def window_gains_db(paths, pos_index, poses, anchor_m, targets_m, target_normal,
         Tag positions near the anchor, metres.
     target_normal : array_like (3,)
         Their common surface normal.
+    frequency_hz : float
+        Carrier frequency [Hz] of the phases.
+    reader_pattern, reader_polarization, tag_pattern : str
+        Antenna patterns, as for :func:`anchored_gains_db`.
 
     Returns
     -------
@@ -455,7 +459,7 @@ def _path_slices(paths, pos_index, anchor_pos) -> tuple[np.ndarray, np.ndarray]:
         sp = paths[pos_index[grp[0]]]
         rows = sp.index_of(anchor_pos[grp])
         if np.any(rows < 0):
-            raise ValueError("anchored_gains_db: an anchor was not traced from a link's antenna position")
+            raise ValueError("carried gains: an anchor was not traced from a link's antenna position")
         start[grp] = sp.offsets[rows]
         count[grp] = sp.offsets[rows + 1] - sp.offsets[rows]
     return start, count

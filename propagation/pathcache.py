@@ -122,7 +122,10 @@ class SourcePaths:
                    np.zeros((0, 2, 2), complex), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
 
     def index_of(self, tag_positions_m) -> np.ndarray:
-        """Row in ``tag_positions_m`` of each query position (exact match), -1 if absent."""
+        """Row in ``tag_positions_m`` of each query position (exact match), -1 if absent.
+
+        The lookup is built once per ``tag_positions_m`` array: replace the array, never
+        change it in place."""
         lookup = self.__dict__.get("_lookup")
         if lookup is None or lookup[0] is not self.tag_positions_m:  # built once per array
             rows = np.ascontiguousarray(self.tag_positions_m)

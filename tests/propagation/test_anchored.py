@@ -217,6 +217,16 @@ def test_window_gains_are_the_per_link_gains(corridor_scene, monkeypatch):
     # the same sums with float32 cos/sin of the float64-reduced phase (|h| relative error
     # ~1e-7, i.e. ~1e-6 dB; 1e-4 dB at worst in a benchmark of 750 000 pairs): 1e-3 dB
     np.testing.assert_allclose(window, per_link, atol=1e-3)
+    # a pose whose position has no path to the anchor, between poses that have: -inf
+    # there, the others unchanged (the segment sum skips it)
+    from propagation.pathcache import SourcePaths
+
+    blind = SourcePaths(np.array([6.0, 1.2, 0.7]), anchor[None], np.zeros(2, np.int64),
+                        np.zeros((0, 2, 2), complex), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+    with_blind = window_gains_db([*paths, blind], np.array([0, 3, 1, 2, 3, 1, 0]),
+                                 poses[[0, 0, 1, 2, 2, 3, 4]], anchor, targets, normal, F, **pat)
+    assert np.all(np.isneginf(with_blind[[1, 4]]))
+    np.testing.assert_array_equal(with_blind[[0, 2, 3, 5, 6]], window)
     monkeypatch.setattr(anchored, "_PAIRS_PER_BLOCK", 37)  # ~1 target per block
     np.testing.assert_allclose(window_gains_db(paths, pos_index, poses, anchor, targets, normal, F,
                                                **pat), window, atol=1e-5)
@@ -232,7 +242,7 @@ def test_specular_model_in_bounded_calls_is_the_same(corridor_scene, monkeypatch
     tags = np.array([[6.0, 0.0, 1.0], [5.0, 2.4, 0.9], [8.0, 0.0, 1.3]])
     need = np.array([[1, 1, 0], [1, 1, 1], [0, 1, 1], [1, 0, 1]], bool)
     whole = specular_model_paths(corridor_scene, src, tags, need, F, 2)
-    monkeypatch.setattr(anchored, "_MODEL_LINKS_PER_CALL", 2)
+    monkeypatch.setattr(anchored, "_MODEL_LINKS_PER_CALL", 5)  # two positions per call
     monkeypatch.setattr(completion, "_CANDIDATES_PER_CALL", 5)
     monkeypatch.setattr(completion, "_LOS_PAIRS_PER_CALL", 4)
     split = specular_model_paths(corridor_scene, src, tags, need, F, 2)
@@ -241,3 +251,5 @@ def test_specular_model_in_bounded_calls_is_the_same(corridor_scene, monkeypatch
         np.testing.assert_array_equal(a.offsets, b.offsets)
         np.testing.assert_allclose(a.tau_s, b.tau_s, rtol=1e-6)  # float32 solver
         np.testing.assert_allclose(a.transfer, b.transfer, rtol=1e-4, atol=1e-12)
+        np.testing.assert_allclose(a.k_tx, b.k_tx, atol=1e-6)
+        np.testing.assert_allclose(a.k_rx, b.k_rx, atol=1e-6)
