@@ -33,7 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from propagation.pathcache import SourcePaths
-from propagation.pooled import _collect, _copies, _field, _points, _to_source_paths
+from propagation.sionna_paths import (
+    collect_paths,
+    path_copies,
+    points,
+    solve_fields,
+    to_source_paths,
+)
 
 __all__ = ["Planes", "complete_specular", "large_planes", "merge_paths"]
 
@@ -264,7 +270,7 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
 
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
-    src_mi, tgt_mi = _points(src), _points(tgt)
+    src_mi, tgt_mi = points(src), points(tgt)
     out = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
     if len(li):
         shapes = list(mi_scene.shapes())
@@ -277,7 +283,7 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         per = max(1, _LOS_PAIRS_PER_CALL // max(1, m))
         for s0 in range(0, n, per):  # groups of sources, every target
             grp = src[s0:s0 + per]
-            g_mi = _points(grp)
+            g_mi = points(grp)
             cand = SBCandidateGenerator()(mi_scene, g_mi, tgt_mi, samples_per_src=1, max_num_paths_per_src=m,
                                           max_depth=0, los=True, specular_reflection=False,
                                           diffuse_reflection=False, refraction=False, diffraction=False,
@@ -286,15 +292,15 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
             dr.eval()
             cand.shrink()
             if cand.buffer_size:
-                _field(cand, rt_scene, g_mi, tgt_mi, len(grp), m, 1, FieldCalculator)
+                solve_fields(cand, rt_scene, g_mi, tgt_mi, len(grp), m, 1, FieldCalculator)
                 part = {k: [] for k in out}
-                _collect(cand, part)
+                collect_paths(cand, part)
                 part["src"] = [x + s0 for x in part["src"]]
                 for k in out:
                     out[k].extend(part[k])
             del cand
     clear_devices(rt_scene)
-    return _to_source_paths(out, src, tgt, need)
+    return to_source_paths(out, src, tgt, need)
 
 
 def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi, n, m, out) -> None:
@@ -326,8 +332,8 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     buf._tgt_indices = mi.UInt(link_tgt.astype(np.uint32))  # noqa: SLF001
     buf._paths_counter = mi.UInt(len(ch))  # noqa: SLF001
     buf = ImageMethod()(rt_scene.mi_scene, buf, False, True, src_mi, tgt_mi)
-    _field(buf, rt_scene, src_mi, tgt_mi, n, m, 1, FieldCalculator)
-    _collect(buf, out)
+    solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, 1, FieldCalculator)
+    collect_paths(buf, out)
 
 
 def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
@@ -337,7 +343,7 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
     A path of ``b`` is dropped when a path of ``a`` (or an earlier one of ``b``) to the
     same tag has a length within ``length_tol_m`` and departure and arrival directions
     within ``direction_tol`` per component (the copy test of pooled tracing,
-    ``pooled._copies``, without its transfer-matrix check). Tolerances, not rounding to a grid: the same path
+    ``sionna_paths.path_copies``, without its transfer-matrix check). Tolerances, not rounding to a grid: the same path
     solved from two candidates differs by float32 noise (~1e-6 m at 20 m), which a
     0.1 mm grid line splits ~2 % of the time. The paths of ``a`` are all kept: Sionna's
     traces hold distinct paths with equal length and departure (a wave bouncing inside
@@ -376,7 +382,7 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
     tr = np.concatenate([a.transfer, b.transfer]).reshape(-1, 2, 2)
     order = np.lexsort((from_b, tau, tag))
     tag, from_b, tau, k_tx, k_rx, tr = tag[order], from_b[order], tau[order], k_tx[order], k_rx[order], tr[order]
-    drop = _copies(np.zeros(len(tau), np.int64), tag, tau * _SPEED_OF_LIGHT, k_tx, k_rx, tr,
+    drop = path_copies(np.zeros(len(tau), np.int64), tag, tau * _SPEED_OF_LIGHT, k_tx, k_rx, tr,
                    droppable=from_b, length_tol_m=length_tol_m, direction_tol=direction_tol,
                    transfer_rtol=None)
     keep = ~drop

@@ -28,10 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from propagation.pathcache import SourcePaths
+from propagation.sionna_paths import collect_paths, points, solve_fields, to_source_paths
 
 __all__ = ["POOL_RADIUS_FACTOR", "PoolChunk", "lattice_points", "pooled_supported", "pooling_plan", "trace_pooled"]
 
-_SPEED_OF_LIGHT = 299_792_458.0
 #: Pooling radius over lattice spacing: at 1.2 a position on a tour pools its ~3
 #: nearest lattice points (measured, docs/pooled_tracing.md); wider adds candidates,
 #: not accuracy.
@@ -167,13 +167,6 @@ def pooled_supported() -> bool:
     return True
 
 
-def _points(a) -> object:
-    import mitsuba as mi
-
-    a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
-    return mi.Point3f(a[:, 0], a[:, 1], a[:, 2])
-
-
 def _candidate_keys(buf) -> np.ndarray:
     """Per candidate row: its chain (interaction types, shapes, primitives) as one key."""
     types = buf.interaction_types.numpy().astype(np.int64)
@@ -223,8 +216,8 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     n, m = len(pos), len(tgt)
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
-    tgt_mi = _points(tgt)
-    lat_mi = _points(lat)
+    tgt_mi = points(tgt)
+    lat_mi = points(lat)
 
     # 1. candidates from the lattice points
     gen = SBCandidateGenerator()
@@ -253,7 +246,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     if len(probed):
         probe = cand.gather(mi.UInt(probed.astype(np.uint32)))
         probe = ImageMethod()(mi_scene, probe, False, True, lat_mi, tgt_mi)
-        _field(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
+        solve_fields(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
                discard=False)
         c_valid[probed] = probe.valid.numpy().astype(bool)
         del probe
@@ -277,15 +270,15 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
         rows.append(r)
         new_src.append(np.full(len(r), i, np.int64))
     out_paths = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
-    pos_mi = _points(pos)
+    pos_mi = points(pos)
     if rows:
         rows = np.concatenate(rows)
         new_src = np.concatenate(new_src)
         buf = cand.gather(mi.UInt(rows.astype(np.uint32)))
         buf._src_indices = mi.UInt(new_src.astype(np.uint32))  # noqa: SLF001 - re-targeted
         buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
-        _field(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
-        _collect(buf, out_paths)
+        solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+        collect_paths(buf, out_paths)
     # 3. line of sight, directly at the exact positions
     los = SBCandidateGenerator()(mi_scene, pos_mi, tgt_mi, samples_per_src=1,
                                  max_num_paths_per_src=m, max_depth=0, los=True,
@@ -296,106 +289,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     dr.eval()
     los.shrink()
     if los.buffer_size:
-        _field(los, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
-        _collect(los, out_paths)
+        solve_fields(los, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+        collect_paths(los, out_paths)
     clear_devices(rt_scene)
-    return _to_source_paths(out_paths, pos, tgt, need)
-
-
-def _field(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_calculator,
-           discard: bool = True) -> None:
-
-    # unrotated antennas at both ends (orientations are applied later, in NumPy)
-    field_calculator()(rt_scene.wavelength, buf, int(samples_per_src), False, pos_mi, tgt_mi,
-                       _points(np.zeros((n, 3))), _points(np.zeros((m, 3))), rt_scene.tx_array.antenna_pattern.patterns,
-                       rt_scene.rx_array.antenna_pattern.patterns)
-    if discard:
-        buf.discard_invalid()
-
-
-def _collect(buf, out: dict) -> None:
-    if buf.buffer_size == 0:
-        return
-    a = np.empty((buf.buffer_size, 2, 2), complex)
-    for r in range(2):
-        for t in range(2):
-            z = buf.a[r][t]
-            a[:, r, t] = np.asarray(z.real, np.float64) + 1j * np.asarray(z.imag, np.float64)
-    out["a"].append(a)
-    out["src"].append(buf.source_indices.numpy().astype(np.int64))
-    out["tgt"].append(buf.target_indices.numpy().astype(np.int64))
-    out["tau"].append(buf.tau.numpy().astype(np.float64))
-    # Dr.Jit's Vector3f.numpy() is (3, P)
-    out["k_tx"].append(np.asarray(buf.k_tx.numpy(), np.float64).T)
-    out["k_rx"].append(np.asarray(buf.k_rx.numpy(), np.float64).T)
-
-
-def _to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
-    if out["src"]:
-        src = np.concatenate(out["src"])
-        tg = np.concatenate(out["tgt"])
-        a = np.concatenate(out["a"])
-        tau = np.concatenate(out["tau"])
-        k_tx = np.concatenate(out["k_tx"])
-        k_rx = np.concatenate(out["k_rx"])
-    else:
-        src = tg = np.zeros(0, np.int64)
-        a, tau = np.zeros((0, 2, 2), complex), np.zeros(0)
-        k_tx = k_rx = np.zeros((0, 3))
-    keep = need[src, tg]  # line-of-sight rows were solved for every pair
-    src, tg, a, tau, k_tx, k_rx = src[keep], tg[keep], a[keep], tau[keep], k_tx[keep], k_rx[keep]
-    order = np.lexsort((tau, tg, src))
-    src, tg, a, tau, k_tx, k_rx = src[order], tg[order], a[order], tau[order], k_tx[order], k_rx[order]
-    # The image method accepts a chain on any triangle of the reflecting plane, so the
-    # same physical path can come from two pooled candidates (a wall's two triangles seen
-    # from two lattice points). A copy is a path of the same position and tag whose
-    # length (0.1 mm), departure and arrival directions (1e-4) and transfer matrix (1e-3
-    # relative) all agree: far above the solver's float32 noise (~1e-6 m at 20 m), far
-    # below any real path separation. Tolerances, not rounding to a grid (a grid line
-    # splits float32 copies), and all four quantities (Sionna returns distinct paths with
-    # equal length and departure, e.g. a bounce inside a wall slab in either order).
-    keep = ~_copies(src, tg, tau * _SPEED_OF_LIGHT, k_tx, k_rx, a)
-    src, tg, a, tau, k_tx, k_rx = src[keep], tg[keep], a[keep], tau[keep], k_tx[keep], k_rx[keep]
-    result = []
-    bounds = np.searchsorted(src, np.arange(len(pos) + 1))
-    for i in range(len(pos)):
-        s0, s1 = bounds[i], bounds[i + 1]
-        cols = np.flatnonzero(need[i])
-        # tg is sorted within a position and holds only needed tags
-        counts = np.diff(np.searchsorted(tg[s0:s1], np.append(cols, len(tgt))))
-        result.append(SourcePaths(
-            source_m=pos[i].copy(),
-            tag_positions_m=tgt[cols].copy(),
-            offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-            transfer=a[s0:s1], tau_s=tau[s0:s1], k_tx=k_tx[s0:s1], k_rx=k_rx[s0:s1],
-        ))
-    return result
-
-
-def _copies(src, tg, length_m, k_tx, k_rx, transfer, droppable=None, length_tol_m: float = 1e-4,
-            direction_tol: float = 1e-4, transfer_rtol: float = 1e-3) -> np.ndarray:
-    """Rows that repeat another row's path, (P,) bool; rows sorted by (src, tg, length).
-
-    Of two copies the later row is dropped, or, with ``droppable`` ((P,) bool), the
-    droppable one (a pair of two rows not droppable is kept: both are distinct paths a
-    solver returned). ``transfer_rtol`` None: transfer matrices are not compared.
-    """
-    droppable = np.ones(len(length_m), bool) if droppable is None else np.asarray(droppable, bool)
-    drop = np.zeros(len(length_m), bool)
-    scale = np.abs(transfer).reshape(len(length_m), -1).max(axis=1) if len(length_m) else np.zeros(0)
-    for w in range(1, len(length_m)):  # rows w apart; stops past the widest near-tie
-        i = np.arange(w, len(length_m))
-        j = i - w
-        near = (src[i] == src[j]) & (tg[i] == tg[j]) & (length_m[i] - length_m[j] <= length_tol_m)
-        if not near.any():
-            break
-        near &= droppable[i] | droppable[j]
-        i, j = i[near], j[near]
-        same = ((np.abs(k_tx[i] - k_tx[j]).max(axis=1) <= direction_tol)
-                & (np.abs(k_rx[i] - k_rx[j]).max(axis=1) <= direction_tol))
-        if transfer_rtol is not None:
-            same &= (np.abs(transfer[i] - transfer[j]).reshape(len(i), -1).max(axis=1)
-                     <= transfer_rtol * np.maximum(scale[i], scale[j]))
-        i, j = i[same], j[same]
-        drop[np.where(droppable[i], i, j)] = True
-    return drop
+    return to_source_paths(out_paths, pos, tgt, need)

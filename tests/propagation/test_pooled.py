@@ -149,7 +149,7 @@ def test_link_channels_rejects_nothing_silently(corridor_scene):
 def test_copies_are_found_by_tolerance_not_by_grid():
     """Float32 copies of one path straddling a 0.1 mm grid line are one path; a distinct
     path with the same length and departure but another arrival direction is kept."""
-    from propagation.pooled import _copies
+    from propagation.sionna_paths import path_copies as _copies
 
     k = np.array([0.6, 0.8, 0.0])
     t = np.eye(2, dtype=complex)[None].repeat(4, axis=0)
