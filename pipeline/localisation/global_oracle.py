@@ -248,6 +248,7 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
     fine = widened(oracle, search.fine_sigma_db)
     blocks: list = [None] * obs.n_tags
     changed = np.ones(obs.n_tags, bool)  # tags whose windows are (re)computed this round
+    window_gains: dict = {}  # a centre's window gains, reused by later rounds (see below)
     for rnd in range(1 + int(search.refine_rounds)):
         centres = np.array([c for cs in centres_of for c in cs], np.int64)
         owner = np.repeat(np.arange(obs.n_tags), [len(cs) for cs in centres_of])
@@ -267,7 +268,7 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
         for t in np.flatnonzero(changed):
             blocks[t] = _window_posterior(obs, t, np.flatnonzero(owner == t), centres, want, paths,
                                           inv, pos, nrm, poses, fine, search.window_m, frequency_hz,
-                                          pattern_kw, miss_probability)
+                                          pattern_kw, miss_probability, window_gains)
         changed[:] = False
         if rnd == int(search.refine_rounds):
             break
@@ -298,10 +299,15 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
 
 
 def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, fine, window_m,
-                      frequency_hz, pattern_kw, miss_probability):
+                      frequency_hz, pattern_kw, miss_probability, window_gains: dict):
     """Tag ``t``'s fine posterior over the sites within ``window_m`` of its centres
     (``centres[mine]``, same orientation), each carried from its nearest centre;
     ``need`` (S, F): the (slot, centre) pairs scored; ``inv``: each slot's path set.
+
+    ``window_gains`` holds, per (centre site, tag axis, scored slots), the gains of every
+    site of that orientation within ``window_m`` of the centre: a refinement round that
+    adds a centre to a tag only computes the new centre's window (the other windows'
+    members are the same sites, scored on the same slots, with the same numbers).
 
     Returns (member site indices, TagPosteriors of one tag)."""
     from propagation.anchored import window_gains_db
@@ -312,15 +318,26 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
     member = np.flatnonzero(np.min(d2, axis=1) <= window_m ** 2)
     f = mine[np.argmin(d2[member], axis=1)]  # each member's centre (fine anchor)
     gain = np.full((obs.n_slots, len(member)), -np.inf)
+    axis = np.round(nrm[member], 6)
     # one dense block per (centre, tag axis): its scored slots x its members
-    _, block = np.unique(np.column_stack([f, np.round(nrm[member], 6)]), axis=0, return_inverse=True)
+    _, block = np.unique(np.column_stack([f, axis]), axis=0, return_inverse=True)
     for b in range(int(block.max()) + 1 if len(block) else 0):
         m = np.flatnonzero(block.reshape(-1) == b)
+        centre = int(centres[f[m[0]]])
         s = np.flatnonzero(need[:, f[m[0]]])
-        if len(s):
-            gain[np.ix_(s, m)] = window_gains_db(paths, inv[s], poses[s], pos[centres[f[m[0]]]],
-                                                 pos[member[m]], nrm[member[m[0]]], frequency_hz,
-                                                 **pattern_kw)
+        if not len(s):
+            continue
+        key = (centre, axis[m[0]].tobytes(), s.tobytes())
+        if key not in window_gains:
+            same = np.all(np.round(nrm, 6) == axis[m[0]], axis=1)
+            sites = np.flatnonzero(same & (np.sum((pos - pos[centre]) ** 2, axis=1) <= window_m ** 2))
+            window_gains[key] = (sites, window_gains_db(paths, inv[s], poses[s], pos[centre], pos[sites],
+                                                        nrm[sites[0]], frequency_hz, **pattern_kw))
+        sites, g = window_gains[key]
+        col = np.minimum(np.searchsorted(sites, member[m]), len(sites) - 1)
+        if not np.array_equal(sites[col], member[m]):  # a member's centre is within window_m
+            raise RuntimeError("global_oracle: a window member is missing from its centre's window")
+        gain[np.ix_(s, m)] = g[:, col]
     lp = localise_tags(obs.select([obs.tag_ids[t]]), pos[member],
                        {"oracle": fine.with_gains(gain, miss_probability)})["oracle"]
     return member, lp
