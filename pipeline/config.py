@@ -257,9 +257,9 @@ class DownstreamConfig:
         "the truth (a specular image-method model over the large planes finds the modes, the "
         "study's tracer scores windows around them; pipeline.localisation.global_oracle), and "
         "the RFID-only robot filter with the traced local-mean gain field over the free space "
-        "(pipeline.localisation.robot_oracle). It costs about 10 minutes on 2 cores for the "
+        "(pipeline.localisation.robot_oracle). It costs about 6 minutes more on 2 cores for the "
         "default study from a cache holding only the study's own traces (about 31,000 traced "
-        "links), about 2 minutes from the cache.")
+        "links), under a minute from the cache.")
     oracle_window_m: float = option(
         0.4, "Radius of the oracle's fine windows: candidates carried from each traced centre [m].")
     oracle_reach_m: float = option(
