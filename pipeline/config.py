@@ -143,6 +143,17 @@ class TracingConfig:
         "from the candidate chains of its nearest lattice points (propagation.pooled) [m]; "
         "0 = shoot from every position. 0.25 halves the seed-to-seed noise (docs/physics.md).",
     )
+    share_radius_m: float = option(
+        1.0,
+        "Antenna positions of one tracing call within this distance share the chains their "
+        "rays found: each shoots shared_samples_per_src rays and is also solved, by Sionna's "
+        "image method at its exact position, for every chain valid at a neighbour "
+        "(propagation.shared) [m]; 0 = off (every position shoots samples_per_src rays "
+        "alone). A position without a neighbour shoots samples_per_src rays.",
+    )
+    shared_samples_per_src: int = option(
+        3000, "Rays shot per antenna position that shares chains with neighbours (share_radius_m > 0)."
+    )
     completion_order: int = option(
         3,
         "Also solve every specular reflection path of up to this order (0 = off, 1-3) over the "
@@ -163,6 +174,12 @@ class TracingConfig:
                   "field_samples_per_tx")
         if self.completion_order not in (0, 1, 2, 3):
             raise ConfigError(f"completion_order must be 0 (off), 1, 2 or 3, got {self.completion_order!r}")
+        if not (np.isfinite(self.share_radius_m) and 0.0 <= self.share_radius_m <= 5.0):
+            raise ConfigError(f"share_radius_m must be 0 (off) or a radius in (0, 5] m, got {self.share_radius_m!r}")
+        if self.share_radius_m > 0 and self.lattice_spacing_m > 0:
+            raise ConfigError("share_radius_m and lattice_spacing_m exclude each other (pooled positions "
+                              "do not shoot their own rays): set one of them to 0")
+        _positive(self, "shared_samples_per_src")
         if not (np.isfinite(self.lattice_spacing_m) and 0.0 <= self.lattice_spacing_m <= 1.0):
             raise ConfigError("lattice_spacing_m must be 0 (off) or a spacing in (0, 1] m, "
                               f"got {self.lattice_spacing_m!r}")

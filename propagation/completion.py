@@ -192,9 +192,20 @@ def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.n
         prev = img[:, :, j]
         dist = np.einsum("scx,cx->sc", prev, nrm[:, j]) - off[:, j]
         img[:, :, j + 1] = prev - 2.0 * dist[..., None] * nrm[None, :, j]
-    li, ci = np.divmod(np.arange(len(link_src) * len(chains), dtype=np.int64), len(chains))
-    pt = tgt[link_tgt[li]]
-    for j in range(k - 1, -1, -1):
+    # The last plane first, dense over (link, chain) (one block is at most _BLOCK pairs):
+    # most pairs fail here, and broadcasting is ~5x faster than gathering per pair.
+    p_last = chains[:, k - 1]
+    lo, hi = planes.lo_m[p_last] - _BOX_SLACK_M, planes.hi_m[p_last] + _BOX_SLACK_M  # (c, 3)
+    a = (tgt @ planes.normal[p_last].T - planes.offset_m[p_last])[link_tgt]  # (L, c)
+    b = (np.einsum("scx,cx->sc", img[:, :, k], planes.normal[p_last]) - planes.offset_m[p_last])[link_src]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = a / (a - b)
+    pt_l = tgt[link_tgt][:, None, :]  # (L, 1, 3)
+    x = pt_l + t[..., None] * (img[:, :, k][link_src] - pt_l)  # (L, c, 3)
+    ok = (a * b < 0.0) & np.all((x >= lo) & (x <= hi), axis=2)
+    li, ci = (v.astype(np.int64) for v in np.nonzero(ok))
+    pt = x[li, ci]
+    for j in range(k - 2, -1, -1):
         p = chains[ci, j]
         n = planes.normal[p]
         im = img[link_src[li], ci, j + 1]

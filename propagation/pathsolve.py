@@ -21,6 +21,7 @@ from propagation.completion import complete_specular, large_planes, merge_paths
 from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import unit_vec_from_theta_phi
 from propagation.pooled import POOL_RADIUS_FACTOR, pooling_plan, trace_pooled
+from propagation.shared import sharing_neighbours, trace_shared
 from propagation.sionna_scene import load_sionna_scene
 
 __all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "PathSet", "bytes_per_source", "trace_paths"]
@@ -45,6 +46,7 @@ COMPLETION_MIN_AREA_M2 = 1.0
 #: that changes their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 1
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
+SHARING_ALGORITHM = 1
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -127,6 +129,31 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
     return out
 
 
+def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lone_samples, lone_per_call,
+                   max_depth, seed, refraction) -> list[SourcePaths]:
+    """One chunk traced with chain sharing (:mod:`propagation.shared`): positions with a
+    neighbour within ``radius_m`` shoot ``shared_samples`` rays and take their neighbours'
+    valid chains; a position with none shoots ``lone_samples`` as in direct tracing."""
+    nbs = sharing_neighbours(positions, radius_m)
+    lone = np.array([len(nb) == 0 for nb in nbs], bool)
+    out: list = [None] * len(positions)
+    together = np.flatnonzero(~lone)
+    if len(together):
+        row = np.full(len(positions), -1, np.int64)
+        row[together] = np.arange(len(together))
+        fresh = trace_shared(rt_scene, positions[together], receivers, [row[nbs[i]] for i in together],
+                             max_depth, shared_samples, seed, refraction)
+        for i, sp in zip(together, fresh, strict=True):
+            out[i] = sp
+    alone = np.flatnonzero(lone)
+    for c0 in range(0, len(alone), lone_per_call):
+        grp = alone[c0:c0 + lone_per_call]
+        for i, sp in zip(grp, _trace_chunk(rt_scene, positions[grp], receivers, max_depth, lone_samples,
+                                           seed, refraction), strict=True):
+            out[i] = sp
+    return out
+
+
 @dataclass(frozen=True)
 class PathSet:
     """Traced paths from antenna positions to tags (what :func:`trace_paths` returns).
@@ -160,7 +187,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
                 max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
                 cache_dir=None, memory_budget_bytes=None, progress=None, seed: int = 42,
                 refraction: bool = True, lattice_spacing_m: float | None = None,
-                completion_order: int = 0) -> PathSet:
+                completion_order: int = 0, share_radius_m: float | None = None,
+                shared_samples_per_src: int | None = None) -> PathSet:
     """Paths from antenna positions to tags: from the cache, traced, or carried from a lattice.
 
     The tracing half of :func:`trace_links` (same parameters); the positions must be
@@ -198,6 +226,18 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
             raise ValueError(f"lattice_spacing_m must be positive, got {lattice_spacing_m!r}")
         settings["lattice_spacing_m"] = float(lattice_spacing_m)
         settings["pool_radius_m"] = POOL_RADIUS_FACTOR * float(lattice_spacing_m)
+    if share_radius_m is not None:
+        if not (np.isfinite(share_radius_m) and share_radius_m > 0):
+            raise ValueError(f"share_radius_m must be positive, got {share_radius_m!r}")
+        if lattice_spacing_m is not None:
+            raise ValueError("share_radius_m and lattice_spacing_m exclude each other: "
+                             "pooled positions do not shoot their own rays")
+        shared_samples_per_src = int(shared_samples_per_src or samples_per_src)
+        if shared_samples_per_src < 1:
+            raise ValueError(f"shared_samples_per_src must be >= 1, got {shared_samples_per_src!r}")
+        settings["share_radius_m"] = float(share_radius_m)
+        settings["shared_samples_per_src"] = shared_samples_per_src
+        settings["sharing_algorithm"] = SHARING_ALGORITHM
     if int(completion_order) < 0 or int(completion_order) > 3:
         raise ValueError(f"completion_order must be 0 (off) to 3, got {completion_order!r}")
     completion_order = min(int(completion_order), int(max_depth))  # no path beyond max_depth
@@ -221,6 +261,10 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
 
     budget = int(memory_budget_bytes) if memory_budget_bytes else _default_budget()
     per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
+    lone_per_chunk = per_chunk
+    if share_radius_m is not None:  # chunks of positions that share: fewer rays each
+        per_chunk = max(1, min(_MAX_SOURCES_PER_CALL,
+                               budget // bytes_per_source(shared_samples_per_src, max_depth)))
     n_calls, t_trace, n_shot = 0, 0.0, 0
     if todo:
         ensure_variant()
@@ -236,7 +280,12 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         for c, chunk in enumerate(chunks):
             rec = np.unique(np.concatenate([missing[u] for u in chunk]))
             t0 = time.perf_counter()
-            if plan is None:
+            if plan is None and share_radius_m is not None:
+                fresh = _trace_sharing(rt_scene, uniq[chunk], tags[rec], share_radius_m,
+                                       shared_samples_per_src, samples_per_src, lone_per_chunk,
+                                       max_depth, seed, refraction)
+                n_shot += len(chunk)
+            elif plan is None:
                 fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
                                      refraction)
                 n_shot += len(chunk)

@@ -165,7 +165,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
                 tag_normals=None, pairs=None, cache_dir=None, memory_budget_bytes=None,
                 progress=None, reader_polarization: str = "V", seed: int = 42,
                 refraction: bool = True, lattice_spacing_m: float | None = None,
-                channel_hz=None, channel_gradient: bool = False, completion_order: int = 0) -> LinkSet:
+                channel_hz=None, channel_gradient: bool = False, completion_order: int = 0,
+                share_radius_m: float | None = None, shared_samples_per_src: int | None = None) -> LinkSet:
     """Ray-trace the one-way channel gain between antenna poses and tags.
 
     Parameters
@@ -221,6 +222,18 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         a neighbour's. Measured on ``corridor_lab`` (docs/physics.md): at 0.25 m the
         seed-to-seed p95 over readable links drops from 1.5 dB to 0.9 dB. None (default):
         every position shoots its own rays.
+    share_radius_m : float, optional
+        Share chains between the positions of one call within this radius
+        (:mod:`propagation.shared`): each position shoots ``shared_samples_per_src`` rays,
+        is solved as ``PathSolver`` solves it, and is then given every chain that was a
+        valid path at a neighbour, solved again by Sionna's image method at the exact
+        position (no path is moved). A position without a neighbour shoots
+        ``samples_per_src`` rays as in direct tracing. Excludes ``lattice_spacing_m``.
+        Measured on ``corridor_lab``'s evaluation tour (docs/physics.md): 1 m at 3,000 rays
+        gives a seed-to-seed p95 of 0.93 dB over readable links, against 1.13 dB for direct
+        tracing at 30,000 rays, in less than half the time.
+    shared_samples_per_src : int, optional
+        Rays per position when it shares (default ``samples_per_src``).
     channel_hz : float or array_like, optional
         Frequency of each pose's coherent sum (n,), Hz (a hopping reader's channel): one
         trace at ``frequency_hz`` (materials evaluated there) serves every channel; the
@@ -276,7 +289,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
                      samples_per_src=samples_per_src, cache_dir=cache_dir,
                      memory_budget_bytes=memory_budget_bytes, progress=progress, seed=seed,
                      refraction=refraction, lattice_spacing_m=lattice_spacing_m,
-                     completion_order=completion_order)
+                     completion_order=completion_order, share_radius_m=share_radius_m,
+                     shared_samples_per_src=shared_samples_per_src)
 
     ii, jj = np.nonzero(pairs)
     gain = np.zeros((n, m))

@@ -44,7 +44,8 @@ log = logging.getLogger(__name__)
 #: Config keys every traced result depends on (the reads and the truth stages).
 TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
                 "tracing.reader_pattern", "tracing.tag_pattern", "tracing.reader_polarization",
-                "tracing.backend", "tracing.lattice_spacing_m", "tracing.completion_order")
+                "tracing.backend", "tracing.lattice_spacing_m", "tracing.completion_order",
+                "tracing.share_radius_m", "tracing.shared_samples_per_src")
 
 #: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
 #: and heights are not those of any lattice the training tags or truth sites use.
@@ -189,6 +190,8 @@ def trace_options(cfg: StudyConfig) -> dict:
         "memory_budget_bytes": int(t.memory_budget_mb * 2**20),
         "lattice_spacing_m": t.lattice_spacing_m if t.lattice_spacing_m > 0 else None,
         "completion_order": t.completion_order,
+        "share_radius_m": t.share_radius_m if t.share_radius_m > 0 else None,
+        "shared_samples_per_src": t.shared_samples_per_src,
     }
 
 
