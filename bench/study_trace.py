@@ -4,8 +4,10 @@ Prints, from one run on this machine:
 
 1. the whole default study from an empty propagation cache (``rfidstudy run`` in a
    subprocess, a fresh temporary cache and run directory), once per tracing setting
-   (direct: every antenna position shoots its own rays; pooled: ``--lattice``), with its
-   wall time, the stages' times and the peak memory of its stages;
+   (default: chains shared between positions within 1 m, 3,000 rays each; direct: every
+   antenna position shoots 30,000 rays alone, the default before sharing; pooled, with
+   ``--lattice``: rays shot from a lattice), with its wall time, the stages' times and
+   the peak memory of its stages;
 2. the *naive* tracing of the same links with bare Sionna RT (the tours, the truth's tag
    sites and free-space view; not the RSSI field maps, which are radio maps, nor the
    opt-in oracle): every antenna position of
@@ -43,11 +45,22 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_study(out: Path, cache: Path, lattice_m: float | None) -> dict:
+#: Tracing settings compared: label -> config overrides (``--set``).
+DIRECT = {"tracing.share_radius_m": 0.0}
+
+
+def settings(lattice_m: float | None) -> dict:
+    out = {"default (shared 1 m, 3e3 rays)": {}, "direct (3e4 rays)": DIRECT}
+    if lattice_m:
+        out[f"pooled {lattice_m:g} m"] = {**DIRECT, "tracing.lattice_spacing_m": lattice_m}
+    return out
+
+
+def run_study(out: Path, cache: Path, overrides: dict) -> dict:
     """One cold default study; wall time, stage times and peak stage memory."""
     cmd = [str(Path(sys.executable).with_name("rfidstudy")), "run", "--out", str(out), "--no-progress"]
-    if lattice_m:
-        cmd += ["--set", f"tracing.lattice_spacing_m={lattice_m}"]
+    for k, v in overrides.items():
+        cmd += ["--set", f"{k}={v}"]
     env = {**os.environ, "RFIDSTUDY_CACHE": str(cache)}
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
@@ -107,13 +120,15 @@ def naive_trace(scene, groups, max_depth: int, samples: int) -> dict:
     return out
 
 
-def seed_noise(scene, run: Path, lattice_m: float | None, cfg) -> tuple[dict, np.ndarray, float]:
+def seed_noise(scene, run: Path, overrides: dict) -> tuple[dict, np.ndarray, float]:
     """trace_links on the evaluation tour with the study's tracing options (patterns,
     depth, rays, completion), seeds 1 and 2 (fresh caches). Poses are (x, y, z, yaw): the
     default antennas are not tilted."""
     import propagation as P
+    from pipeline.config import config_from_mapping
     from pipeline.stages.common import trace_options
 
+    cfg = config_from_mapping(_nested(overrides))
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
     r = pd.read_parquet(run / "eval_reads.parquet")
     ids = sorted(r["tag_id"].unique())
@@ -125,13 +140,20 @@ def seed_noise(scene, run: Path, lattice_m: float | None, cfg) -> tuple[dict, np
     for seed in (1, 2):
         with tempfile.TemporaryDirectory() as cd:
             t0 = time.perf_counter()
-            opts = {**trace_options(cfg), "lattice_spacing_m": lattice_m}
-            opts.pop("memory_budget_bytes")
+            opts = trace_options(cfg)
             links = P.trace_links(scene, poses, tpos, tag_normals=nrm, seed=seed, cache_dir=cd,
                                   frequency_hz=cfg.frequency_hz, **opts)
             secs.append(time.perf_counter() - t0)
         gains[seed] = links.gain_db
     return gains, np.asarray(secs), len(poses) * len(tpos)
+
+
+def _nested(overrides: dict) -> dict:
+    out: dict = {}
+    for key, value in overrides.items():
+        section, name = key.split(".")
+        out.setdefault(section, {})[name] = value
+    return out
 
 
 def noise_row(a: np.ndarray, b: np.ndarray, threshold_db: float) -> str:
@@ -148,7 +170,7 @@ def noise_row(a: np.ndarray, b: np.ndarray, threshold_db: float) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--lattice", type=float, default=0.25, help="pooled lattice spacing [m]")
+    ap.add_argument("--lattice", type=float, default=None, help="also a pooled study at this lattice spacing [m]")
     ap.add_argument("--skip-study", action="store_true", help="reuse --run instead of running studies")
     ap.add_argument("--run", type=Path, default=None, help="a finished default run (with --skip-study)")
     ap.add_argument("--skip-noise", action="store_true")
@@ -161,9 +183,10 @@ def main() -> None:
     print("backend:", P.select_variant(), P.backend_info(), flush=True)
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
     studies = {}
+    runs = settings(args.lattice)
     if not args.skip_study:
-        for label, lat in (("direct", None), (f"pooled {args.lattice:g} m", args.lattice)):
-            s = run_study(tmp / f"run_{len(studies)}", tmp / f"cache_{len(studies)}", lat)
+        for label, overrides in runs.items():
+            s = run_study(tmp / f"run_{len(studies)}", tmp / f"cache_{len(studies)}", overrides)
             studies[label] = s
             st = ", ".join(f"{k} {v:.0f}" for k, v in s["stages_s"].items() if v >= 1.0)
             print(f"cold default study, {label}: {s['wall_s']:.0f} s wall (stages [s]: {st}); "
@@ -174,7 +197,7 @@ def main() -> None:
     scene = scenes.load("corridor_lab")
     cfg = StudyConfig()
     groups = study_links(run)
-    naive = naive_trace(scene, groups, cfg.tracing.max_depth, cfg.tracing.samples_per_src)
+    naive = naive_trace(scene, groups, cfg.tracing.max_depth, 30_000)
     t_naive = sum(s for s, _ in naive.values())
     n_links = sum(n for _, n in naive.values())
     for name, (s, n) in naive.items():
@@ -185,14 +208,17 @@ def main() -> None:
               f"({s['wall_s']:.0f} s / {t_naive:.0f} s)")
     if not args.skip_noise:
         thr = cfg.reader.link_budget(cfg.frequency_hz).min_gain_db()
-        g_d, s_d, n = seed_noise(scene, run, None, cfg)
-        g_p, s_p, _ = seed_noise(scene, run, args.lattice, cfg)
-        print(f"evaluation tour, {n} links; readable: gain >= {thr:.2f} dB")
-        print(f"  direct, seed 1 vs 2 ({s_d.mean():.0f} s per trace, {n / s_d.mean():.0f} links/s): "
-              f"{noise_row(g_d[1], g_d[2], thr)}")
-        print(f"  pooled {args.lattice:g} m, seed 1 vs 2 ({s_p.mean():.0f} s per trace, "
-              f"{n / s_p.mean():.0f} links/s): {noise_row(g_p[1], g_p[2], thr)}")
-        print(f"  pooled vs direct, seed 1: {noise_row(g_p[1], g_d[1], thr)}")
+        gains = {}
+        print("evaluation tour; readable: gain >= %.2f dB" % thr)
+        for label, overrides in runs.items():
+            g, secs, n = seed_noise(scene, run, overrides)
+            gains[label] = g
+            print(f"  {label}, seed 1 vs 2 ({secs.mean():.0f} s per trace, {n / secs.mean():.0f} links/s): "
+                  f"{noise_row(g[1], g[2], thr)}", flush=True)
+        ref = gains["direct (3e4 rays)"]
+        for label, g in gains.items():
+            if g is not ref:
+                print(f"  {label} vs direct, seed 1: {noise_row(g[1], ref[1], thr)}")
 
 
 if __name__ == "__main__":

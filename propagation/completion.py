@@ -198,10 +198,9 @@ def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.n
     lo, hi = planes.lo_m[p_last] - _BOX_SLACK_M, planes.hi_m[p_last] + _BOX_SLACK_M  # (c, 3)
     a = (tgt @ planes.normal[p_last].T - planes.offset_m[p_last])[link_tgt]  # (L, c)
     b = (np.einsum("scx,cx->sc", img[:, :, k], planes.normal[p_last]) - planes.offset_m[p_last])[link_src]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = a / (a - b)
     pt_l = tgt[link_tgt][:, None, :]  # (L, 1, 3)
-    x = pt_l + t[..., None] * (img[:, :, k][link_src] - pt_l)  # (L, c, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a == b: no crossing, x is NaN
+        x = pt_l + (a / (a - b))[..., None] * (img[:, :, k][link_src] - pt_l)  # (L, c, 3)
     ok = (a * b < 0.0) & np.all((x >= lo) & (x <= hi), axis=2)
     li, ci = (v.astype(np.int64) for v in np.nonzero(ok))
     pt = x[li, ci]

@@ -119,22 +119,30 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
         own candidates (a chain it has already been solved), once.
     """
     n = len(neighbours)
-    own = [set() for _ in range(n)]
-    for s, c in zip(src.tolist(), chain.tolist(), strict=True):
-        own[s].add(c)
-    first_valid: list[dict] = [{} for _ in range(n)]
-    for r in np.flatnonzero(valid).tolist():
-        first_valid[src[r]].setdefault(int(chain[r]), r)
-    rows, dest = [], []
-    for i, nb in enumerate(neighbours):
-        taken = set(own[i])
-        for j in np.asarray(nb, np.int64).tolist():
-            for c, r in first_valid[j].items():
-                if c not in taken:
-                    taken.add(c)
-                    rows.append(r)
-                    dest.append(i)
-    return np.asarray(rows, np.int64), np.asarray(dest, np.int64)
+    src = np.asarray(src, np.int64)
+    chain = np.asarray(chain, np.int64)
+    n_chains = int(chain.max()) + 1 if len(chain) else 1
+    # the first valid row of each (position, chain)
+    vr = np.flatnonzero(valid)
+    _, first = np.unique(src[vr] * n_chains + chain[vr], return_index=True)
+    vr = vr[first]
+    vr = vr[np.argsort(src[vr], kind="stable")]
+    starts = np.searchsorted(src[vr], np.arange(n + 1))
+    # (position, neighbour) pairs, then every valid row of the neighbour for the position
+    dest_nb = np.repeat(np.arange(n), [len(nb) for nb in neighbours])
+    nb = np.concatenate([np.asarray(x, np.int64) for x in neighbours]) if n else np.zeros(0, np.int64)
+    counts = starts[nb + 1] - starts[nb]
+    dest = np.repeat(dest_nb, counts)
+    offs = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    rows = vr[np.repeat(starts[nb], counts) + offs]
+    # not among the position's own candidates, and each (position, chain) once; the
+    # row of the first neighbour listed that has it
+    key = dest * n_chains + chain[rows]
+    fresh = ~np.isin(key, src * n_chains + chain)
+    rows, dest, key = rows[fresh], dest[fresh], key[fresh]
+    _, first = np.unique(key, return_index=True)
+    first = np.sort(first)
+    return rows[first].astype(np.int64), dest[first].astype(np.int64)
 
 
 def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, samples_per_src: int,
