@@ -1,4 +1,4 @@
-"""Paths from antenna positions to tags: from the cache, from Sionna's PathSolver, or pooled.
+"""Paths from antenna positions to tags: from the cache, Sionna's PathSolver, shared or pooled.
 
 The tracing half of :func:`propagation.trace_links`: every antenna *position* is traced
 once with unrotated isotropic dual-polarised (``VH``) antennas at both ends, and per
@@ -189,7 +189,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
                 refraction: bool = True, lattice_spacing_m: float | None = None,
                 completion_order: int = 0, share_radius_m: float | None = None,
                 shared_samples_per_src: int | None = None) -> PathSet:
-    """Paths from antenna positions to tags: from the cache, traced, or carried from a lattice.
+    """Paths from antenna positions to tags: from the cache, traced alone, shared or pooled.
 
     The tracing half of :func:`trace_links` (same parameters); the positions must be
     distinct and already checked (:func:`propagation.sionna_scene.check_antenna_positions`).
@@ -232,7 +232,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         if lattice_spacing_m is not None:
             raise ValueError("share_radius_m and lattice_spacing_m exclude each other: "
                              "pooled positions do not shoot their own rays")
-        shared_samples_per_src = int(shared_samples_per_src or samples_per_src)
+        shared_samples_per_src = int(samples_per_src if shared_samples_per_src is None else shared_samples_per_src)
         if shared_samples_per_src < 1:
             raise ValueError(f"shared_samples_per_src must be >= 1, got {shared_samples_per_src!r}")
         settings["share_radius_m"] = float(share_radius_m)
@@ -262,9 +262,10 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
     budget = int(memory_budget_bytes) if memory_budget_bytes else _default_budget()
     per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
     lone_per_chunk = per_chunk
-    if share_radius_m is not None:  # chunks of positions that share: fewer rays each
+    if share_radius_m is not None:  # chunks of positions that share: fewer rays each, but
+        # the candidate buffer is held twice (candidates and their solved copy)
         per_chunk = max(1, min(_MAX_SOURCES_PER_CALL,
-                               budget // bytes_per_source(shared_samples_per_src, max_depth)))
+                               budget // (2 * bytes_per_source(shared_samples_per_src, max_depth))))
     n_calls, t_trace, n_shot = 0, 0.0, 0
     if todo:
         ensure_variant()

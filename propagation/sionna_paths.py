@@ -1,7 +1,8 @@
 """Sionna RT path-solver buffers to the project's path sets, and back.
 
-Shared by :mod:`propagation.pooled` (candidates pooled over lattice points) and
-:mod:`propagation.completion` (specular chains over the large planes): both hand
+Shared by :mod:`propagation.pooled` (candidates pooled over lattice points),
+:mod:`propagation.shared` (chains shared between neighbouring positions) and
+:mod:`propagation.completion` (specular chains over the large planes): all three hand
 candidate chains to Sionna's own image method and field calculator, then collect the
 valid paths (unrotated iso ``VH`` transfer matrices, delays, directions) into one
 :class:`~propagation.pathcache.SourcePaths` per antenna position, copies removed.
