@@ -28,7 +28,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from propagation.pathcache import SourcePaths
-from propagation.sionna_paths import collect_paths, points, solve_fields, to_source_paths
+from propagation.sionna_paths import (
+    candidate_keys,
+    collect_paths,
+    points,
+    solve_fields,
+    to_source_paths,
+)
 
 __all__ = ["POOL_RADIUS_FACTOR", "PoolChunk", "lattice_points", "pooled_supported", "pooling_plan", "trace_pooled"]
 
@@ -167,14 +173,6 @@ def pooled_supported() -> bool:
     return True
 
 
-def _candidate_keys(buf) -> np.ndarray:
-    """Per candidate row: its chain (interaction types, shapes, primitives) as one key."""
-    types = buf.interaction_types.numpy().astype(np.int64)
-    shapes = buf.shapes.numpy().astype(np.int64)
-    prims = buf.primitives.numpy().astype(np.int64)
-    return np.concatenate([types, shapes, prims], axis=1)
-
-
 def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, max_depth: int,
                  samples_per_src: int, seed: int, refraction: bool = True) -> list[SourcePaths]:
     """Exact paths at ``positions_m`` from candidates shot at ``lattice_m``.
@@ -233,7 +231,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     c_src = cand.source_indices.numpy().astype(np.int64)
     c_tgt = cand.target_indices.numpy().astype(np.int64)
     c_ok = ~cand.valid.numpy().astype(bool)  # candidates (not already-final paths)
-    keys = _candidate_keys(cand) if len(c_src) else np.zeros((0, 1), np.int64)
+    keys = candidate_keys(cand) if len(c_src) else np.zeros((0, 1), np.int64)
     # Keep the chains that are valid paths at their own lattice point: ~7 % of the
     # candidates on corridor_lab, so pooling several neighbours stays cheap. A chain valid
     # at an antenna position but at none of its lattice neighbours is lost. Only lattice

@@ -39,7 +39,13 @@ from __future__ import annotations
 import numpy as np
 
 from propagation.pathcache import SourcePaths
-from propagation.sionna_paths import collect_paths, points, solve_fields, to_source_paths
+from propagation.sionna_paths import (
+    candidate_keys,
+    collect_paths,
+    points,
+    solve_fields,
+    to_source_paths,
+)
 
 __all__ = ["chain_ids", "shared_rows", "sharing_neighbours", "trace_shared"]
 
@@ -94,14 +100,10 @@ def chain_ids(key: np.ndarray) -> np.ndarray:
 
 
 def _chain_ids(buf, tgt: np.ndarray) -> np.ndarray:
-    """Per buffer row an integer naming its (target, chain): interaction types, shapes
-    and primitives at every depth."""
+    """Per buffer row an integer naming its (target, chain) (:func:`candidate_keys`)."""
     if len(tgt) == 0:
         return np.zeros(0, np.int64)
-    types = buf.interaction_types.numpy().astype(np.int64)
-    shapes = buf.shapes.numpy().astype(np.int64)
-    prims = buf.primitives.numpy().astype(np.int64)
-    return chain_ids(np.concatenate([tgt[:, None], types, shapes, prims], axis=1))
+    return chain_ids(np.concatenate([tgt[:, None], candidate_keys(buf)], axis=1))
 
 
 def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbours) -> tuple[np.ndarray, np.ndarray]:

@@ -15,7 +15,7 @@ import numpy as np
 
 from propagation.pathcache import SourcePaths
 
-__all__ = ["collect_paths", "path_copies", "points", "solve_fields", "to_source_paths"]
+__all__ = ["candidate_keys", "collect_paths", "path_copies", "points", "solve_fields", "to_source_paths"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
 
@@ -26,6 +26,15 @@ def points(a) -> object:
 
     a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
     return mi.Point3f(a[:, 0], a[:, 1], a[:, 2])
+
+
+def candidate_keys(buf) -> np.ndarray:
+    """Per row of a paths buffer its chain as one key: interaction types, shapes and
+    primitives at every depth, (R, 3 * depth) int64."""
+    types = buf.interaction_types.numpy().astype(np.int64)
+    shapes = buf.shapes.numpy().astype(np.int64)
+    prims = buf.primitives.numpy().astype(np.int64)
+    return np.concatenate([types, shapes, prims], axis=1)
 
 
 def solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_calculator,
