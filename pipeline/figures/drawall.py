@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import logging
-import multiprocessing
-import os
-import threading
 from pathlib import Path
+
+from pipeline.parallel import map_forked
 
 from .common import MissingInput
 from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
@@ -49,20 +48,6 @@ def _draw_one(name: str, run_dir: Path, out_dir: Path) -> tuple[list[Path], str 
         return [], str(exc)
 
 
-def _n_workers(workers: int | None, n_figures: int) -> int:
-    """Worker processes for :func:`draw_all`: one per CPU (at most one per figure), and
-    none (draw here) where forking is not safe or not allowed: another thread is running
-    (a progress bar, a dask worker), this is a daemonic process, or the platform cannot
-    fork."""
-    if workers is not None:
-        return max(1, min(int(workers), n_figures))
-    if (threading.active_count() > 1 or multiprocessing.current_process().daemon
-            or "fork" not in multiprocessing.get_all_start_methods()):
-        return 1
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, min(cpus or 1, n_figures))
-
-
 def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> list[Path]:
     """Draw every figure (or those in `names`) from the run directory's files.
 
@@ -75,9 +60,10 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> l
     names : iterable of str, optional
         Subset of :data:`FIGURES`.
     workers : int, optional
-        Processes drawing figures side by side (forked from this one; every figure is
-        independent and its bytes do not depend on where it is drawn). Default: one per
-        CPU, or 1 (draw in this process) when another thread is running here.
+        Processes drawing figures side by side (forked from this one,
+        :func:`pipeline.parallel.map_forked`; every figure is independent and its bytes
+        do not depend on where it is drawn). Default: one per CPU, or 1 (draw in this
+        process) where forking is not safe.
 
     Returns
     -------
@@ -94,20 +80,7 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> l
     unknown = sorted(set(names) - set(FIGURES))
     if unknown:
         raise ValueError(f"unknown figure(s) {unknown}; known {sorted(FIGURES)}")
-    n = _n_workers(workers, len(names))
-    if n > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
-            futures = [pool.submit(_draw_one, name, run_dir, out_dir) for name in names]
-            try:
-                results = [f.result() for f in futures]
-            except BaseException:
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
-    else:
-        results = [_draw_one(name, run_dir, out_dir) for name in names]
+    results = map_forked(lambda i: _draw_one(names[i], run_dir, out_dir), len(names), workers)
     written: list[Path] = []
     for name, (paths, missing) in zip(names, results, strict=True):
         if missing is not None:

@@ -29,6 +29,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.parallel import map_forked
+
 from .likelihood import ModelLikelihood, fit_far_detection, rssi_residual_std
 from .observations import Observations
 from .phase import (
@@ -157,7 +159,8 @@ def tag_localisation_scores(posteriors: dict, tag_map) -> dict:
 
 def robot_localisation(sources: dict, obs: Observations, tag_map, eval_poses: pd.DataFrame,
                        mounts, free_space, rng: np.random.Generator, *,
-                       config: RfidMCLConfig | None = None, n_runs: int = 1) -> dict:
+                       config: RfidMCLConfig | None = None, n_runs: int = 1,
+                       workers: int | None = 1) -> dict:
     """RFID-only global localisation with a kidnapping halfway, per model.
 
     One particle-filter run is one draw: its error and convergence times move with the
@@ -186,6 +189,9 @@ def robot_localisation(sources: dict, obs: Observations, tag_map, eval_poses: pd
     config : RfidMCLConfig, optional
     n_runs : int
         Filter runs per model (independent particle streams).
+    workers : int or None
+        Filter runs side by side in forked processes (:func:`pipeline.parallel.map_forked`;
+        None: one per CPU). The scores do not depend on it: every run has its own stream.
 
     Returns
     -------
@@ -208,12 +214,23 @@ def robot_localisation(sources: dict, obs: Observations, tag_map, eval_poses: pd
     offset[axis] = 3.0 if p[axis] < mid[axis] else -3.0
     if int(n_runs) < 1:
         raise ValueError(f"n_runs must be >= 1, got {n_runs!r}")
+    jobs = [(name, r_run) for (name, _), r in zip(sources.items(), rng.spawn(len(sources)),
+                                                   strict=True)
+            for r_run in r.spawn(int(n_runs))]
+
+    def one_run(i: int):
+        name, r_run = jobs[i]
+        return run_rfid_mcl(sources[name], obs, tag_map, odo, t, mounts, free_space, r_run,
+                            config=config, initial_pose=None, kidnap_time_s=t_kid,
+                            kidnap_offset=offset)
+
+    results = map_forked(one_run, len(jobs), workers)
     out = {}
-    for (name, src), r in zip(sources.items(), rng.spawn(len(sources)), strict=True):
+    for name in sources:
         runs, traces = [], []
-        for r_run in r.spawn(int(n_runs)):
-            res = run_rfid_mcl(src, obs, tag_map, odo, t, mounts, free_space, r_run, config=config,
-                               initial_pose=None, kidnap_time_s=t_kid, kidnap_offset=offset)
+        for (job_name, _), res in zip(jobs, results, strict=True):
+            if job_name != name:
+                continue
             true_at = np.column_stack([np.interp(res.t_s, t, true[:, j]) for j in range(2)]
                                       + [np.interp(res.t_s, t, np.unwrap(true[:, 2]))])
             runs.append(filter_metrics(res.t_s, res.est_poses, true_at, kidnap_time_s=t_kid))

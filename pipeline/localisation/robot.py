@@ -40,7 +40,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import logsumexp
 
 from pipeline.acquisition.track import interpolate_poses
 from pipeline.robot.kinematics import antenna_poses, mounts_to_array, wrap_angle
@@ -270,14 +269,14 @@ class RfidParticleFilter:
         outside = ~self.free.contains(self.particles[:, :2])
         ll = ll + np.where(outside, cfg.outside_log_penalty, 0.0)
         if m_eff:
-            w_avg = float(np.exp(logsumexp(self.log_weights + ll) / m_eff))
+            w_avg = float(np.exp(_logsumexp(self.log_weights + ll) / m_eff))
             if self.w_slow == 0.0:
                 self.w_slow = self.w_fast = w_avg
             else:
                 self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
                 self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
         lw = self.log_weights + ll
-        self.log_weights = lw - logsumexp(lw)
+        self.log_weights = lw - _logsumexp(lw)
         self._fresh[:] = False
         w = np.exp(self.log_weights)
         if 1.0 / np.sum(w * w) < cfg.resample_threshold * len(w):
@@ -312,7 +311,7 @@ class RfidParticleFilter:
         lw = self.log_weights
         if self._fresh.any() and not self._fresh.all():
             lw = np.where(self._fresh, -np.inf, lw)
-        w = np.exp(lw - logsumexp(lw))
+        w = np.exp(lw - _logsumexp(lw))
         xy = w @ self.particles[:, :2]
         c, s = w @ np.cos(self.particles[:, 2]), w @ np.sin(self.particles[:, 2])
         var = w @ np.sum((self.particles[:, :2] - xy) ** 2, axis=1)
@@ -414,6 +413,18 @@ def run_rfid_mcl(likelihood: ModelLikelihood, obs: Observations, tag_map, odomet
         pf.update(int(obs.slot_antenna[i]), read[i], rssi[i], rng, attempted=att[i])
         est[i], spread[i] = pf.estimate()
     return RfidMCLResult(t.copy(), est, spread, pf.n_resamples, pf.n_injected)
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    """``log(sum(exp(a)))`` of a 1-D array, shifted by its maximum (-inf for all -inf).
+
+    scipy.special.logsumexp costs ~140 us a call on the filter's 2,000 weights (its
+    argument checks), this ~20 us; the filter calls it three times a slot.
+    """
+    m = np.max(a)
+    if not np.isfinite(m):
+        return float(m)
+    return float(m + np.log(np.sum(np.exp(a - m))))
 
 
 def _first_stable(ok: np.ndarray, start: int, n_consecutive: int) -> int | None:

@@ -173,7 +173,7 @@ def stage_downstream(ctx) -> dict:
     robot_scores = robot_localisation(robot_sources, obs, eval_tags, eval_poses, list(robot.antennas),
                                       free, stage_rng(cfg, "downstream"),
                                       config=RfidMCLConfig(n_particles=dn.robot_particles),
-                                      n_runs=dn.robot_runs)
+                                      n_runs=dn.robot_runs, workers=None)
     update(advance=1)
     rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
             for t, e in s.pop("per_tag_m", {}).items()]

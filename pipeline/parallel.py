@@ -1,0 +1,122 @@
+"""Independent tasks side by side in forked processes (figures, robot-filter runs).
+
+A forked child inherits this process's memory, so a task needs no pickling of its inputs
+(models, read logs, occupancy maps): :func:`map_forked` keeps the task function in a
+module global for the children and sends them only task indices; only the results
+travel back (pickled). Fork is used only where it is safe here: not when another Python
+non-daemon thread runs (a Dask worker's threads: a lock held at the fork would stay
+held in the child), not from a thread other than the main one, not from a daemonic
+process (which may not have children), and not on a platform without fork; there the
+tasks run one after the other in this process. A daemon helper thread (the progress
+bars' refresh) does not prevent forking: a child logs through a plain stderr handler
+of its own, so the console lock such a thread may hold at the fork is never needed. Results never depend on the number of workers: each task brings its own
+random stream.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import threading
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["fork_workers", "map_forked", "usable_cpus"]
+
+# the task function of the running map_forked call, read by the forked children
+_TASK: Callable[[int], Any] | None = None
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the platform has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def fork_workers(workers: int | None, n_tasks: int) -> int:
+    """Processes to use for `n_tasks` independent tasks.
+
+    Parameters
+    ----------
+    workers : int or None
+        Asked for; None: one per usable CPU, or 1 where forking is not safe (module doc).
+    n_tasks : int
+
+    Returns
+    -------
+    int
+        In ``[1, max(1, n_tasks)]``.
+    """
+    n_tasks = max(1, int(n_tasks))
+    if workers is not None:
+        if int(workers) < 1:
+            raise ValueError(f"workers must be >= 1 (or None for one per CPU), got {workers!r}")
+        return min(int(workers), n_tasks)
+    if not _fork_is_safe():
+        return 1
+    return min(usable_cpus(), n_tasks)
+
+
+def _fork_is_safe() -> bool:
+    me = threading.current_thread()
+    if me is not threading.main_thread():
+        return False
+    if any(t is not me and not t.daemon for t in threading.enumerate()):
+        return False
+    return (not multiprocessing.current_process().daemon
+            and "fork" in multiprocessing.get_all_start_methods())
+
+
+def _child_init() -> None:
+    root = logging.getLogger()
+    level = root.level
+    for h in list(root.handlers):
+        root.removeHandler(h)
+    root.addHandler(logging.StreamHandler())
+    root.setLevel(level)
+
+
+def _call(i: int):
+    return _TASK(i)
+
+
+def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = None) -> list:
+    """``[task(0), ..., task(n_tasks - 1)]``, computed in forked processes.
+
+    Parameters
+    ----------
+    task : callable int -> result
+        Any callable (a closure is fine: the children inherit it); its result must pickle.
+    n_tasks : int
+    workers : int or None
+        See :func:`fork_workers`; 1 runs every task here, in order.
+
+    Returns
+    -------
+    list
+        The results in task order. The first task error is raised here after the pool
+        has stopped (the remaining tasks are cancelled).
+    """
+    global _TASK
+    n = fork_workers(workers, n_tasks)
+    if n <= 1 or n_tasks <= 1:
+        return [task(i) for i in range(int(n_tasks))]
+    from concurrent.futures import ProcessPoolExecutor
+
+    if _TASK is not None:  # a task that maps again: run its inner tasks in place
+        return [task(i) for i in range(int(n_tasks))]
+    _TASK = task
+    try:
+        with ProcessPoolExecutor(max_workers=n,
+                                 mp_context=multiprocessing.get_context("fork"),
+                                 initializer=_child_init) as pool:
+            futures = [pool.submit(_call, i) for i in range(int(n_tasks))]
+            try:
+                return [f.result() for f in futures]
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+    finally:
+        _TASK = None
