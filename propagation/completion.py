@@ -41,7 +41,7 @@ from propagation.sionna_paths import (
     to_source_paths,
 )
 
-__all__ = ["Planes", "complete_specular", "large_planes", "merge_paths"]
+__all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
 #: (link, chain) pairs tested at once in the NumPy pre-test (~100 MB of float64 temporaries).
@@ -163,6 +163,99 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
     return Planes(np.array(cols[0]), np.array(cols[1]), np.array(cols[2]), np.array(cols[3]),
                   np.array(cols[4]), np.array(cols[5], np.int64), np.array(cols[6], np.int64),
                   np.array(cols[7]), tuple(cols[8]))
+
+
+@dataclass(frozen=True)
+class PlaneLookup:
+    """Which large plane each triangle of a loaded scene lies on (:func:`plane_lookup`).
+
+    Attributes
+    ----------
+    shape_ptr : numpy.ndarray
+        Shape pointers as Sionna's candidate buffers hold them (s,), uint32, sorted.
+    offset : numpy.ndarray
+        Start of each shape's triangles in ``plane`` (s + 1,), int64.
+    plane : numpy.ndarray
+        Per triangle the index of its plane in the :class:`Planes`, or -1 (t,), int64.
+    """
+
+    shape_ptr: np.ndarray
+    offset: np.ndarray
+    plane: np.ndarray
+
+    def planes_of(self, shapes, primitives) -> np.ndarray:
+        """Plane index of each (shape pointer, primitive), -1 where none (same shape)."""
+        shapes = np.asarray(shapes, np.int64)
+        prims = np.asarray(primitives, np.int64)
+        k = np.searchsorted(self.shape_ptr, shapes)
+        kc = np.minimum(k, len(self.shape_ptr) - 1)
+        known = (len(self.shape_ptr) > 0) & (self.shape_ptr[kc] == shapes)
+        idx = self.offset[kc] + prims
+        known &= (prims >= 0) & (idx < self.offset[np.minimum(kc + 1, len(self.offset) - 1)])
+        out = np.full(shapes.shape, -1, np.int64)
+        out[known] = self.plane[idx[known]]
+        return out
+
+    def covered(self, interaction_types, shapes, primitives, max_order: int) -> np.ndarray:
+        """Candidate rows the completion enumerates: 1..``max_order`` specular
+        reflections, every one on a large plane, (R,) bool.
+
+        Parameters
+        ----------
+        interaction_types, shapes, primitives : numpy.ndarray
+            A candidate buffer's (R, depth) columns (``candidate_keys``' parts).
+        max_order : int
+            The completion's order (0: nothing is covered).
+        """
+        from sionna.rt.constants import InteractionType
+
+        types = np.asarray(interaction_types, np.int64)
+        none, spec = int(InteractionType.NONE), int(InteractionType.SPECULAR)
+        order = (types != none).sum(axis=1)
+        on_plane = self.planes_of(shapes, primitives) >= 0
+        return (order >= 1) & (order <= int(max_order)) & np.all(
+            (types == none) | ((types == spec) & on_plane), axis=1)
+
+
+def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
+                 offset_tol_m: float = 1e-3) -> PlaneLookup:
+    """Per triangle of the loaded scene the large plane it lies on (tolerances of
+    :func:`large_planes`).
+
+    A ray-traced candidate made only of reflections on these planes, of order up to the
+    completion's, is a chain :func:`complete_specular` enumerates for every link: the
+    image method reflects through the plane, whichever of its triangles the chain named,
+    and accepts a hit on any coplanar triangle (module doc). Solving it from the rays too
+    is work done twice (and a copy that ``merge_paths`` drops).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    shapes = list(rt_scene.mi_scene.shapes())
+    if not shapes:
+        return PlaneLookup(np.zeros(0, np.uint32), np.zeros(1, np.int64), np.zeros(0, np.int64))
+    ptr = np.asarray(dr.reinterpret_array(mi.UInt, mi.ShapePtr(shapes)).numpy(), np.int64)
+    labels = []
+    for s in shapes:
+        if not hasattr(s, "faces_buffer") or s.face_count() == 0:
+            labels.append(np.zeros(0, np.int64))
+            continue
+        v = np.asarray(s.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+        tri = v[np.asarray(s.faces_buffer(), np.int64).reshape(-1, 3)]
+        cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        nrm = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
+        lab = np.full(len(tri), -1, np.int64)
+        for p in range(len(planes)):
+            n0 = planes.normal[p]
+            sign = np.sign(nrm @ n0)
+            on = ((np.abs(nrm * sign[:, None] - n0).max(axis=1) <= normal_tol)
+                  & (np.abs(tri @ n0 - planes.offset_m[p]).max(axis=1) <= offset_tol_m))
+            lab[on & (lab < 0)] = p
+        labels.append(lab)
+    order = np.argsort(ptr, kind="stable")
+    counts = np.array([len(labels[k]) for k in order], np.int64)
+    return PlaneLookup(ptr[order], np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+                       np.concatenate([labels[k] for k in order]) if len(order) else np.zeros(0, np.int64))
 
 
 def _chains(n_planes: int, order: int) -> np.ndarray:

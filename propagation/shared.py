@@ -99,11 +99,11 @@ def chain_ids(key: np.ndarray) -> np.ndarray:
     return inv.astype(np.int64)
 
 
-def _chain_ids(buf, tgt: np.ndarray) -> np.ndarray:
-    """Per buffer row an integer naming its (target, chain) (:func:`candidate_keys`)."""
+def _chain_ids(keys: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+    """Per buffer row an integer naming its (target, chain) (``keys``: :func:`candidate_keys`)."""
     if len(tgt) == 0:
         return np.zeros(0, np.int64)
-    return chain_ids(np.concatenate([tgt[:, None], candidate_keys(buf)], axis=1))
+    return chain_ids(np.concatenate([tgt[:, None], keys], axis=1))
 
 
 def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbours) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +155,7 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
 
 
 def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, samples_per_src: int,
-                 seed: int, refraction: bool = True) -> list[SourcePaths]:
+                 seed: int, refraction: bool = True, completion=None) -> list[SourcePaths]:
     """Paths at every position from its own rays and its neighbours' valid chains.
 
     Parameters
@@ -171,6 +171,12 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         (:func:`sharing_neighbours`).
     max_depth, samples_per_src, seed, refraction
         As for Sionna's ``PathSolver``.
+    completion : (PlaneLookup, int), optional
+        The large planes and order of the :func:`propagation.completion.complete_specular`
+        that will complete these positions: candidates it enumerates
+        (:meth:`~propagation.completion.PlaneLookup.covered`) are neither solved nor
+        shared here (the completion solves them at every position). Without it the
+        result is what ``PathSolver`` plus sharing gives.
 
     Returns
     -------
@@ -209,15 +215,25 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     n_rows = cand.buffer_size
     if n_rows:
         src = cand.source_indices.numpy().astype(np.int64)
-        chain = _chain_ids(cand, cand.target_indices.numpy().astype(np.int64))
+        keys = candidate_keys(cand)
+        chain = _chain_ids(keys, cand.target_indices.numpy().astype(np.int64))
         los_row = cand.valid.numpy().astype(bool)  # final already: line of sight
-        own = cand.gather(mi.UInt(np.arange(n_rows, dtype=np.uint32)))
-        own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
-        solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator, discard=False)
-        valid = own.valid.numpy().astype(bool)
-        own.discard_invalid()
-        collect_paths(own, out)
-        del own
+        solve = np.ones(n_rows, bool)
+        if completion is not None:
+            lookup, order = completion
+            d = keys.shape[1] // 3
+            solve = ~lookup.covered(keys[:, :d], keys[:, d:2 * d], keys[:, 2 * d:], order)
+        own_rows = np.flatnonzero(solve)
+        valid = np.zeros(n_rows, bool)
+        if len(own_rows):
+            own = cand.gather(mi.UInt(own_rows.astype(np.uint32)))
+            own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
+            solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator,
+                         discard=False)
+            valid[own_rows] = own.valid.numpy().astype(bool)
+            own.discard_invalid()
+            collect_paths(own, out)
+            del own
         # 2. the chains valid at a neighbour, solved again at each position
         rows, dest = shared_rows(src, chain, valid & ~los_row, neighbours)
         if len(rows):

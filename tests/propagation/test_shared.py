@@ -111,6 +111,57 @@ def test_shared_paths_are_exact_paths_found_by_dense_tracing(corridor_scene):
                                s.transfer[order]).any()
 
 
+def test_chains_left_to_the_completion_are_the_completions_paths(corridor_scene):
+    # With completion on, shared positions neither solve nor share the chains the
+    # completion enumerates (1..order reflections on large planes): merged with the
+    # completion, the paths must be those of solving them twice. Same path set (length,
+    # directions), and the same transfer matrices: on this corridor every plane is one
+    # material, so the ray's and the completion's candidate of a chain are solved on the
+    # same surface (1e-3 relative: float32 geometry; on corridor_lab, whose walls mix
+    # glass into plasterboard, 27 of 5,136 links moved by > 0.01 dB, none readable).
+    # Fewer candidates must have been solved, or nothing was left to the completion.
+    from propagation.completion import complete_specular, large_planes, merge_paths, plane_lookup
+
+    tags = corridor_scene.tags.positions_m[:6]
+    x = np.arange(3.0, 4.6, 0.2)
+    pos = np.column_stack([x, 1.2 + 0.05 * np.sin(4 * x), np.full_like(x, 0.7)])
+    rts = load_sionna_scene(corridor_scene, F)
+    planes = large_planes(rts, 1.0)
+    lookup = plane_lookup(rts, planes)
+    nbs = sharing_neighbours(pos, 0.5)
+    both = trace_shared(rts, pos, tags, nbs, 3, 1000, 1)
+    left = trace_shared(rts, pos, tags, nbs, 3, 1000, 1, completion=(lookup, 2))
+    extra = complete_specular(rts, pos, tags, 2, planes)
+    assert sum(len(s.tau_s) for s in left) < sum(len(s.tau_s) for s in both)
+    for a, b, e in zip(both, left, extra, strict=True):
+        ma, mb = merge_paths(a, e), merge_paths(b, e)
+        ta, la, ka, ra = _path_rows(ma)
+        tb, lb, kb, rb = _path_rows(mb)
+        oa, ob = np.lexsort((la, ta)), np.lexsort((lb, tb))
+        np.testing.assert_array_equal(ta[oa], tb[ob])
+        np.testing.assert_allclose(la[oa], lb[ob], atol=1e-3)  # float32 geometry
+        np.testing.assert_allclose(ka[oa], kb[ob], atol=1e-3)
+        np.testing.assert_allclose(ra[oa], rb[ob], atol=1e-3)
+        scale = np.abs(ma.transfer).max()
+        np.testing.assert_allclose(ma.transfer[oa], mb.transfer[ob], rtol=0, atol=1e-3 * scale)
+    # every covered row is a pure reflection chain on planes up to the order: an order-3
+    # chain, a refraction or a triangle off the planes is not covered
+    from sionna.rt.constants import InteractionType
+
+    spec, refr, none = (int(InteractionType.SPECULAR), int(InteractionType.REFRACTION),
+                        int(InteractionType.NONE))
+    first = int(np.flatnonzero(lookup.plane >= 0)[0])  # a triangle on a large plane
+    k = int(np.searchsorted(lookup.offset, first, side="right") - 1)
+    ptr, prim = int(lookup.shape_ptr[k]), first - int(lookup.offset[k])
+    types = np.array([[spec, none, none], [spec, spec, none], [spec, spec, spec],
+                      [spec, refr, none], [none, none, none]])
+    shapes = np.full(types.shape, ptr, np.int64)
+    prims = np.full(types.shape, prim, np.int64)
+    assert lookup.covered(types, shapes, prims, 2).tolist() == [True, True, False, False, False]
+    unknown = np.full((1, 3), int(lookup.shape_ptr.max()) + 100, np.int64)  # no such shape
+    assert not lookup.covered(types[:1], unknown, prims[:1], 2)[0]
+
+
 def test_shared_floor_links_match_two_ray(floor_scene):
     # Over a floor, shared positions (0.1 m apart) are solved exactly: the two-ray closed
     # form holds to the 0.5 dB of the slab-vs-half-space difference (test_tracing)
