@@ -174,13 +174,34 @@ class DriveProfile:
                 raise ValueError(f"DriveProfile: {k}={getattr(self, k)} must be >= 0")
 
 
+#: The last few collision maps built, by (scene content, resolution, height, route): a
+#: study asks for the same one for the tour and the evaluation path (~1.8 s each).
+_COLLISION_MAPS: dict = {}
+_COLLISION_MAPS_KEPT = 4
+
+
 def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None) -> OccupancyMap:
     """Occupancy map of everything the robot (body and antenna mast) could hit.
 
     Slices from 5 cm above the floor up to 10 cm above the highest antenna or body top.
+    The map is shared between calls with the same scene content and settings (its
+    arrays are read-only).
     """
     top = max([robot.body_height_m] + [a.z_m for a in robot.antennas]) + 0.10
-    return OccupancyMap.from_scene(scene, resolution_m, (0.05, top), n_slices=6, route_m=route_m)
+    # the content hash covers meshes, surfaces and tags; the route and name are added
+    route = scene.route_m if route_m is None else route_m
+    route = None if route is None else np.ascontiguousarray(route, dtype=np.float64)
+    key = (scene.content_hash(), str(scene.name), np.asarray(scene.bounds_m, float).tobytes(),
+           float(resolution_m), float(top), None if route is None else (route.shape, route.tobytes()))
+    occ = _COLLISION_MAPS.get(key)
+    if occ is None:
+        occ = OccupancyMap.from_scene(scene, resolution_m, (0.05, top), n_slices=6, route_m=route_m)
+        for arr in (occ.occupied, occ.distance_m, occ.boundary_distance_m):
+            arr.flags.writeable = False
+        while len(_COLLISION_MAPS) >= _COLLISION_MAPS_KEPT:
+            _COLLISION_MAPS.pop(next(iter(_COLLISION_MAPS)))
+        _COLLISION_MAPS[key] = occ
+    return occ
 
 
 def check_trajectory(
