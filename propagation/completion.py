@@ -41,7 +41,8 @@ from propagation.sionna_paths import (
     to_source_paths,
 )
 
-__all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup"]
+__all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup",
+           "triangle_planes"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
 #: (link, chain) pairs tested at once in the NumPy pre-test (~100 MB of float64 temporaries).
@@ -176,7 +177,9 @@ class PlaneLookup:
     offset : numpy.ndarray
         Start of each shape's triangles in ``plane`` (s + 1,), int64.
     plane : numpy.ndarray
-        Per triangle the index of its plane in the :class:`Planes`, or -1 (t,), int64.
+        Per triangle the index of its plane in the :class:`Planes`, or -1
+        (:func:`plane_lookup`); or the id of its geometric plane (:func:`triangle_planes`)
+        (t,), int64.
     """
 
     shape_ptr: np.ndarray
@@ -256,6 +259,50 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
     counts = np.array([len(labels[k]) for k in order], np.int64)
     return PlaneLookup(ptr[order], np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                        np.concatenate([labels[k] for k in order]) if len(order) else np.zeros(0, np.int64))
+
+
+def triangle_planes(rt_scene, normal_step: float = 1e-4, offset_step_m: float = 1e-3) -> PlaneLookup:
+    """Per triangle of the loaded scene an id of its geometric plane (all triangles).
+
+    Sionna's image method reflects through the plane of the triangle a candidate names and
+    accepts a hit on any coplanar triangle; a refraction does not bend the path. So two
+    candidates of one (source, target) whose interactions lie on the same planes, in the
+    same order and of the same types, are the same path once solved. The id is the
+    plane's unit normal (sign fixed by its largest component) rounded to ``normal_step``
+    and its offset rounded to ``offset_step_m``: a plane split by a rounding boundary
+    gets two ids (its candidates are solved twice, and the copy is dropped later), two
+    planes share an id only when they agree to these steps, far below what Sionna's image
+    test (1 cm between images) tells apart. Degenerate triangles get ids of their own.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    shapes = list(rt_scene.mi_scene.shapes())
+    if not shapes:
+        return PlaneLookup(np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64))
+    ptr = np.asarray(dr.reinterpret_array(mi.UInt, mi.ShapePtr(shapes)).numpy(), np.int64)
+    tris = []
+    for s in shapes:
+        if not hasattr(s, "faces_buffer") or s.face_count() == 0:
+            tris.append(np.zeros((0, 3, 3)))
+            continue
+        v = np.asarray(s.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+        tris.append(v[np.asarray(s.faces_buffer(), np.int64).reshape(-1, 3)])
+    order = np.argsort(ptr, kind="stable")
+    tri = np.concatenate([tris[k] for k in order]) if len(order) else np.zeros((0, 3, 3))
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(cr, axis=1)
+    ok = norm > 1e-12
+    nrm = cr / np.where(ok, norm, 1.0)[:, None]
+    big = np.argmax(np.abs(nrm), axis=1)
+    nrm *= np.where(nrm[np.arange(len(nrm)), big] < 0, -1.0, 1.0)[:, None]
+    off = np.einsum("tx,tx->t", nrm, tri[:, 0])
+    key = np.column_stack([np.round(nrm / normal_step), np.round(off / offset_step_m)]).astype(np.int64)
+    key[~ok] = np.column_stack([np.full((int((~ok).sum()), 3), np.iinfo(np.int64).min),
+                                np.flatnonzero(~ok)])  # each degenerate triangle alone
+    ids = np.unique(key, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    counts = np.array([len(tris[k]) for k in order], np.int64)
+    return PlaneLookup(ptr[order], np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), ids)
 
 
 def _chains(n_planes: int, order: int) -> np.ndarray:

@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from propagation.backend import ensure_variant
-from propagation.completion import complete_specular, large_planes, merge_paths, plane_lookup
+from propagation.completion import (
+    complete_specular,
+    large_planes,
+    merge_paths,
+    plane_lookup,
+    triangle_planes,
+)
 from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import unit_vec_from_theta_phi
 from propagation.pooled import POOL_RADIUS_FACTOR, pooling_plan, trace_pooled
@@ -46,7 +52,7 @@ COMPLETION_MIN_AREA_M2 = 1.0
 #: that changes their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 1
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
-SHARING_ALGORITHM = 2  # 2: chains the completion enumerates are left to it
+SHARING_ALGORITHM = 3  # 2: chains the completion enumerates are left to it; 3: chains named by planes
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -130,11 +136,11 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
 
 
 def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lone_samples, lone_per_call,
-                   max_depth, seed, refraction, completion=None) -> list[SourcePaths]:
+                   max_depth, seed, refraction, completion=None, plane_ids=None) -> list[SourcePaths]:
     """One chunk traced with chain sharing (:mod:`propagation.shared`): positions with a
     neighbour within ``radius_m`` shoot ``shared_samples`` rays and take their neighbours'
-    valid chains (leaving the chains ``completion`` enumerates to it); a position with
-    none shoots ``lone_samples`` as in direct tracing."""
+    valid chains (leaving the chains ``completion`` enumerates to it; chains named by
+    ``plane_ids``); a position with none shoots ``lone_samples`` as in direct tracing."""
     nbs = sharing_neighbours(positions, radius_m)
     lone = np.array([len(nb) == 0 for nb in nbs], bool)
     out: list = [None] * len(positions)
@@ -143,7 +149,7 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
         row = np.full(len(positions), -1, np.int64)
         row[together] = np.arange(len(together))
         fresh = trace_shared(rt_scene, positions[together], receivers, [row[nbs[i]] for i in together],
-                             max_depth, shared_samples, seed, refraction, completion)
+                             max_depth, shared_samples, seed, refraction, completion, plane_ids)
         for i, sp in zip(together, fresh, strict=True):
             out[i] = sp
     alone = np.flatnonzero(lone)
@@ -282,13 +288,14 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         # shared positions leave the chains the completion enumerates to it
         to_completion = ((plane_lookup(rt_scene, planes), int(completion_order))
                 if completion_order and share_radius_m is not None else None)
+        plane_ids = triangle_planes(rt_scene) if share_radius_m is not None else None
         for c, chunk in enumerate(chunks):
             rec = np.unique(np.concatenate([missing[u] for u in chunk]))
             t0 = time.perf_counter()
             if plan is None and share_radius_m is not None:
                 fresh = _trace_sharing(rt_scene, uniq[chunk], tags[rec], share_radius_m,
                                        shared_samples_per_src, samples_per_src, lone_per_chunk,
-                                       max_depth, seed, refraction, to_completion)
+                                       max_depth, seed, refraction, to_completion, plane_ids)
                 n_shot += len(chunk)
             elif plan is None:
                 fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,

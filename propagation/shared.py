@@ -155,7 +155,8 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
 
 
 def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, samples_per_src: int,
-                 seed: int, refraction: bool = True, completion=None) -> list[SourcePaths]:
+                 seed: int, refraction: bool = True, completion=None,
+                 plane_ids=None) -> list[SourcePaths]:
     """Paths at every position from its own rays and its neighbours' valid chains.
 
     Parameters
@@ -177,6 +178,13 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         (:meth:`~propagation.completion.PlaneLookup.covered`) are neither solved nor
         shared here (the completion solves them at every position). Without it the
         result is what ``PathSolver`` plus sharing gives.
+    plane_ids : PlaneLookup, optional
+        :func:`propagation.completion.triangle_planes`: chains are then named by their
+        interaction types and *planes*, as Sionna's candidate generator and image method
+        treat them, so a chain a neighbour found on other triangles of the same planes is
+        not solved again when the position has it (or has it from another neighbour):
+        solved, it would be a copy of a path the position already has. Default: named by
+        the exact triangles.
 
     Returns
     -------
@@ -216,12 +224,20 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     if n_rows:
         src = cand.source_indices.numpy().astype(np.int64)
         keys = candidate_keys(cand)
-        chain = _chain_ids(keys, cand.target_indices.numpy().astype(np.int64))
+        d = keys.shape[1] // 3
+        named = keys
+        if plane_ids is not None:
+            from sionna.rt.constants import InteractionType
+
+            types = keys[:, :d]
+            on = plane_ids.planes_of(keys[:, d:2 * d], keys[:, 2 * d:])
+            named = np.concatenate([types, np.where(types == int(InteractionType.NONE), -1, on)],
+                                   axis=1)
+        chain = _chain_ids(named, cand.target_indices.numpy().astype(np.int64))
         los_row = cand.valid.numpy().astype(bool)  # final already: line of sight
         solve = np.ones(n_rows, bool)
         if completion is not None:
             lookup, order = completion
-            d = keys.shape[1] // 3
             solve = ~lookup.covered(keys[:, :d], keys[:, d:2 * d], keys[:, 2 * d:], order)
         own_rows = np.flatnonzero(solve)
         valid = np.zeros(n_rows, bool)

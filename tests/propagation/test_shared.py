@@ -162,6 +162,55 @@ def test_chains_left_to_the_completion_are_the_completions_paths(corridor_scene)
     assert not lookup.covered(types[:1], unknown, prims[:1], 2)[0]
 
 
+def test_chains_named_by_planes_are_not_solved_twice(corridor_scene, monkeypatch):
+    # Named by planes (triangle_planes), a chain a neighbour found on other triangles of
+    # the same wall is not solved again at a position that has it: fewer rows solved,
+    # and the same paths as naming chains by triangles (whose extra rows were copies,
+    # dropped by the tolerance test). Fails if two different planes shared an id (a
+    # path would go missing) or if nothing was saved.
+    import propagation.shared as shared_mod
+    from propagation.completion import triangle_planes
+
+    tags = corridor_scene.tags.positions_m[:6]
+    x = np.arange(3.0, 4.6, 0.2)
+    pos = np.column_stack([x, 1.2 + 0.05 * np.sin(4 * x), np.full_like(x, 0.7)])
+    rts = load_sionna_scene(corridor_scene, F)
+    nbs = sharing_neighbours(pos, 0.5)
+    solved = []
+    real = shared_mod.to_source_paths
+
+    def counting(out, *a):
+        solved.append(sum(len(v) for v in out["src"]))  # valid rows before copies go
+        return real(out, *a)
+
+    monkeypatch.setattr(shared_mod, "to_source_paths", counting)
+    by_tri = trace_shared(rts, pos, tags, nbs, 3, 1000, 1)
+    by_plane = trace_shared(rts, pos, tags, nbs, 3, 1000, 1, plane_ids=triangle_planes(rts))
+    assert solved[1] < solved[0]
+    for a, b in zip(by_tri, by_plane, strict=True):
+        ta, la, ka, ra = _path_rows(a)
+        tb, lb, kb, rb = _path_rows(b)
+        oa, ob = np.lexsort((la, ta)), np.lexsort((lb, tb))
+        np.testing.assert_array_equal(ta[oa], tb[ob])
+        np.testing.assert_allclose(la[oa], lb[ob], atol=1e-3)  # float32 geometry
+        np.testing.assert_allclose(ka[oa], kb[ob], atol=1e-3)
+        np.testing.assert_allclose(ra[oa], rb[ob], atol=1e-3)
+
+
+def test_triangle_planes_name_coplanar_triangles_alike(corridor_scene):
+    from propagation.completion import large_planes, plane_lookup, triangle_planes
+
+    rts = load_sionna_scene(corridor_scene, F)
+    ids = triangle_planes(rts)
+    # the same grouping as the large planes' (tolerance) grouping, where both apply
+    big = plane_lookup(rts, large_planes(rts, 0.0))
+    np.testing.assert_array_equal(ids.shape_ptr, big.shape_ptr)
+    same_id = ids.plane[:, None] == ids.plane[None, :]
+    same_plane = big.plane[:, None] == big.plane[None, :]
+    np.testing.assert_array_equal(same_id, same_plane)
+    assert len(np.unique(ids.plane)) > 6  # walls, floor, ceiling, ends: not all one id
+
+
 def test_shared_floor_links_match_two_ray(floor_scene):
     # Over a floor, shared positions (0.1 m apart) are solved exactly: the two-ray closed
     # form holds to the 0.5 dB of the slab-vs-half-space difference (test_tracing)
