@@ -231,8 +231,12 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
 
             types = keys[:, :d]
             on = plane_ids.planes_of(keys[:, d:2 * d], keys[:, 2 * d:])
-            named = np.concatenate([types, np.where(types == int(InteractionType.NONE), -1, on)],
-                                   axis=1)
+            none = types == int(InteractionType.NONE)
+            # a triangle the lookup does not know keeps its own name (never merged)
+            unknown = (on < 0) & ~none
+            named = np.concatenate([types, np.where(none, -1, on),
+                                    np.where(unknown, keys[:, d:2 * d], -1),
+                                    np.where(unknown, keys[:, 2 * d:], -1)], axis=1)
         chain = _chain_ids(named, cand.target_indices.numpy().astype(np.int64))
         los_row = cand.valid.numpy().astype(bool)  # final already: line of sight
         solve = np.ones(n_rows, bool)
