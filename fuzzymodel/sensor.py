@@ -71,12 +71,16 @@ def denormalise_rssi(fs, range_dbm) -> np.ndarray:
 
 
 def wrap_angle(angle_rad) -> np.ndarray:
-    """Wrap angles [rad] to (-pi, pi] (a new array; angles in range are returned as they are)."""
+    """Wrap angles [rad] to (-pi, pi] (a new array; angles in range are returned as they are,
+    so an angle's result never depends on the other angles of the call)."""
     a = np.asarray(angle_rad, dtype=np.float64)
     # most callers pass angles in range already: two reductions cost a tenth of np.mod
     if a.ndim and a.size and a.min() > -np.pi and a.max() <= np.pi:
         return a.copy()
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    out = np.array(a, dtype=np.float64, copy=True)
+    bad = ~((out > -np.pi) & (out <= np.pi))  # NaN included: np.mod keeps it NaN
+    out[bad] = np.pi - np.mod(np.pi - out[bad], 2.0 * np.pi)
+    return out
 
 
 class SensorModel:

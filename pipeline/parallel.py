@@ -7,10 +7,17 @@ travel back (pickled). Fork is used only where it is safe here: not when another
 non-daemon thread runs (a Dask worker's threads: a lock held at the fork would stay
 held in the child), not from a thread other than the main one, not from a daemonic
 process (which may not have children), and not on a platform without fork; there the
-tasks run one after the other in this process. A daemon helper thread (the progress
-bars' refresh) does not prevent forking: a child logs through a plain stderr handler
-of its own, so the console lock such a thread may hold at the fork is never needed. Results never depend on the number of workers: each task brings its own
-random stream.
+tasks run one after the other in this process, whatever number of workers was asked
+for. A daemon helper thread (the progress bars' refresh) does not prevent forking: a
+child restores the interpreter's own ``sys.stdout`` / ``sys.stderr`` (a progress display
+replaces them by proxies that write through its console and its lock) and logs through
+a plain handler on the real stderr, so no lock such a thread may hold at the fork is
+ever needed in the child. Results never depend on the number of workers: each task
+brings its own random stream.
+
+The environment variable ``RFIDSTUDY_WORKERS`` caps the processes of one call (a sweep
+sets it in its own worker processes, so that points side by side do not each fork one
+process per CPU).
 """
 
 from __future__ import annotations
@@ -18,11 +25,17 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import pickle
+import sys
 import threading
+import traceback
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["fork_workers", "map_forked", "usable_cpus"]
+__all__ = ["WORKERS_ENV", "fork_workers", "map_forked", "usable_cpus"]
+
+#: Environment variable capping the processes of one :func:`map_forked` call.
+WORKERS_ENV = "RFIDSTUDY_WORKERS"
 
 # the task function of the running map_forked call, read by the forked children
 _TASK: Callable[[int], Any] | None = None
@@ -35,13 +48,28 @@ def usable_cpus() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+def _worker_cap() -> int | None:
+    raw = os.environ.get(WORKERS_ENV, "").strip()
+    if not raw:
+        return None
+    try:
+        cap = int(raw)
+    except ValueError:
+        raise ValueError(f"environment variable {WORKERS_ENV} must be an integer >= 1, "
+                         f"got {raw!r}") from None
+    if cap < 1:
+        raise ValueError(f"environment variable {WORKERS_ENV} must be an integer >= 1, got {raw!r}")
+    return cap
+
+
 def fork_workers(workers: int | None, n_tasks: int) -> int:
     """Processes to use for `n_tasks` independent tasks.
 
     Parameters
     ----------
     workers : int or None
-        Asked for; None: one per usable CPU, or 1 where forking is not safe (module doc).
+        Asked for; None: one per usable CPU. Either way 1 where forking is not safe
+        (module doc), and at most ``RFIDSTUDY_WORKERS`` where that is set.
     n_tasks : int
 
     Returns
@@ -50,13 +78,15 @@ def fork_workers(workers: int | None, n_tasks: int) -> int:
         In ``[1, max(1, n_tasks)]``.
     """
     n_tasks = max(1, int(n_tasks))
-    if workers is not None:
-        if int(workers) < 1:
-            raise ValueError(f"workers must be >= 1 (or None for one per CPU), got {workers!r}")
-        return min(int(workers), n_tasks)
-    if not _fork_is_safe():
+    if workers is not None and int(workers) < 1:
+        raise ValueError(f"workers must be >= 1 (or None for one per CPU), got {workers!r}")
+    n = usable_cpus() if workers is None else int(workers)
+    cap = _worker_cap()
+    if cap is not None:
+        n = min(n, cap)
+    if n <= 1 or not _fork_is_safe():
         return 1
-    return min(usable_cpus(), n_tasks)
+    return min(n, n_tasks)
 
 
 def _fork_is_safe() -> bool:
@@ -70,16 +100,34 @@ def _fork_is_safe() -> bool:
 
 
 def _child_init() -> None:
+    # a progress display may have replaced the streams by proxies writing through its
+    # console, whose lock another (unforked) thread may have held at the fork
+    if sys.__stdout__ is not None:
+        sys.stdout = sys.__stdout__
+    if sys.__stderr__ is not None:
+        sys.stderr = sys.__stderr__
     root = logging.getLogger()
     level = root.level
     for h in list(root.handlers):
         root.removeHandler(h)
-    root.addHandler(logging.StreamHandler())
+    root.addHandler(logging.StreamHandler(sys.stderr))
     root.setLevel(level)
 
 
+class _TaskError(Exception):
+    """A task's exception that cannot travel back pickled, as its formatted traceback."""
+
+
 def _call(i: int):
-    return _TASK(i)
+    try:
+        return _TASK(i)
+    except Exception as exc:
+        try:
+            pickle.loads(pickle.dumps(exc))
+        except Exception:
+            raise _TaskError(f"task {i} raised (unpicklable exception):\n"
+                             + "".join(traceback.format_exception(exc))) from None
+        raise
 
 
 def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = None) -> list:
@@ -97,7 +145,8 @@ def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = N
     -------
     list
         The results in task order. The first task error is raised here after the pool
-        has stopped (the remaining tasks are cancelled).
+        has stopped (the remaining tasks are cancelled); an exception that cannot be
+        pickled comes back as a RuntimeError carrying its traceback.
     """
     global _TASK
     n = fork_workers(workers, n_tasks)
@@ -115,6 +164,9 @@ def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = N
             futures = [pool.submit(_call, i) for i in range(int(n_tasks))]
             try:
                 return [f.result() for f in futures]
+            except _TaskError as exc:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise RuntimeError(str(exc)) from None
             except BaseException:
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise

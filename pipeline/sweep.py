@@ -30,6 +30,7 @@ import dataclasses
 import itertools
 import logging
 import multiprocessing
+import os
 import re
 import tomllib
 from collections.abc import Callable
@@ -45,6 +46,7 @@ from pipeline.config import (
     replace_path,
 )
 from pipeline.configschema import from_dict
+from pipeline.parallel import WORKERS_ENV, usable_cpus
 from pipeline.runstore import atomic_write_bytes, atomic_write_json
 
 __all__ = [
@@ -340,7 +342,10 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     else:
         n_workers = workers or min(len(args), 2)
         ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as ex:
+        nested = max(1, usable_cpus() // n_workers)  # points side by side share the CPUs
+        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
+                                    initializer=_cap_nested_workers,
+                                    initargs=(nested,)) as ex:
             futs = {ex.submit(run_point, *a): i for i, a in enumerate(args)}
             for fut in cf.as_completed(futs):
                 i = futs[fut]
@@ -356,6 +361,13 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     df = pd.DataFrame(table)
     files = _write_summary(df, out, plan)
     return SweepResult(out_dir=out, summary=df, files=files)
+
+
+def _cap_nested_workers(cap: int) -> None:
+    """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs."""
+    current = os.environ.get(WORKERS_ENV, "").strip()
+    if not current.isdigit() or int(current) > cap:
+        os.environ[WORKERS_ENV] = str(cap)
 
 
 def _shared_cache(cfg: StudyConfig, out: Path) -> StudyConfig:

@@ -190,6 +190,8 @@ class PlaneLookup:
         """Plane index of each (shape pointer, primitive), -1 where none (same shape)."""
         shapes = np.asarray(shapes, np.int64)
         prims = np.asarray(primitives, np.int64)
+        if len(self.shape_ptr) == 0:
+            return np.full(shapes.shape, -1, np.int64)
         k = np.searchsorted(self.shape_ptr, shapes)
         kc = np.minimum(k, len(self.shape_ptr) - 1)
         known = (len(self.shape_ptr) > 0) & (self.shape_ptr[kc] == shapes)
@@ -201,7 +203,8 @@ class PlaneLookup:
 
     def covered(self, interaction_types, shapes, primitives, max_order: int) -> np.ndarray:
         """Candidate rows the completion enumerates: 1..``max_order`` specular
-        reflections, every one on a large plane, (R,) bool.
+        reflections, every one on a large plane and no plane twice in a row (as
+        :func:`complete_specular` enumerates them), (R,) bool.
 
         Parameters
         ----------
@@ -215,9 +218,13 @@ class PlaneLookup:
         types = np.asarray(interaction_types, np.int64)
         none, spec = int(InteractionType.NONE), int(InteractionType.SPECULAR)
         order = (types != none).sum(axis=1)
-        on_plane = self.planes_of(shapes, primitives) >= 0
-        return (order >= 1) & (order <= int(max_order)) & np.all(
-            (types == none) | ((types == spec) & on_plane), axis=1)
+        plane = self.planes_of(shapes, primitives)
+        ok = (order >= 1) & (order <= int(max_order)) & np.all(
+            (types == none) | ((types == spec) & (plane >= 0)), axis=1)
+        if types.shape[1] > 1:
+            repeat = (plane[:, 1:] == plane[:, :-1]) & (types[:, 1:] != none)
+            ok &= ~repeat.any(axis=1)
+        return ok
 
 
 def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
@@ -230,6 +237,12 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
     image method reflects through the plane, whichever of its triangles the chain named,
     and accepts a hit on any coplanar triangle (module doc). Solving it from the rays too
     is work done twice (and a copy that ``merge_paths`` drops).
+
+    A triangle gets a plane's label only when it also lies inside that plane's bounding
+    box (with the pre-test's slack): the completion's pre-test drops reflection points
+    outside the box, so a chain labelled here is one the completion does not drop for
+    lying off its plane (a triangle coplanar with a large plane but grouped elsewhere,
+    as may happen in an imported mesh, stays unlabelled and its chains are traced).
     """
     import drjit as dr
     import mitsuba as mi
@@ -252,7 +265,9 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
             n0 = planes.normal[p]
             sign = np.sign(nrm @ n0)
             on = ((np.abs(nrm * sign[:, None] - n0).max(axis=1) <= normal_tol)
-                  & (np.abs(tri @ n0 - planes.offset_m[p]).max(axis=1) <= offset_tol_m))
+                  & (np.abs(tri @ n0 - planes.offset_m[p]).max(axis=1) <= offset_tol_m)
+                  & np.all(tri >= planes.lo_m[p] - _BOX_SLACK_M, axis=(1, 2))
+                  & np.all(tri <= planes.hi_m[p] + _BOX_SLACK_M, axis=(1, 2)))
             lab[on & (lab < 0)] = p
         labels.append(lab)
     order = np.argsort(ptr, kind="stable")

@@ -52,7 +52,8 @@ COMPLETION_MIN_AREA_M2 = 1.0
 #: that changes their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 1
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
-SHARING_ALGORITHM = 3  # 2: chains the completion enumerates are left to it; 3: chains named by planes
+SHARING_ALGORITHM = 4  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
+# 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:

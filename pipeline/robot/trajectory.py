@@ -13,6 +13,7 @@ footprint is checked against the map (:func:`check_trajectory`).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -178,6 +179,7 @@ class DriveProfile:
 #: study asks for the same one for the tour and the evaluation path (~1.8 s each).
 _COLLISION_MAPS: dict = {}
 _COLLISION_MAPS_KEPT = 4
+_COLLISION_MAPS_LOCK = threading.Lock()  # a Dask worker runs studies in threads
 
 
 def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None) -> OccupancyMap:
@@ -193,14 +195,16 @@ def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None)
     route = None if route is None else np.ascontiguousarray(route, dtype=np.float64)
     key = (scene.content_hash(), str(scene.name), np.asarray(scene.bounds_m, float).tobytes(),
            float(resolution_m), float(top), None if route is None else (route.shape, route.tobytes()))
-    occ = _COLLISION_MAPS.get(key)
+    with _COLLISION_MAPS_LOCK:
+        occ = _COLLISION_MAPS.get(key)
     if occ is None:
         occ = OccupancyMap.from_scene(scene, resolution_m, (0.05, top), n_slices=6, route_m=route_m)
-        for arr in (occ.occupied, occ.distance_m, occ.boundary_distance_m):
+        for arr in (occ.origin_m, occ.occupied, occ.distance_m, occ.boundary_distance_m):
             arr.flags.writeable = False
-        while len(_COLLISION_MAPS) >= _COLLISION_MAPS_KEPT:
-            _COLLISION_MAPS.pop(next(iter(_COLLISION_MAPS)))
-        _COLLISION_MAPS[key] = occ
+        with _COLLISION_MAPS_LOCK:
+            while len(_COLLISION_MAPS) >= _COLLISION_MAPS_KEPT:
+                _COLLISION_MAPS.pop(next(iter(_COLLISION_MAPS)), None)
+            _COLLISION_MAPS[key] = occ
     return occ
 
 

@@ -45,6 +45,14 @@ def test_wrap_angle_half_open_interval():
     np.testing.assert_allclose(w, [np.pi, np.pi, np.pi, 0.1], atol=1e-12)
 
 
+def test_wrap_angle_of_an_angle_does_not_depend_on_its_batch():
+    # an in-range angle comes back bit for bit, whether or not its batch needed wrapping
+    # (pi - mod(pi - a, 2 pi) moves 0.3 by 1.7e-16 and 1e-17 to 0)
+    a = np.array([0.3, -2.9, 1e-17])
+    assert np.array_equal(wrap_angle(a), a)
+    assert np.array_equal(wrap_angle(np.append(a, 7.0))[:3], a)
+
+
 def test_ranges_broadcasting_and_rho(sensor):
     d = np.linspace(0.1, 10.0, 7)[:, None]  # beyond the training range on both ends
     a = np.linspace(-np.pi, np.pi, 5)[None, :]

@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from pipeline.parallel import fork_workers, map_forked
+from pipeline.parallel import WORKERS_ENV, fork_workers, map_forked
 
 
 def test_results_in_task_order_from_forked_children():
@@ -34,18 +34,26 @@ def test_a_task_error_is_raised_here():
         map_forked(task, 4, workers=2)
 
 
-def test_no_fork_while_another_non_daemon_thread_runs():
+def test_no_fork_while_another_non_daemon_thread_runs(monkeypatch):
+    # only this test's threads count: others the test session may run are hidden
+    mine = {threading.current_thread()}
+    monkeypatch.setattr(threading, "enumerate", lambda: list(mine))
+    monkeypatch.delenv(WORKERS_ENV, raising=False)
     stop = threading.Event()
     th = threading.Thread(target=stop.wait)
     th.start()
+    mine.add(th)
     try:
         assert fork_workers(None, 8) == 1
+        assert fork_workers(2, 8) == 1  # asked-for workers do not override the rule
     finally:
         stop.set()
         th.join()
     daemon = threading.Thread(target=stop.wait, daemon=True)  # a progress bar's refresh
     stop.clear()
     daemon.start()
+    mine.discard(th)
+    mine.add(daemon)
     try:
         assert fork_workers(None, 8) == min(8, len(os.sched_getaffinity(0)))
     finally:
@@ -53,3 +61,38 @@ def test_no_fork_while_another_non_daemon_thread_runs():
     with pytest.raises(ValueError, match="workers"):
         fork_workers(0, 3)
     assert fork_workers(5, 2) == 2
+
+
+def test_no_fork_from_another_thread():
+    got = []
+    th = threading.Thread(target=lambda: got.append(fork_workers(2, 8)))
+    th.start()
+    th.join()
+    assert got == [1]
+
+
+def test_environment_caps_the_workers(monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    assert fork_workers(None, 8) == 1 and fork_workers(4, 8) == 1
+    monkeypatch.setenv(WORKERS_ENV, "zero")
+    with pytest.raises(ValueError, match=WORKERS_ENV):
+        fork_workers(None, 8)
+
+
+class _Unpicklable(Exception):
+    def __init__(self, handle):
+        super().__init__("held a handle")
+        self.handle = handle
+
+    def __reduce__(self):
+        raise TypeError("cannot pickle a handle")
+
+
+def test_an_unpicklable_task_error_comes_back_as_its_traceback():
+    def task(i):
+        if i == 1:
+            raise _Unpicklable(threading.Lock())
+        return i
+
+    with pytest.raises(RuntimeError, match="(?s)task 1 raised.*_Unpicklable: held a handle"):
+        map_forked(task, 3, workers=2)

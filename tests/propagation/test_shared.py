@@ -144,22 +144,36 @@ def test_chains_left_to_the_completion_are_the_completions_paths(corridor_scene)
         np.testing.assert_allclose(ra[oa], rb[ob], atol=1e-3)
         scale = np.abs(ma.transfer).max()
         np.testing.assert_allclose(ma.transfer[oa], mb.transfer[ob], rtol=0, atol=1e-3 * scale)
-    # every covered row is a pure reflection chain on planes up to the order: an order-3
-    # chain, a refraction or a triangle off the planes is not covered
+    # every covered row is a pure reflection chain on planes up to the order, no plane
+    # twice in a row (the completion never enumerates that): an order-3 chain, a
+    # refraction, a repeated plane or a triangle off the planes is not covered
     from sionna.rt.constants import InteractionType
+
+    from propagation.completion import PlaneLookup
 
     spec, refr, none = (int(InteractionType.SPECULAR), int(InteractionType.REFRACTION),
                         int(InteractionType.NONE))
-    first = int(np.flatnonzero(lookup.plane >= 0)[0])  # a triangle on a large plane
-    k = int(np.searchsorted(lookup.offset, first, side="right") - 1)
-    ptr, prim = int(lookup.shape_ptr[k]), first - int(lookup.offset[k])
+
+    def shape_and_prim(tri):
+        k = int(np.searchsorted(lookup.offset, tri, side="right") - 1)
+        return int(lookup.shape_ptr[k]), tri - int(lookup.offset[k])
+
+    on = np.flatnonzero(lookup.plane >= 0)  # triangles on large planes
+    a = int(on[0])
+    b = int(on[lookup.plane[on] != lookup.plane[a]][0])  # one on another plane
+    (pa, qa), (pb, qb) = shape_and_prim(a), shape_and_prim(b)
     types = np.array([[spec, none, none], [spec, spec, none], [spec, spec, spec],
-                      [spec, refr, none], [none, none, none]])
-    shapes = np.full(types.shape, ptr, np.int64)
-    prims = np.full(types.shape, prim, np.int64)
-    assert lookup.covered(types, shapes, prims, 2).tolist() == [True, True, False, False, False]
+                      [spec, refr, none], [none, none, none], [spec, spec, none]])
+    shapes = np.tile([pa, pb, pa], (len(types), 1)).astype(np.int64)
+    prims = np.tile([qa, qb, qa], (len(types), 1)).astype(np.int64)
+    shapes[-1, 1], prims[-1, 1] = pa, qa  # the same plane twice in a row
+    assert lookup.covered(types, shapes, prims, 2).tolist() == [True, True, False, False, False,
+                                                                False]
     unknown = np.full((1, 3), int(lookup.shape_ptr.max()) + 100, np.int64)  # no such shape
-    assert not lookup.covered(types[:1], unknown, prims[:1], 2)[0]
+    assert not lookup.covered(types[:1], unknown, prims[:1, :3], 2)[0]
+    nothing = PlaneLookup(np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64))
+    assert nothing.planes_of(shapes[:2], prims[:2]).tolist() == [[-1] * 3] * 2
+    assert not nothing.covered(types, shapes, prims, 2).any()
 
 
 def test_chains_named_by_planes_are_not_solved_twice(corridor_scene, monkeypatch):

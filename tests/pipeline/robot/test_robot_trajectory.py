@@ -1,5 +1,7 @@
 """Guided tours and the evaluation path stay in free space, are reproducible, and bad ones raise."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -97,3 +99,20 @@ def test_tour_in_bundled_corridor_lab(robot):
     tour = guided_tour(lab, robot, np.random.default_rng(0), TourConfig(n_passes=2))
     check_trajectory(collision_map(lab, robot), tour, robot)  # cabinets, doors avoided
     assert np.ptp(tour.poses[:, 0]) > 20.0  # most of the ~25 m corridor
+
+
+def test_collision_map_is_shared_only_for_the_same_settings(corridor, robot, cmap):
+    # the same scene and robot get the same (read-only) map; a taller robot, another
+    # route or resolution get maps of their own, so no caller sees another's map
+    assert collision_map(corridor, robot) is cmap
+    for arr in (cmap.origin_m, cmap.occupied, cmap.distance_m, cmap.boundary_distance_m):
+        with pytest.raises(ValueError, match="read-only"):
+            arr.flat[0] = arr.flat[0]
+    # antennas mounted higher: the map's slices reach higher
+    tall = Robot(antennas=[dataclasses.replace(a, z_m=a.z_m + 0.5) for a in robot.antennas])
+    assert collision_map(corridor, tall) is not cmap
+    assert collision_map(corridor, tall).z_range_m[1] > cmap.z_range_m[1]
+    assert collision_map(corridor, robot, resolution_m=0.1).resolution_m == 0.1
+    short_route = np.asarray(corridor.route_m, float)[:2]
+    other = collision_map(corridor, robot, route_m=short_route)
+    assert other is not cmap and other is not collision_map(corridor, robot, resolution_m=0.1)
