@@ -206,3 +206,59 @@ def test_completed_cache_never_holds_an_uncompleted_link(corridor_scene, tmp_pat
     ok = trace_links(corridor_scene, poses, tags, cache_dir=tmp_path / "d0",
                      **{**kw, "max_depth": 0})  # completion order capped by max_depth
     assert np.all(ok.n_paths <= 1)
+
+
+def _pretest_reference(planes, src, tgt, link_src, link_tgt, chains):
+    """The pre-test pair by pair in float64: backtrack from the target through the chain's
+    planes, each segment crossing its plane inside the plane's box (+1 mm slack)."""
+    keep = []
+    for li, (s, t) in enumerate(zip(link_src, link_tgt, strict=True)):
+        for ci, chain in enumerate(chains):
+            imgs = [src[s]]
+            for p in chain:  # images of the source through the chain's planes
+                d = imgs[-1] @ planes.normal[p] - planes.offset_m[p]
+                imgs.append(imgs[-1] - 2.0 * d * planes.normal[p])
+            pt, ok = tgt[t], True
+            for j in range(len(chain) - 1, -1, -1):
+                p, im = chain[j], imgs[j + 1]
+                a = pt @ planes.normal[p] - planes.offset_m[p]
+                b = im @ planes.normal[p] - planes.offset_m[p]
+                if not a * b < 0.0:
+                    ok = False
+                    break
+                pt = pt + a / (a - b) * (im - pt)
+                if np.any(pt < planes.lo_m[p] - 1e-3) or np.any(pt > planes.hi_m[p] + 1e-3):
+                    ok = False
+                    break
+            if ok:
+                keep.append((li, ci))
+    return keep
+
+
+@pytest.mark.parametrize("shift_m", [0.0, 1_000_000.0])
+def test_pretest_keeps_exactly_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift_m):
+    # The dense float32 pre-test against a pair-by-pair float64 recomputation, also with
+    # the whole scene 1,000 km from the origin (float32 rounds there to 6 cm, far above
+    # the 1 mm slack: the pre-test must centre its coordinates; fails if it does not).
+    import dataclasses
+
+    from propagation.completion import _chains, _pretest
+
+    rts = load_sionna_scene(corridor_scene, F)
+    planes = large_planes(rts, 1.0)
+    shift = np.array([shift_m, -shift_m, 0.0])
+    planes = dataclasses.replace(planes, offset_m=planes.offset_m + planes.normal @ shift,
+                                 lo_m=planes.lo_m + shift, hi_m=planes.hi_m + shift)
+    rng = np.random.default_rng(5)
+    src = np.column_stack([rng.uniform(1, 19, 6), rng.uniform(0.3, 2.1, 6), rng.uniform(0.3, 2.2, 6)]) + shift
+    tgt = corridor_scene.tags.positions_m[::3] + shift
+    need = rng.random((len(src), len(tgt))) < 0.7
+    link_src, link_tgt = np.nonzero(need)
+    n_kept = 0
+    for order in (1, 2, 3):
+        chains = _chains(len(planes), order)[:: 7 if order == 3 else 1]
+        li, ci = _pretest(planes, src, tgt, link_src, link_tgt, chains)
+        want = _pretest_reference(planes, src, tgt, link_src, link_tgt, chains)
+        assert sorted(zip(li.tolist(), ci.tolist(), strict=True)) == want
+        n_kept += len(want)
+    assert n_kept > 100  # the scene has reflections to keep (and most pairs are dropped)
