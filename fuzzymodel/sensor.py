@@ -71,16 +71,31 @@ def denormalise_rssi(fs, range_dbm) -> np.ndarray:
 
 
 def wrap_angle(angle_rad) -> np.ndarray:
-    """Wrap angles [rad] to (-pi, pi] (a new array; angles in range are returned as they are,
-    so an angle's result never depends on the other angles of the call)."""
+    """Wrap angles [rad] to (-pi, pi].
+
+    Parameters
+    ----------
+    angle_rad : array_like of float
+        Any shape.
+
+    Returns
+    -------
+    numpy.ndarray of float64
+        A new array of the same shape (a NumPy scalar for a scalar input). Angles in
+        range come back as they are, so an angle's result never depends on the other
+        angles of the call; NaN stays NaN.
+    """
     a = np.asarray(angle_rad, dtype=np.float64)
     # most callers pass angles in range already: two reductions cost a tenth of np.mod
     if a.ndim and a.size and a.min() > -np.pi and a.max() <= np.pi:
         return a.copy()
     out = np.array(a, dtype=np.float64, copy=True)
     bad = ~((out > -np.pi) & (out <= np.pi))  # NaN included: np.mod keeps it NaN
-    out[bad] = np.pi - np.mod(np.pi - out[bad], 2.0 * np.pi)
-    return out
+    wrapped = np.pi - np.mod(np.pi - out[bad], 2.0 * np.pi)
+    # just above pi, np.mod rounds up to 2 pi and the formula gives -pi: outside (-pi, pi]
+    wrapped[wrapped <= -np.pi] = np.pi
+    out[bad] = wrapped
+    return out[()] if out.ndim == 0 else out
 
 
 class SensorModel:

@@ -342,7 +342,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     else:
         n_workers = workers or min(len(args), 2)
         ctx = multiprocessing.get_context("spawn")
-        nested = max(1, usable_cpus() // n_workers)  # points side by side share the CPUs
+        # points side by side share the CPUs (never more side by side than points)
+        nested = max(1, usable_cpus() // max(1, min(n_workers, len(args))))
         with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
                                     initializer=_cap_nested_workers,
                                     initargs=(nested,)) as ex:
@@ -366,7 +367,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
 def _cap_nested_workers(cap: int) -> None:
     """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs."""
     current = os.environ.get(WORKERS_ENV, "").strip()
-    if not current.isdigit() or int(current) > cap:
+    # a user's smaller cap stands; anything else (unset, larger, not a count) is replaced
+    if not (current.isdecimal() and 1 <= int(current) <= cap):
         os.environ[WORKERS_ENV] = str(cap)
 
 

@@ -54,7 +54,9 @@ _CANDIDATES_PER_CALL = 1 << 20
 #: (source, target) pairs per line-of-sight call (every pair of the call is solved).
 _LOS_PAIRS_PER_CALL = 1 << 18
 #: Slack on the planes' bounding boxes in the pre-test, m: far above float32 rounding of
-#: the reflection point (~1e-6 m), so the pre-test never drops a chain Sionna would accept.
+#: the reflection point (~1e-5 m at 100 m from the sources' mean), so a box test never
+#: drops a chain Sionna would accept (the side tests may, within ~1e-5 m of a corner:
+#: see :func:`_pretest`).
 _BOX_SLACK_M = 1e-3
 
 

@@ -50,7 +50,7 @@ _MAX_SOURCES_PER_CALL = 128
 COMPLETION_MIN_AREA_M2 = 1.0
 #: Versions of the completion and pooling algorithms, part of the cache key: a change
 #: that changes their paths must bump them so no cache serves the old results.
-COMPLETION_ALGORITHM = 1
+COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
 SHARING_ALGORITHM = 4  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row

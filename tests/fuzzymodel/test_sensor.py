@@ -43,6 +43,11 @@ def test_normalise_round_trip_and_clip():
 def test_wrap_angle_half_open_interval():
     w = wrap_angle([np.pi, -np.pi, 3 * np.pi, 0.1 - 2 * np.pi])
     np.testing.assert_allclose(w, [np.pi, np.pi, np.pi, 0.1], atol=1e-12)
+    # one ulp above pi: np.mod rounds pi - a up to 2 pi, which would give -pi
+    just_above = np.nextafter(np.pi, 4.0)
+    w = wrap_angle(np.array([just_above, -just_above]))
+    assert np.all((w > -np.pi) & (w <= np.pi)), w
+    assert np.isscalar(wrap_angle(3 * np.pi)) and wrap_angle(3 * np.pi) == np.pi
 
 
 def test_wrap_angle_of_an_angle_does_not_depend_on_its_batch():

@@ -10,7 +10,17 @@ import pytest
 from pipeline.parallel import WORKERS_ENV, fork_workers, map_forked
 
 
+@pytest.fixture(autouse=True)
+def _forking_allowed(monkeypatch):
+    """Each test starts where forking is allowed: no worker cap from the environment and
+    no other thread of the test session (a lingering non-daemon thread would make every
+    task run in place and the forking tests pass without forking)."""
+    monkeypatch.delenv(WORKERS_ENV, raising=False)
+    monkeypatch.setattr(threading, "enumerate", lambda: [threading.current_thread()])
+
+
 def test_results_in_task_order_from_forked_children():
+    assert fork_workers(2, 6) == 2  # else the rest would pass without forking
     offset = 7  # a closure: the children inherit it, nothing is pickled but the index
     out = map_forked(lambda i: (i + offset, os.getpid()), 6, workers=2)
     assert [v for v, _ in out] == [7, 8, 9, 10, 11, 12]
@@ -25,6 +35,8 @@ def test_one_worker_runs_here_in_order():
 
 
 def test_a_task_error_is_raised_here():
+    assert fork_workers(2, 4) == 2
+
     def task(i):
         if i == 2:
             raise RuntimeError(f"task {i} failed")
@@ -38,7 +50,6 @@ def test_no_fork_while_another_non_daemon_thread_runs(monkeypatch):
     # only this test's threads count: others the test session may run are hidden
     mine = {threading.current_thread()}
     monkeypatch.setattr(threading, "enumerate", lambda: list(mine))
-    monkeypatch.delenv(WORKERS_ENV, raising=False)
     stop = threading.Event()
     th = threading.Thread(target=stop.wait)
     th.start()
@@ -64,6 +75,9 @@ def test_no_fork_while_another_non_daemon_thread_runs(monkeypatch):
 
 
 def test_no_fork_from_another_thread():
+    # the fixture shows only the calling thread, so the thread rule alone cannot
+    # refuse: only "not the main thread" can
+    assert fork_workers(2, 8) == 2
     got = []
     th = threading.Thread(target=lambda: got.append(fork_workers(2, 8)))
     th.start()
@@ -74,9 +88,13 @@ def test_no_fork_from_another_thread():
 def test_environment_caps_the_workers(monkeypatch):
     monkeypatch.setenv(WORKERS_ENV, "1")
     assert fork_workers(None, 8) == 1 and fork_workers(4, 8) == 1
-    monkeypatch.setenv(WORKERS_ENV, "zero")
-    with pytest.raises(ValueError, match=WORKERS_ENV):
-        fork_workers(None, 8)
+    monkeypatch.setenv(WORKERS_ENV, "2")
+    assert fork_workers(4, 8) == 2  # the cap, not the 4 asked for
+    assert fork_workers(4, 1) == 1  # nor more than the tasks
+    for bad in ("zero", "0", "-1"):
+        monkeypatch.setenv(WORKERS_ENV, bad)
+        with pytest.raises(ValueError, match=WORKERS_ENV):
+            fork_workers(None, 8)
 
 
 class _Unpicklable(Exception):
@@ -89,6 +107,8 @@ class _Unpicklable(Exception):
 
 
 def test_an_unpicklable_task_error_comes_back_as_its_traceback():
+    assert fork_workers(2, 3) == 2
+
     def task(i):
         if i == 1:
             raise _Unpicklable(threading.Lock())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -68,3 +69,17 @@ def test_zip_mode_needs_equal_lengths():
     with pytest.raises(ConfigError, match="equal-length"):
         expand_sweep(StudyConfig(), {"tx_power_dbm": [20.0, 25.0], "antenna_tilt_deg": [0.0]},
                      mode="zip")
+
+
+def test_a_sweep_worker_caps_its_studys_forks(monkeypatch):
+    from pipeline.parallel import WORKERS_ENV
+    from pipeline.sweep import _cap_nested_workers
+
+    for before, after in ((None, "2"), ("1", "1"), ("2", "2"), ("8", "2"), ("0", "2"),
+                          ("two", "2"), ("²", "2")):  # "²".isdigit() but not a count
+        if before is None:
+            monkeypatch.delenv(WORKERS_ENV, raising=False)
+        else:
+            monkeypatch.setenv(WORKERS_ENV, before)
+        _cap_nested_workers(2)
+        assert os.environ[WORKERS_ENV] == after, before

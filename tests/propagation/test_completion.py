@@ -210,36 +210,45 @@ def test_completed_cache_never_holds_an_uncompleted_link(corridor_scene, tmp_pat
 
 def _pretest_reference(planes, src, tgt, link_src, link_tgt, chains):
     """The pre-test pair by pair in float64: backtrack from the target through the chain's
-    planes, each segment crossing its plane inside the plane's box (+1 mm slack)."""
-    keep = []
+    planes, each segment crossing its plane inside the plane's box (+1 mm slack).
+
+    Returns ``{(link, chain): (kept, margin_m)}``, the margin being the smallest distance,
+    over the tests made, of a point or image to its plane or of a reflection point to its
+    box's faces: how far the pair is from the other answer."""
+    out = {}
     for li, (s, t) in enumerate(zip(link_src, link_tgt, strict=True)):
         for ci, chain in enumerate(chains):
             imgs = [src[s]]
             for p in chain:  # images of the source through the chain's planes
                 d = imgs[-1] @ planes.normal[p] - planes.offset_m[p]
                 imgs.append(imgs[-1] - 2.0 * d * planes.normal[p])
-            pt, ok = tgt[t], True
+            pt, ok, margin = tgt[t], True, np.inf
             for j in range(len(chain) - 1, -1, -1):
                 p, im = chain[j], imgs[j + 1]
                 a = pt @ planes.normal[p] - planes.offset_m[p]
                 b = im @ planes.normal[p] - planes.offset_m[p]
+                margin = min(margin, abs(a), abs(b))
                 if not a * b < 0.0:
                     ok = False
                     break
                 pt = pt + a / (a - b) * (im - pt)
-                if np.any(pt < planes.lo_m[p] - 1e-3) or np.any(pt > planes.hi_m[p] + 1e-3):
+                lo, hi = planes.lo_m[p] - 1e-3, planes.hi_m[p] + 1e-3
+                margin = min(margin, np.abs(pt - lo).min(), np.abs(pt - hi).min())
+                if np.any(pt < lo) or np.any(pt > hi):
                     ok = False
                     break
-            if ok:
-                keep.append((li, ci))
-    return keep
+            out[(li, ci)] = (ok, margin)
+    return out
 
 
 @pytest.mark.parametrize("shift_m", [0.0, 1_000_000.0])
-def test_pretest_keeps_exactly_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift_m):
+def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift_m):
     # The dense float32 pre-test against a pair-by-pair float64 recomputation, also with
     # the whole scene 1,000 km from the origin (float32 rounds there to 6 cm, far above
     # the 1 mm slack: the pre-test must centre its coordinates; fails if it does not).
+    # The answers may differ only for a pair within 1e-4 m of the other answer: float32
+    # rounding of centred coordinates ~20 m across is ~1e-6 m, so 1e-4 m leaves room for
+    # the few operations in between and is still 10x below the slack.
     import dataclasses
 
     from propagation.completion import _chains, _pretest
@@ -258,7 +267,12 @@ def test_pretest_keeps_exactly_the_pairs_a_float64_backtrack_keeps(corridor_scen
     for order in (1, 2, 3):
         chains = _chains(len(planes), order)[:: 7 if order == 3 else 1]
         li, ci = _pretest(planes, src, tgt, link_src, link_tgt, chains)
+        got = set(zip(li.tolist(), ci.tolist(), strict=True))
         want = _pretest_reference(planes, src, tgt, link_src, link_tgt, chains)
-        assert sorted(zip(li.tolist(), ci.tolist(), strict=True)) == want
-        n_kept += len(want)
+        assert got <= set(want)
+        differ = [(pair, m) for pair, (kept, m) in want.items() if kept != (pair in got)]
+        assert all(m < 1e-4 for _, m in differ), differ[:5]
+        n_want = sum(kept for kept, _ in want.values())
+        assert len(differ) <= 0.001 * n_want + 1, (len(differ), n_want)
+        n_kept += n_want
     assert n_kept > 100  # the scene has reflections to keep (and most pairs are dropped)
