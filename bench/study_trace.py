@@ -22,6 +22,12 @@ Prints, from one run on this machine:
    gain), p95 over weak links (within 30 dB below it) and the flipped read decisions;
    pooled against direct (same seed) as its extrapolation error.
 
+Every study and naive trace runs in its own process with an empty Dr.Jit kernel cache
+(a fresh ``$HOME``: Dr.Jit keeps compiled kernels in ``~/.drjit``), as on a new machine;
+``--warm-kernels`` keeps this machine's. The naive tracing is run twice: devices placed
+as Sionna's API documents (positions as lists of numbers) and as the study places them
+(kinder: fewer kernels to compile).
+
 Takes about 20 minutes on 2 cores. Usage::
 
     .venv/bin/python bench/study_trace.py [--lattice 0.25] [--skip-study] [--skip-noise]
@@ -58,12 +64,16 @@ def settings(lattice_m: float | None, direct: bool = True) -> dict:
     return out
 
 
-def run_study(out: Path, cache: Path, overrides: dict) -> dict:
-    """One cold default study; wall time, stage times and peak stage memory."""
+def run_study(out: Path, cache: Path, overrides: dict, home: Path | None = None) -> dict:
+    """One cold default study; wall time, stage times and peak stage memory. ``home``:
+    run with this ``$HOME``, i.e. an empty Dr.Jit kernel cache as on a new machine."""
     cmd = [str(Path(sys.executable).with_name("rfidstudy")), "run", "--out", str(out), "--no-progress"]
     for k, v in overrides.items():
         cmd += ["--set", f"{k}={v}"]
     env = {**os.environ, "RFIDSTUDY_CACHE": str(cache)}
+    if home is not None:
+        home.mkdir(parents=True, exist_ok=True)
+        env["HOME"] = str(home)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -98,19 +108,40 @@ def study_links(run: Path) -> list[tuple[str, np.ndarray, np.ndarray, int]]:
     return groups
 
 
-def naive_trace(scene, groups, max_depth: int, samples: int) -> dict:
-    """Bare Sionna PathSolver over the link groups; seconds and links per group name."""
+def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "api") -> dict:
+    """Bare Sionna PathSolver over the link groups; seconds and links per group name.
+
+    ``placement="api"`` places devices as Sionna's documentation does (positions as
+    lists of numbers, Sionna's own endpoint arrays: Dr.Jit compiles kernels per position
+    and per device index on an empty kernel cache); ``"arrays"`` as the study does
+    (:func:`propagation.sionna_scene.device_point`, endpoints built in one go), kinder
+    to the naive side."""
     import sionna.rt as rt
 
     from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
 
     rt_scene = load_sionna_scene(scene, 865e6)
+    if placement == "api":
+        del rt_scene._endpoints  # Sionna's own method again
+
+    def place(src, tgt):
+        if placement != "api":
+            place_devices(rt_scene, src, tgt, polarization="V")
+            return
+        clear_devices(rt_scene)
+        rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
+        rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
+        for k, p in enumerate(src):
+            rt_scene.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
+        for k, p in enumerate(tgt):
+            rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+
     solver = rt.PathSolver()
     out: dict = {}
     for name, pos, rx, per_call in groups:
         t0 = time.perf_counter()
         for c0 in range(0, len(pos), per_call):
-            place_devices(rt_scene, pos[c0:c0 + per_call], rx, polarization="V")
+            place(pos[c0:c0 + per_call], rx)
             paths = solver(rt_scene, max_depth=max_depth, samples_per_src=samples,
                            max_num_paths_per_src=samples * (max_depth + 1), synthetic_array=True,
                            los=True, specular_reflection=True, diffuse_reflection=False,
@@ -120,6 +151,20 @@ def naive_trace(scene, groups, max_depth: int, samples: int) -> dict:
         s, n = out.get(name, (0.0, 0))
         out[name] = (s + time.perf_counter() - t0, n + len(pos) * len(rx))
     return out
+
+
+def naive_in_subprocess(run: Path, placement: str, home: Path | None) -> dict:
+    """:func:`naive_trace` in a fresh process; ``home``: its own (empty) Dr.Jit kernel
+    cache, which lives in ``$HOME/.drjit``."""
+    env = dict(os.environ)
+    if home is not None:
+        home.mkdir(parents=True, exist_ok=True)
+        env["HOME"] = str(home)
+    proc = subprocess.run([sys.executable, __file__, "--naive-only", placement, "--run", str(run)],
+                          cwd=ROOT, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"naive tracing failed:\n{proc.stderr[-3000:]}")
+    return {k: tuple(v) for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()}
 
 
 def seed_noise(scene, run: Path, overrides: dict) -> tuple[dict, np.ndarray, float]:
@@ -178,11 +223,24 @@ def main() -> None:
     ap.add_argument("--skip-noise", action="store_true")
     ap.add_argument("--skip-direct", action="store_true",
                     help="leave out the direct 3e4-ray study (the old default; ~6 min on 2 cores)")
+    ap.add_argument("--warm-kernels", action="store_true",
+                    help="keep this machine's Dr.Jit kernel cache (~/.drjit); default: every "
+                         "study and naive trace starts from an empty one, as on a new machine")
+    ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
+                    help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
     from pipeline.config import StudyConfig
+
+    if args.naive_only:
+        P.select_variant()
+        cfg = StudyConfig()
+        out = naive_trace(scenes.load("corridor_lab"), study_links(args.run), cfg.tracing.max_depth,
+                          30_000, placement=args.naive_only)
+        print(json.dumps(out))
+        return
 
     print("backend:", P.select_variant(), P.backend_info(), flush=True)
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
@@ -190,7 +248,9 @@ def main() -> None:
     runs = settings(args.lattice, direct=not args.skip_direct)
     if not args.skip_study:
         for label, overrides in runs.items():
-            s = run_study(tmp / f"run_{len(studies)}", tmp / f"cache_{len(studies)}", overrides)
+            i = len(studies)
+            s = run_study(tmp / f"run_{i}", tmp / f"cache_{i}", overrides,
+                          home=None if args.warm_kernels else tmp / f"home_{i}")
             studies[label] = s
             st = ", ".join(f"{k} {v:.0f}" for k, v in s["stages_s"].items() if v >= 1.0)
             print(f"cold default study, {label}: {s['wall_s']:.0f} s wall (stages [s]: {st}); "
@@ -200,16 +260,20 @@ def main() -> None:
         run = args.run or ROOT / "runs" / "default"
     scene = scenes.load("corridor_lab")
     cfg = StudyConfig()
-    groups = study_links(run)
-    naive = naive_trace(scene, groups, cfg.tracing.max_depth, 30_000)
-    t_naive = sum(s for s, _ in naive.values())
-    n_links = sum(n for _, n in naive.values())
-    for name, (s, n) in naive.items():
-        print(f"naive bare Sionna, {name}: {n} links in {s:.1f} s ({n / s:.0f} links/s)")
-    print(f"naive bare Sionna, all: {n_links} links in {t_naive:.1f} s ({n_links / t_naive:.0f} links/s)")
-    for label, s in studies.items():
-        print(f"RATIO cold study ({label}) / naive tracing of its links: {s['wall_s'] / t_naive:.2f} "
-              f"({s['wall_s']:.0f} s / {t_naive:.0f} s)")
+    kernels = "this machine's kernel cache" if args.warm_kernels else "an empty kernel cache"
+    for placement, how in (("api", "devices placed as Sionna's API documents"),
+                           ("arrays", "devices placed as the study places them")):
+        naive = naive_in_subprocess(run, placement,
+                                    None if args.warm_kernels else tmp / f"home_naive_{placement}")
+        t_naive = sum(s for s, _ in naive.values())
+        n_links = sum(n for _, n in naive.values())
+        print(f"naive bare Sionna ({how}, {kernels}):")
+        for name, (s, n) in naive.items():
+            print(f"  {name}: {n} links in {s:.1f} s ({n / s:.0f} links/s)")
+        print(f"  all: {n_links} links in {t_naive:.1f} s ({n_links / t_naive:.0f} links/s)", flush=True)
+        for label, s in studies.items():
+            print(f"RATIO cold study ({label}) / naive tracing of its links ({placement}): "
+                  f"{s['wall_s'] / t_naive:.2f} ({s['wall_s']:.0f} s / {t_naive:.0f} s)", flush=True)
     if not args.skip_noise:
         thr = cfg.reader.link_budget(cfg.frequency_hz).min_gain_db()
         gains = {}

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from propagation.jitarrays import jit_array
 from propagation.pathcache import SourcePaths
 from propagation.sionna_paths import (
     collect_paths,
@@ -507,17 +508,19 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     # The buffer as the candidate generator leaves it: interaction types, shape pointers
     # (as UInt), primitives, and a point on each reflecting plane (the image method
     # reflects through the triangle's normal at this point), all not yet valid.
-    buf._interaction_types = mi.TensorXu(types.astype(np.uint32))  # noqa: SLF001
-    buf._shapes = mi.TensorXu(np.where(on, ptr[planes.shape[p]], INVALID_SHAPE).astype(np.uint32))  # noqa: SLF001
-    buf._primitives = mi.TensorXu(  # noqa: SLF001
-        np.where(on, planes.primitive[p], INVALID_PRIMITIVE).astype(np.uint32))
-    pts = np.where(on[..., None], planes.point_m[p], 0.0).astype(np.float32)
+    u32, f32 = np.uint32, np.float32
+    buf._interaction_types = jit_array(mi.TensorXu, types, u32)  # noqa: SLF001
+    buf._shapes = jit_array(mi.TensorXu, np.where(on, ptr[planes.shape[p]], INVALID_SHAPE), u32)  # noqa: SLF001
+    buf._primitives = jit_array(  # noqa: SLF001
+        mi.TensorXu, np.where(on, planes.primitive[p], INVALID_PRIMITIVE), u32)
+    pts = np.where(on[..., None], planes.point_m[p], 0.0)
     buf._vertices_x, buf._vertices_y, buf._vertices_z = (  # noqa: SLF001
-        mi.TensorXf(np.ascontiguousarray(pts[..., i])) for i in range(3))
-    buf._probs = mi.TensorXf(on.astype(np.float32))  # noqa: SLF001 - sampling probability 1
-    buf._src_indices = mi.UInt(link_src.astype(np.uint32))  # noqa: SLF001
-    buf._tgt_indices = mi.UInt(link_tgt.astype(np.uint32))  # noqa: SLF001
-    buf._paths_counter = mi.UInt(len(ch))  # noqa: SLF001
+        jit_array(mi.TensorXf, pts[..., i], f32) for i in range(3))
+    buf._probs = jit_array(mi.TensorXf, on, f32)  # noqa: SLF001 - sampling probability 1
+    buf._src_indices = jit_array(mi.UInt, link_src, u32)  # noqa: SLF001
+    buf._tgt_indices = jit_array(mi.UInt, link_tgt, u32)  # noqa: SLF001
+    # an array, not a literal: a literal count would make a kernel per count
+    buf._paths_counter = jit_array(mi.UInt, [len(ch)], u32)  # noqa: SLF001
     buf = ImageMethod()(rt_scene.mi_scene, buf, False, True, src_mi, tgt_mi)
     solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, 1, FieldCalculator)
     collect_paths(buf, out)

@@ -22,7 +22,12 @@ from propagation.analytic import linear_to_db
 from propagation.backend import ensure_variant
 from propagation.pathcache import CacheWarning
 from propagation.patterns import PATTERNS, POLARIZATIONS, sionna_orientation
-from propagation.sionna_scene import check_antenna_positions, clear_devices, load_sionna_scene
+from propagation.sionna_scene import (
+    check_antenna_positions,
+    clear_devices,
+    device_point,
+    load_sionna_scene,
+)
 from scenes.fileio import atomic_save_npz
 from scenes.geometry import in_triangles_2d
 
@@ -284,8 +289,8 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
                                        polarization=reader_polarization)
     rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
     ori = sionna_orientation(pose[3], pose[4], pose[5])
-    rt_scene.add(rt.Transmitter("reader", position=[float(v) for v in pose[:3]],
-                                orientation=[float(v) for v in ori]))
+    rt_scene.add(rt.Transmitter("reader", position=device_point(pose[:3]),
+                                orientation=device_point(ori)))
     solver = rt.RadioMapSolver()
     common = dict(max_depth=int(max_depth), los=True, specular_reflection=True,
                   diffuse_reflection=False, refraction=True, diffraction=False, seed=int(seed))

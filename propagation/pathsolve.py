@@ -78,13 +78,37 @@ def _default_budget() -> int:
     return 4 * 1024**3
 
 
+def padded_target_count(n_targets: int) -> int:
+    """Receivers a ``PathSolver`` call is given for ``n_targets`` tags.
+
+    Sionna's shooting kernel loops over the targets with their count as a literal, so
+    every new count compiles it anew (~1 s on 2 cores): the truth stage's lone traces,
+    each against another number of tag sites, compiled it 16 times in a cold study.
+    Counts up to 32 are kept; larger ones are rounded up to a quarter octave (at most
+    25 % more receivers, whose paths are dropped): four kernels per doubling.
+    """
+    n = int(n_targets)
+    if n <= 32:
+        return n
+    step = 1 << (n.bit_length() - 3)
+    return -(-n // step) * step
+
+
+def _padding_point(rt_scene) -> np.ndarray:
+    """Where padding receivers go: 1 m below the scene's lowest point (few rays reach it)."""
+    bb = rt_scene.mi_scene.bbox()
+    return np.array([(bb.min.x + bb.max.x) / 2, (bb.min.y + bb.max.y) / 2, bb.min.z - 1.0])
+
+
 def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed, refraction=True):
     """One PathSolver call; returns a SourcePaths per source (all receivers)."""
     import sionna.rt as rt
 
     from propagation.sionna_scene import clear_devices, place_devices
 
-    place_devices(rt_scene, sources, receivers)
+    n_pad = padded_target_count(len(receivers)) - len(receivers)
+    place_devices(rt_scene, sources, np.vstack([np.asarray(receivers, float).reshape(-1, 3),
+                                                np.tile(_padding_point(rt_scene), (n_pad, 1))]))
     solver = rt.PathSolver()
     paths = solver(
         rt_scene,
@@ -99,8 +123,9 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
         diffraction=False,
         seed=int(seed),
     )
-    a_re, a_im = (x.numpy() for x in paths.a)  # (n_rx, 2, n_tx, 2, P)
+    a_re, a_im = (x.numpy() for x in paths.a)  # (n_rx + n_pad, 2, n_tx, 2, P)
     n_rx, n_tx = len(receivers), len(sources)
+    a_re, a_im = a_re[:n_rx], a_im[:n_rx]  # the padding receivers' paths are dropped
     n_p = a_re.shape[-1]
     if n_p == 0:
         out = []
@@ -113,12 +138,14 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
         return out
     a = (a_re.astype(np.float64) + 1j * a_im.astype(np.float64)).reshape(n_rx, 2, n_tx, 2, n_p)
     a = np.transpose(a, (2, 0, 4, 1, 3))  # (n_tx, n_rx, P, rx_pol, tx_pol)
-    valid = paths.valid.numpy().reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
-    tau = paths.tau.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
-    th_t = paths.theta_t.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
-    ph_t = paths.phi_t.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
-    th_r = paths.theta_r.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
-    ph_r = paths.phi_r.numpy().astype(np.float64).reshape(n_rx, n_tx, n_p).transpose(1, 0, 2)
+    n_all = n_rx + n_pad
+
+    def per_link(x, dtype=np.float64):  # (n_all, n_tx, P) -> (n_tx, n_rx, P), padding dropped
+        return x.numpy().astype(dtype).reshape(n_all, n_tx, n_p)[:n_rx].transpose(1, 0, 2)
+
+    valid = per_link(paths.valid, bool)
+    tau, th_t, ph_t, th_r, ph_r = (per_link(x) for x in (paths.tau, paths.theta_t, paths.phi_t,
+                                                         paths.theta_r, paths.phi_r))
     clear_devices(rt_scene)
     out = []
     for s, p in enumerate(sources):

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from propagation.jitarrays import jit_array
 from propagation.pathcache import SourcePaths
 from propagation.sionna_paths import (
     candidate_keys,
@@ -242,7 +243,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     c_valid = np.zeros(len(c_src), bool)
     probed = np.flatnonzero(c_ok & further[c_src]) if len(c_src) else np.zeros(0, np.int64)
     if len(probed):
-        probe = cand.gather(mi.UInt(probed.astype(np.uint32)))
+        probe = cand.gather(jit_array(mi.UInt, probed, np.uint32))
         probe = ImageMethod()(mi_scene, probe, False, True, lat_mi, tgt_mi)
         solve_fields(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
                discard=False)
@@ -272,8 +273,8 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     if rows:
         rows = np.concatenate(rows)
         new_src = np.concatenate(new_src)
-        buf = cand.gather(mi.UInt(rows.astype(np.uint32)))
-        buf._src_indices = mi.UInt(new_src.astype(np.uint32))  # noqa: SLF001 - re-targeted
+        buf = cand.gather(jit_array(mi.UInt, rows, np.uint32))
+        buf._src_indices = jit_array(mi.UInt, new_src, np.uint32)  # noqa: SLF001 - re-targeted
         buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
         solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
         collect_paths(buf, out_paths)

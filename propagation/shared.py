@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from propagation.jitarrays import jit_array
 from propagation.pathcache import SourcePaths
 from propagation.sionna_paths import (
     candidate_keys,
@@ -246,7 +247,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         own_rows = np.flatnonzero(solve)
         valid = np.zeros(n_rows, bool)
         if len(own_rows):
-            own = cand.gather(mi.UInt(own_rows.astype(np.uint32)))
+            own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
             own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
             solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator,
                          discard=False)
@@ -257,8 +258,8 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         # 2. the chains valid at a neighbour, solved again at each position
         rows, dest = shared_rows(src, chain, valid & ~los_row, neighbours)
         if len(rows):
-            buf = cand.gather(mi.UInt(rows.astype(np.uint32)))
-            buf._src_indices = mi.UInt(dest.astype(np.uint32))  # noqa: SLF001 - re-targeted
+            buf = cand.gather(jit_array(mi.UInt, rows, np.uint32))
+            buf._src_indices = jit_array(mi.UInt, dest, np.uint32)  # noqa: SLF001 - re-targeted
             buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
             solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
             collect_paths(buf, out)

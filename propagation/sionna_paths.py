@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from propagation.jitarrays import jit_points
 from propagation.pathcache import SourcePaths
 
 __all__ = ["candidate_keys", "collect_paths", "path_copies", "points", "solve_fields", "to_source_paths"]
@@ -24,8 +25,7 @@ def points(a) -> object:
     """A Mitsuba ``Point3f`` of positions (n, 3) [m] (float32, as Sionna uses them)."""
     import mitsuba as mi
 
-    a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
-    return mi.Point3f(a[:, 0], a[:, 1], a[:, 2])
+    return jit_points(mi.Point3f, a)
 
 
 def candidate_keys(buf) -> np.ndarray:

@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import logging
 import tempfile
+import types
 
 import numpy as np
 
 from propagation.backend import ensure_variant
+from propagation.jitarrays import jit_points
 from scenes.geometry import solid_material_at
 
 __all__ = [
     "check_antenna_positions",
     "clear_devices",
+    "device_point",
     "load_sionna_scene",
 ]
 
@@ -57,12 +60,52 @@ def load_sionna_scene(scene, frequency_hz: float):
         tmp = tempfile.TemporaryDirectory(prefix="rfidstudy-scene-")
         xml = scene.export_mitsuba(tmp.name, frequency_hz)
         rt_scene = rt.load_scene(str(xml), merge_shapes=False)
+        # the scene's own method compiles a kernel per device (literal index): see below
+        rt_scene._endpoints = types.MethodType(_endpoints_at_once, rt_scene)
         rt_scene.frequency = float(frequency_hz)
         _SCENES[key] = (rt_scene, tmp)
         logger.debug("loaded Sionna scene %s at %.6g Hz", scene.name, frequency_hz)
     rt_scene = _SCENES[key][0]
     clear_devices(rt_scene)
     return rt_scene
+
+
+def _endpoints_at_once(rt_scene, radio_devices, array, synthetic_array: bool,
+                       return_velocities: bool):
+    """``sionna.rt.Scene._endpoints`` for single-antenna arrays, built in one go.
+
+    Sionna's own method scatters each device's position into the endpoint arrays with
+    the device index as a literal, so Dr.Jit compiles a small kernel per device index
+    (and per position, where positions are literals: :func:`device_point`). Here the
+    devices' values are read into NumPy and uploaded as whole arrays, the same values in
+    the same order. Arrays of several antennas go to Sionna's method.
+    """
+    import mitsuba as mi
+
+    devices = list(radio_devices)
+    if not devices or array is None or array.array_size != 1:
+        return type(rt_scene)._endpoints(rt_scene, devices, array, synthetic_array,
+                                         return_velocities)
+
+    def column(attr: str) -> np.ndarray:
+        return np.array([np.asarray(getattr(d, attr), dtype=np.float32).reshape(3)
+                         for d in devices], dtype=np.float32)
+
+    pos, ori = column("position"), column("orientation")
+    positions, orientations = jit_points(mi.Point3f, pos), jit_points(mi.Point3f, ori)
+    rel_ant_positions = None
+    # a one-element array: the rotated element offset of every device at once (Sionna's
+    # rotate broadcasts the element over the orientations)
+    offset = array.rotate(rt_scene.wavelength, orientations)
+    if synthetic_array:
+        rel_ant_positions = mi.Point3f(offset)
+    else:
+        positions = offset + positions
+    velocities = None
+    if return_velocities:
+        vel = column("velocity")
+        velocities = jit_points(mi.Vector3f, vel)
+    return positions, orientations, rel_ant_positions, velocities
 
 
 def clear_devices(rt_scene) -> None:
@@ -81,9 +124,33 @@ def place_devices(rt_scene, sources_m=(), targets_m=(), polarization: str = "VH"
     rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization=polarization)
     rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization=polarization)
     for k, p in enumerate(np.asarray(sources_m, float).reshape(-1, 3)):
-        rt_scene.add(rt.Transmitter(f"tx{k}", position=[float(v) for v in p]))
+        rt_scene.add(rt.Transmitter(f"tx{k}", position=device_point(p)))
     for k, p in enumerate(np.asarray(targets_m, float).reshape(-1, 3)):
-        rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
+        rt_scene.add(rt.Receiver(f"rx{k}", position=device_point(p)))
+
+
+def device_point(xyz):
+    """A radio device's position [m] or orientation [rad] as a Dr.Jit array held in
+    memory, not a literal.
+
+    A position given as numbers becomes a Dr.Jit literal, and Dr.Jit compiles a new kernel
+    for every distinct literal value it evaluates: each device placed anew cost a kernel
+    compilation (~10 ms, more inside Sionna's kernels) on an empty kernel cache. An array
+    uploaded from NumPy is a kernel argument instead.
+
+    Parameters
+    ----------
+    xyz : array_like
+        (3,) position [m] or Sionna orientation angles [rad].
+
+    Returns
+    -------
+    mitsuba.Point3f
+        One point (float32, like any Sionna position).
+    """
+    import mitsuba as mi
+
+    return jit_points(mi.Point3f, np.reshape(xyz, (1, 3)))
 
 
 def check_antenna_positions(scene, positions_m, what: str = "antenna pose") -> None:
