@@ -72,8 +72,7 @@ def run_study(out: Path, cache: Path, overrides: dict, home: Path | None = None)
         cmd += ["--set", f"{k}={v}"]
     env = {**os.environ, "RFIDSTUDY_CACHE": str(cache)}
     if home is not None:
-        home.mkdir(parents=True, exist_ok=True)
-        env["HOME"] = str(home)
+        env.update(_empty_kernel_cache(home))
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -116,13 +115,22 @@ def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "a
     and per device index on an empty kernel cache); ``"arrays"`` as the study does
     (:func:`propagation.sionna_scene.device_point`, endpoints built in one go), kinder
     to the naive side."""
-    import sionna.rt as rt
 
-    from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
+    from propagation.sionna_scene import load_sionna_scene
 
     rt_scene = load_sionna_scene(scene, 865e6)
-    if placement == "api":
-        del rt_scene._endpoints  # Sionna's own method again
+    ours = vars(rt_scene).pop("_endpoints", None) if placement == "api" else None  # Sionna's own
+    try:
+        return _naive_calls(rt_scene, groups, max_depth, samples, placement)
+    finally:
+        if ours is not None:
+            rt_scene._endpoints = ours
+
+
+def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str) -> dict:
+    import sionna.rt as rt
+
+    from propagation.sionna_scene import clear_devices, place_devices
 
     def place(src, tgt):
         if placement != "api":
@@ -153,14 +161,21 @@ def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "a
     return out
 
 
+def _empty_kernel_cache(home: Path) -> dict:
+    """Environment of a process starting from an empty Dr.Jit kernel cache in ``home``:
+    Dr.Jit reads ``DRJIT_CACHE_DIR``, else ``$HOME/.drjit``; a fresh ``$HOME`` also
+    empties matplotlib's font cache, as on a new machine."""
+    home.mkdir(parents=True, exist_ok=True)
+    return {"HOME": str(home), "DRJIT_CACHE_DIR": str(home / ".drjit")}
+
+
 def naive_in_subprocess(run: Path, placement: str, home: Path | None) -> dict:
-    """:func:`naive_trace` in a fresh process; ``home``: its own (empty) Dr.Jit kernel
-    cache, which lives in ``$HOME/.drjit``."""
+    """:func:`naive_trace` in a fresh process; ``home``: from an empty kernel cache there."""
     env = dict(os.environ)
     if home is not None:
-        home.mkdir(parents=True, exist_ok=True)
-        env["HOME"] = str(home)
-    proc = subprocess.run([sys.executable, __file__, "--naive-only", placement, "--run", str(run)],
+        env.update(_empty_kernel_cache(home))
+    proc = subprocess.run([sys.executable, __file__, "--naive-only", placement,
+                           "--run", str(Path(run).resolve())],
                           cwd=ROOT, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"naive tracing failed:\n{proc.stderr[-3000:]}")
@@ -235,6 +250,8 @@ def main() -> None:
     from pipeline.config import StudyConfig
 
     if args.naive_only:
+        if args.run is None:
+            ap.error("--naive-only needs --run")
         P.select_variant()
         cfg = StudyConfig()
         out = naive_trace(scenes.load("corridor_lab"), study_links(args.run), cfg.tracing.max_depth,

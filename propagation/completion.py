@@ -519,8 +519,7 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     buf._probs = jit_array(mi.TensorXf, on, f32)  # noqa: SLF001 - sampling probability 1
     buf._src_indices = jit_array(mi.UInt, link_src, u32)  # noqa: SLF001
     buf._tgt_indices = jit_array(mi.UInt, link_tgt, u32)  # noqa: SLF001
-    # an array, not a literal: a literal count would make a kernel per count
-    buf._paths_counter = jit_array(mi.UInt, [len(ch)], u32)  # noqa: SLF001
+    buf._paths_counter = mi.UInt(len(ch))  # noqa: SLF001 - read by shrink() only, never in a kernel
     buf = ImageMethod()(rt_scene.mi_scene, buf, False, True, src_mi, tgt_mi)
     solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, 1, FieldCalculator)
     collect_paths(buf, out)

@@ -95,7 +95,12 @@ def padded_target_count(n_targets: int) -> int:
 
 
 def _padding_point(rt_scene) -> np.ndarray:
-    """Where padding receivers go: 1 m below the scene's lowest point (few rays reach it)."""
+    """Where padding receivers go: 1 m below the scene's lowest point.
+
+    Only paths through the floor reach it: on corridor_lab at 3e4 rays, depth 5, a
+    padding receiver got 4-5 valid paths against ~42 per tag, and the candidates of a
+    call stayed far below Sionna's cap of rays x (depth + 1) per source, so the padding
+    takes no slot a tag's path needed."""
     bb = rt_scene.mi_scene.bbox()
     return np.array([(bb.min.x + bb.max.x) / 2, (bb.min.y + bb.max.y) / 2, bb.min.z - 1.0])
 

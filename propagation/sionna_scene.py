@@ -80,10 +80,13 @@ def _endpoints_at_once(rt_scene, radio_devices, array, synthetic_array: bool,
     devices' values are read into NumPy and uploaded as whole arrays, the same values in
     the same order. Arrays of several antennas go to Sionna's method.
     """
+    import drjit as dr
     import mitsuba as mi
 
     devices = list(radio_devices)
-    if not devices or array is None or array.array_size != 1:
+    if (not devices or array is None or array.array_size != 1
+            or any(dr.grad_enabled(d.position, d.orientation, d.velocity) for d in devices)):
+        # several antennas, or gradients to keep (NumPy would drop them): Sionna's method
         return type(rt_scene)._endpoints(rt_scene, devices, array, synthetic_array,
                                          return_velocities)
 
@@ -133,10 +136,10 @@ def device_point(xyz):
     """A radio device's position [m] or orientation [rad] as a Dr.Jit array held in
     memory, not a literal.
 
-    A position given as numbers becomes a Dr.Jit literal, and Dr.Jit compiles a new kernel
-    for every distinct literal value it evaluates: each device placed anew cost a kernel
-    compilation (~10 ms, more inside Sionna's kernels) on an empty kernel cache. An array
-    uploaded from NumPy is a kernel argument instead.
+    A position given as numbers becomes a Dr.Jit literal, compiled into every kernel it
+    enters: each device placed anew cost kernel compilations (~10 ms each, far more
+    inside Sionna's kernels) on an empty kernel cache. An array uploaded from NumPy is a
+    kernel argument instead.
 
     Parameters
     ----------

@@ -34,26 +34,59 @@ def _kernels(fn, min_ops: int = 0) -> set:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
-def test_device_positions_are_not_compiled_into_kernels(corridor_scene):
-    # Sionna's API takes positions as numbers (Dr.Jit literals, compiled into the kernel
-    # that scatters them into the endpoint arrays: a kernel per set of positions, ~80
-    # compiled per lone trace of a cold study). Placed as arrays, other positions run
-    # the same kernels.
+def _endpoint_kernels(rts, endpoints_of) -> set:
     import drjit as dr
 
+    def run():
+        for devices, array in ((rts.transmitters.values(), rts.tx_array),
+                               (rts.receivers.values(), rts.rx_array)):
+            dr.eval(*(e for e in endpoints_of(devices, array) if e is not None))
+    return _kernels(run)
+
+
+def test_device_positions_are_not_compiled_into_kernels(corridor_scene):
+    # Sionna's API takes positions as numbers (Dr.Jit literals) and its endpoint arrays
+    # scatter each device with its index as a literal: a kernel per set of positions and
+    # per device count (~80 compiled per lone trace of a cold study). Placed as arrays and
+    # gathered at once, other positions and other counts run the same kernels.
     from propagation.sionna_scene import load_sionna_scene, place_devices
 
     rts = load_sionna_scene(corridor_scene, 865e6)
     rng = np.random.default_rng(4)
-    seen = []
-    for _ in range(3):
-        place_devices(rts, rng.uniform(0.5, 2.0, (6, 3)), rng.uniform(0.5, 2.0, (9, 3)))
+    ours, sionnas = [], []
+    for n_src, n_tgt in ((6, 9), (3, 14), (8, 5)):
+        place_devices(rts, rng.uniform(0.5, 2.0, (n_src, 3)), rng.uniform(0.5, 2.0, (n_tgt, 3)))
+        ours.append(_endpoint_kernels(rts, lambda d, a: rts._endpoints(d, a, True, True)))
+        sionnas.append(_endpoint_kernels(
+            rts, lambda d, a: type(rts)._endpoints(rts, d, a, True, True)))
+    assert ours[1] == ours[0] and ours[2] == ours[0]
+    assert sionnas[1] != sionnas[0]  # control: Sionna's own method compiles per count
 
-        def endpoints():
-            for ends in (rts.sources(True, True), rts.targets(True, True)):
-                dr.eval(*(e for e in ends if e is not None))
-        seen.append(_kernels(endpoints))
-    assert seen[1] == seen[0] and seen[2] == seen[0]
+
+def test_endpoints_at_once_equal_sionnas(corridor_scene):
+    import sionna.rt as rt
+
+    from propagation.sionna_scene import load_sionna_scene, place_devices
+
+    rts = load_sionna_scene(corridor_scene, 865e6)
+    rng = np.random.default_rng(5)
+    place_devices(rts, rng.uniform(0.5, 2.0, (5, 3)), rng.uniform(0.5, 2.0, (7, 3)))
+    tx = list(rts.transmitters.values())
+    tx[2].orientation = [0.3, -0.2, 0.1]  # set as numbers, as Sionna's API does
+    tx[3].velocity = [1.0, 2.0, 3.0]
+    rts.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="tr38901", polarization="V")
+    for devices, array in ((rts.transmitters.values(), rts.tx_array),
+                           (rts.receivers.values(), rts.rx_array),
+                           (rts.transmitters.values(),  # two antennas: Sionna's method
+                            rt.PlanarArray(num_rows=1, num_cols=2, pattern="iso", polarization="V"))):
+        for synthetic in (True, False):
+            for velocities in (True, False):
+                got = rts._endpoints(devices, array, synthetic, velocities)
+                want = type(rts)._endpoints(rts, devices, array, synthetic, velocities)
+                for g, w in zip(got, want, strict=True):
+                    assert (g is None) == (w is None)
+                    if g is not None:
+                        np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
 
 
 def test_another_position_runs_the_same_solver_kernels(corridor_scene):
