@@ -96,13 +96,18 @@ def _endpoints_at_once(rt_scene, radio_devices, array, synthetic_array: bool,
 
     pos, ori = column("position"), column("orientation")
     positions, orientations = jit_points(mi.Point3f, pos), jit_points(mi.Point3f, ori)
+    rel_ant_positions = None
     # a one-element array: the rotated element offset of every device at once (Sionna's
     # rotate broadcasts the element over the orientations)
     offset = array.rotate(rt_scene.wavelength, orientations)
-    rel_ant_positions = offset if synthetic_array else None
-    if not synthetic_array:
+    if synthetic_array:
+        rel_ant_positions = mi.Point3f(offset)
+    else:
         positions = offset + positions
-    velocities = jit_points(mi.Vector3f, column("velocity")) if return_velocities else None
+    velocities = None
+    if return_velocities:
+        vel = column("velocity")
+        velocities = jit_points(mi.Vector3f, vel)
     return positions, orientations, rel_ant_positions, velocities
 
 
