@@ -101,7 +101,7 @@ def _endpoints_at_once(rt_scene, radio_devices, array, synthetic_array: bool,
     # rotate broadcasts the element over the orientations)
     offset = array.rotate(rt_scene.wavelength, orientations)
     if synthetic_array:
-        rel_ant_positions = mi.Point3f(offset)
+        rel_ant_positions = mi.Point3f(offset)  # a conversion: rotate returns another array type
     else:
         positions = offset + positions
     velocities = None
