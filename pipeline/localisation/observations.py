@@ -58,23 +58,29 @@ def pair_geometry(antenna_poses, points, alpha_within_m: float = np.inf):
     dy = pts[None, :, 1] - p[:, None, 1]
     dz = pts[None, :, 2] - p[:, None, 2]
     d = np.sqrt(dx * dx + dy * dy + dz * dz)
-    alpha = np.full(d.shape, np.nan)
     if np.isinf(alpha_within_m):
         rx, ry = rot[:, None, :, 0], rot[:, None, :, 1]  # local x and y axes (n, 1, 3)
         lx = rx[..., 0] * dx + rx[..., 1] * dy + rx[..., 2] * dz
         ly = ry[..., 0] * dx + ry[..., 1] * dy + ry[..., 2] * dz
-        alpha = np.arctan2(ly, lx)
-    else:
-        sel = np.nonzero(d < float(alpha_within_m))
-        if len(sel[0]):
-            i = sel[0]
-            rx, ry = rot[i, :, 0], rot[i, :, 1]
-            ex, ey, ez = dx[sel], dy[sel], dz[sel]
-            lx = rx[:, 0] * ex + rx[:, 1] * ey + rx[:, 2] * ez
-            ly = ry[:, 0] * ex + ry[:, 1] * ey + ry[:, 2] * ez
-            alpha[sel] = np.arctan2(ly, lx)
-    alpha = np.where(alpha <= -np.pi, alpha + 2.0 * np.pi, alpha)
+        return d, _wrapped_bearing(ly, lx)
+    alpha = np.full(d.shape, np.nan)
+    # the bearing of the pairs within reach only, gathered through flat indices (one
+    # gather of both local axes per pair; the robot filter keeps ~20 % of its pairs)
+    sel = np.flatnonzero(d < float(alpha_within_m))
+    if len(sel):
+        axes = np.concatenate([rot[:, :, 0], rot[:, :, 1]], axis=1)[sel // d.shape[1]]  # (m, 6)
+        ex, ey, ez = dx.ravel()[sel], dy.ravel()[sel], dz.ravel()[sel]
+        lx = axes[:, 0] * ex + axes[:, 1] * ey + axes[:, 2] * ez
+        ly = axes[:, 3] * ex + axes[:, 4] * ey + axes[:, 5] * ez
+        alpha.ravel()[sel] = _wrapped_bearing(ly, lx)
     return d, alpha
+
+
+def _wrapped_bearing(ly: np.ndarray, lx: np.ndarray) -> np.ndarray:
+    """``atan2(ly, lx)`` in (-pi, pi]: atan2 gives -pi behind the antenna where ly is -0.0
+    or rounds to it."""
+    alpha = np.arctan2(ly, lx)
+    return np.where(alpha <= -np.pi, alpha + 2.0 * np.pi, alpha)
 
 
 @dataclass(frozen=True)

@@ -256,8 +256,7 @@ class RfidParticleFilter:
             return terms.loglik(read[None, :], rssi[None, :]).sum(axis=1)
         ant = antenna_poses(self.particles, self.mounts[[int(antenna)]])[:, 0, :]  # (N, 6)
         d, a = pair_geometry(ant, tags, alpha_within_m=self.likelihood.alpha_needed_within_m)
-        terms = self.likelihood.terms(d, a)
-        return terms.loglik(read[None, :], rssi[None, :]).sum(axis=1)
+        return self.likelihood.pair_loglik(d, a, read, rssi).sum(axis=1)
 
     def update(self, antenna: int, read, rssi_dbm, rng: np.random.Generator,
                attempted=None) -> None:

@@ -147,6 +147,51 @@ def test_far_rule_beyond_d_max(sensor):
         ModelLikelihood(sensor, d_max_m=3.0)
 
 
+@pytest.mark.parametrize("case", ["constant", "detection_only", "own_sigma", "own_likelihood",
+                                  "own_likelihood_detection", "no_rssi", "no_far_rule",
+                                  "no_d_far"])
+def test_pair_loglik_is_the_terms_value_for_value(case, sensor, joho):
+    """The robot filter's per-slot shortcut gives exactly what the terms give: the far
+    rule's two values per tag, the model on the near pairs only, the RSSI prediction only
+    where a tag was read. Exact equality: the same operations on the same numbers."""
+    far = {"d_max_m": 3.0, "p_far": 0.2, "d_far_m": 5.0}
+    lk = {"constant": lambda: ModelLikelihood(Constant(0.7, -60.0), sigma_rssi_db=2.0, **far),
+          "detection_only": lambda: ModelLikelihood(DetectionOnly(), **far),
+          "own_sigma": lambda: ModelLikelihood(sensor, **far),
+          "own_likelihood": lambda: ModelLikelihood(joho, **far),
+          "own_likelihood_detection": lambda: ModelLikelihood(joho, use_rssi=False, **far),
+          "no_rssi": lambda: ModelLikelihood(sensor, use_rssi=False, **far),
+          "no_far_rule": lambda: ModelLikelihood(sensor),
+          "no_d_far": lambda: ModelLikelihood(sensor, d_max_m=3.0, p_far=0.2)}[case]()
+    rng = np.random.default_rng(3)
+    poses = np.column_stack([rng.uniform(-4, 4, (300, 2)), np.full(300, 0.4),
+                             rng.uniform(-np.pi, np.pi, 300)])
+    tags = rng.uniform(-4, 4, (9, 3))
+    d, a = pair_geometry(poses, tags, alpha_within_m=lk.alpha_needed_within_m)
+    read = np.array([True, False, True, True, False, False, True, False, True])
+    rssi = np.where(read, rng.uniform(-75.0, -40.0, 9), np.nan)
+    rssi[3] = np.nan  # read without an RSSI
+    got = lk.pair_loglik(d, a, read, rssi)
+    want = lk.terms(d, a).loglik(read[None, :], rssi[None, :])
+    assert np.isfinite(want).all()
+    np.testing.assert_array_equal(got, want)
+    if lk.d_max_m is not None:  # both sides of the domain and of d_far are exercised
+        assert (d < 3.0).any() and ((d > 3.0) & (d < 5.0)).any() and (d > 5.0).any()
+    with pytest.raises(ValueError, match="pair_loglik"):
+        lk.pair_loglik(d, a, read[:-1], rssi[:-1])
+
+
+def test_pair_geometry_bearing_behind_is_plus_pi():
+    """A point straight behind the antenna lies at alpha = +pi (the range is (-pi, pi]),
+    whichever way atan2 signs the zero, with and without the distance cut."""
+    pose = np.array([[1.0, 2.0, 0.5, np.pi / 2]])  # boresight +y
+    behind = np.array([[1.0, 0.0, 0.5], [1.0, 2.0 + 1e-300, 0.5], [1.0, 10.0, 0.5]])
+    for within in (np.inf, 3.0):
+        d, a = pair_geometry(pose, behind, alpha_within_m=within)
+        assert a[0, 0] == np.pi
+        assert a[0, 2] == pytest.approx(0.0, abs=1e-12) if within == np.inf else np.isnan(a[0, 2])
+
+
 def test_oracle_closed_form():
     b = LinkBudget()
     orc = OracleLikelihood(b, miss_probability=0.05, rssi_noise_db=1.0, rssi_resolution_db=0.5)
