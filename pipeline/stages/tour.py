@@ -12,7 +12,7 @@ from pipeline.study import Stage
 __all__ = ["STAGE", "stage_tour"]
 
 
-def _localise(scene, robot, traj, lcfg, rng, progress, robot_map=None) -> dict:
+def _localise(scene, robot, traj, lcfg, rng, robot_map=None) -> dict:
     """Odometry, laser scans and MCL along a trajectory (pipeline.robot.simulate_localisation).
 
     ``lcfg`` is the study's :class:`pipeline.robot.LocalisationConfig` (None: MCL off, the
@@ -26,9 +26,7 @@ def _localise(scene, robot, traj, lcfg, rng, progress, robot_map=None) -> dict:
     t = np.asarray(traj.t_s, dtype=float)
     if lcfg is None:
         return {"t_s": t, "true": true, "odom": true.copy(), "est": true.copy()}
-    progress(completed=0.0, total=1.0)
     res = simulate_localisation(scene, robot, traj, rng, lcfg, occupancy_map=robot_map)
-    progress(completed=1.0)
     return {"t_s": t, "true": true, "odom": np.asarray(res.odometry_poses),
             "est": np.asarray(res.estimated_poses),
             "position_error_m": np.asarray(res.position_error_m)}
@@ -60,7 +58,15 @@ def stage_tour(ctx) -> dict:
         error and the map-error and filter keys to change. Nothing is written then.
     """
     from pipeline.evaluation.localisation import check_tracking, pose_error_summary
-    from pipeline.robot import MapError, draw_robot_map, evaluation_path, guided_tour
+    from pipeline.parallel import map_forked
+    from pipeline.robot import (
+        DriveProfile,
+        MapError,
+        collision_map,
+        draw_robot_map,
+        evaluation_path,
+        guided_tour,
+    )
 
     cfg = ctx.config
     loc = cfg.localisation
@@ -81,16 +87,25 @@ def stage_tour(ctx) -> dict:
               ("map_error_m", "map_scale_error", "map_noise_m", "sigma_hit_m", "n_particles")}
     causes["largest drawn wall offset [m]"] = round(float(np.max(np.abs(map_error.offsets_m),
                                                                  initial=0.0)), 4)
-    tracks, info, summaries = {}, {}, {}
-    rng_train = rng
-    for name, rng_s, make in (
-        ("train", rng_train, lambda: guided_tour(sc, robot, rng_train, tcfg, route_m=route)),
+    tours = (
+        ("train", rng, lambda: guided_tour(sc, robot, rng, tcfg, route_m=route)),
         ("eval", rng_eval, lambda: evaluation_path(sc, robot, rng_eval, n_poses=tcfg.n_eval_poses,
                                                    config=tcfg, route_m=route)),
-    ):
-        traj = make()
-        track = _localise(sc, robot, traj, loc if loc.enabled else None, rng_s,
-                          ctx.progress(f"{name} MCL", total=1.0), robot_map=occ)
+    )
+
+    def drive(i: int) -> dict:
+        """One tour: its trajectory and MCL along it, from its own stream only (so the
+        two tours run side by side, in forked processes, with the same numbers)."""
+        name, rng_s, make = tours[i]
+        return _localise(sc, robot, make(), loc if loc.enabled else None, rng_s, robot_map=occ)
+
+    # both tours and the downstream stage use the robot's collision map (memoised in this
+    # process): built here, before the fork, the children share it and it outlives them
+    collision_map(sc, robot, DriveProfile().resolution_m, route)
+    update = ctx.progress("train and eval tours (MCL)", total=len(tours))
+    tracks, info, summaries = {}, {}, {}
+    for (name, _, _), track in zip(tours, map_forked(drive, len(tours)), strict=True):
+        update(advance=1)
         summary = pose_error_summary(track["true"], track["est"])
         check_tracking(summary, loc.max_position_error_median_m, loc.max_position_error_p90_m,
                        track=f"{name} tour", causes=causes,

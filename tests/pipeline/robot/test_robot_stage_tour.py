@@ -1,4 +1,5 @@
-"""stage_tour draws the robot's map once and both tours localise in it; lost track fails."""
+"""stage_tour draws the robot's map once and both tours localise in it; lost track fails;
+the two tours driven side by side (forked) give the files of one after the other."""
 
 import json
 from types import SimpleNamespace
@@ -9,6 +10,7 @@ import pytest
 import pipeline.robot as robot_pkg
 import scenes
 from pipeline.config import config_from_mapping
+from pipeline.parallel import WORKERS_ENV, fork_workers
 from pipeline.stages.tour import stage_tour
 
 KEYS = {"position_error_median_m", "position_error_p90_m", "heading_error_median_deg",
@@ -53,6 +55,7 @@ def test_one_map_for_both_tours(tmp_path, corridor_lab, monkeypatch):
 
     monkeypatch.setattr(robot_pkg, "draw_robot_map", draw)
     monkeypatch.setattr(robot_pkg, "simulate_localisation", sim)
+    monkeypatch.setenv(WORKERS_ENV, "1")  # the spies see this process only: no fork
     info = stage_tour(_ctx(tmp_path, corridor_lab, map_error_m=0.05))
     assert len(drawn) == 1 and len(used) == 2
     assert used[0] is drawn[0].occupancy_map and used[1] is drawn[0].occupancy_map
@@ -83,3 +86,20 @@ def test_lost_track_fails_the_stage_naming_the_keys(tmp_path, corridor_lab):
                  "localisation.map_error_m = 0.05", "localisation.sigma_hit_m = 0.1"):
         assert part in msg
     assert not (tmp_path / "tour").exists()  # nothing written before the check
+
+
+def test_tours_side_by_side_write_what_one_after_the_other_writes(tmp_path, corridor_lab,
+                                                                   monkeypatch):
+    monkeypatch.delenv(WORKERS_ENV, raising=False)
+    if fork_workers(None, 2) < 2:
+        pytest.skip("this process cannot fork two workers (one CPU, or threads running)")
+    forked = stage_tour(_ctx(tmp_path / "forked", corridor_lab, map_error_m=0.05))
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    serial = stage_tour(_ctx(tmp_path / "serial", corridor_lab, map_error_m=0.05))
+    assert forked == serial
+    files = sorted(p.relative_to(tmp_path / "serial") for p in (tmp_path / "serial").rglob("*")
+                   if p.is_file())
+    assert {str(f) for f in files} >= {"tour/train_track.npz", "tour/eval_track.npz",
+                                       "tour/localisation.json", "tour/map_error.npz"}
+    for f in files:  # each tour brings its own stream: the same bytes either way
+        assert (tmp_path / "forked" / f).read_bytes() == (tmp_path / "serial" / f).read_bytes(), f
