@@ -31,6 +31,7 @@ as Sionna's API documents (positions as lists of numbers) and as the study place
 Takes about 20 minutes on 2 cores. Usage::
 
     .venv/bin/python bench/study_trace.py [--lattice 0.25] [--skip-study] [--skip-noise]
+        [--config configs/paper_scale.toml] [--naive arrays]
 """
 
 from __future__ import annotations
@@ -64,10 +65,15 @@ def settings(lattice_m: float | None, direct: bool = True) -> dict:
     return out
 
 
-def run_study(out: Path, cache: Path, overrides: dict, home: Path | None = None) -> dict:
-    """One cold default study; wall time, stage times and peak stage memory. ``home``:
-    run with this ``$HOME``, i.e. an empty Dr.Jit kernel cache as on a new machine."""
-    cmd = [str(Path(sys.executable).with_name("rfidstudy")), "run", "--out", str(out), "--no-progress"]
+def run_study(out: Path, cache: Path, overrides: dict, home: Path | None = None,
+              config: Path | None = None) -> dict:
+    """One cold study (the default, or ``config``); wall time, stage times and peak stage
+    memory. ``home``: run with this ``$HOME``, i.e. an empty Dr.Jit kernel cache as on a
+    new machine."""
+    cmd = [str(Path(sys.executable).with_name("rfidstudy")), "run"]
+    if config is not None:
+        cmd.append(str(Path(config).resolve()))
+    cmd += ["--out", str(out), "--no-progress"]
     for k, v in overrides.items():
         cmd += ["--set", f"{k}={v}"]
     env = {**os.environ, "RFIDSTUDY_CACHE": str(cache)}
@@ -241,21 +247,26 @@ def main() -> None:
     ap.add_argument("--warm-kernels", action="store_true",
                     help="keep this machine's Dr.Jit kernel cache (~/.drjit); default: every "
                          "study and naive trace starts from an empty one, as on a new machine")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="a study config (e.g. configs/paper_scale.toml) instead of the default")
+    ap.add_argument("--naive", choices=("both", "api", "arrays"), default="both",
+                    help="naive placements to trace (default both; one halves a long bench)")
     ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
                     help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
-    from pipeline.config import StudyConfig
+    from pipeline.config import StudyConfig, load_config
 
     if args.naive_only:
         if args.run is None:
             ap.error("--naive-only needs --run")
         P.select_variant()
-        cfg = StudyConfig()
-        out = naive_trace(scenes.load("corridor_lab"), study_links(args.run), cfg.tracing.max_depth,
-                          30_000, placement=args.naive_only)
+        # the run's own scene, depth and lone-position rays (3e4 for the default study)
+        cfg = load_config(args.run / "config.toml")
+        out = naive_trace(scenes.load(cfg.scene), study_links(args.run), cfg.tracing.max_depth,
+                          cfg.tracing.samples_per_src, placement=args.naive_only)
         print(json.dumps(out))
         return
 
@@ -263,14 +274,15 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
     studies = {}
     runs = settings(args.lattice, direct=not args.skip_direct)
+    what = "default study" if args.config is None else f"study {args.config.name}"
     if not args.skip_study:
         for label, overrides in runs.items():
             i = len(studies)
             s = run_study(tmp / f"run_{i}", tmp / f"cache_{i}", overrides,
-                          home=None if args.warm_kernels else tmp / f"home_{i}")
+                          home=None if args.warm_kernels else tmp / f"home_{i}", config=args.config)
             studies[label] = s
             st = ", ".join(f"{k} {v:.0f}" for k, v in s["stages_s"].items() if v >= 1.0)
-            print(f"cold default study, {label}: {s['wall_s']:.0f} s wall (stages [s]: {st}); "
+            print(f"cold {what}, {label}: {s['wall_s']:.0f} s wall (stages [s]: {st}); "
                   f"peak stage memory {s['peak_gb']:.1f} GB", flush=True)
         run = tmp / "run_0"
     else:
@@ -280,6 +292,8 @@ def main() -> None:
     kernels = "this machine's kernel cache" if args.warm_kernels else "an empty kernel cache"
     for placement, how in (("api", "devices placed as Sionna's API documents"),
                            ("arrays", "devices placed as the study places them")):
+        if args.naive not in ("both", placement):
+            continue
         naive = naive_in_subprocess(run, placement,
                                     None if args.warm_kernels else tmp / f"home_naive_{placement}")
         t_naive = sum(s for s, _ in naive.values())
