@@ -188,15 +188,18 @@ def naive_in_subprocess(run: Path, placement: str, home: Path | None) -> dict:
     return {k: tuple(v) for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()}
 
 
-def seed_noise(scene, run: Path, overrides: dict) -> tuple[dict, np.ndarray, float]:
+def seed_noise(scene, run: Path, overrides: dict, base) -> tuple[dict, np.ndarray, float]:
     """trace_links on the evaluation tour with the study's tracing options (patterns,
-    depth, rays, completion), seeds 1 and 2 (fresh caches). Poses are (x, y, z, yaw): the
-    default antennas are not tilted."""
+    depth, rays, completion; the config ``base`` with ``overrides``), seeds 1 and 2 (fresh
+    caches). Poses are (x, y, z, yaw): the default antennas are not tilted."""
     import propagation as P
-    from pipeline.config import config_from_mapping
+    from pipeline.config import config_from_mapping, config_to_dict
     from pipeline.stages.common import trace_options
 
-    cfg = config_from_mapping(_nested(overrides))
+    merged = config_to_dict(base)
+    for section, values in _nested(overrides).items():
+        merged.setdefault(section, {}).update(values)
+    cfg = config_from_mapping(merged)
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
     r = pd.read_parquet(run / "eval_reads.parquet")
     ids = sorted(r["tag_id"].unique())
@@ -287,8 +290,8 @@ def main() -> None:
         run = tmp / "run_0"
     else:
         run = args.run or ROOT / "runs" / "default"
-    scene = scenes.load("corridor_lab")
-    cfg = StudyConfig()
+    cfg = StudyConfig() if args.config is None else load_config(args.config)
+    scene = scenes.load(cfg.scene)
     kernels = "this machine's kernel cache" if args.warm_kernels else "an empty kernel cache"
     for placement, how in (("api", "devices placed as Sionna's API documents"),
                            ("arrays", "devices placed as the study places them")):
@@ -310,7 +313,7 @@ def main() -> None:
         gains = {}
         print("evaluation tour; readable: gain >= %.2f dB" % thr)
         for label, overrides in runs.items():
-            g, secs, n = seed_noise(scene, run, overrides)
+            g, secs, n = seed_noise(scene, run, overrides, cfg)
             gains[label] = g
             print(f"  {label}, seed 1 vs 2 ({secs.mean():.0f} s per trace, {n / secs.mean():.0f} links/s): "
                   f"{noise_row(g[1], g[2], thr)}", flush=True)

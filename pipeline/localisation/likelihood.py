@@ -329,7 +329,7 @@ class ModelLikelihood:
 
     def _near_probability(self, d_m: np.ndarray, alpha_rad: np.ndarray) -> np.ndarray:
         """Clipped P(read) of pairs inside the model's domain (1-D arrays)."""
-        p = np.nan_to_num(self.model.fT(d_m, alpha_rad), nan=0.0)
+        p = np.nan_to_num(np.asarray(self.model.fT(d_m, alpha_rad), dtype=np.float64), nan=0.0)
         return np.clip(p, self.eps, 1.0 - self.eps)
 
     def _near_rssi(self, d_m: np.ndarray, alpha_rad: np.ndarray):
@@ -351,7 +351,8 @@ class ModelLikelihood:
         Equal, value for value, to ``terms(d_m, alpha_rad).loglik(read[None], rssi[None])``;
         faster where most pairs lie beyond ``d_max_m`` (the robot filter: ~80 % of its
         particle-tag pairs): those take one of two far-rule values per tag (``d`` below or
-        beyond ``d_far_m``) and the model is evaluated on the near pairs only, as before.
+        beyond ``d_far_m``) without full-size term arrays, and the model is evaluated on
+        the near pairs, as by the terms.
 
         Parameters
         ----------
@@ -368,8 +369,8 @@ class ModelLikelihood:
         """
         d = np.asarray(d_m, dtype=np.float64)
         a = np.asarray(alpha_rad, dtype=np.float64)
-        read = np.asarray(read, dtype=bool).reshape(-1)
-        rssi = np.asarray(rssi_dbm, dtype=np.float64).reshape(-1)
+        read = np.asarray(read, dtype=bool)
+        rssi = np.asarray(rssi_dbm, dtype=np.float64)
         if d.ndim != 2 or a.shape != d.shape or {read.shape, rssi.shape} != {(d.shape[1],)}:
             raise ValueError(f"pair_loglik: d_m and alpha_rad must be (n, k) and read, rssi_dbm "
                              f"(k,); got {d.shape}, {a.shape}, {read.shape}, {rssi.shape}")
@@ -389,18 +390,17 @@ class ModelLikelihood:
             return out
         cols = np.nonzero(near)[1]
         dn, an, rn, readn = d[near], a[near], rssi[cols], read[cols]
+        # the model sees the batch the terms give it (every near pair, in the same order):
+        # a model may round differently in another batch (ANFIS's matrix product does, for
+        # a single row), and the filter's resampling would then differ
         if self.own:
-            out[near] = self.model.log_likelihood(dn, an, readn, rn if self.use_rssi
-                                                  else np.full(rn.shape, np.nan))
-            return out
-        # the RSSI prediction only where a tag was read (most near pairs are misses)
-        p = self._near_probability(dn, an)
-        vals = np.log1p(-p)
-        if readn.any():
-            mu, sd, flat = self._near_rssi(dn[readn], an[readn])
-            vals[readn] = GaussianTerms(np.log(p[readn]), 0.0, mu, sd, flat,
-                                        self.z_clip).read_loglik(rn[readn])
-        out[near] = vals
+            n = len(dn)
+            miss = self.model.log_likelihood(dn, an, np.zeros(n, bool), np.full(n, np.nan))
+            hit = self.model.log_likelihood(dn, an, np.ones(n, bool), rn if self.use_rssi
+                                            else np.full(n, np.nan))
+            out[near] = np.where(readn, hit, miss)
+        else:
+            out[near] = self.terms(dn, an).loglik(readn, rn)
         return out
 
     def log_likelihood(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:

@@ -99,8 +99,9 @@ def stage_tour(ctx) -> dict:
         name, rng_s, make = tours[i]
         return _localise(sc, robot, make(), loc if loc.enabled else None, rng_s, robot_map=occ)
 
-    # both tours and the downstream stage use the robot's collision map (memoised in this
-    # process): built here, before the fork, the children share it and it outlives them
+    # both tours use the robot's collision map (memoised in this process): built here,
+    # before the fork, the children share it and it outlives them (the downstream stage
+    # finds it where the route is the scene's whole route, tour.max_length_m = 0)
     collision_map(sc, robot, DriveProfile().resolution_m, route)
     update = ctx.progress("train and eval tours (MCL)", total=len(tours))
     tracks, info, summaries = {}, {}, {}

@@ -61,6 +61,17 @@ class Constant:
     fs = rho = fT
 
 
+class BatchDependent(Constant):
+    """Predictions that depend on the batch they are computed in, as a model rounding
+    differently per batch size (ANFIS's matrix product for a single row) does."""
+
+    def fT(self, d, a):  # noqa: N802
+        return super().fT(d, a) + 1e-6 * np.size(d)
+
+    def fs_dbm(self, d, a):
+        return super().fs_dbm(d, a) - 1e-3 * np.size(d)
+
+
 def test_pair_geometry_matches_propagation_frame():
     rng = np.random.default_rng(0)
     poses = np.column_stack([rng.uniform(-3, 3, (7, 3)), rng.uniform(-np.pi, np.pi, 7),
@@ -147,15 +158,18 @@ def test_far_rule_beyond_d_max(sensor):
         ModelLikelihood(sensor, d_max_m=3.0)
 
 
-@pytest.mark.parametrize("case", ["constant", "detection_only", "own_sigma", "own_likelihood",
-                                  "own_likelihood_detection", "no_rssi", "no_far_rule",
-                                  "no_d_far"])
+@pytest.mark.parametrize("case", ["constant", "batch_dependent", "detection_only", "own_sigma",
+                                  "own_likelihood", "own_likelihood_detection", "no_rssi",
+                                  "no_far_rule", "no_d_far"])
 def test_pair_loglik_is_the_terms_value_for_value(case, sensor, joho):
     """The robot filter's per-slot shortcut gives exactly what the terms give: the far
-    rule's two values per tag, the model on the near pairs only, the RSSI prediction only
-    where a tag was read. Exact equality: the same operations on the same numbers."""
+    rule's two values per tag, the model on the near pairs in the terms' batch (a model
+    whose numbers depend on the batch included). Exact equality: the same operations on
+    the same numbers."""
     far = {"d_max_m": 3.0, "p_far": 0.2, "d_far_m": 5.0}
     lk = {"constant": lambda: ModelLikelihood(Constant(0.7, -60.0), sigma_rssi_db=2.0, **far),
+          "batch_dependent": lambda: ModelLikelihood(BatchDependent(0.4, -60.0), sigma_rssi_db=2.0,
+                                                     **far),
           "detection_only": lambda: ModelLikelihood(DetectionOnly(), **far),
           "own_sigma": lambda: ModelLikelihood(sensor, **far),
           "own_likelihood": lambda: ModelLikelihood(joho, **far),
@@ -179,6 +193,8 @@ def test_pair_loglik_is_the_terms_value_for_value(case, sensor, joho):
         assert (d < 3.0).any() and ((d > 3.0) & (d < 5.0)).any() and (d > 5.0).any()
     with pytest.raises(ValueError, match="pair_loglik"):
         lk.pair_loglik(d, a, read[:-1], rssi[:-1])
+    with pytest.raises(ValueError, match="pair_loglik"):  # one slot's outcomes: (k,) only
+        lk.pair_loglik(d, a, read[None, :], rssi[None, :])
 
 
 def test_pair_geometry_bearing_behind_is_plus_pi():
