@@ -1,8 +1,9 @@
 """Downstream localisation with each sensor model: tags from reads, the robot from tags.
 
 * :mod:`.likelihood` - the read likelihood of a ``SensorLike`` model
-  (:class:`ModelLikelihood`) and of the propagation oracle given true gains
-  (:class:`OracleLikelihood`), vectorised over (slot, candidate) pairs;
+  (:class:`ModelLikelihood`), vectorised over (slot, candidate) pairs, and
+  :mod:`.oracle_likelihood` that of the propagation oracle given true gains
+  (:class:`OracleLikelihood`);
 * :mod:`.observations` - the read log as tags x attempt slots (:class:`Observations`);
 * :mod:`.tags` - posteriors of tag positions over candidate sites, estimates and error
   summaries (:func:`localise_tags`, :func:`localisation_summary`);
@@ -28,14 +29,13 @@ from .likelihood import (
     Z_CLIP,
     GaussianTerms,
     ModelLikelihood,
-    OracleGains,
-    OracleLikelihood,
     OwnTerms,
     fit_far_detection,
     rssi_residual_std,
 )
 from .observations import Observations, as_pose6, observations_from_reads, pair_geometry
 from .oracle import OraclePlan, oracle_plan
+from .oracle_likelihood import OracleGains, OracleLikelihood
 from .phase import (
     PhaseColumnsMissing,
     PhasePosteriors,

@@ -1,7 +1,7 @@
 """The oracle over every candidate: a coarse-to-fine search with the ray-traced likelihood.
 
 The oracle scores a candidate tag position by the reader's own likelihood of the tour's
-reads given the true one-way gains there (:class:`~.likelihood.OracleLikelihood`). Tracing
+reads given the true one-way gains there (:class:`~.oracle_likelihood.OracleLikelihood`). Tracing
 the gain of every (slot, candidate) pair of a study is out of reach (the default study:
 321 slots x 33 800 candidates at 5 cm, ~10^7 links, hours on two cores), so the search
 goes coarse to fine, and never looks at the true tag position:
@@ -41,8 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .likelihood import OracleLikelihood
 from .observations import Observations
+from .oracle_likelihood import OracleLikelihood
 from .tags import TagPosteriors, localise_tags
 
 __all__ = ["GlobalOracle", "OracleSearch", "coarse_posteriors", "global_oracle", "widened"]

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .likelihood import GaussianTerms, OracleLikelihood
+from .likelihood import GaussianTerms
+from .oracle_likelihood import OracleLikelihood
 
 __all__ = ["FieldLikelihood", "GainField", "gain_field"]
 
