@@ -305,32 +305,23 @@ class ModelLikelihood:
         p = far_p
         mu = np.full(d.shape, np.nan)
         sd = np.ones(d.shape)
-        flat = np.full(d.shape, self.flat_logpdf)
         dn, an = d[near], a[near]
         if dn.size:
-            p[near] = self._near_probability(dn, an)
-            mu[near], sd[near], flat[near] = self._near_rssi(dn, an)
+            pn = np.asarray(m.fT(dn, an), dtype=np.float64)
+            p[near] = np.clip(np.nan_to_num(pn, nan=0.0), self.eps, 1.0 - self.eps)
+            if self.use_rssi:
+                mu[near] = m.fs_dbm(dn, an)
+                if self.has_sigma:
+                    sd[near] = m.rssi_sigma_db(dn, an)
+                else:
+                    sd[near] = self.sigma_rssi_db
+        flat = np.full(d.shape, self.flat_logpdf)
+        if self.use_rssi:
+            # a pair inside the domain without an RSSI prediction (NaN): detection only
+            flat[near & np.isnan(mu)] = 0.0
         return GaussianTerms(np.log(p).reshape(shape), np.log1p(-p).reshape(shape),
                              mu.reshape(shape), sd.reshape(shape), flat.reshape(shape),
                              self.z_clip)
-
-    def _near_probability(self, d_m: np.ndarray, alpha_rad: np.ndarray) -> np.ndarray:
-        """Clipped P(read) of pairs inside the model's domain (1-D arrays)."""
-        p = np.nan_to_num(np.asarray(self.model.fT(d_m, alpha_rad), dtype=np.float64), nan=0.0)
-        return np.clip(p, self.eps, 1.0 - self.eps)
-
-    def _near_rssi(self, d_m: np.ndarray, alpha_rad: np.ndarray):
-        """RSSI mean [dBm], std [dB] and flat log-density of reads at pairs inside the
-        model's domain (1-D arrays): NaN mean and the flat density 0 (detection only) where
-        the model predicts no RSSI."""
-        n = len(d_m)
-        if not self.use_rssi:
-            return np.full(n, np.nan), np.ones(n), np.full(n, self.flat_logpdf)
-        mu = self.model.fs_dbm(d_m, alpha_rad)
-        sd = (self.model.rssi_sigma_db(d_m, alpha_rad) if self.has_sigma
-              else np.full(n, self.sigma_rssi_db))
-        # a pair inside the domain without an RSSI prediction (NaN): detection only
-        return mu, sd, np.where(np.isnan(mu), 0.0, self.flat_logpdf)
 
     def pair_loglik(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:
         """``log p(read, rssi | d, alpha)`` of every (pose, tag) pair of one attempt slot.
@@ -380,14 +371,7 @@ class ModelLikelihood:
         # the model sees the batch the terms give it (every near pair, in the same order):
         # a model may round differently in another batch (ANFIS's matrix product does, for
         # a single row), and the filter's resampling would then differ
-        if self.own:
-            n = len(dn)
-            miss = self.model.log_likelihood(dn, an, np.zeros(n, bool), np.full(n, np.nan))
-            hit = self.model.log_likelihood(dn, an, np.ones(n, bool), rn if self.use_rssi
-                                            else np.full(n, np.nan))
-            out[near] = np.where(readn, hit, miss)
-        else:
-            out[near] = self.terms(dn, an).loglik(readn, rn)
+        out[near] = self.terms(dn, an).loglik(readn, rn)
         return out
 
     def log_likelihood(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:

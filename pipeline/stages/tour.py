@@ -96,7 +96,7 @@ def stage_tour(ctx) -> dict:
     def drive(i: int) -> dict:
         """One tour: its trajectory and MCL along it, from its own stream only (so the
         two tours run side by side, in forked processes, with the same numbers)."""
-        name, rng_s, make = tours[i]
+        _, rng_s, make = tours[i]
         return _localise(sc, robot, make(), loc if loc.enabled else None, rng_s, robot_map=occ)
 
     # both tours use the robot's collision map (memoised in this process): built here,
