@@ -188,18 +188,17 @@ def naive_in_subprocess(run: Path, placement: str, home: Path | None) -> dict:
     return {k: tuple(v) for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()}
 
 
-def seed_noise(scene, run: Path, overrides: dict, base) -> tuple[dict, np.ndarray, float]:
+def seed_noise(scene, run: Path, overrides: dict, config: Path | None) -> tuple[dict, np.ndarray, float]:
     """trace_links on the evaluation tour with the study's tracing options (patterns,
-    depth, rays, completion; the config ``base`` with ``overrides``), seeds 1 and 2 (fresh
-    caches). Poses are (x, y, z, yaw): the default antennas are not tilted."""
+    depth, rays, completion; the study ``config`` with ``overrides``, as ``rfidstudy run
+    CONFIG --set KEY=VALUE`` resolves them), seeds 1 and 2 (fresh caches). Poses are
+    (x, y, z, yaw): the default antennas are not tilted."""
     import propagation as P
-    from pipeline.config import config_from_mapping, config_to_dict
+    from pipeline.cli import resolve_target
     from pipeline.stages.common import trace_options
 
-    merged = config_to_dict(base)
-    for section, values in _nested(overrides).items():
-        merged.setdefault(section, {}).update(values)
-    cfg = config_from_mapping(merged)
+    cfg = resolve_target(None if config is None else str(config),
+                         [f"{k}={v}" for k, v in overrides.items()])
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
     r = pd.read_parquet(run / "eval_reads.parquet")
     ids = sorted(r["tag_id"].unique())
@@ -217,14 +216,6 @@ def seed_noise(scene, run: Path, overrides: dict, base) -> tuple[dict, np.ndarra
             secs.append(time.perf_counter() - t0)
         gains[seed] = links.gain_db
     return gains, np.asarray(secs), len(poses) * len(tpos)
-
-
-def _nested(overrides: dict) -> dict:
-    out: dict = {}
-    for key, value in overrides.items():
-        section, name = key.split(".")
-        out.setdefault(section, {})[name] = value
-    return out
 
 
 def noise_row(a: np.ndarray, b: np.ndarray, threshold_db: float) -> str:
@@ -260,7 +251,8 @@ def main() -> None:
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
-    from pipeline.config import StudyConfig, load_config
+    from pipeline.cli import resolve_target
+    from pipeline.config import load_config
 
     if args.naive_only:
         if args.run is None:
@@ -290,7 +282,7 @@ def main() -> None:
         run = tmp / "run_0"
     else:
         run = args.run or ROOT / "runs" / "default"
-    cfg = StudyConfig() if args.config is None else load_config(args.config)
+    cfg = resolve_target(None if args.config is None else str(args.config))
     scene = scenes.load(cfg.scene)
     kernels = "this machine's kernel cache" if args.warm_kernels else "an empty kernel cache"
     for placement, how in (("api", "devices placed as Sionna's API documents"),
@@ -313,7 +305,7 @@ def main() -> None:
         gains = {}
         print("evaluation tour; readable: gain >= %.2f dB" % thr)
         for label, overrides in runs.items():
-            g, secs, n = seed_noise(scene, run, overrides, cfg)
+            g, secs, n = seed_noise(scene, run, overrides, args.config)
             gains[label] = g
             print(f"  {label}, seed 1 vs 2 ({secs.mean():.0f} s per trace, {n / secs.mean():.0f} links/s): "
                   f"{noise_row(g[1], g[2], thr)}", flush=True)
