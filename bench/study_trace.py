@@ -70,7 +70,7 @@ def run_study(out: Path, cache: Path, overrides: dict, home: Path | None = None,
     """One cold study (the default, or ``config``); wall time, stage times and peak stage
     memory. ``home``: run with this ``$HOME``, i.e. an empty Dr.Jit kernel cache as on a
     new machine."""
-    cmd = [str(Path(sys.executable).with_name("rfidstudy")), "run"]
+    cmd = [sys.executable, "-m", "pipeline", "run"]  # no entry-point script needed
     if config is not None:
         cmd.append(str(Path(config).resolve()))
     cmd += ["--out", str(out), "--no-progress"]
@@ -175,12 +175,12 @@ def _empty_kernel_cache(home: Path) -> dict:
     return {"HOME": str(home), "DRJIT_CACHE_DIR": str(home / ".drjit")}
 
 
-def naive_in_subprocess(run: Path, placement: str, home: Path | None) -> dict:
+def naive_in_subprocess(run: Path, placement: str, home: Path | None, backend: str = "auto") -> dict:
     """:func:`naive_trace` in a fresh process; ``home``: from an empty kernel cache there."""
     env = dict(os.environ)
     if home is not None:
         env.update(_empty_kernel_cache(home))
-    proc = subprocess.run([sys.executable, __file__, "--naive-only", placement,
+    proc = subprocess.run([sys.executable, __file__, "--naive-only", placement, "--backend", backend,
                            "--run", str(Path(run).resolve())],
                           cwd=ROOT, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -245,6 +245,9 @@ def main() -> None:
                     help="a study config (e.g. configs/paper_scale.toml) instead of the default")
     ap.add_argument("--naive", choices=("both", "api", "arrays"), default="both",
                     help="naive placements to trace (default both; one halves a long bench)")
+    ap.add_argument("--backend", choices=("auto", "llvm", "cuda"), default="auto",
+                    help="Dr.Jit backend of the studies and the naive tracing (auto: CUDA "
+                         "when a GPU is usable, as the study's tracing.backend = 'auto')")
     ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
                     help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
@@ -257,7 +260,7 @@ def main() -> None:
     if args.naive_only:
         if args.run is None:
             ap.error("--naive-only needs --run")
-        P.select_variant()
+        P.select_variant(prefer=args.backend)
         # the run's own scene, depth and lone-position rays (3e4 for the default study)
         cfg = load_config(args.run / "config.toml")
         out = naive_trace(scenes.load(cfg.scene), study_links(args.run), cfg.tracing.max_depth,
@@ -265,7 +268,8 @@ def main() -> None:
         print(json.dumps(out))
         return
 
-    print("backend:", P.select_variant(), P.backend_info(), flush=True)
+    print("backend:", P.select_variant(prefer=args.backend), P.backend_info(), flush=True)
+    backend = {} if args.backend == "auto" else {"tracing.backend": args.backend}
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
     studies = {}
     runs = settings(args.lattice, direct=not args.skip_direct)
@@ -273,7 +277,7 @@ def main() -> None:
     if not args.skip_study:
         for label, overrides in runs.items():
             i = len(studies)
-            s = run_study(tmp / f"run_{i}", tmp / f"cache_{i}", overrides,
+            s = run_study(tmp / f"run_{i}", tmp / f"cache_{i}", {**backend, **overrides},
                           home=None if args.warm_kernels else tmp / f"home_{i}", config=args.config)
             studies[label] = s
             st = ", ".join(f"{k} {v:.0f}" for k, v in s["stages_s"].items() if v >= 1.0)
@@ -290,7 +294,8 @@ def main() -> None:
         if args.naive not in ("both", placement):
             continue
         naive = naive_in_subprocess(run, placement,
-                                    None if args.warm_kernels else tmp / f"home_naive_{placement}")
+                                    None if args.warm_kernels else tmp / f"home_naive_{placement}",
+                                    args.backend)
         t_naive = sum(s for s, _ in naive.values())
         n_links = sum(n for _, n in naive.values())
         print(f"naive bare Sionna ({how}, {kernels}):")
@@ -305,7 +310,7 @@ def main() -> None:
         gains = {}
         print("evaluation tour; readable: gain >= %.2f dB" % thr)
         for label, overrides in runs.items():
-            g, secs, n = seed_noise(scene, run, overrides, args.config)
+            g, secs, n = seed_noise(scene, run, {**backend, **overrides}, args.config)
             gains[label] = g
             print(f"  {label}, seed 1 vs 2 ({secs.mean():.0f} s per trace, {n / secs.mean():.0f} links/s): "
                   f"{noise_row(g[1], g[2], thr)}", flush=True)
