@@ -28,6 +28,8 @@ therefore enough, whatever the materials of its coplanar shapes.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +50,8 @@ __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_
 _SPEED_OF_LIGHT = 299_792_458.0
 #: (link, chain) pairs tested at once in the NumPy pre-test (~10 MB of float32 temporaries).
 _BLOCK = 1 << 18
+#: Most threads running pre-test blocks side by side.
+_PRETEST_MAX_THREADS = 8
 #: Candidate chains per call of Sionna's image method and field calculator: they hold
 #: ~330 B of Dr.Jit temporaries per candidate (measured on corridor_lab: 7.0 M order-2
 #: candidates peaked at 2.3 GB, 2.9 M order-3 ones at 1.0 GB), ~350 MB per call.
@@ -334,6 +338,40 @@ def _chains(n_planes: int, order: int) -> np.ndarray:
     return ch
 
 
+def _candidates(planes: Planes, src, tgt, link_src, link_tgt, min_order: int,
+                max_order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every (link, chain) of ``min_order..max_order`` reflections that passes
+    :func:`_pretest`: link rows (c,) int64 and chains (c, max_order) int64, -1 padded.
+
+    Chains go through the pre-test in blocks of about ``_BLOCK`` pairs; NumPy releases
+    the GIL in the pre-test's array loops, so blocks run side by side in threads
+    (:func:`_pretest_threads`) and are joined in block order: the same candidates in the
+    same order as one block after the other.
+    """
+    step = max(1, _BLOCK // max(1, len(link_src)))
+    blocks = []
+    for k in range(min_order, max_order + 1):
+        chains = _chains(len(planes), k) if len(planes) else np.zeros((0, k), np.int64)
+        blocks += [chains[c0:c0 + step] for c0 in range(0, len(chains), step)]
+
+    def passed(block):
+        li, ci = _pretest(planes, src, tgt, link_src, link_tgt, block)
+        return li, np.pad(block[ci], ((0, 0), (0, max_order - block.shape[1])), constant_values=-1)
+
+    with ThreadPoolExecutor(_pretest_threads(len(blocks))) as pool:
+        found = list(pool.map(passed, blocks))
+    if not found:
+        return np.zeros(0, np.int64), np.zeros((0, max_order), np.int64)
+    return np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+
+
+def _pretest_threads(n_blocks: int) -> int:
+    """Threads for ``n_blocks`` pre-test blocks: the CPUs this process may use, at most
+    ``_PRETEST_MAX_THREADS`` (each holds ~10 MB of temporaries), at least one."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(int(n_blocks), cpus, _PRETEST_MAX_THREADS))
+
+
 def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.ndarray, np.ndarray]:
     """(link, chain) pairs that are paths over the unbounded planes, clipped to their boxes.
 
@@ -444,17 +482,7 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         raise ValueError(f"need 1 <= min_order <= max_order, got {min_order}, {max_order}")
     planes = large_planes(rt_scene) if planes is None else planes
     link_src, link_tgt = np.nonzero(need)
-    depth = int(max_order)
-    rows_l, rows_c = [], []
-    for k in range(int(min_order), depth + 1):
-        chains = _chains(len(planes), k) if len(planes) else np.zeros((0, k), np.int64)
-        step = max(1, _BLOCK // max(1, len(link_src)))
-        for c0 in range(0, len(chains), step):
-            li, ci = _pretest(planes, src, tgt, link_src, link_tgt, chains[c0:c0 + step])
-            rows_l.append(li)
-            rows_c.append(np.pad(chains[c0:c0 + step][ci], ((0, 0), (0, depth - k)), constant_values=-1))
-    li = np.concatenate(rows_l) if rows_l else np.zeros(0, np.int64)
-    ch = np.concatenate(rows_c) if rows_c else np.zeros((0, depth), np.int64)
+    li, ch = _candidates(planes, src, tgt, link_src, link_tgt, int(min_order), int(max_order))
 
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene

@@ -276,3 +276,38 @@ def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift
         assert len(differ) <= 0.001 * n_want + 1, (len(differ), n_want)
         n_kept += n_want
     assert n_kept > 100  # the scene has reflections to keep (and most pairs are dropped)
+
+
+def test_candidates_in_threads_are_the_blocks_one_after_the_other(corridor_scene, monkeypatch):
+    # Blocks of the pre-test run side by side in threads: the candidates must be those of
+    # one pre-test per order over all its chains, in that order (link-major within each
+    # block, blocks in chain order). Small blocks make many of them, three threads run
+    # them out of step; fails if the blocks are joined as they finish or a block is lost.
+    from propagation import completion
+    from propagation.completion import _candidates, _chains, _pretest
+
+    rts = load_sionna_scene(corridor_scene, F)
+    planes = large_planes(rts, 1.0)
+    rng = np.random.default_rng(11)
+    src = np.column_stack([rng.uniform(1, 19, 5), rng.uniform(0.3, 2.1, 5), rng.uniform(0.3, 2.2, 5)])
+    tgt = corridor_scene.tags.positions_m[::2]
+    link_src, link_tgt = np.nonzero(rng.random((len(src), len(tgt))) < 0.8)
+    want_l, want_c = [], []
+    for order in (1, 2, 3):
+        chains = _chains(len(planes), order)
+        step = max(1, 4096 // len(link_src))
+        for c0 in range(0, len(chains), step):  # the blocks one after the other
+            li, ci = _pretest(planes, src, tgt, link_src, link_tgt, chains[c0:c0 + step])
+            want_l.append(li)
+            want_c.append(np.pad(chains[c0:c0 + step][ci], ((0, 0), (0, 3 - order)), constant_values=-1))
+    monkeypatch.setattr(completion, "_BLOCK", 4096)
+    monkeypatch.setattr(completion, "_pretest_threads", lambda n: min(n, 3))
+    li, ch = _candidates(planes, src, tgt, link_src, link_tgt, 1, 3)
+    assert len(want_l) > 10 and len(li) > 100  # many blocks, and candidates to order
+    np.testing.assert_array_equal(li, np.concatenate(want_l))
+    np.testing.assert_array_equal(ch, np.concatenate(want_c))
+    # one thread, whole blocks: the same again
+    monkeypatch.setattr(completion, "_pretest_threads", lambda n: 1)
+    li1, ch1 = _candidates(planes, src, tgt, link_src, link_tgt, 1, 3)
+    np.testing.assert_array_equal(li1, li)
+    np.testing.assert_array_equal(ch1, ch)
