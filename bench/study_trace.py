@@ -22,7 +22,9 @@ Prints, from one run on this machine:
    gain), p95 over weak links (within 30 dB below it) and the flipped read decisions;
    pooled against direct (same seed) as its extrapolation error.
 
-Every study and naive trace runs in its own process with an empty Dr.Jit kernel cache
+Where a CUDA device is usable, a GPU section follows with the same measurements on it
+(``--backend cuda``; ``--backend llvm`` for the CPU section alone). Every study and naive
+trace runs in its own process with an empty Dr.Jit kernel cache
 (a fresh ``$HOME``: Dr.Jit keeps compiled kernels in ``~/.drjit``), as on a new machine;
 ``--warm-kernels`` keeps this machine's. The naive tracing is run twice: devices placed
 as Sionna's API documents (positions as lists of numbers) and as the study places them
@@ -246,8 +248,8 @@ def main() -> None:
     ap.add_argument("--naive", choices=("both", "api", "arrays"), default="both",
                     help="naive placements to trace (default both; one halves a long bench)")
     ap.add_argument("--backend", choices=("auto", "llvm", "cuda"), default="auto",
-                    help="Dr.Jit backend of the studies and the naive tracing (auto: CUDA "
-                         "when a GPU is usable, as the study's tracing.backend = 'auto')")
+                    help="Dr.Jit backend of the studies and the naive tracing (auto: the CPU, "
+                         "then the GPU in a section of its own where a CUDA device is usable)")
     ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
                     help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
@@ -268,8 +270,17 @@ def main() -> None:
         print(json.dumps(out))
         return
 
+    if args.backend == "auto":
+        from propagation.backend import _cuda_usable
+
+        if _cuda_usable():  # the CPU section, then the GPU section, each in its own process
+            for b, title in (("llvm", "CPU section (LLVM)"), ("cuda", "GPU section (CUDA)")):
+                print(f"== {title} ==", flush=True)
+                subprocess.run([sys.executable, __file__, *sys.argv[1:], "--backend", b], check=True)
+            return
+        args.backend = "llvm"
     print("backend:", P.select_variant(prefer=args.backend), P.backend_info(), flush=True)
-    backend = {} if args.backend == "auto" else {"tracing.backend": args.backend}
+    backend = {"tracing.backend": args.backend}
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
     studies = {}
     runs = settings(args.lattice, direct=not args.skip_direct)
