@@ -124,7 +124,9 @@ class TracingConfig:
         False,
         "Trace on one Dr.Jit thread so traces made afresh are bit-reproducible (Sionna's "
         "multi-threaded path solver finds ~1 path in 1000 differently run to run; cached "
-        "traces are always reused exactly). About 2x slower tracing on 2 cores.",
+        "traces are always reused exactly). About 2x slower tracing on 2 cores. CPU only: "
+        "with backend 'auto' it traces on the CPU, with 'cuda' it is an error (GPU traces are "
+        "not reproducible).",
     )
     reader_polarization: str = option(
         "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."

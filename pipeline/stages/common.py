@@ -31,6 +31,7 @@ __all__ = [
     "read_reads",
     "resolve_cache_dir",
     "sample_poses",
+    "preferred_backend",
     "select_backend",
     "split_tags",
     "stage_rng",
@@ -195,11 +196,25 @@ def trace_options(cfg: StudyConfig) -> dict:
     }
 
 
+def preferred_backend(tracing) -> str:
+    """The ``prefer`` of ``propagation.select_variant`` for a ``[tracing]`` section:
+    ``backend``, except that bit-reproducible traces (``deterministic``) need the CPU:
+    ``"auto"`` then means ``"llvm"``, and ``"cuda"`` is refused (a ValueError naming both
+    keys): the CUDA path solver is not reproducible whatever the thread count."""
+    if not tracing.deterministic:
+        return tracing.backend
+    if tracing.backend == "cuda":
+        raise ValueError("tracing.deterministic = true needs tracing.backend = 'llvm' or 'auto': "
+                         "traces on CUDA are not bit-reproducible")
+    return "llvm"
+
+
 def select_backend(cfg: StudyConfig) -> str:
-    """Select the Dr.Jit variant (``propagation.select_variant``) before any tracing."""
+    """Select the Dr.Jit variant (``propagation.select_variant``, as
+    :func:`preferred_backend` says) before any tracing."""
     import propagation
 
-    variant = propagation.select_variant(prefer=cfg.tracing.backend)
+    variant = propagation.select_variant(prefer=preferred_backend(cfg.tracing))
     propagation.set_deterministic(cfg.tracing.deterministic)
     return variant
 
