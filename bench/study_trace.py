@@ -178,7 +178,8 @@ def _empty_kernel_cache(home: Path) -> dict:
 
 
 def naive_in_subprocess(run: Path, placement: str, home: Path | None, backend: str = "auto") -> dict:
-    """:func:`naive_trace` in a fresh process; ``home``: from an empty kernel cache there."""
+    """:func:`naive_trace` in a fresh process; ``home``: from an empty kernel cache there;
+    ``backend``: the Dr.Jit backend there (``--backend``)."""
     env = dict(os.environ)
     if home is not None:
         env.update(_empty_kernel_cache(home))
@@ -270,16 +271,20 @@ def main() -> None:
         print(json.dumps(out))
         return
 
-    if args.backend == "auto":
-        from propagation.backend import _cuda_usable
-
-        if _cuda_usable():  # the CPU section, then the GPU section, each in its own process
-            for b, title in (("llvm", "CPU section (LLVM)"), ("cuda", "GPU section (CUDA)")):
-                print(f"== {title} ==", flush=True)
-                subprocess.run([sys.executable, __file__, *sys.argv[1:], "--backend", b], check=True)
-            return
-        args.backend = "llvm"
-    print("backend:", P.select_variant(prefer=args.backend), P.backend_info(), flush=True)
+    # select_variant finds libLLVM before Dr.Jit is imported: nothing imports it earlier
+    variant = P.select_variant(prefer=args.backend)
+    if args.backend == "auto" and variant == P.backend.CUDA_VARIANT:
+        # the CPU section, then the GPU section, each in its own process (one variant each)
+        failed = []
+        for b, title in (("llvm", "CPU section (LLVM)"), ("cuda", "GPU section (CUDA)")):
+            print(f"== {title} ==", flush=True)
+            if subprocess.run([sys.executable, __file__, *sys.argv[1:], "--backend", b]).returncode:
+                failed.append(title)
+        if failed:
+            raise SystemExit(f"failed: {', '.join(failed)}")
+        return
+    args.backend = "cuda" if variant == P.backend.CUDA_VARIANT else "llvm"
+    print("backend:", variant, P.backend_info(), flush=True)
     backend = {"tracing.backend": args.backend}
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
     studies = {}

@@ -172,6 +172,9 @@ class TracingConfig:
     def __post_init__(self):
         if self.backend not in ("auto", "cuda", "llvm"):
             raise ConfigError(f"backend must be 'auto', 'cuda' or 'llvm', got {self.backend!r}")
+        if self.deterministic and self.backend == "cuda":
+            raise ConfigError("deterministic = true needs backend = 'llvm' or 'auto': traces on "
+                              "CUDA are not bit-reproducible (docs/physics.md, 'On a GPU')")
         _positive(self, "max_depth", "samples_per_src", "memory_budget_mb", "field_cell_m",
                   "field_samples_per_tx")
         if self.completion_order not in (0, 1, 2, 3):

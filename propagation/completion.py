@@ -50,8 +50,12 @@ __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_
 _SPEED_OF_LIGHT = 299_792_458.0
 #: (link, chain) pairs tested at once in the NumPy pre-test (~10 MB of float32 temporaries).
 _BLOCK = 1 << 18
-#: Most threads running pre-test blocks side by side.
+#: Most threads running pre-test blocks side by side: a block's temporaries are ~10 MB
+#: in float32 plus its images in float64 (up to ~25 MB at order 3 with one link per
+#: source), so 8 threads hold at most ~300 MB.
 _PRETEST_MAX_THREADS = 8
+#: The environment variable capping a study's side-by-side work (pipeline.parallel's).
+_WORKERS_ENV = "RFIDSTUDY_WORKERS"
 #: Candidate chains per call of Sionna's image method and field calculator: they hold
 #: ~330 B of Dr.Jit temporaries per candidate (measured on corridor_lab: 7.0 M order-2
 #: candidates peaked at 2.3 GB, 2.9 M order-3 ones at 1.0 GB), ~350 MB per call.
@@ -358,17 +362,26 @@ def _candidates(planes: Planes, src, tgt, link_src, link_tgt, min_order: int,
         li, ci = _pretest(planes, src, tgt, link_src, link_tgt, block)
         return li, np.pad(block[ci], ((0, 0), (0, max_order - block.shape[1])), constant_values=-1)
 
-    with ThreadPoolExecutor(_pretest_threads(len(blocks))) as pool:
+    pool = ThreadPoolExecutor(_pretest_threads(len(blocks)))
+    try:
         found = list(pool.map(passed, blocks))
+    except BaseException:  # an error (or Ctrl-C) stops the blocks not yet started
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
     if not found:
         return np.zeros(0, np.int64), np.zeros((0, max_order), np.int64)
     return np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
 
 
 def _pretest_threads(n_blocks: int) -> int:
-    """Threads for ``n_blocks`` pre-test blocks: the CPUs this process may use, at most
-    ``_PRETEST_MAX_THREADS`` (each holds ~10 MB of temporaries), at least one."""
+    """Threads for ``n_blocks`` pre-test blocks: the CPUs this process may use, within a
+    positive ``RFIDSTUDY_WORKERS`` (a sweep's share of the CPUs for each of its studies),
+    at most ``_PRETEST_MAX_THREADS``, at least one."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cap = os.environ.get(_WORKERS_ENV, "").strip()
+    if cap.isdecimal() and int(cap) >= 1:
+        cpus = min(cpus, int(cap))
     return max(1, min(int(n_blocks), cpus, _PRETEST_MAX_THREADS))
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.acquisition.config import POSE_SOURCES
-from pipeline.config import StudyConfig
+from pipeline.config import StudyConfig, TracingConfig
 
 __all__ = [
     "EVAL_TAG_SPACING_M",
@@ -28,10 +28,10 @@ __all__ = [
     "link_budget",
     "load_scene",
     "manifest_info",
+    "preferred_backend",
     "read_reads",
     "resolve_cache_dir",
     "sample_poses",
-    "preferred_backend",
     "select_backend",
     "split_tags",
     "stage_rng",
@@ -196,11 +196,27 @@ def trace_options(cfg: StudyConfig) -> dict:
     }
 
 
-def preferred_backend(tracing) -> str:
-    """The ``prefer`` of ``propagation.select_variant`` for a ``[tracing]`` section:
+def preferred_backend(tracing: TracingConfig) -> str:
+    """The ``prefer`` of ``propagation.select_variant`` for a ``[tracing]`` section.
+
     ``backend``, except that bit-reproducible traces (``deterministic``) need the CPU:
-    ``"auto"`` then means ``"llvm"``, and ``"cuda"`` is refused (a ValueError naming both
-    keys): the CUDA path solver is not reproducible whatever the thread count."""
+    ``"auto"`` then means ``"llvm"``; the CUDA path solver is not reproducible whatever
+    the thread count.
+
+    Parameters
+    ----------
+    tracing : pipeline.config.TracingConfig
+
+    Returns
+    -------
+    str
+        ``"auto"``, ``"cuda"`` or ``"llvm"``.
+
+    Raises
+    ------
+    ValueError
+        ``deterministic`` with ``backend = "cuda"`` (the config itself refuses it too).
+    """
     if not tracing.deterministic:
         return tracing.backend
     if tracing.backend == "cuda":

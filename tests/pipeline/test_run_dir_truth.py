@@ -58,6 +58,10 @@ def _manifest_files(run: Path) -> set[str]:
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
+    from propagation.backend import CUDA_VARIANT, ensure_variant
+
+    if ensure_variant() == CUDA_VARIANT:  # one Mitsuba variant per process
+        pytest.skip("a deterministic study traces on the CPU: this process chose CUDA")
     base = tmp_path_factory.mktemp("rundir")
     cfg = load_config(ROOT / "configs" / "tiny.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(base / "cache"))

@@ -123,11 +123,11 @@ def test_padding_receivers_leave_the_tags_paths_alone(corridor_scene):
     # 33 tags are traced with 7 padding receivers (40); the same tags traced in calls of
     # 17 and 16 (not padded) get the same paths: the shooting is per target, the same
     # rays (same seed) on one Dr.Jit thread (bit-reproducible).
-    from propagation.backend import CUDA_VARIANT, backend_info, set_deterministic
+    from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
     from propagation.pathsolve import _trace_chunk
     from propagation.sionna_scene import load_sionna_scene
 
-    if backend_info()["variant"] == CUDA_VARIANT:
+    if ensure_variant() == CUDA_VARIANT:
         pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
     rts = load_sionna_scene(corridor_scene, 865e6)
     rng = np.random.default_rng(3)

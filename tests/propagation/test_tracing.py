@@ -282,9 +282,9 @@ def test_deterministic_mode_makes_cold_traces_identical(tmp_path):
     """Sionna's multi-threaded LLVM path solver finds slightly different path sets run to
     run (measured: 514 of 1440 corridor_lab gains moved, up to 3 dB); one thread fixes it."""
     from propagation import backend_info, set_deterministic
-    from propagation.backend import CUDA_VARIANT
+    from propagation.backend import CUDA_VARIANT, ensure_variant
 
-    if backend_info()["variant"] == CUDA_VARIANT:
+    if ensure_variant() == CUDA_VARIANT:
         pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
     scene = scenes.load("corridor_lab")
     rng = np.random.default_rng(3)

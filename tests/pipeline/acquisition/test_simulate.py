@@ -106,9 +106,9 @@ def test_reads_consistent_and_geometry(scene, track):
 
 def test_same_seed_identical_files_and_cache(scene, track, tmp_path):
     import propagation
-    from propagation.backend import CUDA_VARIANT
+    from propagation.backend import CUDA_VARIANT, ensure_variant
 
-    if propagation.backend_info()["variant"] == CUDA_VARIANT:
+    if ensure_variant() == CUDA_VARIANT:
         pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
     reader = _reader()
     # run0 and run1 trace from scratch (separate caches); run2 reuses run0's cache.
