@@ -251,7 +251,8 @@ def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift
     # the few operations in between and is still 10x below the slack.
     import dataclasses
 
-    from propagation.completion import _chains, _pretest
+    from propagation.chain_pretest import _pretest
+    from propagation.chain_pretest import chains as _chains
 
     rts = load_sionna_scene(corridor_scene, F)
     planes = large_planes(rts, 1.0)
@@ -283,8 +284,10 @@ def test_candidates_in_threads_are_the_blocks_one_after_the_other(corridor_scene
     # one pre-test per order over all its chains, in that order (link-major within each
     # block, blocks in chain order). Small blocks make many of them, three threads run
     # them out of step; fails if the blocks are joined as they finish or a block is lost.
-    from propagation import completion
-    from propagation.completion import _candidates, _chains, _pretest
+    from propagation import chain_pretest
+    from propagation.chain_pretest import _pretest
+    from propagation.chain_pretest import candidate_chains as _candidates
+    from propagation.chain_pretest import chains as _chains
 
     rts = load_sionna_scene(corridor_scene, F)
     planes = large_planes(rts, 1.0)
@@ -300,14 +303,14 @@ def test_candidates_in_threads_are_the_blocks_one_after_the_other(corridor_scene
             li, ci = _pretest(planes, src, tgt, link_src, link_tgt, chains[c0:c0 + step])
             want_l.append(li)
             want_c.append(np.pad(chains[c0:c0 + step][ci], ((0, 0), (0, 3 - order)), constant_values=-1))
-    monkeypatch.setattr(completion, "_BLOCK", 4096)
-    monkeypatch.setattr(completion, "_pretest_threads", lambda n: min(n, 3))
+    monkeypatch.setattr(chain_pretest, "_BLOCK", 4096)
+    monkeypatch.setattr(chain_pretest, "_pretest_threads", lambda n: min(n, 3))
     li, ch = _candidates(planes, src, tgt, link_src, link_tgt, 1, 3)
     assert len(want_l) > 10 and len(li) > 100  # many blocks, and candidates to order
     np.testing.assert_array_equal(li, np.concatenate(want_l))
     np.testing.assert_array_equal(ch, np.concatenate(want_c))
     # one thread, whole blocks: the same again
-    monkeypatch.setattr(completion, "_pretest_threads", lambda n: 1)
+    monkeypatch.setattr(chain_pretest, "_pretest_threads", lambda n: 1)
     li1, ch1 = _candidates(planes, src, tgt, link_src, link_tgt, 1, 3)
     np.testing.assert_array_equal(li1, li)
     np.testing.assert_array_equal(ch1, ch)
