@@ -200,8 +200,8 @@ def preferred_backend(tracing: TracingConfig) -> str:
     """The ``prefer`` of ``propagation.select_variant`` for a ``[tracing]`` section.
 
     ``backend``, except that bit-reproducible traces (``deterministic``) need the CPU:
-    ``"auto"`` then means ``"llvm"``; the CUDA path solver is not reproducible whatever
-    the thread count.
+    then ``"llvm"`` (the CUDA path solver is not reproducible whatever the thread count;
+    the config refuses ``deterministic`` with ``backend = "cuda"``).
 
     Parameters
     ----------
@@ -211,18 +211,8 @@ def preferred_backend(tracing: TracingConfig) -> str:
     -------
     str
         ``"auto"``, ``"cuda"`` or ``"llvm"``.
-
-    Raises
-    ------
-    ValueError
-        ``deterministic`` with ``backend = "cuda"`` (the config itself refuses it too).
     """
-    if not tracing.deterministic:
-        return tracing.backend
-    if tracing.backend == "cuda":
-        raise ValueError("tracing.deterministic = true needs tracing.backend = 'llvm' or 'auto': "
-                         "traces on CUDA are not bit-reproducible")
-    return "llvm"
+    return "llvm" if tracing.deterministic else tracing.backend
 
 
 def select_backend(cfg: StudyConfig) -> str:
