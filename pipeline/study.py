@@ -40,6 +40,7 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import logging
+import pickle
 import resource
 import sys
 import time
@@ -159,6 +160,10 @@ class Stage:
         Run even when the record matches (cheap stages whose outputs depend on files
         outside the config, such as the scene); downstream stages still skip when the
         outputs come out identical.
+    own_process : bool
+        The stage may run in a spawned process of its own, beside the stage before it
+        when it does not depend on that one and both must run (:mod:`pipeline.stageproc`):
+        ``func`` must be a module-level function that needs nothing from ``memo``.
     """
 
     name: str
@@ -168,6 +173,7 @@ class Stage:
     version: int = 1
     description: str = ""
     always: bool = False
+    own_process: bool = False
 
     def __post_init__(self):
         # a misspelt key would hash as None and never re-run the stage when the real key
@@ -387,11 +393,27 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
         _write_manifest(store, config, result, started, t0, command_line, extra, failure,
                         status=status, stage=stage)
 
+    side: _Side | None = None  # a stage running in its own process beside ``current``
+
+    def stop_side():
+        nonlocal side
+        if side is not None:
+            side.proc.stop()
+            store.discard(side.stage.name)
+            side = None
+
     try:
         manifest("running")
         atomic_write_text(store.path("config.toml"), config_to_toml(config))
         with _progress_bars(progress) as prog:
-            for st in stages:
+            for k, st in enumerate(stages):
+                if side is not None and side.stage is st:  # started beside the stage before
+                    current = st.name
+                    rec = _finish_side(side, store, result, prog, manifest, manifest_extra)
+                    side = None
+                    result.records[st.name] = rec
+                    digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
+                    continue
                 missing = [u for u in st.upstream if u not in digests]
                 if missing:
                     raise ValueError(f"stage {st.name!r} needs {missing} to run before it")
@@ -400,26 +422,20 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                     _run_checks(checks, config, store, prog, memo, result, manifest)
                     checks = ()
                 current = st.name
-                inputs = {
-                    "stage": st.name,
-                    "version": st.version,
-                    "config": config_slice(config, st.config_keys),
-                    "upstream": {u: digests[u] for u in st.upstream},
-                }
-                inputs_hash = json_hash(inputs)
-                if st.name in force:
-                    rec, reason = None, "forced"
-                elif st.always:
-                    rec, reason = None, "always runs"
-                else:
-                    rec, reason = store.check_record(st.name, inputs_hash)
+                inputs_hash = _inputs_hash(st, config, digests)
+                rec, reason = _record_or_reason(st, store, force, inputs_hash)
                 if rec is not None:
                     log.info("stage %s: up to date, skipped", st.name)
                     result.cached.append(st.name)
                 else:
                     log.log(logging.DEBUG if st.always else logging.INFO, "stage %s: running (%s)",
                             st.name, reason)
-                    manifest("running", st.name)
+                    nxt = stages[k + 1] if k + 1 < len(stages) else None
+                    if not checks and not st.always:
+                        side = _start_side(nxt, config, store, digests, force, prog)
+                    if side is not None:
+                        current = f"{st.name} + {side.stage.name}"
+                    manifest("running", current)
                     staged = store.staging(st.name)
                     ctx = StageContext(config, store, st.name, staged, prog, memo)
                     ts = time.perf_counter()
@@ -428,6 +444,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                             info = st.func(ctx) or {}
                     except Exception as exc:
                         store.discard(st.name)
+                        stop_side()  # its work is lost, never half-committed
                         failure = {"stage": st.name, "error": f"{type(exc).__name__}: {exc}"}
                         _safe(manifest, "failed", st.name, failure, manifest_extra)
                         raise StageError(f"stage {st.name!r} failed: {type(exc).__name__}: {exc} "
@@ -440,24 +457,113 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                         result.cached.append(st.name)  # re-checked, outputs unchanged
                     else:
                         result.ran.append(st.name)
+                    if side is not None:  # committed; the other one still runs
+                        current = side.stage.name
+                        manifest("running", current)
                 result.records[st.name] = rec
                 digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
             current = None
         manifest("complete", extra=manifest_extra)
         store.remove_staging_root()
     except KeyboardInterrupt:
+        stop_side()
         if current and current != "checks":
-            store.discard(current)
+            for name in current.split(" + "):
+                store.discard(name)
         _safe(manifest, "interrupted", current, None, None)
         raise StudyInterrupted(current, store.root) from None
     except OSError as exc:
+        stop_side()
         err = _write_error(exc, store)
         if err is exc:
             raise
         if current and current != "checks":
-            store.discard(current)
+            for name in current.split(" + "):
+                store.discard(name)
         raise err from None
+    except BaseException:
+        stop_side()
+        raise
     return result
+
+
+def _inputs_hash(st: Stage, config: StudyConfig, digests: dict[str, str]) -> str:
+    """SHA-256 of what the stage's outputs depend on (module doc)."""
+    return json_hash({"stage": st.name, "version": st.version,
+                      "config": config_slice(config, st.config_keys),
+                      "upstream": {u: digests[u] for u in st.upstream}})
+
+
+def _record_or_reason(st: Stage, store: RunStore, force, inputs_hash: str):
+    """The stage's valid record and "", or None and why it must run."""
+    if st.name in force:
+        return None, "forced"
+    if st.always:
+        return None, "always runs"
+    return store.check_record(st.name, inputs_hash)
+
+
+@dataclass
+class _Side:
+    """A stage running in its own process (:mod:`pipeline.stageproc`)."""
+
+    stage: Stage
+    inputs_hash: str
+    staged: Path
+    proc: Any
+    task: Any = None
+
+
+def _start_side(st: Stage | None, config, store, digests, force, prog) -> _Side | None:
+    """Start ``st`` in its own process if it may run beside the stage now starting: it
+    is marked ``own_process``, needs none of that stage's outputs (every upstream of it
+    is done) and must run."""
+    if st is None or not st.own_process or st.always or any(u not in digests for u in st.upstream):
+        return None
+    from pipeline.stageproc import StageProcess, side_by_side_allowed
+
+    if not side_by_side_allowed():
+        return None
+    try:  # it travels to the new interpreter by reference
+        pickle.dumps((st.func, config))
+    except Exception as exc:  # noqa: BLE001 - any reason means: run it in order, here
+        log.debug("stage %s runs in this process: %s", st.name, exc)
+        return None
+    inputs_hash = _inputs_hash(st, config, digests)
+    rec, reason = _record_or_reason(st, store, force, inputs_hash)
+    if rec is not None:
+        return None
+    log.info("stage %s: running in its own process (%s)", st.name, reason)
+    staged = store.staging(st.name)
+    task = None if prog is None else prog.add_task(f"{st.name}: {st.description} (own process)",
+                                                   total=1)
+    return _Side(st, inputs_hash, staged, StageProcess(st.func, st.name, config, store.root, staged),
+                 task)
+
+
+def _finish_side(side: _Side, store, result, prog, manifest, manifest_extra) -> StageRecord:
+    """Wait for the stage's process and commit its outputs; a failure there is the stage's
+    failure, recorded in the manifest as one here would be."""
+    from pipeline.stageproc import StageProcessError
+
+    st = side.stage
+    try:
+        info, elapsed_s, peak = side.proc.result()
+    except StageProcessError as exc:
+        store.discard(st.name)
+        if exc.kind == "KeyboardInterrupt":
+            raise KeyboardInterrupt from None
+        log.debug("stage %s, in its own process:\n%s", st.name, exc.child_traceback)
+        _safe(manifest, "failed", st.name, {"stage": st.name, "error": f"{exc.kind}: {exc.detail}"},
+              manifest_extra)
+        raise StageError(f"stage {st.name!r} failed: {exc.kind}: {exc.detail} "
+                         f"(earlier stages' outputs in {store.root} are intact; "
+                         "fix the cause and rerun to resume)") from (exc.cause or exc)
+    if prog is not None and side.task is not None:
+        prog.update(side.task, completed=1)
+    rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, _utc_now(), info)
+    result.ran.append(st.name)
+    return rec
 
 
 def _run_checks(checks, config, store, prog, memo, result, manifest) -> None:

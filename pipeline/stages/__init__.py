@@ -19,7 +19,9 @@ engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` han
 :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info`.
 
 The scene stage always runs (it is cheap) so an edited scene file changes its
-outputs' digest and everything downstream re-runs.
+outputs' digest and everything downstream re-runs. ``downstream`` reads nothing of
+``truth``: it runs in a process of its own beside it (``Stage.own_process``,
+:mod:`pipeline.stageproc`).
 """
 
 from __future__ import annotations

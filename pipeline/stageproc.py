@@ -1,0 +1,157 @@
+"""A stage in a process of its own, running beside the stage before it.
+
+Two stages that do not depend on each other can run at the same time: the study's
+``truth`` (Dr.Jit tracing, whose kernel compiling and NumPy bookkeeping leave a core
+idle) and ``downstream`` (NumPy filters) do not read each other's outputs. The runner
+(:func:`pipeline.study.run_study`) starts a stage marked ``own_process`` in a *spawned*
+process (a fresh interpreter: the parent's Dr.Jit threads and locks are never inherited,
+so either stage may trace) while the stage before it runs in this process, then commits
+the two in their order. The child writes only into its own staging directory and sends
+back its summary (or its error); nothing it computes depends on the process it runs in
+(each stage draws from its own seeded stream), so its outputs are those of a run one
+after the other.
+
+Side by side only where it can help and is allowed: more than one usable CPU, the
+environment variable ``RFIDSTUDY_WORKERS`` not set to 1 (a sweep's worker process caps
+it), and not inside a daemonic process (which may not have children, e.g. a Dask
+worker).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import pickle
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from pipeline.parallel import WORKERS_ENV, usable_cpus
+
+__all__ = ["StageProcess", "StageProcessError", "side_by_side_allowed"]
+
+_LOGGERS = ("", "pipeline", "scenes", "propagation", "fuzzymodel")
+
+
+class StageProcessError(RuntimeError):
+    """The stage's process failed; ``cause`` is its exception where it could travel back.
+
+    Attributes
+    ----------
+    kind : str
+        Type name of the stage's exception (``"KeyboardInterrupt"`` when it was interrupted,
+        ``"ProcessDied"`` when the process ended without a word).
+    detail : str
+        Its message.
+    cause : BaseException or None
+        The exception itself, when it could be pickled.
+    """
+
+    def __init__(self, kind: str, detail: str, cause: BaseException | None = None,
+                 child_traceback: str = ""):
+        super().__init__(f"{kind}: {detail}")
+        self.kind, self.detail, self.cause = kind, detail, cause
+        self.child_traceback = child_traceback
+
+
+def side_by_side_allowed() -> bool:
+    """Whether a stage may run in a spawned process beside another (module doc)."""
+    raw = os.environ.get(WORKERS_ENV, "").strip()
+    if raw.isdecimal() and int(raw) <= 1:
+        return False
+    return usable_cpus() > 1 and not multiprocessing.current_process().daemon
+
+
+def _log_levels() -> dict[str, int]:
+    return {name: logging.getLogger(name).level for name in _LOGGERS}
+
+
+def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict) -> None:
+    """Body of the spawned process: run ``func`` on a context of its own, report back."""
+    from pipeline.runlog import final_paths_in_logs, reproducible_outputs
+    from pipeline.runstore import RunStore
+    from pipeline.study import StageContext, peak_rss_mib
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(f"%(levelname)s [{stage}] %(message)s"))
+    logging.getLogger().addHandler(handler)
+    for name, level in levels.items():
+        logging.getLogger(name).setLevel(level)
+    store = RunStore(root)
+    ctx = StageContext(config, store, stage, Path(staged), None, {})
+    t0 = time.perf_counter()
+    try:
+        with reproducible_outputs(), final_paths_in_logs(Path(staged), store.root):
+            info = func(ctx) or {}
+        msg = ("ok", info, time.perf_counter() - t0, peak_rss_mib())
+    except BaseException as exc:  # noqa: BLE001 - everything goes back to the runner
+        try:
+            cause = pickle.loads(pickle.dumps(exc))
+        except Exception:  # noqa: BLE001 - an unpicklable exception travels as text
+            cause = None
+        msg = ("error", type(exc).__name__, str(exc), cause, "".join(traceback.format_exception(exc)))
+    try:
+        conn.send(msg)
+    finally:
+        conn.close()
+
+
+class StageProcess:
+    """One stage running in a spawned process (:func:`pipeline.study.run_study` drives it).
+
+    Parameters
+    ----------
+    func : callable
+        The stage's function (module level: it travels pickled by reference).
+    stage : str
+        The stage's name.
+    config : StudyConfig
+        The study config.
+    root, staged : pathlib.Path
+        The run directory and the stage's (empty) staging directory.
+    """
+
+    def __init__(self, func, stage: str, config, root: Path, staged: Path):
+        ctx = multiprocessing.get_context("spawn")
+        self.stage = stage
+        self._recv, send = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_child, name=f"rfidstudy-{stage}",
+                                 args=(send, func, stage, config, str(root), str(staged),
+                                       _log_levels()))
+        self._proc.start()
+        send.close()  # the child holds the only sending end: its death ends recv()
+
+    def result(self) -> tuple[dict, float, float]:
+        """Wait for the stage: ``(info, elapsed_s, peak_rss_mib)`` of the child.
+
+        Raises
+        ------
+        StageProcessError
+            The stage raised (its exception as ``cause`` where it pickles), was
+            interrupted, or its process died without reporting (killed, out of memory).
+        """
+        try:
+            msg = self._recv.recv()
+        except EOFError:
+            msg = None
+        finally:
+            self._recv.close()
+        self._proc.join()
+        if msg is None:
+            raise StageProcessError("ProcessDied", f"the process of stage {self.stage!r} ended "
+                                    f"without a result (exit code {self._proc.exitcode})")
+        if msg[0] == "error":
+            raise StageProcessError(msg[1], msg[2], msg[3], msg[4])
+        return msg[1], float(msg[2]), float(msg[3])
+
+    def stop(self) -> None:
+        """End the process now (its staging directory is the caller's to discard)."""
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(10)
+            if self._proc.is_alive():
+                self._proc.kill()
+                self._proc.join()
+        self._recv.close()

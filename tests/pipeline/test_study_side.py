@@ -1,0 +1,124 @@
+"""Stages side by side: a stage marked ``own_process`` runs in a spawned process beside the
+stage before it when it does not depend on it (pipeline.study, pipeline.stageproc).
+
+The stage functions are module-level (they travel to the spawned interpreter by
+reference) and write the process id they ran in, so each test sees where a stage ran.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import pytest
+
+from pipeline.config import StudyConfig, replace_path
+from pipeline.stageproc import side_by_side_allowed
+from pipeline.study import Stage, StageError, StudyInterrupted, run_study
+
+pytestmark = pytest.mark.skipif(not side_by_side_allowed(), reason="one CPU: stages run in order")
+
+
+def _a(ctx):
+    # long enough that the side stage starts and finishes while this one runs
+    time.sleep(float(os.environ.get("TEST_SIDE_A_S", "1.0")))
+    if ctx.config.training.step_size > 0.5:
+        raise RuntimeError("a: step too large")
+    ctx.out("a.json").write_text(json.dumps({"pid": os.getpid(), "epochs": ctx.config.training.epochs}))
+    return {"pid": os.getpid()}
+
+
+def _b(ctx):
+    if ctx.config.training.epochs == 13:
+        raise ValueError("b: unlucky epochs")
+    if ctx.config.training.epochs == 14:
+        raise KeyboardInterrupt
+    ctx.out("b/out.json").write_text(json.dumps({"pid": os.getpid(), "seed": ctx.config.seed,
+                                                 "sde": os.environ.get("SOURCE_DATE_EPOCH")}))
+    return {"pid": os.getpid()}
+
+
+def _c(ctx):
+    a = json.loads(ctx.input("a.json").read_text())
+    b = json.loads(ctx.input("b/out.json").read_text())
+    ctx.out("c.json").write_text(json.dumps({"a": a["pid"], "b": b["pid"]}))
+
+
+def _b_after_a(ctx):
+    ctx.input("a.json")
+    return _b(ctx)
+
+
+SIDE = (
+    Stage("a", _a, ("seed", "training.step_size")),
+    Stage("b", _b, ("seed", "training.epochs"), own_process=True, description="b"),
+    Stage("c", _c, (), ("a", "b")),
+)
+
+
+def _run(cfg, d, stages=SIDE, **kw):
+    return run_study(cfg, d, stages=stages, manifest_extra=None, command_line=["test"], **kw)
+
+
+def _pids(d):
+    return json.loads((d / "c.json").read_text())
+
+
+def test_independent_stage_runs_in_its_own_process(tmp_path):
+    r = _run(StudyConfig(), tmp_path)
+    assert r.ran == ["a", "b", "c"]
+    pids = _pids(tmp_path)
+    assert pids["a"] == os.getpid() and pids["b"] != os.getpid()
+    # the child sees what a stage here sees: reproducible dates
+    assert json.loads((tmp_path / "b/out.json").read_text())["sde"] == "0"
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "complete" and man["stage"] is None
+    assert "b/out.json" in man["files"] and man["stages"]["b"]["info"]["pid"] == pids["b"]
+    assert not (tmp_path / ".staging").exists()
+    # a second run skips both; a change to b's key re-runs b (alone: a is cached) and c
+    assert _run(StudyConfig(), tmp_path).ran == []
+    r = _run(replace_path(StudyConfig(), "training.epochs", 7), tmp_path)
+    assert r.ran == ["b", "c"] and r.cached == ["a"]
+    assert _pids(tmp_path)["b"] == os.getpid()  # nothing to run beside: in order, here
+
+
+def test_dependent_stage_or_one_worker_runs_in_order(tmp_path, monkeypatch):
+    dep = (SIDE[0], Stage("b", _b_after_a, ("seed",), ("a",), own_process=True), SIDE[2])
+    _run(StudyConfig(), tmp_path / "dep", stages=dep)
+    assert _pids(tmp_path / "dep")["b"] == os.getpid()
+    monkeypatch.setenv("RFIDSTUDY_WORKERS", "1")
+    _run(StudyConfig(), tmp_path / "one")
+    assert _pids(tmp_path / "one")["b"] == os.getpid()
+
+
+def test_failure_in_the_side_stage_keeps_the_other_and_resumes(tmp_path):
+    bad = replace_path(StudyConfig(), "training.epochs", 13)
+    with pytest.raises(StageError, match=r"stage 'b' failed: ValueError: b: unlucky epochs \(earlier"):
+        _run(bad, tmp_path)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "failed" and man["failure"]["stage"] == "b"
+    assert (tmp_path / "a.json").exists() and not (tmp_path / "b").exists()
+    assert not (tmp_path / ".staging" / "b").exists()
+    r = _run(StudyConfig(), tmp_path)
+    assert r.cached == ["a"] and r.ran == ["b", "c"]
+
+
+def test_failure_beside_the_side_stage_stops_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("TEST_SIDE_A_S", "0")
+    bad = replace_path(StudyConfig(), "training.step_size", 0.9)
+    with pytest.raises(StageError, match="stage 'a' failed: RuntimeError: a: step too large"):
+        _run(bad, tmp_path)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "failed" and man["failure"]["stage"] == "a"
+    # b ran beside a, but nothing of it is kept: no record, no output, no staging
+    assert not (tmp_path / "stages" / "b.json").exists() and not (tmp_path / "b").exists()
+    assert not (tmp_path / ".staging" / "b").exists()
+
+
+def test_interrupt_in_the_side_stage(tmp_path):
+    with pytest.raises(StudyInterrupted):
+        _run(replace_path(StudyConfig(), "training.epochs", 14), tmp_path)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "interrupted" and man["stage"] == "b"
+    assert (tmp_path / "a.json").exists() and not (tmp_path / ".staging" / "b").exists()
