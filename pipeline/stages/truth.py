@@ -165,7 +165,7 @@ def _trace_free_space_view(ctx, eval_reads, budget) -> dict:
                 plane_height_m=ev.field_height_m, samples_per_tx=cfg.tracing.field_samples_per_tx,
                 max_depth=cfg.tracing.max_depth, reader_pattern=cfg.tracing.reader_pattern,
                 reader_polarization=cfg.tracing.reader_polarization,
-                plane_bounds_m=bounds, cache_dir=cache)
+                include_walls=cfg.tracing.field_walls, plane_bounds_m=bounds, cache_dir=cache)
             field.save(ctx.out(f"fields/field_{i:02d}.npz"))
         update(advance=1)
     return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free}
@@ -173,7 +173,8 @@ def _trace_free_space_view(ctx, eval_reads, budget) -> dict:
 
 STAGE = Stage("truth", stage_truth,
               ("seed", "reader", "evaluation", "training.d_max_m", "training.d_bin_m",
-               "training.alpha_bin_deg", "tracing.field_cell_m", "tracing.field_samples_per_tx")
+               "training.alpha_bin_deg", "tracing.field_cell_m", "tracing.field_samples_per_tx",
+               "tracing.field_walls")
               + TRACING_KEYS,
               ("scene", "reads", "models"), version=3,  # 2: held-out grid, tag sites, eval poses
               # 3: the Gen2 reader's miss probability from the tags in the field

@@ -13,6 +13,7 @@ import logging
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -44,6 +45,9 @@ def test_first_run_produces_the_run_directory(tiny):
         assert (run / rel).is_file(), rel
     cov = json.loads((run / "metrics.json").read_text())["coverage"]
     assert 0 <= cov["corridor_fraction"] <= 1 and cov["fields"][0]["n_cells"] > 0
+    # the plane only: the wall map (tracing.field_walls, off) is what no figure uses
+    with np.load(run / "fields/field_00.npz") as z:
+        assert z["plane_gain"].size > 0 and z["wall_gain"].size == 0
     reads = pd.read_parquet(run / "reads.parquet")
     assert reads["read"].any() and {"d_est_m", "alpha_est_rad", "rssi_dbm"} <= set(reads.columns)
     assert len(pd.read_parquet(run / "eval_poses.parquet")) == cfg.tour.n_eval_poses
