@@ -52,8 +52,9 @@ COMPLETION_MIN_AREA_M2 = 1.0
 #: that changes their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
-SHARING_ALGORITHM = 4  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
-# 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row
+SHARING_ALGORITHM = 5  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
+# 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
+# 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed)
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -185,11 +186,19 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
                              max_depth, shared_samples, seed, refraction, completion, plane_ids)
         for i, sp in zip(together, fresh, strict=True):
             out[i] = sp
+    # a position with no neighbour: what PathSolver does, without its Paths object (whose
+    # per-call kernels cost ~0.3 s), its copies removed; the receivers padded so that the
+    # shooting kernel is compiled once per padded count (padded_target_count)
     alone = np.flatnonzero(lone)
     for c0 in range(0, len(alone), lone_per_call):
         grp = alone[c0:c0 + lone_per_call]
-        for i, sp in zip(grp, _trace_chunk(rt_scene, positions[grp], receivers, max_depth, lone_samples,
-                                           seed, refraction), strict=True):
+        n_pad = padded_target_count(len(receivers)) - len(receivers)
+        padded = np.vstack([np.asarray(receivers, float).reshape(-1, 3),
+                            np.tile(_padding_point(rt_scene), (n_pad, 1))])
+        fresh = trace_shared(rt_scene, positions[grp], padded, [np.zeros(0, np.int64)] * len(grp),
+                             max_depth, lone_samples, seed, refraction, None, plane_ids,
+                             n_padding=n_pad)
+        for i, sp in zip(grp, fresh, strict=True):
             out[i] = sp
     return out
 

@@ -157,7 +157,7 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
 
 def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, samples_per_src: int,
                  seed: int, refraction: bool = True, completion=None,
-                 plane_ids=None) -> list[SourcePaths]:
+                 plane_ids=None, n_padding: int = 0) -> list[SourcePaths]:
     """Paths at every position from its own rays and its neighbours' valid chains.
 
     Parameters
@@ -186,11 +186,16 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         not solved again when the position has it (or has it from another neighbour):
         solved, it would be a copy of a path the position already has. Default: named by
         the exact triangles.
+    n_padding : int
+        The last ``n_padding`` targets are padding receivers (a count the compiled
+        shooting kernel already knows, :func:`propagation.pathsolve.padded_target_count`):
+        traced, never returned.
 
     Returns
     -------
     list of SourcePaths
-        Per position its paths to every target, sorted by length, copies removed.
+        Per position its paths to every target (padding excepted), sorted by length,
+        copies removed.
     """
     import drjit as dr
     import mitsuba as mi
@@ -206,6 +211,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     if len(neighbours) != n:
         raise ValueError(f"need one neighbour list per position: {len(neighbours)} for {n}")
     need = np.ones((n, m), bool)
+    need[:, m - int(n_padding):] = False
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
     pos_mi, tgt_mi = points(pos), points(tgt)
@@ -247,7 +253,8 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         own_rows = np.flatnonzero(solve)
         valid = np.zeros(n_rows, bool)
         if len(own_rows):
-            own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
+            own = cand if len(own_rows) == n_rows and not any(len(nb) for nb in neighbours) else \
+                cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
             own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
             solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator,
                          discard=False)

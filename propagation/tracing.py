@@ -228,7 +228,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         is solved as ``PathSolver`` solves it, and is then given every chain that was a
         valid path at a neighbour, solved again by Sionna's image method at the exact
         position (no path is moved). A position without a neighbour shoots
-        ``samples_per_src`` rays as in direct tracing. Excludes ``lattice_spacing_m``.
+        ``samples_per_src`` rays as in direct tracing (the paths ``PathSolver`` returns
+        twice counted once). Excludes ``lattice_spacing_m``.
         Measured on ``corridor_lab``'s evaluation tour (docs/physics.md): 1 m at 3,000 rays
         gives a seed-to-seed p95 of 0.93 dB over readable links, against 1.13 dB for direct
         tracing at 30,000 rays, in less than half the time.

@@ -271,7 +271,43 @@ def test_shared_tour_is_closer_to_a_dense_trace_and_caches(tmp_path):
     lone = trace_links(scene, poses[:1], tags, seed=1, share_radius_m=0.5, shared_samples_per_src=10,
                        samples_per_src=1000, **kw)
     alone = trace_links(scene, poses[:1], tags, seed=1, samples_per_src=1000, **kw)
-    # same call into the solver; its threads may order a path differently (1e-3 dB)
+    # the solver's own rays, image method and fields (this corridor gives no copies); its
+    # threads may order a path differently (1e-3 dB)
     np.testing.assert_allclose(lone.gain_db, alone.gain_db, atol=1e-3)
     with pytest.raises(ValueError, match="exclude each other"):
         trace_links(scene, poses[:2], tags, share_radius_m=0.5, lattice_spacing_m=0.25, **kw)
+
+
+def test_lone_position_is_the_solvers_paths_without_its_copies():
+    # A position with no neighbour is solved as the sharing's step 1: Sionna's own rays,
+    # image method and fields, without its Paths object. Sionna's PathSolver returns some
+    # paths twice (the same reflection through two triangles of one plane: same length,
+    # directions and transfer matrix; 21 of 2,388 paths at this corridor_lab pose); here
+    # they are counted once. One Dr.Jit thread, so both calls find the same chains.
+    import scenes
+    from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
+
+    if ensure_variant() == CUDA_VARIANT:
+        pytest.skip("the same chains in both calls need one CPU thread: set_deterministic refuses CUDA")
+    from scenes.tagsites import tag_sites
+
+    scene = scenes.load("corridor_lab")
+    pose = np.array([[6.77, 1.22, 0.7, 0.2]])  # an evaluation-tour pose of the default study
+    # tags on the surfaces, as the truth's tag sites (21 copies here, 0 at some poses)
+    sites = tag_sites(scene, spacing_m=0.5, z_range_m=(0.2, 1.6)).positions_m
+    tags = sites[np.linalg.norm(sites - pose[0, :3], axis=1) < 3.0]
+    rts = load_sionna_scene(scene, F)
+    set_deterministic(True)
+    try:
+        lone = trace_links(scene, pose, tags, max_depth=5, samples_per_src=30000, share_radius_m=1.0,
+                           shared_samples_per_src=3000, seed=42)
+        raw = _trace_chunk(rts, pose[:, :3], tags, 5, 30000, 42)[0]
+    finally:
+        set_deterministic(False)
+    tg = np.repeat(np.arange(len(tags)), np.diff(raw.offsets))
+    order = np.lexsort((raw.tau_s, tg))
+    copies = path_copies(np.zeros(len(tg), np.int64), tg[order], raw.tau_s[order] * C0,
+                         raw.k_tx[order], raw.k_rx[order], raw.transfer[order])
+    assert copies.sum() > 0  # the scene and pose are chosen to have some
+    per_tag = np.bincount(tg, minlength=len(tags)) - np.bincount(tg[order][copies], minlength=len(tags))
+    np.testing.assert_array_equal(lone.n_paths[0], per_tag)
