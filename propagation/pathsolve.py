@@ -28,6 +28,7 @@ from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import unit_vec_from_theta_phi
 from propagation.pooled import POOL_RADIUS_FACTOR, pooling_plan, trace_pooled
 from propagation.shared import sharing_neighbours, trace_shared
+from propagation.sionna_paths import path_copies
 from propagation.sionna_scene import load_sionna_scene
 
 __all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "PathSet", "bytes_per_source", "trace_paths"]
@@ -45,6 +46,7 @@ DEFAULT_MAX_DEPTH = 5
 #: 260 links/s on 2 shared cores at these defaults.
 DEFAULT_SAMPLES_PER_SRC = 30_000
 _MAX_SOURCES_PER_CALL = 128
+_SPEED_OF_LIGHT = 299_792_458.0
 #: Planes of at least this area are completed by the image method (completion_order):
 #: walls, floor, ceiling and large furniture faces; 16 planes on corridor_lab.
 COMPLETION_MIN_AREA_M2 = 1.0
@@ -52,6 +54,7 @@ COMPLETION_MIN_AREA_M2 = 1.0
 #: that changes their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
+DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
 SHARING_ALGORITHM = 5  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
 # 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed)
@@ -156,15 +159,23 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
     out = []
     for s, p in enumerate(sources):
         v = valid[s]  # (n_rx, P); row-major flattening keeps receivers in order
-        counts = v.sum(axis=1)
+        tg = np.nonzero(v)[0]
+        t, a_s = tau[s][v], a[s][v]
+        k_tx = unit_vec_from_theta_phi(th_t[s][v], ph_t[s][v])
+        k_rx = unit_vec_from_theta_phi(th_r[s][v], ph_r[s][v])
+        # by tag, then length; PathSolver returns a reflection found through two
+        # triangles of one plane twice (propagation.sionna_paths.path_copies): once here
+        order = np.lexsort((t, tg))
+        order = order[~path_copies(np.zeros(len(order), np.int64), tg[order],
+                                   t[order] * _SPEED_OF_LIGHT, k_tx[order], k_rx[order], a_s[order])]
         out.append(SourcePaths(
             source_m=np.asarray(p, float),
             tag_positions_m=np.asarray(receivers, float).copy(),
-            offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-            transfer=a[s][v],
-            tau_s=tau[s][v],
-            k_tx=unit_vec_from_theta_phi(th_t[s][v], ph_t[s][v]),
-            k_rx=unit_vec_from_theta_phi(th_r[s][v], ph_r[s][v]),
+            offsets=np.concatenate([[0], np.cumsum(np.bincount(tg[order], minlength=n_rx))]).astype(np.int64),
+            transfer=a_s[order],
+            tau_s=t[order],
+            k_tx=k_tx[order],
+            k_rx=k_rx[order],
         ))
     return out
 
@@ -296,6 +307,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         settings["completion_algorithm"] = COMPLETION_ALGORITHM
     if lattice_spacing_m is not None:
         settings["pooling_algorithm"] = POOLING_ALGORITHM
+    elif share_radius_m is None:
+        settings["direct_algorithm"] = DIRECT_ALGORITHM
 
     cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
     cached = cache.load(uniq) if cache is not None else [None] * len(uniq)

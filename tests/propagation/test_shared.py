@@ -278,12 +278,39 @@ def test_shared_tour_is_closer_to_a_dense_trace_and_caches(tmp_path):
         trace_links(scene, poses[:2], tags, share_radius_m=0.5, lattice_spacing_m=0.25, **kw)
 
 
+def _solver_paths(rts, source, receivers, max_depth, samples, seed) -> dict:
+    """Sionna's bare PathSolver from one source: ``valid`` and ``tau`` (n_rx, P), and per
+    valid path (row-major) ``k_tx``, ``k_rx`` (3,) and the 2x2 transfer matrix ``a``."""
+    import sionna.rt as rt
+
+    from propagation.patterns import unit_vec_from_theta_phi
+    from propagation.sionna_scene import clear_devices, place_devices
+
+    place_devices(rts, source, receivers)
+    paths = rt.PathSolver()(rts, max_depth=max_depth, samples_per_src=samples,
+                            max_num_paths_per_src=samples * (max_depth + 1), synthetic_array=True,
+                            los=True, specular_reflection=True, diffuse_reflection=False,
+                            refraction=True, diffraction=False, seed=seed)
+    n_rx = len(receivers)
+    a_re, a_im = (x.numpy() for x in paths.a)  # (n_rx, 2, 1, 2, P)
+    n_p = a_re.shape[-1]
+    a = (a_re + 1j * a_im).reshape(n_rx, 2, 2, n_p).transpose(0, 3, 1, 2)
+    per_rx = {k: getattr(paths, k).numpy().reshape(n_rx, n_p)
+              for k in ("valid", "tau", "theta_t", "phi_t", "theta_r", "phi_r")}
+    clear_devices(rts)
+    v = per_rx["valid"].astype(bool)
+    return {"valid": v, "tau": per_rx["tau"].astype(float), "a": a[v],
+            "k_tx": unit_vec_from_theta_phi(per_rx["theta_t"][v], per_rx["phi_t"][v]),
+            "k_rx": unit_vec_from_theta_phi(per_rx["theta_r"][v], per_rx["phi_r"][v])}
+
+
 def test_lone_position_is_the_solvers_paths_without_its_copies():
     # A position with no neighbour is solved as the sharing's step 1: Sionna's own rays,
     # image method and fields, without its Paths object. Sionna's PathSolver returns some
     # paths twice (the same reflection through two triangles of one plane: same length,
-    # directions and transfer matrix; 21 of 2,388 paths at this corridor_lab pose); here
-    # they are counted once. One Dr.Jit thread, so both calls find the same chains.
+    # directions and transfer matrix; 21 of 2,388 paths at this corridor_lab pose); the
+    # sharing and direct tracing count them once. One Dr.Jit thread, so every call finds
+    # the same chains.
     import scenes
     from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
 
@@ -301,13 +328,19 @@ def test_lone_position_is_the_solvers_paths_without_its_copies():
     try:
         lone = trace_links(scene, pose, tags, max_depth=5, samples_per_src=30000, share_radius_m=1.0,
                            shared_samples_per_src=3000, seed=42)
-        raw = _trace_chunk(rts, pose[:, :3], tags, 5, 30000, 42)[0]
+        raw = _solver_paths(rts, pose[:, :3], tags, 5, 30000, 42)
+        direct = trace_links(scene, pose, tags, max_depth=5, samples_per_src=30000, seed=42)
     finally:
         set_deterministic(False)
-    tg = np.repeat(np.arange(len(tags)), np.diff(raw.offsets))
-    order = np.lexsort((raw.tau_s, tg))
-    copies = path_copies(np.zeros(len(tg), np.int64), tg[order], raw.tau_s[order] * C0,
-                         raw.k_tx[order], raw.k_rx[order], raw.transfer[order])
+    n_rx = len(tags)
+    tg = np.nonzero(raw["valid"])[0]
+    order = np.lexsort((raw["tau"][raw["valid"]], tg))
+    tau = raw["tau"][raw["valid"]][order]
+    copies = path_copies(np.zeros(len(tg), np.int64), tg[order], tau * C0, raw["k_tx"][order],
+                         raw["k_rx"][order], raw["a"][order])
     assert copies.sum() > 0  # the scene and pose are chosen to have some
-    per_tag = np.bincount(tg, minlength=len(tags)) - np.bincount(tg[order][copies], minlength=len(tags))
+    per_tag = np.bincount(tg, minlength=n_rx) - np.bincount(tg[order][copies], minlength=n_rx)
     np.testing.assert_array_equal(lone.n_paths[0], per_tag)
+    # direct tracing counts them once too
+    np.testing.assert_array_equal(direct.n_paths[0], per_tag)
+    np.testing.assert_allclose(direct.gain_db, lone.gain_db, atol=1e-3)
