@@ -5,9 +5,10 @@ Stages, one module each (inputs in brackets; each also depends on its upstream s
     scene         load the scene, write scene/ (summary, tags, floor plan)   [scene]
     tour          guided tour + evaluation path, odometry, laser, MCL        [robot, tour, localisation]
     reads         ray-traced reader simulation -> reads/poses Parquet         [reader, tracing]
+    truth_traces  truth's traces: tag sites, Fig. 6 points, RSSI fields       [evaluation, tracing]
     training_sets SSM / TDM samples (MCL and true poses)                       [training bins]
     models        FCM + ANFIS (SSM, TDM; MCL and true poses), baselines        [training fit]
-    truth         detection truth grid, Fig. 6 traced points, RSSI fields      [evaluation]
+    truth         detection truth grids, Fig. 6 truth from the traced points  [evaluation]
     downstream    held-out tags, then the robot, localised with each model     [downstream]
     evaluation    metrics.json                                                 [evaluation]
     figures       figures/*.png (pipeline.figures.draw_all)
@@ -19,9 +20,10 @@ engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` han
 :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info`.
 
 The scene stage always runs (it is cheap) so an edited scene file changes its
-outputs' digest and everything downstream re-runs. ``downstream`` reads nothing of
-``truth``: it runs in a process of its own beside it (``Stage.own_process``,
-:mod:`pipeline.stageproc`).
+outputs' digest and everything downstream re-runs. Two stages run in a process of
+their own beside the stage before them, which they do not read (``Stage.own_process``,
+:mod:`pipeline.stageproc`): ``truth_traces`` (its antenna poses come from the tour's
+track) beside ``reads``, ``downstream`` beside ``truth``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from pipeline.stages import (
     tour,
     training_sets,
     truth,
+    truth_traces,
 )
 from pipeline.stages.checks import CHECKS, check_antenna_mounts
 from pipeline.stages.common import manifest_info, resolve_cache_dir
@@ -66,6 +69,7 @@ STAGES: tuple[Stage, ...] = (
     scene.STAGE,
     tour.STAGE,
     reads.STAGE,
+    truth_traces.STAGE,
     training_sets.STAGE,
     models.STAGE,
     truth.STAGE,

@@ -29,9 +29,11 @@ __all__ = [
     "load_scene",
     "manifest_info",
     "preferred_backend",
+    "attempt_poses",
     "read_reads",
+    "read_track",
     "resolve_cache_dir",
-    "sample_poses",
+    "spread_evenly",
     "select_backend",
     "split_tags",
     "stage_rng",
@@ -238,13 +240,43 @@ def read_reads(ctx, prefix: str = ""):
     return df, meta
 
 
-def sample_poses(reads, n: int, tilt_rad: dict) -> np.ndarray:
-    """``n`` true antenna poses (x, y, z, yaw, pitch, roll) spread evenly over the tour."""
-    cols = ["true_ant_x_m", "true_ant_y_m", "true_ant_z_m", "true_ant_yaw_rad"]
-    att = reads.drop_duplicates(["time_s", "antenna"])
-    poses = att[cols].to_numpy(float)
-    pitch = np.array([tilt_rad[int(a)] for a in att["antenna"]])
-    poses = np.column_stack([poses, pitch, np.zeros(len(poses))])
+def read_track(ctx, name: str):
+    """The ``tour/<name>_track.npz`` pose track (``"train"`` or ``"eval"``) as a
+    ``pipeline.acquisition.PoseTrack`` (an error names the file)."""
+    from pipeline.acquisition import PoseTrack
+
+    path = ctx.input(f"tour/{name}_track.npz")
+    try:
+        with np.load(path) as z:
+            return PoseTrack(t_s=z["t_s"], true_poses=z["true"], est_poses=z["est"],
+                             odom_poses=z["odom"])
+    except (OSError, KeyError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read pose track ({exc}); delete it to re-run the tour") from None
+
+
+def attempt_poses(ctx, name: str) -> np.ndarray:
+    """True antenna poses of the tour's read attempts, in time order, as the read log holds
+    them (float32 positions and yaw; :func:`pipeline.acquisition.read_attempts` on the
+    tour's track: they need no reads), with the antenna's tilt as pitch.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_attempts, 6), float64
+        [x_m, y_m, z_m, yaw_rad, pitch_rad, roll_rad].
+    """
+    from pipeline.acquisition import read_attempts
+
+    cfg = ctx.config
+    att = read_attempts(read_track(ctx, name), list(build_robot(cfg).antennas), cfg.reader,
+                        frequency_hz=cfg.frequency_hz)
+    tilt = antenna_tilts(cfg)
+    poses = np.asarray(att.true_antenna, np.float64)[:, :4].astype(np.float32).astype(np.float64)
+    pitch = np.array([tilt[int(a)] for a in att.antenna], float)
+    return np.column_stack([poses, pitch, np.zeros(len(poses))])
+
+
+def spread_evenly(poses: np.ndarray, n: int) -> np.ndarray:
+    """``n`` of ``poses`` (rows) spread evenly over them, the first and last left out."""
     idx = np.linspace(0, len(poses) - 1, n + 2)[1:-1].round().astype(int)
     return poses[idx]
 

@@ -171,7 +171,7 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 
 STAGE = Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
-              ("scene", "tour", "reads", "models", "truth", "downstream"),
+              ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
               version=8,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
               # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
               # 8: the Gen2 reader's miss probability at tag sites and fields

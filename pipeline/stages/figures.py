@@ -43,5 +43,6 @@ def stage_figures(ctx) -> dict:
     return {"n_files": len(paths)}
 
 
-STAGE = Stage("figures", stage_figures, (), ("scene", "tour", "reads", "models", "truth", "evaluation"),
+STAGE = Stage("figures", stage_figures, (), ("scene", "tour", "reads", "truth_traces", "models", "truth",
+                                                        "evaluation"),
               description="figures")

@@ -4,12 +4,11 @@ reads the training tags, the evaluation path the held-out ones (``pipeline.acqui
 
 from __future__ import annotations
 
-import numpy as np
-
 from pipeline.stages.common import (
     TRACING_KEYS,
     build_robot,
     load_scene,
+    read_track,
     resolve_cache_dir,
     select_backend,
     split_tags,
@@ -19,18 +18,6 @@ from pipeline.stages.common import (
 from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_reads"]
-
-
-def _read_track(ctx, name: str):
-    from pipeline.acquisition import PoseTrack
-
-    path = ctx.input(f"tour/{name}_track.npz")
-    try:
-        with np.load(path) as z:
-            return PoseTrack(t_s=z["t_s"], true_poses=z["true"], est_poses=z["est"],
-                             odom_poses=z["odom"])
-    except (OSError, KeyError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot read pose track ({exc}); delete it to re-run the tour") from None
 
 
 def stage_reads(ctx) -> dict:
@@ -51,7 +38,7 @@ def stage_reads(ctx) -> dict:
     rng = stage_rng(cfg, "reads")
     info = {"variant": variant, "cache_dir": str(cache)}
     for name, prefix in (("train", ""), ("eval", "eval_")):
-        track = _read_track(ctx, name)
+        track = read_track(ctx, name)
         opts = trace_options(cfg)
         opts["progress"] = ctx.progress(f"tracing {name} links")
         # held out: the training tour reads only the training tags, the evaluation tour

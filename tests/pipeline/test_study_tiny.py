@@ -89,7 +89,7 @@ def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path):
     shutil.copytree(base / "run", run)
     before = (run / "reads.parquet").stat().st_mtime_ns
     res = run_full_study(replace_path(cfg, "training.epochs", 4), run, command_line=["pytest"])
-    assert res.cached == ["scene", "tour", "reads", "training_sets"]
+    assert res.cached == ["scene", "tour", "reads", "truth_traces", "training_sets"]
     assert res.ran == ["models", "truth", "downstream", "evaluation", "figures", "report"]
     assert (run / "reads.parquet").stat().st_mtime_ns == before
     hist = json.loads((run / "models" / "training_history.json").read_text())
