@@ -20,10 +20,9 @@ engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` han
 :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info`.
 
 The scene stage always runs (it is cheap) so an edited scene file changes its
-outputs' digest and everything downstream re-runs. Two stages run in a process of
-their own beside the stage before them, which they do not read (``Stage.own_process``,
-:mod:`pipeline.stageproc`): ``truth_traces`` (its antenna poses come from the tour's
-track) beside ``reads``, ``downstream`` beside ``truth``.
+outputs' digest and everything downstream re-runs. ``truth_traces`` runs in a process
+of its own beside ``reads``, which it does not read (``Stage.own_process``,
+:mod:`pipeline.stageproc`; its antenna poses come from the tour's track).
 """
 
 from __future__ import annotations

@@ -197,6 +197,4 @@ STAGE = Stage("downstream", stage_downstream,
               # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
               # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
               # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin)
-              description="downstream localisation (tags, robot)",
-              # reads nothing of the truth stage before it: runs beside it (pipeline.stageproc)
-              own_process=True)
+              description="downstream localisation (tags, robot)")
