@@ -153,7 +153,8 @@ def run(
 
     Stages: scene -> tour (robot, MCL) -> reads (ray-traced, train tour and the held-out
     evaluation path) -> training sets -> models (FCM + ANFIS; MCL-pose and true-pose;
-    baselines) -> truth -> evaluation -> figures -> report. Each stage is cached in the
+    baselines) -> truth -> downstream -> evaluation -> figures -> report; truth_traces
+    (the truth's ray traces) runs beside reads. Each stage is cached in the
     run directory and skipped when its inputs are unchanged; ray traces are cached in
     the shared propagation cache (tracing.cache_dir).
 

@@ -283,9 +283,11 @@ class RunStore:
 
         Each stage owns its outputs: a file the stage's previous record lists that this
         run did not write is removed, so a run directory never holds a stale output of
-        an earlier config (fewer sample poses, no field) beside the fresh ones.
+        an earlier config (fewer sample poses, no field) beside the fresh ones; unless
+        another stage's record lists it now (an output that moved to another stage).
         """
         previous = self.read_record(stage)
+        others = {rel for name, rec in self.records().items() if name != stage for rel in rec.outputs}
         self.record_path(stage).unlink(missing_ok=True)
         outputs = {}
         for f in sorted(p for p in staged.rglob("*") if p.is_file()):
@@ -295,7 +297,7 @@ class RunStore:
             dest.parent.mkdir(parents=True, exist_ok=True)
             os.replace(f, dest)
         shutil.rmtree(staged, ignore_errors=True)
-        for rel in sorted(set(previous.outputs) - set(outputs)) if previous is not None else ():
+        for rel in sorted(set(previous.outputs) - set(outputs) - others) if previous is not None else ():
             self.path(rel).unlink(missing_ok=True)
         rec = StageRecord(stage=stage, inputs_hash=inputs_hash, outputs=outputs,
                           elapsed_s=round(elapsed_s, 3), peak_rss_mib=round(peak_rss_mib, 1),

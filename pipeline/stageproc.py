@@ -1,15 +1,18 @@
 """A stage in a process of its own, running beside the stage before it.
 
 Two stages that do not depend on each other can run at the same time: the study's
-``truth`` (Dr.Jit tracing, whose kernel compiling and NumPy bookkeeping leave a core
-idle) and ``downstream`` (NumPy filters) do not read each other's outputs. The runner
+``reads`` (the reader simulation's tracing, whose kernel compiling and NumPy
+bookkeeping leave a core idle) and ``truth_traces`` (the truth's traces at tag sites,
+whose antenna poses come from the tour's track) do not read each other's outputs. The runner
 (:func:`pipeline.study.run_study`) starts a stage marked ``own_process`` in a *spawned*
 process (a fresh interpreter: the parent's Dr.Jit threads and locks are never inherited,
 so either stage may trace) while the stage before it runs in this process, then commits
-the two in their order. The child writes only into its own staging directory and sends
+the two in their order. The child writes its outputs only into its own staging
+directory (and shares the propagation cache, which several processes may fill) and sends
 back its summary (or its error); nothing it computes depends on the process it runs in
 (each stage draws from its own seeded stream), so its outputs are those of a run one
-after the other.
+after the other. On Linux the child ends with its parent (``PR_SET_PDEATHSIG``): a
+killed run leaves no process writing into a staging directory the next run reuses.
 
 Side by side only where it can help and is allowed: more than one usable CPU, the
 environment variable ``RFIDSTUDY_WORKERS`` not set to 1 (a sweep's worker process caps
@@ -47,6 +50,8 @@ class StageProcessError(RuntimeError):
         Its message.
     cause : BaseException or None
         The exception itself, when it could be pickled.
+    child_traceback : str
+        Its traceback in the stage's process, formatted.
     """
 
     def __init__(self, kind: str, detail: str, cause: BaseException | None = None,
@@ -68,8 +73,27 @@ def _log_levels() -> dict[str, int]:
     return {name: logging.getLogger(name).level for name in _LOGGERS}
 
 
+def _end_with_parent() -> None:
+    """Linux: SIGTERM this process when its parent dies (a killed run's child must not
+    go on writing into the run directory); elsewhere nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent died before the call
+        os._exit(1)
+
+
 def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict) -> None:
     """Body of the spawned process: run ``func`` on a context of its own, report back."""
+    _end_with_parent()
     from pipeline.runlog import final_paths_in_logs, reproducible_outputs
     from pipeline.runstore import RunStore
     from pipeline.study import StageContext, peak_rss_mib
@@ -124,7 +148,16 @@ class StageProcess:
         send.close()  # the child holds the only sending end: its death ends recv()
 
     def result(self) -> tuple[dict, float, float]:
-        """Wait for the stage: ``(info, elapsed_s, peak_rss_mib)`` of the child.
+        """Wait for the stage.
+
+        Returns
+        -------
+        info : dict
+            What the stage's function returned.
+        elapsed_s : float
+            Its wall time in the child [s].
+        peak_rss_mib : float
+            The child's peak resident memory [MiB].
 
         Raises
         ------

@@ -457,11 +457,11 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                         result.cached.append(st.name)  # re-checked, outputs unchanged
                     else:
                         result.ran.append(st.name)
-                    if side is not None:  # committed; the other one still runs
-                        current = side.stage.name
-                        manifest("running", current)
                 result.records[st.name] = rec
                 digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
+                if side is not None:  # committed (and in the manifest); the other still runs
+                    current = side.stage.name
+                    manifest("running", current)
             current = None
         manifest("complete", extra=manifest_extra)
         store.remove_staging_root()
@@ -533,12 +533,18 @@ def _start_side(st: Stage | None, config, store, digests, force, prog) -> _Side 
     rec, reason = _record_or_reason(st, store, force, inputs_hash)
     if rec is not None:
         return None
-    log.info("stage %s: running in its own process (%s)", st.name, reason)
     staged = store.staging(st.name)
+    try:
+        proc = StageProcess(st.func, st.name, config, store.root, staged)
+    except Exception as exc:  # noqa: BLE001 - no process (resources, platform): in order, here
+        store.discard(st.name)
+        log.warning("stage %s could not start a process of its own (%s: %s); it runs after "
+                    "the stage before it", st.name, type(exc).__name__, exc)
+        return None
+    log.info("stage %s: running in its own process (%s)", st.name, reason)
     task = None if prog is None else prog.add_task(f"{st.name}: {st.description} (own process)",
                                                    total=1)
-    return _Side(st, inputs_hash, staged, StageProcess(st.func, st.name, config, store.root, staged),
-                 task)
+    return _Side(st, inputs_hash, staged, proc, task)
 
 
 def _finish_side(side: _Side, store, result, prog, manifest, manifest_extra) -> StageRecord:

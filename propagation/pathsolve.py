@@ -86,7 +86,7 @@ def padded_target_count(n_targets: int) -> int:
     """Receivers a ``PathSolver`` call is given for ``n_targets`` tags.
 
     Sionna's shooting kernel loops over the targets with their count as a literal, so
-    every new count compiles it anew (~1 s on 2 cores): the truth stage's lone traces,
+    every new count compiles it anew (~1 s on 2 cores): the truth's lone traces (truth_traces),
     each against another number of tag sites, compiled it 16 times in a cold study.
     Counts up to 32 are kept; larger ones are rounded up to a quarter octave (at most
     25 % more receivers, whose paths are dropped): four kernels per doubling.

@@ -210,6 +210,8 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     n, m = len(pos), len(tgt)
     if len(neighbours) != n:
         raise ValueError(f"need one neighbour list per position: {len(neighbours)} for {n}")
+    if not 0 <= int(n_padding) <= m:
+        raise ValueError(f"n_padding must be within [0, {m}] (the targets), got {n_padding!r}")
     need = np.ones((n, m), bool)
     need[:, m - int(n_padding):] = False
     place_devices(rt_scene)

@@ -24,18 +24,18 @@ __all__ = [
     "POSE_SOURCES",
     "TRACING_KEYS",
     "antenna_tilts",
+    "attempt_poses",
     "build_robot",
     "link_budget",
     "load_scene",
     "manifest_info",
     "preferred_backend",
-    "attempt_poses",
     "read_reads",
     "read_track",
     "resolve_cache_dir",
-    "spread_evenly",
     "select_backend",
     "split_tags",
+    "spread_evenly",
     "stage_rng",
     "study_route",
     "study_scene",
@@ -44,7 +44,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Config keys every traced result depends on (the reads and the truth stages).
+#: Config keys every traced result depends on (the reads and truth_traces stages).
 TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
                 "tracing.reader_pattern", "tracing.tag_pattern", "tracing.reader_polarization",
                 "tracing.backend", "tracing.lattice_spacing_m", "tracing.completion_order",
@@ -241,8 +241,22 @@ def read_reads(ctx, prefix: str = ""):
 
 
 def read_track(ctx, name: str):
-    """The ``tour/<name>_track.npz`` pose track (``"train"`` or ``"eval"``) as a
-    ``pipeline.acquisition.PoseTrack`` (an error names the file)."""
+    """The tour's pose track ``tour/<name>_track.npz``.
+
+    Parameters
+    ----------
+    ctx : pipeline.study.StageContext
+    name : {"train", "eval"}
+
+    Returns
+    -------
+    pipeline.acquisition.PoseTrack
+
+    Raises
+    ------
+    ValueError
+        The file cannot be read (the message names it).
+    """
     from pipeline.acquisition import PoseTrack
 
     path = ctx.input(f"tour/{name}_track.npz")
@@ -258,6 +272,12 @@ def attempt_poses(ctx, name: str) -> np.ndarray:
     """True antenna poses of the tour's read attempts, in time order, as the read log holds
     them (float32 positions and yaw; :func:`pipeline.acquisition.read_attempts` on the
     tour's track: they need no reads), with the antenna's tilt as pitch.
+
+    Parameters
+    ----------
+    ctx : pipeline.study.StageContext
+    name : {"train", "eval"}
+        The tour.
 
     Returns
     -------

@@ -94,8 +94,8 @@ def _free_space_view(ctx, eval_reads, budget) -> dict:
 
 
 STAGE = Stage("truth", stage_truth,
-              ("seed", "reader", "evaluation", "training.d_max_m", "training.d_bin_m",
-               "training.alpha_bin_deg"),
+              ("seed", "frequency_hz", "reader", "robot", "evaluation", "training.d_max_m",
+               "training.d_bin_m", "training.alpha_bin_deg"),
               ("scene", "reads", "models", "truth_traces"),
               version=4,  # 2: held-out grid, tag sites, eval poses; 3: the Gen2 reader's miss
               # probability from the tags in the field; 4: the traces in their own stage

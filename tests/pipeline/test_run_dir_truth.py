@@ -8,7 +8,7 @@ no field behind, and re-fitting the models with the same inputs writes the same 
 so that every later stage stays cached.
 
 Traces are made on one thread (``tracing.deterministic``) so that the RSSI field, which
-the truth stage traces afresh in each run, is bit-identical between the two directories.
+the truth_traces stage traces afresh in each run, is bit-identical between the two directories.
 """
 
 from __future__ import annotations

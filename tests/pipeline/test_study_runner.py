@@ -342,3 +342,33 @@ def test_every_study_stage_depends_on_real_keys():
 
     for st in STAGES:
         assert all(is_config_key(k) for k in st.config_keys), st.name
+
+
+def _old_a(ctx):
+    ctx.out("x.txt").write_text("x")
+    ctx.out("y.txt").write_text("y-old")
+
+
+def _new_a0(ctx):
+    ctx.out("y.txt").write_text("y-new")
+
+
+def _new_a(ctx):
+    ctx.out("x.txt").write_text("x")
+
+
+def test_an_output_that_moved_to_another_stage_stays(tmp_path):
+    # a new stage takes over an output another stage's old record lists (the study's
+    # truth_traces took truth/site_truth.npz from truth): the old owner's commit must not
+    # remove what the new owner has just written
+    run_study(StudyConfig(), tmp_path, stages=(Stage("a", _old_a, ("seed",)),),
+              manifest_extra=None, command_line=["test"])
+    new = (Stage("a0", _new_a0, ("seed",)), Stage("a", _new_a, ("seed",), version=2))
+    r = run_study(StudyConfig(), tmp_path, stages=new, manifest_extra=None, command_line=["test"])
+    assert r.ran == ["a0", "a"]
+    assert (tmp_path / "y.txt").read_text() == "y-new"
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert "y.txt" in man["files"] and "y.txt" in r.records["a0"].outputs
+    assert "y.txt" not in r.records["a"].outputs
+    assert run_study(StudyConfig(), tmp_path, stages=new, manifest_extra=None,
+                     command_line=["test"]).ran == []

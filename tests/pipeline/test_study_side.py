@@ -25,7 +25,8 @@ def _a(ctx):
     time.sleep(float(os.environ.get("TEST_SIDE_A_S", "1.0")))
     if ctx.config.training.step_size > 0.5:
         raise RuntimeError("a: step too large")
-    ctx.out("a.json").write_text(json.dumps({"pid": os.getpid(), "epochs": ctx.config.training.epochs}))
+    stage = json.loads(ctx.store.path("manifest.json").read_text())["stage"]
+    ctx.out("a.json").write_text(json.dumps({"pid": os.getpid(), "manifest_stage": stage}))
     return {"pid": os.getpid()}
 
 
@@ -70,6 +71,8 @@ def test_independent_stage_runs_in_its_own_process(tmp_path):
     assert r.ran == ["a", "b", "c"]
     pids = _pids(tmp_path)
     assert pids["a"] == os.getpid() and pids["b"] != os.getpid()
+    # while both ran, the manifest named both (a killed run says so)
+    assert json.loads((tmp_path / "a.json").read_text())["manifest_stage"] == "a + b"
     # the child sees what a stage here sees: reproducible dates
     assert json.loads((tmp_path / "b/out.json").read_text())["sde"] == "0"
     man = json.loads((tmp_path / "manifest.json").read_text())

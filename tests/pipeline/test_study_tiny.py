@@ -45,6 +45,18 @@ def test_first_run_produces_the_run_directory(tiny):
         assert (run / rel).is_file(), rel
     cov = json.loads((run / "metrics.json").read_text())["coverage"]
     assert 0 <= cov["corridor_fraction"] <= 1 and cov["fields"][0]["n_cells"] > 0
+    # truth_traces took its antenna poses from the tour's track: those of the read log
+    from pipeline.runstore import RunStore
+    from pipeline.stages.common import antenna_tilts, attempt_poses
+    from pipeline.study import StageContext
+
+    eval_reads = pd.read_parquet(run / "eval_reads.parquet").drop_duplicates(["time_s", "antenna"])
+    tilt = antenna_tilts(cfg)
+    logged = np.column_stack([eval_reads[["true_ant_x_m", "true_ant_y_m", "true_ant_z_m",
+                                          "true_ant_yaw_rad"]].to_numpy(float),
+                              [tilt[int(a)] for a in eval_reads["antenna"]], np.zeros(len(eval_reads))])
+    ctx = StageContext(cfg, RunStore(run), "check", run / "unused", None, {})
+    np.testing.assert_array_equal(attempt_poses(ctx, "eval"), logged)
     # the plane only: the wall map (tracing.field_walls, off) is what no figure uses
     with np.load(run / "fields/field_00.npz") as z:
         assert z["plane_gain"].size > 0 and z["wall_gain"].size == 0
