@@ -25,6 +25,8 @@ def _a(ctx):
     time.sleep(float(os.environ.get("TEST_SIDE_A_S", "1.0")))
     if ctx.config.training.step_size > 0.5:
         raise RuntimeError("a: step too large")
+    if ctx.config.training.step_size == 0.25:
+        raise KeyboardInterrupt  # Ctrl-C here, while b runs beside
     stage = json.loads(ctx.store.path("manifest.json").read_text())["stage"]
     ctx.out("a.json").write_text(json.dumps({"pid": os.getpid(), "manifest_stage": stage}))
     return {"pid": os.getpid()}
@@ -35,6 +37,10 @@ def _b(ctx):
         raise ValueError("b: unlucky epochs")
     if ctx.config.training.epochs == 14:
         raise KeyboardInterrupt
+    if ctx.config.training.epochs == 15:
+        os._exit(3)  # killed: no word back
+    if ctx.config.training.epochs == 16:
+        time.sleep(30)  # still running when the stage beside it is interrupted
     ctx.out("b/out.json").write_text(json.dumps({"pid": os.getpid(), "seed": ctx.config.seed,
                                                  "sde": os.environ.get("SOURCE_DATE_EPOCH")}))
     return {"pid": os.getpid()}
@@ -125,3 +131,24 @@ def test_interrupt_in_the_side_stage(tmp_path):
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["status"] == "interrupted" and man["stage"] == "b"
     assert (tmp_path / "a.json").exists() and not (tmp_path / ".staging" / "b").exists()
+
+
+def test_process_that_dies_is_the_stages_failure(tmp_path):
+    with pytest.raises(StageError, match=r"stage 'b' failed: ProcessDied: .*exit code 3"):
+        _run(replace_path(StudyConfig(), "training.epochs", 15), tmp_path)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "failed" and man["failure"]["stage"] == "b"
+    assert (tmp_path / "a.json").exists() and not (tmp_path / ".staging" / "b").exists()
+
+
+def test_interrupt_beside_the_side_stage_stops_both(tmp_path, monkeypatch):
+    monkeypatch.setenv("TEST_SIDE_A_S", "2.0")  # b is under way when a is interrupted
+    cfg = replace_path(replace_path(StudyConfig(), "training.step_size", 0.25), "training.epochs", 16)
+    t0 = time.perf_counter()
+    with pytest.raises(StudyInterrupted):
+        _run(cfg, tmp_path)
+    assert time.perf_counter() - t0 < 20  # b (30 s) was stopped, not waited for
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "interrupted" and man["stage"] == "a + b"
+    assert not (tmp_path / ".staging" / "a").exists() and not (tmp_path / ".staging" / "b").exists()
+    assert not (tmp_path / "stages" / "b.json").exists()
