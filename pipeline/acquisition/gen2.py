@@ -39,6 +39,7 @@ Miller 4: Impinj's dense-reader mode for ETSI) give empty / collided / single sl
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -232,11 +233,13 @@ def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Ge
     if len(players) == 0:  # nobody replies: every slot empty, nothing to simulate
         st.time_s += dwell_s
         return counts
-    audible = heard[players]
-    n_left = int(audible.sum())  # audible tags not yet read once (for until_all_read)
+    # plain Python over the few players: a dwell runs ~40 rounds of a handful of tags,
+    # where NumPy's per-call cost dominated (the same draws, the same order)
+    audible = heard[players].tolist()
+    n_left = int(sum(audible))  # audible tags not yet read once (for until_all_read)
     if until_all_read and n_left == 0:
         return counts
-    unread = np.ones(len(players), bool)
+    unread = [True] * len(players)
     qfp = float(cfg.q_initial)
     q = cfg.q_initial
     t = 0.0
@@ -244,15 +247,16 @@ def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Ge
     c = cfg.q_step
     while True:
         n_slots = 1 << q
-        idx = np.flatnonzero(unread)
-        slot_of = rng.integers(0, n_slots, size=len(idx))
-        order = np.argsort(slot_of, kind="stable")
-        slot_sorted = slot_of[order]
-        bounds = np.searchsorted(slot_sorted, np.arange(n_slots + 1))
+        idx = [j for j, u in enumerate(unread) if u]
+        slot_of = rng.integers(0, n_slots, size=len(idx)).tolist()
+        # the audible repliers of each slot, in player order (a stable sort by slot)
+        loud_in: dict[int, list[int]] = {}
+        for j, sl in zip(idx, slot_of, strict=True):
+            if audible[j]:
+                loud_in.setdefault(sl, []).append(j)
         adjust = False
         for s in range(n_slots):
-            replies = idx[order[bounds[s]:bounds[s + 1]]]
-            loud = replies[audible[replies]]
+            loud = loud_in.get(s, ())
             if len(loud) == 0:
                 dt, kind = tm.empty_s, 0
             elif len(loud) == 1:
@@ -281,8 +285,8 @@ def inventory(powered, heard, dwell_s: float, cfg: Gen2Config, rng: np.random.Ge
                 st.n_collided += 1
                 qfp = min(float(_Q_MAX), qfp + c)
             if kind == 0 and n_slots == 1:  # Q = 0 and silence: flip the target
-                unread[:] = True
-            new_q = int(np.floor(qfp + 0.5))
+                unread = [True] * len(players)
+            new_q = math.floor(qfp + 0.5)
             if new_q != q:
                 q, adjust = new_q, True
                 break
