@@ -29,11 +29,15 @@ import pickle
 import sys
 import time
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pipeline.parallel import WORKERS_ENV, usable_cpus
 
-__all__ = ["StageProcess", "StageProcessError", "side_by_side_allowed"]
+__all__ = ["Side", "StageProcess", "StageProcessError", "finish_side", "side_by_side_allowed", "start_side"]
+
+log = logging.getLogger(__name__)
 
 _LOGGERS = ("", "pipeline", "scenes", "propagation", "fuzzymodel")
 
@@ -188,3 +192,71 @@ class StageProcess:
                 self._proc.kill()
                 self._proc.join()
         self._recv.close()
+
+
+@dataclass
+class Side:
+    """A stage running in its own process: what :func:`finish_side` commits."""
+
+    stage: Any
+    inputs_hash: str
+    staged: Path
+    proc: Any
+    task: Any = None
+
+
+def start_side(st, config, store, digests, force, prog) -> Side | None:
+    """Start ``st`` in its own process if it may run beside the stage now starting: it
+    is marked ``own_process``, needs none of that stage's outputs (every upstream of it
+    is done) and must run."""
+    if st is None or not st.own_process or st.always or any(u not in digests for u in st.upstream):
+        return None
+    from pipeline.study import _inputs_hash, _record_or_reason
+
+    if not side_by_side_allowed():
+        return None
+    try:  # it travels to the new interpreter by reference
+        pickle.dumps((st.func, config))
+    except Exception as exc:  # noqa: BLE001 - any reason means: run it in order, here
+        log.debug("stage %s runs in this process: %s", st.name, exc)
+        return None
+    inputs_hash = _inputs_hash(st, config, digests)
+    rec, reason = _record_or_reason(st, store, force, inputs_hash)
+    if rec is not None:
+        return None
+    staged = store.staging(st.name)
+    try:
+        proc = StageProcess(st.func, st.name, config, store.root, staged)
+    except Exception as exc:  # noqa: BLE001 - no process (resources, platform): in order, here
+        store.discard(st.name)
+        log.warning("stage %s could not start a process of its own (%s: %s); it runs after "
+                    "the stage before it", st.name, type(exc).__name__, exc)
+        return None
+    log.info("stage %s: running in its own process (%s)", st.name, reason)
+    task = None if prog is None else prog.add_task(f"{st.name}: {st.description} (own process)",
+                                                   total=1)
+    return Side(st, inputs_hash, staged, proc, task)
+
+
+def finish_side(side: Side, store, result, prog, failed):
+    """Wait for the stage's process and commit its outputs (its ``StageRecord``); a failure
+    there is the stage's failure, given to ``failed(failure)`` for the manifest first."""
+    from pipeline.study import StageError, _utc_now
+
+    st = side.stage
+    try:
+        info, elapsed_s, peak = side.proc.result()
+    except StageProcessError as exc:
+        store.discard(st.name)
+        if exc.kind == "KeyboardInterrupt":
+            raise KeyboardInterrupt from None
+        log.debug("stage %s, in its own process:\n%s", st.name, exc.child_traceback)
+        failed({"stage": st.name, "error": f"{exc.kind}: {exc.detail}"})
+        raise StageError(f"stage {st.name!r} failed: {exc.kind}: {exc.detail} "
+                         f"(earlier stages' outputs in {store.root} are intact; "
+                         "fix the cause and rerun to resume)") from (exc.cause or exc)
+    if prog is not None and side.task is not None:
+        prog.update(side.task, completed=1)
+    rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, _utc_now(), info)
+    result.ran.append(st.name)
+    return rec

@@ -40,7 +40,6 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import logging
-import pickle
 import resource
 import sys
 import time
@@ -69,6 +68,7 @@ from pipeline.runstore import (
     open_run_dir,
     write_error,
 )
+from pipeline.stageproc import finish_side, start_side
 
 __all__ = [
     "RunDirError",
@@ -393,7 +393,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
         _write_manifest(store, config, result, started, t0, command_line, extra, failure,
                         status=status, stage=stage)
 
-    side: _Side | None = None  # a stage running in its own process beside ``current``
+    side = None  # a stage running in its own process beside ``current``
 
     def stop_side():
         nonlocal side
@@ -409,7 +409,8 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
             for k, st in enumerate(stages):
                 if side is not None and side.stage is st:  # started beside the stage before
                     current = st.name
-                    rec = _finish_side(side, store, result, prog, manifest, manifest_extra)
+                    rec = finish_side(side, store, result, prog,
+                                      lambda f: _safe(manifest, "failed", f["stage"], f, manifest_extra))
                     side = None
                     result.records[st.name] = rec
                     digests[st.name] = json_hash([rec.inputs_hash, rec.digest])
@@ -432,7 +433,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                             st.name, reason)
                     nxt = stages[k + 1] if k + 1 < len(stages) else None
                     if not checks and not st.always:
-                        side = _start_side(nxt, config, store, digests, force, prog)
+                        side = start_side(nxt, config, store, digests, force, prog)
                     if side is not None:
                         current = f"{st.name} + {side.stage.name}"
                     manifest("running", current)
@@ -501,75 +502,6 @@ def _record_or_reason(st: Stage, store: RunStore, force, inputs_hash: str):
     if st.always:
         return None, "always runs"
     return store.check_record(st.name, inputs_hash)
-
-
-@dataclass
-class _Side:
-    """A stage running in its own process (:mod:`pipeline.stageproc`)."""
-
-    stage: Stage
-    inputs_hash: str
-    staged: Path
-    proc: Any
-    task: Any = None
-
-
-def _start_side(st: Stage | None, config, store, digests, force, prog) -> _Side | None:
-    """Start ``st`` in its own process if it may run beside the stage now starting: it
-    is marked ``own_process``, needs none of that stage's outputs (every upstream of it
-    is done) and must run."""
-    if st is None or not st.own_process or st.always or any(u not in digests for u in st.upstream):
-        return None
-    from pipeline.stageproc import StageProcess, side_by_side_allowed
-
-    if not side_by_side_allowed():
-        return None
-    try:  # it travels to the new interpreter by reference
-        pickle.dumps((st.func, config))
-    except Exception as exc:  # noqa: BLE001 - any reason means: run it in order, here
-        log.debug("stage %s runs in this process: %s", st.name, exc)
-        return None
-    inputs_hash = _inputs_hash(st, config, digests)
-    rec, reason = _record_or_reason(st, store, force, inputs_hash)
-    if rec is not None:
-        return None
-    staged = store.staging(st.name)
-    try:
-        proc = StageProcess(st.func, st.name, config, store.root, staged)
-    except Exception as exc:  # noqa: BLE001 - no process (resources, platform): in order, here
-        store.discard(st.name)
-        log.warning("stage %s could not start a process of its own (%s: %s); it runs after "
-                    "the stage before it", st.name, type(exc).__name__, exc)
-        return None
-    log.info("stage %s: running in its own process (%s)", st.name, reason)
-    task = None if prog is None else prog.add_task(f"{st.name}: {st.description} (own process)",
-                                                   total=1)
-    return _Side(st, inputs_hash, staged, proc, task)
-
-
-def _finish_side(side: _Side, store, result, prog, manifest, manifest_extra) -> StageRecord:
-    """Wait for the stage's process and commit its outputs; a failure there is the stage's
-    failure, recorded in the manifest as one here would be."""
-    from pipeline.stageproc import StageProcessError
-
-    st = side.stage
-    try:
-        info, elapsed_s, peak = side.proc.result()
-    except StageProcessError as exc:
-        store.discard(st.name)
-        if exc.kind == "KeyboardInterrupt":
-            raise KeyboardInterrupt from None
-        log.debug("stage %s, in its own process:\n%s", st.name, exc.child_traceback)
-        _safe(manifest, "failed", st.name, {"stage": st.name, "error": f"{exc.kind}: {exc.detail}"},
-              manifest_extra)
-        raise StageError(f"stage {st.name!r} failed: {exc.kind}: {exc.detail} "
-                         f"(earlier stages' outputs in {store.root} are intact; "
-                         "fix the cause and rerun to resume)") from (exc.cause or exc)
-    if prog is not None and side.task is not None:
-        prog.update(side.task, completed=1)
-    rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, _utc_now(), info)
-    result.ran.append(st.name)
-    return rec
 
 
 def _run_checks(checks, config, store, prog, memo, result, manifest) -> None:
