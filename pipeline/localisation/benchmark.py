@@ -44,6 +44,7 @@ from .tags import localisation_summary, tag_position_errors
 
 __all__ = [
     "DetectionOnly",
+    "RobotRuns",
     "model_sources",
     "phase_posteriors",
     "robot_localisation",
@@ -157,6 +158,76 @@ def tag_localisation_scores(posteriors: dict, tag_map) -> dict:
     return out
 
 
+class RobotRuns:
+    """The RFID-only robot filter runs of :func:`robot_localisation`, one task each.
+
+    Built from the same arguments as :func:`robot_localisation` (less ``workers``), so
+    that a caller can run the filter runs where it likes, e.g. in one pool of forked
+    processes with other independent work: ``len(runs)`` tasks, :meth:`run` computes
+    one, :meth:`scores` turns the results of every task, in task order, into the
+    scores :func:`robot_localisation` returns. Every run has its own random stream, so
+    the scores do not depend on where or in which order the runs are computed.
+    """
+
+    def __init__(self, sources: dict, obs: Observations, tag_map, eval_poses: pd.DataFrame,
+                 mounts, free_space, rng: np.random.Generator, *,
+                 config: RfidMCLConfig | None = None, n_runs: int = 1) -> None:
+        if int(n_runs) < 1:
+            raise ValueError(f"n_runs must be >= 1, got {n_runs!r}")
+        self.sources, self.obs, self.tag_map = sources, obs, tag_map
+        self.mounts, self.free_space, self.config = mounts, free_space, config
+        self.t_s = eval_poses["time_s"].to_numpy(float)
+        self.odometry = eval_poses[["odom_x_m", "odom_y_m", "odom_theta_rad"]].to_numpy(float)
+        self.true = eval_poses[["true_x_m", "true_y_m", "true_theta_rad"]].to_numpy(float)
+        t, true = self.t_s, self.true
+        self.kidnap_time_s = float(t[0] + 0.5 * (t[-1] - t[0]))
+        # the filter is moved 3 m along the corridor's long axis, towards its middle
+        mid = np.asarray(true[:, :2].mean(axis=0))
+        k = int(np.searchsorted(t, self.kidnap_time_s))
+        p = true[min(k, len(true) - 1), :2]
+        axis = 0 if np.ptp(true[:, 0]) >= np.ptp(true[:, 1]) else 1
+        self.kidnap_offset = np.zeros(3)
+        self.kidnap_offset[axis] = 3.0 if p[axis] < mid[axis] else -3.0
+        self.jobs = [(name, r_run) for (name, _), r in zip(sources.items(), rng.spawn(len(sources)),
+                                                            strict=True)
+                     for r_run in r.spawn(int(n_runs))]
+
+    def __len__(self) -> int:
+        return len(self.jobs)
+
+    def run(self, i: int):
+        """Filter run `i` (:func:`~.robot.run_rfid_mcl`): model ``jobs[i][0]``, its own stream."""
+        name, r_run = self.jobs[i]
+        return run_rfid_mcl(self.sources[name], self.obs, self.tag_map, self.odometry, self.t_s,
+                            self.mounts, self.free_space, r_run, config=self.config,
+                            initial_pose=None, kidnap_time_s=self.kidnap_time_s,
+                            kidnap_offset=self.kidnap_offset)
+
+    def scores(self, results: list) -> dict:
+        """The scores of :func:`robot_localisation` from every run's result, in task order."""
+        if len(results) != len(self.jobs):
+            raise ValueError(f"expected {len(self.jobs)} filter results, got {len(results)}")
+        t, true, t_kid = self.t_s, self.true, self.kidnap_time_s
+        out = {}
+        for name in self.sources:
+            runs, traces = [], []
+            for (job_name, _), res in zip(self.jobs, results, strict=True):
+                if job_name != name:
+                    continue
+                true_at = np.column_stack([np.interp(res.t_s, t, true[:, j]) for j in range(2)]
+                                          + [np.interp(res.t_s, t, np.unwrap(true[:, 2]))])
+                runs.append(filter_metrics(res.t_s, res.est_poses, true_at, kidnap_time_s=t_kid))
+                err = np.hypot(res.est_poses[:, 0] - true_at[:, 0],
+                               res.est_poses[:, 1] - true_at[:, 1])
+                traces.append({"t_s": np.round(np.asarray(res.t_s, float) - t[0], 3).tolist(),
+                               "error_m": np.round(err, 4).tolist()})
+            m = _median_over_runs(runs)
+            m.update(traces[int(np.argmin([abs(x["median_m"] - m["median_m"]) for x in runs]))])
+            m["kidnap_s"] = t_kid - t[0]
+            out[name] = m
+        return out
+
+
 def robot_localisation(sources: dict, obs: Observations, tag_map, eval_poses: pd.DataFrame,
                        mounts, free_space, rng: np.random.Generator, *,
                        config: RfidMCLConfig | None = None, n_runs: int = 1,
@@ -201,47 +272,9 @@ def robot_localisation(sources: dict, obs: Observations, tag_map, eval_poses: pd
         ``n_runs``, ``median_m_runs`` / ``_min`` / ``_max``, and the median run's
         ``error_m`` / ``t_s`` lists for the figure.
     """
-    t = eval_poses["time_s"].to_numpy(float)
-    odo = eval_poses[["odom_x_m", "odom_y_m", "odom_theta_rad"]].to_numpy(float)
-    true = eval_poses[["true_x_m", "true_y_m", "true_theta_rad"]].to_numpy(float)
-    t_kid = float(t[0] + 0.5 * (t[-1] - t[0]))
-    # the filter is moved 3 m along the corridor's long axis, towards its middle
-    mid = np.asarray(true[:, :2].mean(axis=0))
-    k = int(np.searchsorted(t, t_kid))
-    p = true[min(k, len(true) - 1), :2]
-    axis = 0 if np.ptp(true[:, 0]) >= np.ptp(true[:, 1]) else 1
-    offset = np.zeros(3)
-    offset[axis] = 3.0 if p[axis] < mid[axis] else -3.0
-    if int(n_runs) < 1:
-        raise ValueError(f"n_runs must be >= 1, got {n_runs!r}")
-    jobs = [(name, r_run) for (name, _), r in zip(sources.items(), rng.spawn(len(sources)),
-                                                   strict=True)
-            for r_run in r.spawn(int(n_runs))]
-
-    def one_run(i: int):
-        name, r_run = jobs[i]
-        return run_rfid_mcl(sources[name], obs, tag_map, odo, t, mounts, free_space, r_run,
-                            config=config, initial_pose=None, kidnap_time_s=t_kid,
-                            kidnap_offset=offset)
-
-    results = map_forked(one_run, len(jobs), workers)
-    out = {}
-    for name in sources:
-        runs, traces = [], []
-        for (job_name, _), res in zip(jobs, results, strict=True):
-            if job_name != name:
-                continue
-            true_at = np.column_stack([np.interp(res.t_s, t, true[:, j]) for j in range(2)]
-                                      + [np.interp(res.t_s, t, np.unwrap(true[:, 2]))])
-            runs.append(filter_metrics(res.t_s, res.est_poses, true_at, kidnap_time_s=t_kid))
-            err = np.hypot(res.est_poses[:, 0] - true_at[:, 0], res.est_poses[:, 1] - true_at[:, 1])
-            traces.append({"t_s": np.round(np.asarray(res.t_s, float) - t[0], 3).tolist(),
-                           "error_m": np.round(err, 4).tolist()})
-        m = _median_over_runs(runs)
-        m.update(traces[int(np.argmin([abs(x["median_m"] - m["median_m"]) for x in runs]))])
-        m["kidnap_s"] = t_kid - t[0]
-        out[name] = m
-    return out
+    runs = RobotRuns(sources, obs, tag_map, eval_poses, mounts, free_space, rng,
+                     config=config, n_runs=n_runs)
+    return runs.scores(map_forked(runs.run, len(runs), workers))
 
 
 def _median_over_runs(runs: list) -> dict:

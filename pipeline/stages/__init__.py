@@ -9,7 +9,7 @@ Stages, one module each (inputs in brackets; each also depends on its upstream s
     training_sets SSM / TDM samples (MCL and true poses)                       [training bins]
     models        FCM + ANFIS (SSM, TDM; MCL and true poses), baselines        [training fit]
     truth         detection truth grids, Fig. 6 truth from the traced points  [evaluation]
-    downstream    held-out tags, then the robot, localised with each model     [downstream]
+    downstream    held-out tags and the robot, localised with each model       [downstream]
     evaluation    metrics.json                                                 [evaluation]
     figures       figures/*.png (pipeline.figures.draw_all)
     report        report.html

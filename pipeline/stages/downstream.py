@@ -108,6 +108,30 @@ def _robot_oracle(ctx, eval_tags, free):
     return FieldLikelihood(oracle, field), field.n_traced_links
 
 
+def _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources) -> tuple:
+    """The held-out tags' candidates and posteriors of every model and of the phase
+    estimator (NumPy only: safe in a forked process)."""
+    from pipeline.localisation import localise_tags
+    from pipeline.localisation.benchmark import phase_posteriors
+    from scenes.tagsites import tag_sites
+
+    cfg = ctx.config
+    cand = tag_sites(load_scene(ctx), spacing_m=cfg.downstream.candidate_spacing_m,
+                     z_range_m=tuple(cfg.evaluation.eval_tag_heights_m))
+    posts = localise_tags(obs, cand, sources)
+    # the phase estimator's candidates: within the farthest training read of a pose that
+    # read the tag; sub-apertures of 1 m of antenna travel (MCL drifts: on the tiny study
+    # they halve the horizontal error against whole-track groups, on exact poses they
+    # cost nothing)
+    d_read = reads.loc[reads["read"].to_numpy(bool), "d_est_m"].to_numpy(float)
+    reach = float(np.max(d_read)) if len(d_read) else None
+    post_p, phase_info = phase_posteriors(eval_reads, list(eval_tags.ids), cand,
+                                          reach_m=reach, combine_with=posts["anfis"],
+                                          segment_m=1.0)
+    posts.update(post_p)
+    return cand, posts, phase_info
+
+
 def stage_downstream(ctx) -> dict:
     """Tag localisation (every model + oracle) and RFID-only robot localisation."""
     import pandas as pd
@@ -116,17 +140,15 @@ def stage_downstream(ctx) -> dict:
     from pipeline.localisation import (
         RfidMCLConfig,
         as_free_space,
-        localise_tags,
         observations_from_reads,
     )
     from pipeline.localisation.benchmark import (
+        RobotRuns,
         model_sources,
-        phase_posteriors,
-        robot_localisation,
         tag_localisation_scores,
     )
+    from pipeline.parallel import map_forked
     from pipeline.robot import collision_map
-    from scenes.tagsites import tag_sites
 
     cfg = ctx.config
     dn = cfg.downstream
@@ -141,39 +163,38 @@ def stage_downstream(ctx) -> dict:
     sources = model_sources(_models(ctx), reads, cfg.training.d_max_m)
     obs = observations_from_reads(eval_reads, "est", tag_ids=list(eval_tags.ids),
                                   pitch_rad=antenna_tilts(cfg))
-    cand = tag_sites(sc, spacing_m=dn.candidate_spacing_m,
-                     z_range_m=tuple(cfg.evaluation.eval_tag_heights_m))
     update = ctx.progress("tags and robot", total=3)
-    posts = localise_tags(obs, cand, sources)
+    eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
+    free = as_free_space(collision_map(sc, robot))
+    robot_sources = dict(sources)
+    if dn.oracle:  # traced here, before any fork
+        robot_sources["oracle"], robot_field_links = _robot_oracle(ctx, eval_tags, free)
+    runs = RobotRuns(robot_sources, obs, eval_tags, eval_poses, list(robot.antennas), free,
+                     stage_rng(cfg, "downstream"),
+                     config=RfidMCLConfig(n_particles=dn.robot_particles), n_runs=dn.robot_runs)
+
+    # the tags' posteriors and the robot filter's runs are independent: one pool of forked
+    # processes computes both, the tag work first (the longest task), so that the filter
+    # runs fill the other processes meanwhile
+    def task(i: int):
+        if i == 0:
+            return _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources)
+        return runs.run(i - 1)
+
+    results = map_forked(task, 1 + len(runs), None)
+    cand, posts, phase_info = results[0]
+    info = {"n_tags": int(len(eval_tags)), "n_candidates": int(len(cand)), "phase": phase_info}
+    robot_scores = runs.scores(results[1:])
     update(advance=1)
-    info = {"n_tags": int(len(eval_tags)), "n_candidates": int(len(cand))}
-    # the phase estimator's candidates: within the farthest training read of a pose that
-    # read the tag; sub-apertures of 1 m of antenna travel (MCL drifts: on the tiny study
-    # they halve the horizontal error against whole-track groups, on exact poses they
-    # cost nothing)
-    d_read = reads.loc[reads["read"].to_numpy(bool), "d_est_m"].to_numpy(float)
-    reach = float(np.max(d_read)) if len(d_read) else None
-    post_p, info["phase"] = phase_posteriors(eval_reads, list(eval_tags.ids), cand,
-                                             reach_m=reach, combine_with=posts["anfis"],
-                                             segment_m=1.0)
-    posts.update(post_p)
     if dn.oracle:
         post_o, info["oracle"] = _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand)
+        info["oracle"]["robot_field_links"] = robot_field_links
         posts.update(post_o)
     update(advance=1)
     tag_scores = tag_localisation_scores(posts, eval_tags)
     if not info["phase"]["run"]:  # recorded, never silently left out
         for name in ("phase", "phase_anfis"):
             tag_scores[name] = {"not_run": info["phase"]["reason"]}
-    eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
-    free = as_free_space(collision_map(sc, robot))
-    robot_sources = dict(sources)
-    if dn.oracle:
-        robot_sources["oracle"], info["oracle"]["robot_field_links"] = _robot_oracle(ctx, eval_tags, free)
-    robot_scores = robot_localisation(robot_sources, obs, eval_tags, eval_poses, list(robot.antennas),
-                                      free, stage_rng(cfg, "downstream"),
-                                      config=RfidMCLConfig(n_particles=dn.robot_particles),
-                                      n_runs=dn.robot_runs, workers=None)
     update(advance=1)
     rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
             for t, e in s.pop("per_tag_m", {}).items()]

@@ -215,3 +215,14 @@ def test_filter_runs_side_by_side_score_as_one_after_the_other(sensor):
     # the two sources are the same model: only their streams differ, so their runs must
     # differ (a worker handing back one stream's run for every job would make them equal)
     assert one["bayes"]["median_m_runs"] != one["again"]["median_m_runs"]
+    # the runs as tasks of the caller's own (downstream: beside the tag work), computed in
+    # reverse order: the same scores once handed back in task order
+    from pipeline.localisation.benchmark import RobotRuns
+
+    runs = RobotRuns(sources, obs, (IDS, TAGS), eval_poses, default_antennas(), FREE,
+                     np.random.default_rng(11), **kw)
+    assert len(runs) == 6
+    results = [runs.run(i) for i in reversed(range(len(runs)))][::-1]
+    assert json.dumps(runs.scores(results), sort_keys=True) == json.dumps(one, sort_keys=True)
+    with pytest.raises(ValueError, match="expected 6 filter results"):
+        runs.scores(results[:-1])
