@@ -48,6 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .observations import near_geometry, pair_geometry
+
 __all__ = [
     "EPS",
     "Z_CLIP",
@@ -323,6 +325,17 @@ class ModelLikelihood:
                              mu.reshape(shape), sd.reshape(shape), flat.reshape(shape),
                              self.z_clip)
 
+    def _far_loglik(self, d: np.ndarray, read: np.ndarray, rssi: np.ndarray) -> np.ndarray:
+        """The far rule's log-likelihood of every (n, k) pair: one of two values per tag
+        (``d`` below or beyond ``d_far_m``), exactly as the terms compute it (log P(read)
+        plus the flat RSSI density of a reported RSSI)."""
+        p = self.far_probability(np.array([-np.inf, np.inf]))
+        rssi_term = np.where(np.isfinite(rssi), self.flat_logpdf, 0.0)
+        v_read = rssi_term[None, :] + np.log(p)[:, None]  # (2, k): below, beyond d_far_m
+        v_miss = np.log1p(-p)[:, None]
+        v = np.where(read[None, :], v_read, v_miss)
+        return np.where(d < self.d_far_m, v[0], v[1])
+
     def pair_loglik(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:
         """``log p(read, rssi | d, alpha)`` of every (pose, tag) pair of one attempt slot.
 
@@ -354,15 +367,7 @@ class ModelLikelihood:
                              f"(k,); got {d.shape}, {a.shape}, {read.shape}, {rssi.shape}")
         if self.d_max_m is None:  # no far rule: every pair is the model's
             return self.terms(d, a).loglik(read[None, :], rssi[None, :])
-        # the far rule's value per tag, for d < d_far_m and beyond, exactly as the terms
-        # compute it (log P(read) plus the flat RSSI density of a reported RSSI)
-        p = self.far_probability(np.array([-np.inf, np.inf]))
-        finite = np.isfinite(rssi)
-        rssi_term = np.where(finite, self.flat_logpdf, 0.0)
-        v_read = rssi_term[None, :] + np.log(p)[:, None]  # (2, k): below, beyond d_far_m
-        v_miss = np.log1p(-p)[:, None]
-        v = np.where(read[None, :], v_read, v_miss)
-        out = np.where(d < self.d_far_m, v[0], v[1])
+        out = self._far_loglik(d, read, rssi)
         near = (d < self.d_max_m) & np.isfinite(a)
         if not near.any():
             return out
@@ -373,6 +378,43 @@ class ModelLikelihood:
         # a single row), and the filter's resampling would then differ
         out[near] = self.terms(dn, an).loglik(readn, rn)
         return out
+
+    def pose_loglik(self, antenna_poses, points_m, read, rssi_dbm) -> np.ndarray:
+        """``log p`` of one attempt slot's outcomes of `points_m`, per antenna pose.
+
+        Equal, value for value, to ``pair_loglik(d, alpha, read, rssi_dbm).sum(axis=1)``
+        with ``d, alpha = pair_geometry(antenna_poses, points_m, alpha_needed_within_m)``,
+        in fewer passes over the (n, k) pairs (the robot filter's inner loop): the near
+        pairs are found once, by flat index, and their bearings are never scattered into
+        an (n, k) matrix.
+
+        Parameters
+        ----------
+        antenna_poses : array_like, shape (n, 4) or (n, 6)
+            [x_m, y_m, z_m, yaw_rad(, pitch_rad, roll_rad)].
+        points_m : array_like, shape (k, 3)
+            Tag positions [m].
+        read, rssi_dbm : array_like, shape (k,)
+            As :meth:`pair_loglik`.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,), float64
+        """
+        if self.d_max_m is None:
+            d, a = pair_geometry(antenna_poses, points_m, self.alpha_needed_within_m)
+            return self.pair_loglik(d, a, read, rssi_dbm).sum(axis=1)
+        d, sel, an = near_geometry(antenna_poses, points_m, self.d_max_m)
+        read = np.asarray(read, dtype=bool)
+        rssi = np.asarray(rssi_dbm, dtype=np.float64)
+        if {read.shape, rssi.shape} != {(d.shape[1],)}:
+            raise ValueError(f"pose_loglik: read and rssi_dbm must be ({d.shape[1]},), got "
+                             f"{read.shape}, {rssi.shape}")
+        out = self._far_loglik(d, read, rssi)
+        if len(sel):
+            cols = sel % d.shape[1]
+            out.ravel()[sel] = self.terms(d.ravel()[sel], an).loglik(read[cols], rssi[cols])
+        return out.sum(axis=1)
 
     def log_likelihood(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:
         """Elementwise ``log p(read, rssi | d, alpha)`` (all four broadcast)."""

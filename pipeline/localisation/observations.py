@@ -28,6 +28,7 @@ from propagation.patterns import as_pose6, pose_rotation
 __all__ = [
     "Observations",
     "as_pose6",
+    "near_geometry",
     "observations_from_reads",
     "pair_geometry",
 ]
@@ -51,6 +52,46 @@ def pair_geometry(antenna_poses, points, alpha_within_m: float = np.inf):
     d_m, alpha_rad : numpy.ndarray, shape (n, k), float64
         As :func:`propagation.antenna_frame_angles` (alpha in (-pi, pi]).
     """
+    if np.isinf(alpha_within_m):
+        p = as_pose6(antenna_poses)
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        rot = pose_rotation(p)  # (n, 3, 3): columns are the local axes in world coordinates
+        dx = pts[None, :, 0] - p[:, None, 0]
+        dy = pts[None, :, 1] - p[:, None, 1]
+        dz = pts[None, :, 2] - p[:, None, 2]
+        d = np.sqrt(dx * dx + dy * dy + dz * dz)
+        rx, ry = rot[:, None, :, 0], rot[:, None, :, 1]  # local x and y axes (n, 1, 3)
+        lx = rx[..., 0] * dx + rx[..., 1] * dy + rx[..., 2] * dz
+        ly = ry[..., 0] * dx + ry[..., 1] * dy + ry[..., 2] * dz
+        return d, _wrapped_bearing(ly, lx)
+    d, sel, alpha_sel = near_geometry(antenna_poses, points, alpha_within_m)
+    alpha = np.full(d.shape, np.nan)
+    alpha.ravel()[sel] = alpha_sel
+    return d, alpha
+
+
+def near_geometry(antenna_poses, points, within_m: float):
+    """Distance of every pair, bearing of the pairs closer than `within_m` only.
+
+    The arithmetic of :func:`pair_geometry` (which this is, less the NaN-filled bearing
+    matrix), for a caller that only needs the near pairs' bearings (the robot filter:
+    :meth:`~.likelihood.ModelLikelihood.pose_loglik`).
+
+    Parameters
+    ----------
+    antenna_poses : array_like, shape (n, 4) or (n, 6)
+    points : array_like, shape (k, 3)
+    within_m : float
+        Finite distance [m].
+
+    Returns
+    -------
+    d_m : numpy.ndarray, shape (n, k), float64
+    sel : numpy.ndarray, shape (m,), int64
+        Flat (row-major) indices into ``d_m`` of the pairs with ``d_m < within_m``, ascending.
+    alpha_rad : numpy.ndarray, shape (m,), float64
+        Their bearings, in (-pi, pi].
+    """
     p = as_pose6(antenna_poses)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     rot = pose_rotation(p)  # (n, 3, 3): columns are the local axes in world coordinates
@@ -58,22 +99,16 @@ def pair_geometry(antenna_poses, points, alpha_within_m: float = np.inf):
     dy = pts[None, :, 1] - p[:, None, 1]
     dz = pts[None, :, 2] - p[:, None, 2]
     d = np.sqrt(dx * dx + dy * dy + dz * dz)
-    if np.isinf(alpha_within_m):
-        rx, ry = rot[:, None, :, 0], rot[:, None, :, 1]  # local x and y axes (n, 1, 3)
-        lx = rx[..., 0] * dx + rx[..., 1] * dy + rx[..., 2] * dz
-        ly = ry[..., 0] * dx + ry[..., 1] * dy + ry[..., 2] * dz
-        return d, _wrapped_bearing(ly, lx)
-    alpha = np.full(d.shape, np.nan)
     # the bearing of the pairs within reach only, gathered through flat indices (one
     # gather of both local axes per pair; the robot filter keeps ~20 % of its pairs)
-    sel = np.flatnonzero(d < float(alpha_within_m))
-    if len(sel):
-        axes = np.concatenate([rot[:, :, 0], rot[:, :, 1]], axis=1)[sel // d.shape[1]]  # (m, 6)
-        ex, ey, ez = dx.ravel()[sel], dy.ravel()[sel], dz.ravel()[sel]
-        lx = axes[:, 0] * ex + axes[:, 1] * ey + axes[:, 2] * ez
-        ly = axes[:, 3] * ex + axes[:, 4] * ey + axes[:, 5] * ez
-        alpha.ravel()[sel] = _wrapped_bearing(ly, lx)
-    return d, alpha
+    sel = np.flatnonzero(d < float(within_m))
+    if not len(sel):
+        return d, sel, np.zeros(0)
+    axes = np.concatenate([rot[:, :, 0], rot[:, :, 1]], axis=1)[sel // d.shape[1]]  # (m, 6)
+    ex, ey, ez = dx.ravel()[sel], dy.ravel()[sel], dz.ravel()[sel]
+    lx = axes[:, 0] * ex + axes[:, 1] * ey + axes[:, 2] * ez
+    ly = axes[:, 3] * ex + axes[:, 4] * ey + axes[:, 5] * ez
+    return d, sel, _wrapped_bearing(ly, lx)
 
 
 def _wrapped_bearing(ly: np.ndarray, lx: np.ndarray) -> np.ndarray:

@@ -47,7 +47,7 @@ from pipeline.robot.mcl import low_variance_resample
 from pipeline.robot.odometry import OdometryNoise, sample_motion_model_odometry
 
 from .likelihood import ModelLikelihood
-from .observations import Observations, pair_geometry
+from .observations import Observations
 from .tags import as_tag_map
 
 __all__ = [
@@ -255,8 +255,7 @@ class RfidParticleFilter:
             terms = self.likelihood.terms_for_particles(self.particles, int(antenna), keep)
             return terms.loglik(read[None, :], rssi[None, :]).sum(axis=1)
         ant = antenna_poses(self.particles, self.mounts[[int(antenna)]])[:, 0, :]  # (N, 6)
-        d, a = pair_geometry(ant, tags, alpha_within_m=self.likelihood.alpha_needed_within_m)
-        return self.likelihood.pair_loglik(d, a, read, rssi).sum(axis=1)
+        return self.likelihood.pose_loglik(ant, tags, read, rssi)
 
     def update(self, antenna: int, read, rssi_dbm, rng: np.random.Generator,
                attempted=None) -> None:

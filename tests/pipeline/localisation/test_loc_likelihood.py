@@ -189,6 +189,12 @@ def test_pair_loglik_is_the_terms_value_for_value(case, sensor, joho):
     want = lk.terms(d, a).loglik(read[None, :], rssi[None, :])
     assert np.isfinite(want).all()
     np.testing.assert_array_equal(got, want)
+    # the filter's per-pose sum, geometry included: the same numbers (a pose with a tilt
+    # and a roll, so the bearing's frame is exercised whole)
+    poses6 = np.column_stack([poses, rng.uniform(-0.3, 0.3, (300, 2))])
+    d6, a6 = pair_geometry(poses6, tags, alpha_within_m=lk.alpha_needed_within_m)
+    np.testing.assert_array_equal(lk.pose_loglik(poses6, tags, read, rssi),
+                                  lk.pair_loglik(d6, a6, read, rssi).sum(axis=1))
     if lk.d_max_m is not None:  # both sides of the domain and of d_far are exercised
         assert (d < 3.0).any() and ((d > 3.0) & (d < 5.0)).any() and (d > 5.0).any()
     with pytest.raises(ValueError, match="pair_loglik"):
