@@ -37,6 +37,7 @@ Uses the internals of the pinned sionna-rt 2.2.0 (``SBCandidateGenerator``,
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
 from propagation.jitarrays import jit_array
 from propagation.pathcache import SourcePaths
@@ -148,7 +149,9 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
     # not among the position's own candidates, and each (position, chain) once; the
     # row of the first neighbour listed that has it
     key = dest * n_chains + chain[rows]
-    fresh = ~np.isin(key, src * n_chains + chain)
+    # a hash-table membership test (pandas): np.isin sorts both arrays, ~10x slower on the
+    # millions of rows of a 128-position chunk (0.42 s a chunk, 2.7 s on 2e6 x 1.5e6 keys)
+    fresh = ~pd.Series(key, copy=False).isin(src * n_chains + chain).to_numpy()
     rows, dest, key = rows[fresh], dest[fresh], key[fresh]
     _, first = np.unique(key, return_index=True)
     first = np.sort(first)
