@@ -1,4 +1,5 @@
-"""Independent tasks side by side in forked processes (figures, robot-filter runs).
+"""Independent tasks side by side in forked processes (figures, tour MCL, tag posteriors and
+robot-filter runs).
 
 A forked child inherits this process's memory, so a task needs no pickling of its inputs
 (models, read logs, occupancy maps): :func:`map_forked` keeps the task function in a
