@@ -28,7 +28,7 @@ from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import unit_vec_from_theta_phi
 from propagation.pooled import POOL_RADIUS_FACTOR, pooling_plan, trace_pooled
 from propagation.shared import sharing_neighbours, trace_shared
-from propagation.sionna_paths import path_copies
+from propagation.sionna_paths import to_source_paths
 from propagation.sionna_scene import load_sionna_scene
 
 __all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "PathSet", "bytes_per_source", "trace_paths"]
@@ -46,7 +46,6 @@ DEFAULT_MAX_DEPTH = 5
 #: 260 links/s on 2 shared cores at these defaults.
 DEFAULT_SAMPLES_PER_SRC = 30_000
 _MAX_SOURCES_PER_CALL = 128
-_SPEED_OF_LIGHT = 299_792_458.0
 #: Planes of at least this area are completed by the image method (completion_order):
 #: walls, floor, ceiling and large furniture faces; 16 planes on corridor_lab.
 COMPLETION_MIN_AREA_M2 = 1.0
@@ -133,51 +132,36 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
         seed=int(seed),
     )
     a_re, a_im = (x.numpy() for x in paths.a)  # (n_rx + n_pad, 2, n_tx, 2, P)
-    n_rx, n_tx = len(receivers), len(sources)
-    a_re, a_im = a_re[:n_rx], a_im[:n_rx]  # the padding receivers' paths are dropped
+    pos = np.asarray(sources, float).reshape(-1, 3)
+    tgt = np.asarray(receivers, float).reshape(-1, 3)
+    n_rx, n_tx = len(tgt), len(pos)
     n_p = a_re.shape[-1]
-    if n_p == 0:
-        out = []
-        for p in sources:
-            sp = SourcePaths.empty(p)
-            sp.tag_positions_m = np.asarray(receivers, float).copy()
-            sp.offsets = np.zeros(n_rx + 1, np.int64)
-            out.append(sp)
-        clear_devices(rt_scene)
-        return out
-    a = (a_re.astype(np.float64) + 1j * a_im.astype(np.float64)).reshape(n_rx, 2, n_tx, 2, n_p)
-    a = np.transpose(a, (2, 0, 4, 1, 3))  # (n_tx, n_rx, P, rx_pol, tx_pol)
-    n_all = n_rx + n_pad
+    out = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
+    if n_p:
+        a_re, a_im = a_re[:n_rx], a_im[:n_rx]  # the padding receivers' paths are dropped
+        a = (a_re.astype(np.float64) + 1j * a_im.astype(np.float64)).reshape(n_rx, 2, n_tx, 2, n_p)
+        a = np.transpose(a, (2, 0, 4, 1, 3))  # (n_tx, n_rx, P, rx_pol, tx_pol)
+        n_all = n_rx + n_pad
 
-    def per_link(x, dtype=np.float64):  # (n_all, n_tx, P) -> (n_tx, n_rx, P), padding dropped
-        return x.numpy().astype(dtype).reshape(n_all, n_tx, n_p)[:n_rx].transpose(1, 0, 2)
+        def per_link(x, dtype=np.float64):  # (n_all, n_tx, P) -> (n_tx, n_rx, P), padding dropped
+            return x.numpy().astype(dtype).reshape(n_all, n_tx, n_p)[:n_rx].transpose(1, 0, 2)
 
-    valid = per_link(paths.valid, bool)
-    tau, th_t, ph_t, th_r, ph_r = (per_link(x) for x in (paths.tau, paths.theta_t, paths.phi_t,
-                                                         paths.theta_r, paths.phi_r))
+        valid = per_link(paths.valid, bool)
+        tau, th_t, ph_t, th_r, ph_r = (per_link(x) for x in (paths.tau, paths.theta_t,
+                                                             paths.phi_t, paths.theta_r,
+                                                             paths.phi_r))
+        # the valid paths in (source, receiver, path) order; to_source_paths sorts them by
+        # source, tag and length and counts a path PathSolver returned twice (a reflection
+        # found through two triangles of one plane, sionna_paths.path_copies) once
+        src, tg, _ = np.nonzero(valid)
+        out["src"].append(src.astype(np.int64))
+        out["tgt"].append(tg.astype(np.int64))
+        out["a"].append(a[valid])
+        out["tau"].append(tau[valid])
+        out["k_tx"].append(unit_vec_from_theta_phi(th_t[valid], ph_t[valid]))
+        out["k_rx"].append(unit_vec_from_theta_phi(th_r[valid], ph_r[valid]))
     clear_devices(rt_scene)
-    out = []
-    for s, p in enumerate(sources):
-        v = valid[s]  # (n_rx, P); row-major flattening keeps receivers in order
-        tg = np.nonzero(v)[0]
-        t, a_s = tau[s][v], a[s][v]
-        k_tx = unit_vec_from_theta_phi(th_t[s][v], ph_t[s][v])
-        k_rx = unit_vec_from_theta_phi(th_r[s][v], ph_r[s][v])
-        # by tag, then length; PathSolver returns a reflection found through two
-        # triangles of one plane twice (propagation.sionna_paths.path_copies): once here
-        order = np.lexsort((t, tg))
-        order = order[~path_copies(np.zeros(len(order), np.int64), tg[order],
-                                   t[order] * _SPEED_OF_LIGHT, k_tx[order], k_rx[order], a_s[order])]
-        out.append(SourcePaths(
-            source_m=np.asarray(p, float),
-            tag_positions_m=np.asarray(receivers, float).copy(),
-            offsets=np.concatenate([[0], np.cumsum(np.bincount(tg[order], minlength=n_rx))]).astype(np.int64),
-            transfer=a_s[order],
-            tau_s=t[order],
-            k_tx=k_tx[order],
-            k_rx=k_rx[order],
-        ))
-    return out
+    return to_source_paths(out, pos, tgt, np.ones((n_tx, n_rx), bool))
 
 
 def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lone_samples, lone_per_call,
