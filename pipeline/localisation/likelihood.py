@@ -401,15 +401,16 @@ class ModelLikelihood:
         -------
         numpy.ndarray, shape (n,), float64
         """
-        if self.d_max_m is None:
-            d, a = pair_geometry(antenna_poses, points_m, self.alpha_needed_within_m)
-            return self.pair_loglik(d, a, read, rssi_dbm).sum(axis=1)
-        d, sel, an = near_geometry(antenna_poses, points_m, self.d_max_m)
         read = np.asarray(read, dtype=bool)
         rssi = np.asarray(rssi_dbm, dtype=np.float64)
-        if {read.shape, rssi.shape} != {(d.shape[1],)}:
-            raise ValueError(f"pose_loglik: read and rssi_dbm must be ({d.shape[1]},), got "
-                             f"{read.shape}, {rssi.shape}")
+        k = len(np.asarray(points_m, dtype=np.float64).reshape(-1, 3))
+        if {read.shape, rssi.shape} != {(k,)}:
+            raise ValueError(f"pose_loglik: read and rssi_dbm must be ({k},), one per point, "
+                             f"got {read.shape}, {rssi.shape}")
+        if self.d_max_m is None:
+            d, a = pair_geometry(antenna_poses, points_m, self.alpha_needed_within_m)
+            return self.pair_loglik(d, a, read, rssi).sum(axis=1)
+        d, sel, an = near_geometry(antenna_poses, points_m, self.d_max_m)
         out = self._far_loglik(d, read, rssi)
         if len(sel):
             cols = sel % d.shape[1]

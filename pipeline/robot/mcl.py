@@ -486,11 +486,14 @@ def _logsumexp(a: np.ndarray) -> float:
     SciPy's own costs ~0.45 ms a call on the filter's weights (array-API dispatch and
     checks), about a quarter of the laser filter's time in the tour stage; this repeats
     its arithmetic (SciPy >= 1.15: the maxima taken out of the sum, ``log1p``) in plain
-    NumPy. A non-finite maximum (every weight -inf, or an inf / NaN) goes to SciPy.
+    NumPy (so SciPy >= 1.15 is required). An empty array, another shape or a non-finite
+    maximum (every weight -inf, or an inf / NaN) goes to SciPy.
     """
     a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 1 or a.size == 0:
+        return float(_scipy_logsumexp(a))
     a_max = np.max(a, keepdims=True)
-    if a.ndim != 1 or not np.isfinite(a_max[0]):
+    if not np.isfinite(a_max[0]):
         return float(_scipy_logsumexp(a))
     mask = a == a_max
     m = np.sum(mask.astype(np.float64), keepdims=True)

@@ -195,6 +195,8 @@ def test_pair_loglik_is_the_terms_value_for_value(case, sensor, joho):
     d6, a6 = pair_geometry(poses6, tags, alpha_within_m=lk.alpha_needed_within_m)
     np.testing.assert_array_equal(lk.pose_loglik(poses6, tags, read, rssi),
                                   lk.pair_loglik(d6, a6, read, rssi).sum(axis=1))
+    with pytest.raises(ValueError, match="pose_loglik: read and rssi_dbm must be \\(9,\\)"):
+        lk.pose_loglik(poses6, tags, read[:-1], rssi[:-1])
     if lk.d_max_m is not None:  # both sides of the domain and of d_far are exercised
         assert (d < 3.0).any() and ((d > 3.0) & (d < 5.0)).any() and (d > 5.0).any()
     with pytest.raises(ValueError, match="pair_loglik"):

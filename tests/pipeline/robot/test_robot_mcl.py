@@ -166,6 +166,7 @@ def test_logsumexp_is_scipys_bit_for_bit():
     for a in ([-np.inf] * 4, [np.inf, 1.0], [7.5]):
         assert _logsumexp(np.array(a)) == float(logsumexp(a))
     assert np.isnan(_logsumexp(np.array([np.nan, 1.0])))
+    assert _logsumexp(np.zeros(0)) == float(logsumexp(np.zeros(0))) == -np.inf
     # the test tells arithmetic apart: a plain max-shifted sum is off in the last bits
     # on some of the same kind of arrays
     arrays = [rng.normal(0.0, 3.0, 500) for _ in range(50)]
