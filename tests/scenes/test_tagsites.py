@@ -48,3 +48,22 @@ def test_draw_tags_names_the_setting_when_too_many(lab):
     with pytest.raises(ValueError, match=r"evaluation.n_eval_tags = 5000.*only \d+ of 5000"):
         draw_tags(s, 5000, np.random.default_rng(0), min_separation_m=0.5,
                   where="evaluation.n_eval_tags = 5000")
+
+
+def test_raycast_within_range_is_the_unlimited_cast_cut_at_the_range(lab):
+    """A cast limited to ``max_range_m`` skips triangles out of its segments' reach; the
+    hits must be exactly those of the unlimited cast (which tests every triangle) that lie
+    within range: rays from tag sites along their normals (coherent, as tag_sites casts
+    them) and random rays through the corridor (incoherent)."""
+    from scenes.geometry import raycast
+
+    rng = np.random.default_rng(2)
+    s = tag_sites(lab, spacing_m=0.25, z_range_m=(0.2, 1.6))
+    lo, hi = lab.bounds_m
+    origins = np.concatenate([s.positions_m + 1e-4 * s.normals, rng.uniform(lo, hi, (3000, 3))])
+    directions = np.concatenate([s.normals, rng.normal(size=(3000, 3))])
+    full = raycast(lab, origins, directions)
+    for r in (0.3, 2.0, 12.0):
+        cut = raycast(lab, origins, directions, max_range_m=r)
+        np.testing.assert_array_equal(cut, np.where(full <= r, full, np.inf))
+        assert np.isfinite(cut).sum() > 100  # hits within range are exercised
