@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -53,17 +54,11 @@ def pair_geometry(antenna_poses, points, alpha_within_m: float = np.inf):
         As :func:`propagation.antenna_frame_angles` (alpha in (-pi, pi]).
     """
     if np.isinf(alpha_within_m):
-        p = as_pose6(antenna_poses)
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        rot = pose_rotation(p)  # (n, 3, 3): columns are the local axes in world coordinates
-        dx = pts[None, :, 0] - p[:, None, 0]
-        dy = pts[None, :, 1] - p[:, None, 1]
-        dz = pts[None, :, 2] - p[:, None, 2]
-        d = np.sqrt(dx * dx + dy * dy + dz * dz)
-        rx, ry = rot[:, None, :, 0], rot[:, None, :, 1]  # local x and y axes (n, 1, 3)
-        lx = rx[..., 0] * dx + rx[..., 1] * dy + rx[..., 2] * dz
-        ly = ry[..., 0] * dx + ry[..., 1] * dy + ry[..., 2] * dz
-        return d, _wrapped_bearing(ly, lx)
+        o = _pair_offsets(antenna_poses, points)
+        rx, ry = o.rot[:, None, :, 0], o.rot[:, None, :, 1]  # local x and y axes (n, 1, 3)
+        lx = rx[..., 0] * o.dx + rx[..., 1] * o.dy + rx[..., 2] * o.dz
+        ly = ry[..., 0] * o.dx + ry[..., 1] * o.dy + ry[..., 2] * o.dz
+        return o.d, _wrapped_bearing(ly, lx)
     d, sel, alpha_sel = near_geometry(antenna_poses, points, alpha_within_m)
     alpha = np.full(d.shape, np.nan)
     alpha.ravel()[sel] = alpha_sel
@@ -92,23 +87,38 @@ def near_geometry(antenna_poses, points, within_m: float):
     alpha_rad : numpy.ndarray, shape (m,), float64
         Their bearings, in (-pi, pi].
     """
-    p = as_pose6(antenna_poses)
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    rot = pose_rotation(p)  # (n, 3, 3): columns are the local axes in world coordinates
-    dx = pts[None, :, 0] - p[:, None, 0]
-    dy = pts[None, :, 1] - p[:, None, 1]
-    dz = pts[None, :, 2] - p[:, None, 2]
-    d = np.sqrt(dx * dx + dy * dy + dz * dz)
+    o = _pair_offsets(antenna_poses, points)
+    d = o.d
     # the bearing of the pairs within reach only, gathered through flat indices (one
     # gather of both local axes per pair; the robot filter keeps ~20 % of its pairs)
     sel = np.flatnonzero(d < float(within_m))
     if not len(sel):
         return d, sel, np.zeros(0)
-    axes = np.concatenate([rot[:, :, 0], rot[:, :, 1]], axis=1)[sel // d.shape[1]]  # (m, 6)
-    ex, ey, ez = dx.ravel()[sel], dy.ravel()[sel], dz.ravel()[sel]
+    axes = np.concatenate([o.rot[:, :, 0], o.rot[:, :, 1]], axis=1)[sel // d.shape[1]]  # (m, 6)
+    ex, ey, ez = o.dx.ravel()[sel], o.dy.ravel()[sel], o.dz.ravel()[sel]
     lx = axes[:, 0] * ex + axes[:, 1] * ey + axes[:, 2] * ez
     ly = axes[:, 3] * ex + axes[:, 4] * ey + axes[:, 5] * ez
     return d, sel, _wrapped_bearing(ly, lx)
+
+
+class _PairOffsets(NamedTuple):
+    """World-frame offsets of every (pose, point) pair, (n, k) each, their distances, and
+    the poses' rotations (n, 3, 3; columns are the local axes in world coordinates)."""
+
+    rot: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    dz: np.ndarray
+    d: np.ndarray
+
+
+def _pair_offsets(antenna_poses, points) -> _PairOffsets:
+    p = as_pose6(antenna_poses)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    dx = pts[None, :, 0] - p[:, None, 0]
+    dy = pts[None, :, 1] - p[:, None, 1]
+    dz = pts[None, :, 2] - p[:, None, 2]
+    return _PairOffsets(pose_rotation(p), dx, dy, dz, np.sqrt(dx * dx + dy * dy + dz * dz))
 
 
 def _wrapped_bearing(ly: np.ndarray, lx: np.ndarray) -> np.ndarray:
