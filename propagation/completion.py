@@ -164,6 +164,10 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
                   np.array(cols[7]), tuple(cols[8]))
 
 
+#: Largest shape pointer for which :meth:`PlaneLookup.planes_of` uses a dense table.
+_DENSE_POINTERS = 1 << 20
+
+
 @dataclass(frozen=True)
 class PlaneLookup:
     """Which large plane each triangle of a loaded scene lies on (:func:`plane_lookup`).
@@ -188,16 +192,24 @@ class PlaneLookup:
         """Plane index of each (shape pointer, primitive), -1 where none (same shape)."""
         shapes = np.asarray(shapes, np.int64)
         prims = np.asarray(primitives, np.int64)
-        if len(self.shape_ptr) == 0:
+        if len(self.shape_ptr) == 0 or len(self.plane) == 0:
             return np.full(shapes.shape, -1, np.int64)
-        k = np.searchsorted(self.shape_ptr, shapes)
-        kc = np.minimum(k, len(self.shape_ptr) - 1)
-        known = (len(self.shape_ptr) > 0) & (self.shape_ptr[kc] == shapes)
-        idx = self.offset[kc] + prims
-        known &= (prims >= 0) & (idx < self.offset[np.minimum(kc + 1, len(self.offset) - 1)])
-        out = np.full(shapes.shape, -1, np.int64)
-        out[known] = self.plane[idx[known]]
-        return out
+        top = int(self.shape_ptr[-1]) + 1
+        if top <= _DENSE_POINTERS:
+            # pointers are Dr.Jit registry ids (small integers): a table indexed by the
+            # pointer is ~3x faster than searching the sorted pointers
+            start = np.zeros(top + 1, np.int64)
+            count = np.zeros(top + 1, np.int64)  # 0: not a shape of the lookup
+            start[self.shape_ptr] = self.offset[:-1]
+            count[self.shape_ptr] = np.diff(self.offset)
+            s = np.where((shapes >= 0) & (shapes < top), shapes, top)
+            known = (prims >= 0) & (prims < count[s])
+            idx = start[s] + prims
+        else:
+            k = np.minimum(np.searchsorted(self.shape_ptr, shapes), len(self.shape_ptr) - 1)
+            idx = self.offset[k] + prims
+            known = (self.shape_ptr[k] == shapes) & (prims >= 0) & (idx < self.offset[k + 1])
+        return np.where(known, np.take(self.plane, idx, mode="clip"), -1)
 
     def covered(self, interaction_types, shapes, primitives, max_order: int) -> np.ndarray:
         """Candidate rows the completion enumerates: 1..``max_order`` specular

@@ -344,3 +344,26 @@ def test_lone_position_is_the_solvers_paths_without_its_copies():
     # direct tracing counts them once too
     np.testing.assert_array_equal(direct.n_paths[0], per_tag)
     np.testing.assert_allclose(direct.gain_db, lone.gain_db, atol=1e-3)
+
+
+def test_planes_of_table_and_search_agree(monkeypatch):
+    # planes_of looks pointers up in a dense table when they are small (Dr.Jit registry
+    # ids) and searches the sorted pointers otherwise: both must name the same planes,
+    # -1 for unknown pointers, negative or out-of-range primitives
+    import propagation.completion as completion
+    from propagation.completion import PlaneLookup
+
+    rng = np.random.default_rng(5)
+    ptr = np.array([2, 3, 7, 11], np.int64)
+    offset = np.array([0, 4, 4, 9, 12], np.int64)  # shape 3 has no triangles
+    lookup = PlaneLookup(ptr, offset, rng.integers(-1, 5, size=12))
+    shapes = rng.integers(-2, 14, size=(400, 3))
+    prims = rng.integers(-2, 7, size=(400, 3))
+    expect = np.full(shapes.shape, -1, np.int64)
+    for (i, j), s in np.ndenumerate(shapes):
+        k = np.flatnonzero(ptr == s)
+        if len(k) and 0 <= prims[i, j] < offset[k[0] + 1] - offset[k[0]]:
+            expect[i, j] = lookup.plane[offset[k[0]] + prims[i, j]]
+    np.testing.assert_array_equal(lookup.planes_of(shapes, prims), expect)
+    monkeypatch.setattr(completion, "_DENSE_POINTERS", 0)
+    np.testing.assert_array_equal(lookup.planes_of(shapes, prims), expect)
