@@ -28,7 +28,9 @@ def test_chain_ids_name_equal_rows_alike():
     assert chain_ids(np.zeros((0, 3), np.int64)).shape == (0,)
 
 
-def test_shared_rows_gives_each_position_its_neighbours_new_valid_chains():
+@pytest.mark.parametrize("dense_keys", [1 << 27, 0])  # a table of the keys, or a hash table
+def test_shared_rows_gives_each_position_its_neighbours_new_valid_chains(dense_keys, monkeypatch):
+    monkeypatch.setattr("propagation.shared._DENSE_KEYS", dense_keys)
     # rows: (source, chain id, valid at its source)
     src = np.array([0, 0, 1, 1, 1, 2, 2])
     chain = np.array([10, 11, 10, 12, 13, 14, 11])
