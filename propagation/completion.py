@@ -164,7 +164,8 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
                   np.array(cols[7]), tuple(cols[8]))
 
 
-#: Largest shape pointer for which :meth:`PlaneLookup.planes_of` uses a dense table.
+#: :meth:`PlaneLookup.planes_of` uses a dense table when every shape pointer is below this
+#: (8 MiB of int64 per table at most).
 _DENSE_POINTERS = 1 << 20
 
 
@@ -175,7 +176,8 @@ class PlaneLookup:
     Attributes
     ----------
     shape_ptr : numpy.ndarray
-        Shape pointers as Sionna's candidate buffers hold them (s,), uint32, sorted.
+        Shape pointers as Sionna's candidate buffers hold them (s,), uint32, sorted,
+        unique (Dr.Jit registry ids: one per shape).
     offset : numpy.ndarray
         Start of each shape's triangles in ``plane`` (s + 1,), int64.
     plane : numpy.ndarray
@@ -209,7 +211,7 @@ class PlaneLookup:
             k = np.minimum(np.searchsorted(self.shape_ptr, shapes), len(self.shape_ptr) - 1)
             idx = self.offset[k] + prims
             known = (self.shape_ptr[k] == shapes) & (prims >= 0) & (idx < self.offset[k + 1])
-        return np.where(known, np.take(self.plane, idx, mode="clip"), -1)
+        return np.where(known, np.take(self.plane, idx, mode="clip"), -1).astype(np.int64, copy=False)
 
     def covered(self, interaction_types, shapes, primitives, max_order: int) -> np.ndarray:
         """Candidate rows the completion enumerates: 1..``max_order`` specular
@@ -438,10 +440,10 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     buf._primitives = jit_array(  # noqa: SLF001
         mi.TensorXu, np.where(on, planes.primitive[p], INVALID_PRIMITIVE), u32)
     # per axis, in float32 (Sionna's precision) before the gather: a third of the memory
-    # traffic of gathering (c, depth, 3) float64 points
-    corner = planes.point_m.astype(f32)
+    # traffic of gathering (c, depth, 3) float64 points, the same values
+    point32_m = planes.point_m.astype(f32)
     buf._vertices_x, buf._vertices_y, buf._vertices_z = (  # noqa: SLF001
-        jit_array(mi.TensorXf, np.where(on, corner[:, i][p], f32(0.0)), f32) for i in range(3))
+        jit_array(mi.TensorXf, np.where(on, point32_m[:, i][p], f32(0.0)), f32) for i in range(3))
     buf._probs = jit_array(mi.TensorXf, on, f32)  # noqa: SLF001 - sampling probability 1
     buf._src_indices = jit_array(mi.UInt, link_src, u32)  # noqa: SLF001
     buf._tgt_indices = jit_array(mi.UInt, link_tgt, u32)  # noqa: SLF001

@@ -78,7 +78,8 @@ def sharing_neighbours(positions_m, radius_m: float) -> list[np.ndarray]:
 
 
 #: Largest (positions x chains) for which :func:`shared_rows` tests membership in a table
-#: (bytes of a bool array).
+#: (one byte each: at most 128 MiB for a moment, far below the tracing's memory budget;
+#: a 128-position chunk of the default study needs ~9 MiB).
 _DENSE_KEYS = 1 << 27
 
 #: Rows hashed per block in :func:`chain_ids` (a block's columns stay in cache).
@@ -92,8 +93,8 @@ def chain_ids(key: np.ndarray) -> np.ndarray:
     (``pandas.factorize``: a hash table, where ``np.unique`` sorts every row's hash); rows
     that share a hash are compared with one row of their group, and a collision falls back
     to the exact row-wise ``np.unique`` (which sorts k columns lexicographically: ~10x
-    slower on a candidate buffer). Hashed in blocks of rows whose columns fit in cache:
-    transposing the whole buffer at once took ~45 % of the time.
+    slower on a candidate buffer). Hashed in blocks of rows that fit in cache: converting
+    the whole buffer's columns at once took ~45 % of the time.
     """
     key = np.ascontiguousarray(key, dtype=np.int64)
     n_rows = len(key)
@@ -132,9 +133,9 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
     Parameters
     ----------
     src : numpy.ndarray
-        Source (position) of each candidate row, (R,), int64.
+        Source (position) of each candidate row, (R,), int64, in ``[0, len(neighbours))``.
     chain : numpy.ndarray
-        (target, chain) id of each row, (R,), int64.
+        (target, chain) id of each row, (R,), int64, >= 0 (:func:`chain_ids`).
     valid : numpy.ndarray
         Whether the row is a valid path at its own source, (R,), bool.
     neighbours : list of numpy.ndarray
@@ -150,6 +151,8 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
     n = len(neighbours)
     src = np.asarray(src, np.int64)
     chain = np.asarray(chain, np.int64)
+    if len(src) and (src.min() < 0 or src.max() >= n or chain.min() < 0):
+        raise ValueError(f"shared_rows: sources must lie in [0, {n}) and chain ids be >= 0")
     n_chains = int(chain.max()) + 1 if len(chain) else 1
     # the first valid row of each (position, chain)
     vr = np.flatnonzero(valid)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from propagation import two_ray_gain_db
-from propagation.completion import complete_specular, large_planes, merge_paths
+from propagation.completion import PlaneLookup, complete_specular, large_planes, merge_paths
 from propagation.pathcache import SourcePaths
 from propagation.pathsolve import _trace_chunk
 from propagation.sionna_scene import load_sionna_scene
@@ -314,3 +314,30 @@ def test_candidates_in_threads_are_the_blocks_one_after_the_other(corridor_scene
     li1, ch1 = _candidates(planes, src, tgt, link_src, link_tgt, 1, 3)
     np.testing.assert_array_equal(li1, li)
     np.testing.assert_array_equal(ch1, ch)
+
+
+def test_planes_of_table_and_search_agree(monkeypatch):
+    # planes_of looks pointers up in a dense table when they are small (Dr.Jit registry
+    # ids) and searches the sorted pointers otherwise: both must name the same planes,
+    # -1 for unknown pointers, negative or out-of-range primitives
+    rng = np.random.default_rng(5)
+    invalid_shape = 0xFFFFFFFF  # Sionna's INVALID_SHAPE, as the buffers hold it
+    for dense in (1 << 20, 0):
+        monkeypatch.setattr("propagation.completion._DENSE_POINTERS", dense)
+        for ptr in ([2, 3, 7, 11], [0, 3, 7, 11]):  # pointer 0 a shape of the lookup or not
+            ptr = np.array(ptr, np.int64)
+            offset = np.array([0, 4, 4, 9, 12], np.int64)  # the second shape: no triangles
+            lookup = PlaneLookup(ptr, offset, rng.integers(-1, 5, size=12))
+            shapes = rng.integers(-2, 14, size=(400, 3))
+            shapes[::17, 1] = invalid_shape
+            prims = rng.integers(-2, 7, size=(400, 3))
+            expect = np.full(shapes.shape, -1, np.int64)
+            for (i, j), s in np.ndenumerate(shapes):
+                k = np.flatnonzero(ptr == s)
+                if len(k) and 0 <= prims[i, j] < offset[k[0] + 1] - offset[k[0]]:
+                    expect[i, j] = lookup.plane[offset[k[0]] + prims[i, j]]
+            got = lookup.planes_of(shapes, prims)
+            assert got.dtype == np.int64
+            np.testing.assert_array_equal(got, expect)
+        nothing = PlaneLookup(np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64))
+        assert nothing.planes_of(shapes[:2], prims[:2]).tolist() == [[-1] * 3] * 2

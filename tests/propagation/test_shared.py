@@ -28,6 +28,35 @@ def test_chain_ids_name_equal_rows_alike():
     assert chain_ids(np.zeros((0, 3), np.int64)).shape == (0,)
 
 
+def _row_hash(row) -> int:
+    # chain_ids' hash of one row, in Python integers
+    h, mask = 0, (1 << 64) - 1
+    for v in row:
+        h = ((h ^ (v & mask)) * 0x100000001B3) & mask
+        h ^= h >> 29
+    return h
+
+
+def test_chain_ids_across_blocks_and_through_a_hash_collision(monkeypatch):
+    # rows hashed in blocks (7 rows here) name equal rows alike across blocks
+    monkeypatch.setattr("propagation.shared._HASH_BLOCK_ROWS", 7)
+    rng = np.random.default_rng(4)
+    key = rng.integers(-3, 3, size=(8, 4))[rng.integers(0, 8, size=50)]
+    ids = chain_ids(key)
+    np.testing.assert_array_equal(ids[:, None] == ids[None, :],
+                                  np.all(key[:, None, :] == key[None, :, :], axis=2))
+    # two different rows with one hash: (a, b) and (a2, b ^ g(a) ^ g(a2)), g the hash of
+    # one column; they must get different ids (the exact row-wise fallback)
+    mask = (1 << 64) - 1
+    a, a2, b = 5, 9, 7
+    b2 = b ^ _row_hash([a]) ^ _row_hash([a2])
+    rows = [[a, b], [a2, b2], [a, b]]
+    assert _row_hash(rows[0]) == _row_hash(rows[1])  # a real collision
+    key = np.array([[x & mask for x in r] for r in rows], np.uint64).view(np.int64)
+    ids = chain_ids(key)
+    assert ids[0] == ids[2] != ids[1]
+
+
 @pytest.mark.parametrize("dense_keys", [1 << 27, 0])  # a table of the keys, or a hash table
 def test_shared_rows_gives_each_position_its_neighbours_new_valid_chains(dense_keys, monkeypatch):
     monkeypatch.setattr("propagation.shared._DENSE_KEYS", dense_keys)
@@ -40,6 +69,8 @@ def test_shared_rows_gives_each_position_its_neighbours_new_valid_chains(dense_k
     # position 0 takes 12 from 1 (10 is its own, 13 is not valid at 1); position 1 takes
     # 14 and 11 from 2 (11 only once, though invalid at 0); position 2 takes 10 and 12
     assert got == [(0, 12), (1, 11), (1, 14), (2, 10), (2, 12)]
+    # the rows themselves, by position, then neighbour as listed, then chain id
+    assert (rows.tolist(), dest.tolist()) == ([3, 6, 5, 2, 3], [0, 1, 1, 2, 2])
     # a chain valid at two neighbours is solved once (0 takes 21 from 1 and 2); a
     # position without neighbours gets nothing, nor one whose neighbour's valid chains are
     # its own (2); an invalid row goes to nobody (3's 22); 3 takes 20 from 0;
@@ -50,6 +81,12 @@ def test_shared_rows_gives_each_position_its_neighbours_new_valid_chains(dense_k
     rows, dest = shared_rows(src, chain, valid, [np.array([1, 2, 3]), np.array([], np.int64),
                                                   np.array([1]), np.array([0])])
     assert sorted(zip(dest.tolist(), chain[rows].tolist(), strict=True)) == [(0, 21), (3, 20)]
+    assert (rows.tolist(), dest.tolist()) == ([1, 0], [0, 3])  # 21 from 1, listed first
+    rows, dest = shared_rows(src, chain, valid, [np.array([2, 1, 3]), np.array([], np.int64),
+                                                  np.array([1]), np.array([0])])
+    assert (rows.tolist(), dest.tolist()) == ([2, 0], [0, 3])  # now from 2, listed first
+    with pytest.raises(ValueError, match="sources must lie in"):
+        shared_rows(np.array([0, 4]), chain[:2], valid[:2], [np.array([1])] * 4)
     rows, dest = shared_rows(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool), [])
     assert rows.shape == dest.shape == (0,)
 
@@ -347,25 +384,3 @@ def test_lone_position_is_the_solvers_paths_without_its_copies():
     np.testing.assert_array_equal(direct.n_paths[0], per_tag)
     np.testing.assert_allclose(direct.gain_db, lone.gain_db, atol=1e-3)
 
-
-def test_planes_of_table_and_search_agree(monkeypatch):
-    # planes_of looks pointers up in a dense table when they are small (Dr.Jit registry
-    # ids) and searches the sorted pointers otherwise: both must name the same planes,
-    # -1 for unknown pointers, negative or out-of-range primitives
-    import propagation.completion as completion
-    from propagation.completion import PlaneLookup
-
-    rng = np.random.default_rng(5)
-    ptr = np.array([2, 3, 7, 11], np.int64)
-    offset = np.array([0, 4, 4, 9, 12], np.int64)  # shape 3 has no triangles
-    lookup = PlaneLookup(ptr, offset, rng.integers(-1, 5, size=12))
-    shapes = rng.integers(-2, 14, size=(400, 3))
-    prims = rng.integers(-2, 7, size=(400, 3))
-    expect = np.full(shapes.shape, -1, np.int64)
-    for (i, j), s in np.ndenumerate(shapes):
-        k = np.flatnonzero(ptr == s)
-        if len(k) and 0 <= prims[i, j] < offset[k[0] + 1] - offset[k[0]]:
-            expect[i, j] = lookup.plane[offset[k[0]] + prims[i, j]]
-    np.testing.assert_array_equal(lookup.planes_of(shapes, prims), expect)
-    monkeypatch.setattr(completion, "_DENSE_POINTERS", 0)
-    np.testing.assert_array_equal(lookup.planes_of(shapes, prims), expect)
