@@ -172,7 +172,8 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
     key = dest * n_chains + chain[rows]
     own = src * n_chains + chain
     if n * n_chains <= _DENSE_KEYS:
-        # a table of every (position, chain) key: ~10x faster than a hash table
+        # a table of every (position, chain) key: 4-10x faster than a hash table on a
+        # default chunk's 1.2e6 keys
         table = np.zeros(n * n_chains, bool)
         table[own] = True
         fresh = ~table[key]
