@@ -82,13 +82,15 @@ def _default_budget() -> int:
 
 
 def padded_target_count(n_targets: int) -> int:
-    """Receivers a ``PathSolver`` call is given for ``n_targets`` tags.
+    """Receivers a ``PathSolver`` call (direct tracing, :func:`_trace_chunk`) is given for
+    ``n_targets`` tags.
 
     Sionna's shooting kernel loops over the targets with their count as a literal, so
-    every new count compiles it anew (~1 s on 2 cores): the truth's lone traces (truth_traces),
-    each against another number of tag sites, compiled it 16 times in a cold study.
-    Counts up to 32 are kept; larger ones are rounded up to a quarter octave (at most
-    25 % more receivers, whose paths are dropped): four kernels per doubling.
+    every new count compiles it anew (~1 s on 2 cores). Counts up to 32 are kept; larger
+    ones are rounded up to a quarter octave (at most 25 % more receivers, whose paths are
+    dropped): four kernels per doubling. Tracing with sharing (every study) and its lone
+    positions use :func:`propagation.shooting.candidate_generator` instead, one kernel for
+    every count, and pad nothing.
     """
     n = int(n_targets)
     if n <= 32:
@@ -182,17 +184,13 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
         for i, sp in zip(together, fresh, strict=True):
             out[i] = sp
     # a position with no neighbour: what PathSolver does, without its Paths object (whose
-    # per-call kernels cost ~0.3 s), its copies removed; the receivers padded so that the
-    # shooting kernel is compiled once per padded count (padded_target_count)
+    # per-call kernels cost ~0.3 s), its copies removed; no padding receivers: the shooting
+    # kernel takes any target count (propagation.shooting)
     alone = np.flatnonzero(lone)
     for c0 in range(0, len(alone), lone_per_call):
         grp = alone[c0:c0 + lone_per_call]
-        n_pad = padded_target_count(len(receivers)) - len(receivers)
-        padded = np.vstack([np.asarray(receivers, float).reshape(-1, 3),
-                            np.tile(_padding_point(rt_scene), (n_pad, 1))])
-        fresh = trace_shared(rt_scene, positions[grp], padded, [np.zeros(0, np.int64)] * len(grp),
-                             max_depth, lone_samples, seed, refraction, None, plane_ids,
-                             n_padding=n_pad)
+        fresh = trace_shared(rt_scene, positions[grp], receivers, [np.zeros(0, np.int64)] * len(grp),
+                             max_depth, lone_samples, seed, refraction, None, plane_ids)
         for i, sp in zip(grp, fresh, strict=True):
             out[i] = sp
     return out

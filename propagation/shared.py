@@ -188,7 +188,7 @@ def shared_rows(src: np.ndarray, chain: np.ndarray, valid: np.ndarray, neighbour
 
 def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, samples_per_src: int,
                  seed: int, refraction: bool = True, completion=None,
-                 plane_ids=None, n_padding: int = 0) -> list[SourcePaths]:
+                 plane_ids=None) -> list[SourcePaths]:
     """Paths at every position from its own rays and its neighbours' valid chains.
 
     Parameters
@@ -217,23 +217,19 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         not solved again when the position has it (or has it from another neighbour):
         solved, it would be a copy of a path the position already has. Default: named by
         the exact triangles.
-    n_padding : int
-        The last ``n_padding`` targets are padding receivers (a count the compiled
-        shooting kernel already knows, :func:`propagation.pathsolve.padded_target_count`):
-        traced, never returned.
 
     Returns
     -------
     list of SourcePaths
-        Per position its paths to every target (padding excepted), sorted by length,
+        Per position its paths to every target, sorted by length,
         copies removed.
     """
     import drjit as dr
     import mitsuba as mi
     from sionna.rt.path_solvers.field_calculator import FieldCalculator
     from sionna.rt.path_solvers.image_method import ImageMethod
-    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
+    from propagation.shooting import candidate_generator
     from propagation.sionna_scene import clear_devices, place_devices
 
     pos = np.asarray(positions_m, float).reshape(-1, 3)
@@ -241,17 +237,15 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     n, m = len(pos), len(tgt)
     if len(neighbours) != n:
         raise ValueError(f"need one neighbour list per position: {len(neighbours)} for {n}")
-    if not 0 <= int(n_padding) <= m:
-        raise ValueError(f"n_padding must be within [0, {m}] (the targets), got {n_padding!r}")
     need = np.ones((n, m), bool)
-    need[:, m - int(n_padding):] = False
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
     pos_mi, tgt_mi = points(pos), points(tgt)
     out = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
 
     # 1. what PathSolver does: own rays (and LOS), image method and fields at each position
-    cand = SBCandidateGenerator()(mi_scene, pos_mi, tgt_mi, samples_per_src=int(samples_per_src),
+    # (Sionna's candidate generator, its shooting kernel compiled once for any target count)
+    cand = candidate_generator()(mi_scene, pos_mi, tgt_mi, samples_per_src=int(samples_per_src),
                                   max_num_paths_per_src=int(samples_per_src) * (int(max_depth) + 1),
                                   max_depth=int(max_depth), los=True, specular_reflection=True,
                                   diffuse_reflection=False, refraction=bool(refraction),
