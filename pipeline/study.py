@@ -161,9 +161,11 @@ class Stage:
         outside the config, such as the scene); downstream stages still skip when the
         outputs come out identical.
     own_process : bool
-        The stage may run in a spawned process of its own, beside the stage before it
-        when it does not depend on that one and both must run (:mod:`pipeline.stageproc`):
-        ``func`` must be a module-level function that needs nothing from ``memo``.
+        The stage may run in a spawned process of its own, beside the stages before it
+        from the first one that runs once its upstream stages are done (one such process
+        at a time; it is waited for where it stands in the order) when both must run
+        (:mod:`pipeline.stageproc`): ``func`` must be a module-level function that needs
+        nothing from ``memo``.
     """
 
     name: str
@@ -323,6 +325,18 @@ def _write_error(exc: OSError, store: RunStore) -> OSError | RunDirError:
     return exc if err is None else err
 
 
+def _next_side(stages: Sequence[Stage], k: int, digests: dict) -> Stage | None:
+    """The stage that may start in a process of its own while stage ``k`` runs: the first
+    ``own_process`` stage after ``k`` whose upstream stages are all done (none of the stages
+    in between can need it: they come before it). It is waited for where it stands in the
+    order, so it may run beside several stages (``truth_traces`` beside the tour and the
+    reads)."""
+    for st in stages[k + 1:]:
+        if st.own_process and all(u in digests for u in st.upstream):
+            return st
+    return None
+
+
 def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage], *,
               progress: bool = False, force: Sequence[str] = (),
               command_line: Sequence[str] | None = None,
@@ -431,9 +445,9 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
                 else:
                     log.log(logging.DEBUG if st.always else logging.INFO, "stage %s: running (%s)",
                             st.name, reason)
-                    nxt = stages[k + 1] if k + 1 < len(stages) else None
-                    if not checks and not st.always:
-                        side = start_side(nxt, config, store, digests, force, prog)
+                    if side is None and not checks and not st.always:
+                        side = start_side(_next_side(stages, k, digests), config, store, digests,
+                                          force, prog)
                     if side is not None:
                         current = f"{st.name} + {side.stage.name}"
                     manifest("running", current)

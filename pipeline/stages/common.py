@@ -268,7 +268,7 @@ def read_track(ctx, name: str):
         raise ValueError(f"{path}: cannot read pose track ({exc}); delete it to re-run the tour") from None
 
 
-def attempt_poses(ctx, name: str) -> np.ndarray:
+def attempt_poses(ctx, name: str, track=None) -> np.ndarray:
     """True antenna poses of the tour's read attempts, in time order, as the read log holds
     them (float32 positions and yaw; :func:`pipeline.acquisition.read_attempts` on the
     tour's track: they need no reads), with the antenna's tilt as pitch.
@@ -277,7 +277,10 @@ def attempt_poses(ctx, name: str) -> np.ndarray:
     ----------
     ctx : pipeline.study.StageContext
     name : {"train", "eval"}
-        The tour.
+        The tour (its track ``tour/<name>_track.npz``).
+    track : pipeline.acquisition.PoseTrack, optional
+        The tour's track itself, instead of its file (only its true poses and times are
+        used: e.g. :func:`pipeline.stages.tour.eval_track` before the tour's MCL ran).
 
     Returns
     -------
@@ -287,7 +290,8 @@ def attempt_poses(ctx, name: str) -> np.ndarray:
     from pipeline.acquisition import read_attempts
 
     cfg = ctx.config
-    att = read_attempts(read_track(ctx, name), list(build_robot(cfg).antennas), cfg.reader,
+    track = read_track(ctx, name) if track is None else track
+    att = read_attempts(track, list(build_robot(cfg).antennas), cfg.reader,
                         frequency_hz=cfg.frequency_hz)
     tilt = antenna_tilts(cfg)
     poses = np.asarray(att.true_antenna, np.float64)[:, :4].astype(np.float32).astype(np.float64)

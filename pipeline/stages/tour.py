@@ -9,7 +9,7 @@ from pipeline.runstore import atomic_write_json, save_npz
 from pipeline.stages.common import build_robot, load_scene, stage_rng, study_route
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "stage_tour"]
+__all__ = ["STAGE", "eval_track", "stage_tour"]
 
 
 def _localise(scene, robot, traj, lcfg, rng, robot_map=None) -> dict:
@@ -30,6 +30,35 @@ def _localise(scene, robot, traj, lcfg, rng, robot_map=None) -> dict:
     return {"t_s": t, "true": true, "odom": np.asarray(res.odometry_poses),
             "est": np.asarray(res.estimated_poses),
             "position_error_m": np.asarray(res.position_error_m)}
+
+
+def _eval_path(sc, robot, cfg, rng):
+    from pipeline.robot import evaluation_path
+
+    return evaluation_path(sc, robot, rng, n_poses=cfg.tour.n_eval_poses, config=cfg.tour,
+                           route_m=study_route(sc, cfg))
+
+
+def eval_track(ctx):
+    """The evaluation path's true poses as :func:`stage_tour` drives it, without its MCL.
+
+    The path is the first thing drawn from its stream ``stage_rng(cfg, "eval_path")``
+    (the MCL along it draws next), so a stage that needs only the path's true poses
+    (``truth_traces``) computes them here and need not wait for the tour's MCL: the same
+    poses and times as ``tour/eval_track.npz`` (a test), the estimated poses set to the
+    true ones.
+
+    Returns
+    -------
+    pipeline.acquisition.PoseTrack
+    """
+    from pipeline.acquisition import PoseTrack
+
+    cfg = ctx.config
+    traj = _eval_path(load_scene(ctx), build_robot(cfg), cfg, stage_rng(cfg, "eval_path"))
+    true = np.asarray(traj.poses, dtype=float)
+    return PoseTrack(t_s=np.asarray(traj.t_s, dtype=float), true_poses=true,
+                     est_poses=true.copy(), odom_poses=np.full_like(true, np.nan))
 
 
 def stage_tour(ctx) -> dict:
@@ -64,7 +93,6 @@ def stage_tour(ctx) -> dict:
         MapError,
         collision_map,
         draw_robot_map,
-        evaluation_path,
         guided_tour,
     )
 
@@ -89,8 +117,7 @@ def stage_tour(ctx) -> dict:
                                                                  initial=0.0)), 4)
     tours = (
         ("train", rng, lambda: guided_tour(sc, robot, rng, tcfg, route_m=route)),
-        ("eval", rng_eval, lambda: evaluation_path(sc, robot, rng_eval, n_poses=tcfg.n_eval_poses,
-                                                   config=tcfg, route_m=route)),
+        ("eval", rng_eval, lambda: _eval_path(sc, robot, cfg, rng_eval)),  # as eval_track
     )
 
     def drive(i: int) -> dict:

@@ -4,9 +4,11 @@ Fig. 6 free-space points around some of those poses, and the RSSI fields; writes
 ``truth/site_truth.npz``, ``truth/free_space_points_*.npz`` and ``fields/*.npz``.
 
 The antenna poses are those of the evaluation tour's read attempts, computed from the
-tour's track (:func:`pipeline.stages.common.attempt_poses`, the poses the read log holds),
-so the stage depends on the scene and the tour only and runs in a process of its own
-beside the reads stage (``own_process``): the two trace at the same time. The ``truth``
+evaluation path's true poses (:func:`pipeline.stages.common.attempt_poses` of
+:func:`pipeline.stages.tour.eval_track`: the poses the read log holds), which need no MCL,
+so the stage depends on the scene only and runs in a process of its own beside the tour
+and the reads stage (``own_process``): it traces while the tour's MCL leaves a core idle
+and while the reads stage traces. The ``truth``
 stage turns the free-space gains into the Fig. 6 truth with the reads and the models.
 """
 
@@ -48,8 +50,11 @@ def _polar_points(pose: np.ndarray, d_m: np.ndarray, alpha_rad: np.ndarray) -> n
 def stage_truth_traces(ctx) -> dict:
     """Gains at tag sites and at free-space points, and RSSI fields, around
     evaluation-tour antenna poses."""
+    from pipeline.stages.tour import eval_track
+
     select_backend(ctx.config)
-    poses = attempt_poses(ctx, "eval")
+    # the evaluation path's poses without the tour's MCL: this stage starts beside the tour
+    poses = attempt_poses(ctx, "eval", eval_track(ctx))
     info = _trace_sites(ctx, poses)
     info.update(_trace_free_space_view(ctx, poses))
     return info
@@ -138,10 +143,11 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
 
 
 STAGE = Stage("truth_traces", stage_truth_traces,
-              ("evaluation", "training.d_max_m", "robot", "reader.read_rate_hz",
+              ("seed", "tour", "evaluation", "training.d_max_m", "robot", "reader.read_rate_hz",
                "reader.antenna_mode", "tracing.field_cell_m", "tracing.field_samples_per_tx",
                "tracing.field_walls") + TRACING_KEYS,
-              ("scene", "tour"), description="propagation truth: traces at tag sites, Fig. 6 "
-              "points, RSSI fields",
-              # needs nothing of the reads: traces beside them (pipeline.stageproc)
+              ("scene",), version=2,  # 2: the evaluation path's poses computed here (eval_track)
+              description="propagation truth: traces at tag sites, Fig. 6 points, RSSI fields",
+              # needs nothing of the tour's MCL or the reads: traces beside them
+              # (pipeline.stageproc)
               own_process=True)

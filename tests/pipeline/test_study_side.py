@@ -92,6 +92,30 @@ def test_independent_stage_runs_in_its_own_process(tmp_path):
     assert _pids(tmp_path)["b"] == os.getpid()  # nothing to run beside: in order, here
 
 
+def _x(ctx):
+    # a stage between a and b, which b does not need either; what the manifest named
+    stage = json.loads(ctx.store.path("manifest.json").read_text())["stage"]
+    ctx.out("x.json").write_text(json.dumps({"pid": os.getpid(), "manifest_stage": stage}))
+
+
+def test_side_stage_starts_as_early_as_its_upstream_allows(tmp_path):
+    # b needs nothing of a or x: it starts beside a, runs on beside x, and is waited for
+    # where it stands (before c, which needs it); as truth_traces beside the tour and reads
+    stages = (SIDE[0], Stage("x", _x, ("seed",)), SIDE[1], SIDE[2])
+    r = _run(StudyConfig(), tmp_path, stages=stages)
+    assert r.ran == ["a", "x", "b", "c"]
+    pids = _pids(tmp_path)
+    assert pids["a"] == os.getpid() and pids["b"] != os.getpid()
+    assert json.loads((tmp_path / "a.json").read_text())["manifest_stage"] == "a + b"
+    assert json.loads((tmp_path / "x.json").read_text())["manifest_stage"] in ("x + b", "x")
+    # b depends on a: it cannot start before a is done, so it starts beside x
+    dep = (SIDE[0], Stage("x", _x, ("seed",)), Stage("b", _b_after_a, ("seed",), ("a",),
+                                                     own_process=True), SIDE[2])
+    _run(StudyConfig(), tmp_path / "dep", stages=dep)
+    assert _pids(tmp_path / "dep")["b"] != os.getpid()
+    assert json.loads((tmp_path / "dep" / "x.json").read_text())["manifest_stage"] == "x + b"
+
+
 def test_dependent_stage_or_one_worker_runs_in_order(tmp_path, monkeypatch):
     dep = (SIDE[0], Stage("b", _b_after_a, ("seed",), ("a",), own_process=True), SIDE[2])
     _run(StudyConfig(), tmp_path / "dep", stages=dep)

@@ -57,6 +57,10 @@ def test_first_run_produces_the_run_directory(tiny):
                               [tilt[int(a)] for a in eval_reads["antenna"]], np.zeros(len(eval_reads))])
     ctx = StageContext(cfg, RunStore(run), "check", run / "unused", None, {})
     np.testing.assert_array_equal(attempt_poses(ctx, "eval"), logged)
+    # ... which it computes without the tour's MCL (it starts beside the tour): the same
+    from pipeline.stages.tour import eval_track
+
+    np.testing.assert_array_equal(attempt_poses(ctx, "eval", eval_track(ctx)), logged)
     # the plane only: the wall map (tracing.field_walls, off) is what no figure uses
     with np.load(run / "fields/field_00.npz") as z:
         assert z["plane_gain"].size > 0 and z["wall_gain"].size == 0
