@@ -33,7 +33,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.parallel import WORKERS_ENV, usable_cpus
+from pipeline.parallel import (
+    WORKERS_ENV,
+    blas_threads_per_process,
+    limit_blas_threads,
+    usable_cpus,
+)
 
 __all__ = ["Side", "StageProcess", "StageProcessError", "finish_side", "side_by_side_allowed", "start_side"]
 
@@ -107,6 +112,7 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
     logging.getLogger().addHandler(handler)
     for name, level in levels.items():
         logging.getLogger(name).setLevel(level)
+    limit_blas_threads(blas_threads_per_process(2))  # this process and the runner's
     store = RunStore(root)
     ctx = StageContext(config, store, stage, Path(staged), None, {})
     t0 = time.perf_counter()
@@ -142,6 +148,7 @@ class StageProcess:
     """
 
     def __init__(self, func, stage: str, config, root: Path, staged: Path):
+        self._blas = None
         ctx = multiprocessing.get_context("spawn")
         self.stage = stage
         self._recv, send = ctx.Pipe(duplex=False)
@@ -150,6 +157,14 @@ class StageProcess:
                                        _log_levels()))
         self._proc.start()
         send.close()  # the child holds the only sending end: its death ends recv()
+        # two processes share the CPUs until this one ends: half the BLAS threads here
+        # too (parallel.blas_threads_per_process), restored when it has ended
+        self._blas = limit_blas_threads(blas_threads_per_process(2))
+
+    def _restore_blas(self) -> None:
+        if self._blas is not None:
+            self._blas.restore_original_limits()
+            self._blas = None
 
     def result(self) -> tuple[dict, float, float]:
         """Wait for the stage.
@@ -176,6 +191,7 @@ class StageProcess:
         finally:
             self._recv.close()
         self._proc.join()
+        self._restore_blas()
         if msg is None:
             raise StageProcessError("ProcessDied", f"the process of stage {self.stage!r} ended "
                                     f"without a result (exit code {self._proc.exitcode})")
@@ -192,6 +208,7 @@ class StageProcess:
                 self._proc.kill()
                 self._proc.join()
         self._recv.close()
+        self._restore_blas()
 
 
 @dataclass

@@ -116,3 +116,25 @@ def test_an_unpicklable_task_error_comes_back_as_its_traceback():
 
     with pytest.raises(RuntimeError, match="(?s)task 1 raised.*_Unpicklable: held a handle"):
         map_forked(task, 3, workers=2)
+
+
+def _blas_threads() -> int:
+    from threadpoolctl import threadpool_info
+
+    pools = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+    assert pools, "no BLAS pool found: the test would pass vacuously"
+    return max(pools)
+
+
+def test_pool_processes_share_the_blas_threads(monkeypatch):
+    # OpenBLAS's threads spin while waiting: n processes each get cpus // n threads
+    from pipeline.parallel import blas_threads_per_process, usable_cpus
+
+    monkeypatch.setattr("pipeline.parallel.usable_cpus", lambda: 4)
+    assert [blas_threads_per_process(n) for n in (1, 2, 3, 4, 8)] == [4, 2, 1, 1, 1]
+    monkeypatch.setattr("pipeline.parallel.usable_cpus", usable_cpus)
+    here = _blas_threads()
+    assert fork_workers(2, 2) == 2
+    out = map_forked(lambda i: _blas_threads(), 2, workers=2)
+    assert out == [blas_threads_per_process(2)] * 2
+    assert _blas_threads() == here  # this process keeps its own

@@ -116,6 +116,37 @@ def test_side_stage_starts_as_early_as_its_upstream_allows(tmp_path):
     assert json.loads((tmp_path / "dep" / "x.json").read_text())["manifest_stage"] == "x + b"
 
 
+def _blas_threads() -> int:
+    from threadpoolctl import threadpool_info
+
+    return max(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+
+
+def _a_blas(ctx):
+    time.sleep(1.0)  # the side stage is running meanwhile
+    ctx.out("a.json").write_text(json.dumps({"pid": os.getpid(), "blas": _blas_threads()}))
+
+
+def _b_blas(ctx):
+    ctx.out("b/out.json").write_text(json.dumps({"pid": os.getpid(), "blas": _blas_threads()}))
+
+
+def test_side_by_side_processes_share_the_blas_threads(tmp_path):
+    # OpenBLAS's threads spin while waiting: beside each other, the runner's process and
+    # the stage's each use half the CPUs' worth; the runner's own are restored after
+    from pipeline.parallel import blas_threads_per_process
+
+    here = _blas_threads()
+    stages = (Stage("a", _a_blas, ("seed",)), Stage("b", _b_blas, ("seed",), own_process=True),
+              SIDE[2])
+    _run(StudyConfig(), tmp_path, stages=stages)
+    a = json.loads((tmp_path / "a.json").read_text())
+    b = json.loads((tmp_path / "b/out.json").read_text())
+    assert b["pid"] != os.getpid()
+    assert a["blas"] == b["blas"] == blas_threads_per_process(2)
+    assert _blas_threads() == here
+
+
 def test_dependent_stage_or_one_worker_runs_in_order(tmp_path, monkeypatch):
     dep = (SIDE[0], Stage("b", _b_after_a, ("seed",), ("a",), own_process=True), SIDE[2])
     _run(StudyConfig(), tmp_path / "dep", stages=dep)
