@@ -128,7 +128,8 @@ def _a_blas(ctx):
 
 
 def _b_blas(ctx):
-    ctx.out("b/out.json").write_text(json.dumps({"pid": os.getpid(), "blas": _blas_threads()}))
+    ctx.out("b/out.json").write_text(json.dumps({"pid": os.getpid(), "blas": _blas_threads(),
+                                                 "nice": os.nice(0)}))
 
 
 def test_side_by_side_processes_share_the_blas_threads(tmp_path):
@@ -145,6 +146,10 @@ def test_side_by_side_processes_share_the_blas_threads(tmp_path):
     assert b["pid"] != os.getpid()
     assert a["blas"] == b["blas"] == blas_threads_per_process(2)
     assert _blas_threads() == here
+    # and it runs at a lower priority: the runner's stages are the critical path
+    from pipeline.stageproc import SIDE_NICENESS
+
+    assert b["nice"] == min(19, os.nice(0) + SIDE_NICENESS) > os.nice(0)
 
 
 def test_dependent_stage_or_one_worker_runs_in_order(tmp_path, monkeypatch):
