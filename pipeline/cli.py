@@ -154,7 +154,7 @@ def run(
     Stages: scene -> tour (robot, MCL) -> reads (ray-traced, train tour and the held-out
     evaluation path) -> training sets -> models (FCM + ANFIS; MCL-pose and true-pose;
     baselines) -> truth -> downstream -> evaluation -> figures -> report; truth_traces
-    (the truth's ray traces) runs beside reads. Each stage is cached in the
+    (the truth's ray traces) runs beside tour and reads. Each stage is cached in the
     run directory and skipped when its inputs are unchanged; ray traces are cached in
     the shared propagation cache (tracing.cache_dir).
 

@@ -1,10 +1,10 @@
 """A stage in a process of its own, running beside the stages before it.
 
-Stages that do not depend on each other can run at the same time: the study's ``tour``
-(MCL, on one core) and ``reads`` (the reader simulation's tracing, whose kernel
-compiling and NumPy bookkeeping leave a core idle) and ``truth_traces`` (the truth's
-traces at tag sites, whose antenna poses it computes from the evaluation path) do not
-read each other's outputs. The runner (:func:`pipeline.study.run_study`) starts a stage
+Stages that do not depend on each other can run at the same time: ``truth_traces``
+(the truth's traces at tag sites, whose antenna poses it computes from the evaluation
+path) reads nothing of the study's ``tour`` (MCL, on one core) and ``reads`` (the reader
+simulation's tracing, whose kernel compiling and NumPy bookkeeping leave a core idle),
+nor they of it. The runner (:func:`pipeline.study.run_study`) starts a stage
 marked ``own_process`` in a *spawned* process (a fresh interpreter: the parent's Dr.Jit
 threads and locks are never inherited, so either stage may trace) as soon as its
 upstream stages are done, while the runner's stages go on in this process, and commits
@@ -73,8 +73,8 @@ class StageProcessError(RuntimeError):
         self.child_traceback = child_traceback
 
 
-#: Niceness added to a stage's own process. It must end only before the stage that needs
-#: it, and the runner's stages are the critical path (the tour's MCL, the reads' tracing,
+#: Niceness added to a stage's own process. It is waited for where it stands in the order
+#: (truth_traces: after the reads), and the runner's stages are the critical path (the tour's MCL, the reads' tracing,
 #: whose single-threaded NumPy between the tracer's kernels leaves a core idle): at a
 #: lower priority the stage beside takes the CPU they leave and yields the rest. A cold
 #: default study on 2 cores, one run each: 135.3 s at +0 (7.4 % of the CPU idle), 131.9 s
@@ -162,18 +162,21 @@ class StageProcess:
     """
 
     def __init__(self, func, stage: str, config, root: Path, staged: Path):
-        self._blas = None
+        # two processes share the CPUs until this one is waited for or stopped: half the
+        # BLAS threads here too (parallel.blas_threads_per_process), restored then
+        self._blas = limit_blas_threads(blas_threads_per_process(2))
         ctx = multiprocessing.get_context("spawn")
         self.stage = stage
-        self._recv, send = ctx.Pipe(duplex=False)
-        self._proc = ctx.Process(target=_child, name=f"rfidstudy-{stage}",
-                                 args=(send, func, stage, config, str(root), str(staged),
-                                       _log_levels()))
-        self._proc.start()
+        try:
+            self._recv, send = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(target=_child, name=f"rfidstudy-{stage}",
+                                     args=(send, func, stage, config, str(root), str(staged),
+                                           _log_levels()))
+            self._proc.start()
+        except BaseException:
+            self._restore_blas()
+            raise
         send.close()  # the child holds the only sending end: its death ends recv()
-        # two processes share the CPUs until this one ends: half the BLAS threads here
-        # too (parallel.blas_threads_per_process), restored when it has ended
-        self._blas = limit_blas_threads(blas_threads_per_process(2))
 
     def _restore_blas(self) -> None:
         if self._blas is not None:
@@ -204,8 +207,10 @@ class StageProcess:
             msg = None
         finally:
             self._recv.close()
-        self._proc.join()
-        self._restore_blas()
+        try:
+            self._proc.join()
+        finally:
+            self._restore_blas()
         if msg is None:
             raise StageProcessError("ProcessDied", f"the process of stage {self.stage!r} ended "
                                     f"without a result (exit code {self._proc.exitcode})")
@@ -215,14 +220,16 @@ class StageProcess:
 
     def stop(self) -> None:
         """End the process now (its staging directory is the caller's to discard)."""
-        if self._proc.is_alive():
-            self._proc.terminate()
-            self._proc.join(10)
+        try:
             if self._proc.is_alive():
-                self._proc.kill()
-                self._proc.join()
-        self._recv.close()
-        self._restore_blas()
+                self._proc.terminate()
+                self._proc.join(10)
+                if self._proc.is_alive():
+                    self._proc.kill()
+                    self._proc.join()
+            self._recv.close()
+        finally:
+            self._restore_blas()
 
 
 @dataclass

@@ -421,7 +421,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
         atomic_write_text(store.path("config.toml"), config_to_toml(config))
         with _progress_bars(progress) as prog:
             for k, st in enumerate(stages):
-                if side is not None and side.stage is st:  # started beside the stage before
+                if side is not None and side.stage is st:  # started beside stages before it
                     current = st.name
                     rec = finish_side(side, store, result, prog,
                                       lambda f: _safe(manifest, "failed", f["stage"], f, manifest_extra))

@@ -54,9 +54,11 @@ COMPLETION_MIN_AREA_M2 = 1.0
 COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
 POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
-SHARING_ALGORITHM = 5  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
+SHARING_ALGORITHM = 6  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
-# 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed)
+# 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed);
+# 6: no padding receivers (propagation.shooting): they shared the shooting's per-source table of
+# specular chains with the tags, so a rare collision could drop a tag's chain
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:

@@ -21,8 +21,10 @@ engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` han
 
 The scene stage always runs (it is cheap) so an edited scene file changes its
 outputs' digest and everything downstream re-runs. ``truth_traces`` runs in a process
-of its own beside ``reads``, which it does not read (``Stage.own_process``,
-:mod:`pipeline.stageproc`; its antenna poses come from the tour's track).
+of its own beside ``tour`` and ``reads``, whose outputs it does not read
+(``Stage.own_process``, :mod:`pipeline.stageproc`; it draws the evaluation path's poses
+as the tour does, :func:`pipeline.stages.tour.eval_track`, and the ``truth`` stage
+checks that they are the tour's).
 """
 
 from __future__ import annotations

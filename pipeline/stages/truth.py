@@ -21,6 +21,7 @@ def stage_truth(ctx) -> dict:
     from pipeline.evaluation.truth import detection_truth
 
     cfg = ctx.config
+    _check_trace_poses(ctx)
     budget = link_budget(cfg)
     reads, _ = read_reads(ctx)
     eval_reads, _ = read_reads(ctx, "eval_")
@@ -37,6 +38,34 @@ def stage_truth(ctx) -> dict:
             "eval_cells_with_attempts": int((eval_truth.n_attempts > 0).sum())}
     info.update(_free_space_view(ctx, eval_reads, budget))
     return info
+
+
+def _check_trace_poses(ctx) -> None:
+    """The truth_traces stage drew the evaluation path itself (``tour.eval_track``):
+    its antenna poses must be those of the tour's track, the read log's, or its traces
+    belong to another path (say, the tour's code changed and truth_traces stayed cached).
+
+    Raises
+    ------
+    ValueError
+        Naming the file whose poses differ and the way out.
+    """
+    from pipeline.evaluation.sites import SiteTruth
+    from pipeline.stages.common import attempt_poses, spread_evenly
+
+    ev = ctx.config.evaluation
+    poses = attempt_poses(ctx, "eval")
+    path = ctx.input("truth/site_truth.npz")
+    checks = [(path, SiteTruth.load(path).antenna_poses, spread_evenly(poses, ev.n_site_poses))]
+    for i, want in enumerate(spread_evenly(poses, ev.n_sample_poses)):
+        p = ctx.input(f"truth/free_space_points_{i:02d}.npz")
+        with np.load(p) as z:
+            checks.append((p, z["pose"], want))
+    for p, got, want in checks:
+        if np.shape(got) != np.shape(want) or not np.array_equal(got, want):
+            raise ValueError(f"{p}: its antenna poses are not the evaluation tour's "
+                             f"(tour/eval_track.npz): the truth's traces are of another path; "
+                             "rerun with --force truth_traces")
 
 
 def _miss_probability(cfg, reads, budget):
@@ -96,7 +125,7 @@ def _free_space_view(ctx, eval_reads, budget) -> dict:
 STAGE = Stage("truth", stage_truth,
               ("seed", "frequency_hz", "reader", "robot", "evaluation", "training.d_max_m",
                "training.d_bin_m", "training.alpha_bin_deg"),
-              ("scene", "reads", "models", "truth_traces"),
+              ("scene", "tour", "reads", "models", "truth_traces"),
               version=4,  # 2: held-out grid, tag sites, eval poses; 3: the Gen2 reader's miss
               # probability from the tags in the field; 4: the traces in their own stage
               # (truth_traces), the Fig. 6 truth from their gains

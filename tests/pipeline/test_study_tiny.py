@@ -80,6 +80,29 @@ def test_first_run_produces_the_run_directory(tiny):
     assert any((base / "cache").rglob("*"))
 
 
+def test_truth_refuses_traces_of_another_path(tiny, tmp_path):
+    # truth_traces draws the evaluation path itself: traces whose poses are not the
+    # tour's (a stale cached truth_traces) stop the truth stage with the file's name
+    import dataclasses
+
+    from pipeline.evaluation.sites import SiteTruth
+    from pipeline.runstore import RunStore
+    from pipeline.stages.truth import _check_trace_poses
+    from pipeline.study import StageContext
+
+    cfg, base, _ = tiny
+    run = tmp_path / "run"
+    shutil.copytree(base / "run", run)
+    ctx = StageContext(cfg, RunStore(run), "check", tmp_path / "unused", None, {})
+    _check_trace_poses(ctx)  # the run's own: fine
+    site = SiteTruth.load(run / "truth/site_truth.npz")
+    moved = dataclasses.replace(site, antenna_poses=site.antenna_poses + [0.01, 0, 0, 0, 0, 0])
+    moved.save(run / "truth/site_truth.npz")
+    with pytest.raises(ValueError, match=r"site_truth\.npz: its antenna poses are not the "
+                                         r"evaluation tour's .* --force truth_traces"):
+        _check_trace_poses(ctx)
+
+
 def test_second_run_skips_every_stage(tiny):
     cfg, base, _ = tiny
     res = run_full_study(cfg, base / "run", command_line=["pytest"])
