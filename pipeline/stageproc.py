@@ -10,8 +10,8 @@ threads and locks are never inherited, so either stage may trace) as soon as its
 upstream stages are done, while the runner's stages go on in this process, and commits
 it where it stands in the order. The child runs at a lower priority
 (:data:`SIDE_NICENESS`) and both processes use half the BLAS threads
-(:func:`pipeline.parallel.blas_threads_per_process`). The child writes its outputs only into its own staging
-directory (and shares the propagation cache, which several processes may fill) and sends
+(:func:`pipeline.parallel.blas_threads_per_process`). The child writes its outputs only
+into its own staging directory (and shares the propagation cache, which several processes may fill) and sends
 back its summary (or its error); nothing it computes depends on the process it runs in
 (each stage draws from its own seeded stream), so its outputs are those of a run one
 after the other. On Linux the child ends with its parent (``PR_SET_PDEATHSIG``): a
@@ -73,12 +73,13 @@ class StageProcessError(RuntimeError):
         self.child_traceback = child_traceback
 
 
-#: Niceness added to a stage's own process. It is waited for where it stands in the order
-#: (truth_traces: after the reads), and the runner's stages are the critical path (the tour's MCL, the reads' tracing,
-#: whose single-threaded NumPy between the tracer's kernels leaves a core idle): at a
-#: lower priority the stage beside takes the CPU they leave and yields the rest. A cold
-#: default study on 2 cores, one run each: 135.3 s at +0 (7.4 % of the CPU idle), 131.9 s
-#: at +5, 127.9 s at +10 (4.2 % idle; truth_traces then ended 2 s before the reads).
+#: Niceness added to a stage's own process. It is waited for where it stands in the
+#: order (truth_traces: after the reads), and the runner's stages are the critical path
+#: (the tour's MCL, the reads' tracing, whose single-threaded NumPy between the tracer's
+#: kernels leaves a core idle): at a lower priority the stage beside takes the CPU they
+#: leave and yields the rest. A cold default study on 2 cores, one run each: 135.3 s at
+#: +0 (7.4 % of the CPU idle), 131.9 s at +5, 127.9 s at +10 (4.2 % idle; truth_traces
+#: then ended within ~2 s of the reads: 1.5 s before them there, 2 s after in a bench run).
 SIDE_NICENESS = 10
 
 

@@ -90,9 +90,10 @@ def padded_target_count(n_targets: int) -> int:
     Sionna's shooting kernel loops over the targets with their count as a literal, so
     every new count compiles it anew (~1 s on 2 cores). Counts up to 32 are kept; larger
     ones are rounded up to a quarter octave (at most 25 % more receivers, whose paths are
-    dropped): four kernels per doubling. Tracing with sharing (every study) and its lone
-    positions use :func:`propagation.shooting.candidate_generator` instead, one kernel for
-    every count, and pad nothing.
+    dropped): four kernels per doubling. Tracing with sharing (``share_radius_m`` > 0, a
+    study's default) and its lone positions use
+    :func:`propagation.shooting.candidate_generator` instead, one kernel for every count,
+    and pad nothing.
     """
     n = int(n_targets)
     if n <= 32:
