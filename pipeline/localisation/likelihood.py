@@ -257,6 +257,9 @@ class ModelLikelihood:
         self.p_far = None if p_far is None else float(p_far)
         self.d_far_m = float(d_far_m)
         self.flat_logpdf = -np.log(hi - lo) if self.use_rssi else 0.0
+        if self.d_max_m is not None:  # the far rule's two values, (below, beyond d_far_m)
+            p = self.far_probability(np.array([-np.inf, np.inf]))
+            self._far_values = (np.log(p), np.log1p(-p))
 
     def __repr__(self) -> str:
         return (f"ModelLikelihood({self.name}, own={self.own}, rssi={self.use_rssi}, "
@@ -329,10 +332,10 @@ class ModelLikelihood:
         """The far rule's log-likelihood of every (n, k) pair: one of two values per tag
         (``d`` below or beyond ``d_far_m``), exactly as the terms compute it (log P(read)
         plus the flat RSSI density of a reported RSSI)."""
-        p = self.far_probability(np.array([-np.inf, np.inf]))
+        log_p, log_miss = self._far_values
         rssi_term = np.where(np.isfinite(rssi), self.flat_logpdf, 0.0)
-        v_read = rssi_term[None, :] + np.log(p)[:, None]  # (2, k): below, beyond d_far_m
-        v_miss = np.log1p(-p)[:, None]
+        v_read = rssi_term[None, :] + log_p[:, None]  # (2, k): below, beyond d_far_m
+        v_miss = log_miss[:, None]
         v = np.where(read[None, :], v_read, v_miss)
         return np.where(d < self.d_far_m, v[0], v[1])
 

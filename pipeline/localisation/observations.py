@@ -24,11 +24,12 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from propagation.patterns import as_pose6, pose_rotation
+from propagation.patterns import as_pose6
 
 __all__ = [
     "Observations",
     "as_pose6",
+    "local_xy_axes",
     "near_geometry",
     "observations_from_reads",
     "pair_geometry",
@@ -55,9 +56,9 @@ def pair_geometry(antenna_poses, points, alpha_within_m: float = np.inf):
     """
     if np.isinf(alpha_within_m):
         o = _pair_offsets(antenna_poses, points)
-        rx, ry = o.rot[:, None, :, 0], o.rot[:, None, :, 1]  # local x and y axes (n, 1, 3)
-        lx = rx[..., 0] * o.dx + rx[..., 1] * o.dy + rx[..., 2] * o.dz
-        ly = ry[..., 0] * o.dx + ry[..., 1] * o.dy + ry[..., 2] * o.dz
+        ax = o.axes[:, None, :]  # local x and y axes (n, 1, 6)
+        lx = ax[..., 0] * o.dx + ax[..., 1] * o.dy + ax[..., 2] * o.dz
+        ly = ax[..., 3] * o.dx + ax[..., 4] * o.dy + ax[..., 5] * o.dz
         return o.d, _wrapped_bearing(ly, lx)
     d, sel, alpha_sel = near_geometry(antenna_poses, points, alpha_within_m)
     alpha = np.full(d.shape, np.nan)
@@ -94,7 +95,7 @@ def near_geometry(antenna_poses, points, within_m: float):
     sel = np.flatnonzero(d < float(within_m))
     if not len(sel):
         return d, sel, np.zeros(0)
-    axes = np.concatenate([o.rot[:, :, 0], o.rot[:, :, 1]], axis=1)[sel // d.shape[1]]  # (m, 6)
+    axes = o.axes[sel // d.shape[1]]  # (m, 6)
     ex, ey, ez = o.dx.ravel()[sel], o.dy.ravel()[sel], o.dz.ravel()[sel]
     lx = axes[:, 0] * ex + axes[:, 1] * ey + axes[:, 2] * ez
     ly = axes[:, 3] * ex + axes[:, 4] * ey + axes[:, 5] * ez
@@ -103,9 +104,9 @@ def near_geometry(antenna_poses, points, within_m: float):
 
 class _PairOffsets(NamedTuple):
     """World-frame offsets of every (pose, point) pair, (n, k) each, their distances, and
-    the poses' rotations (n, 3, 3; columns are the local axes in world coordinates)."""
+    the poses' local x and y axes in world coordinates (n, 6: x axis, then y axis)."""
 
-    rot: np.ndarray
+    axes: np.ndarray
     dx: np.ndarray
     dy: np.ndarray
     dz: np.ndarray
@@ -118,7 +119,40 @@ def _pair_offsets(antenna_poses, points) -> _PairOffsets:
     dx = pts[None, :, 0] - p[:, None, 0]
     dy = pts[None, :, 1] - p[:, None, 1]
     dz = pts[None, :, 2] - p[:, None, 2]
-    return _PairOffsets(pose_rotation(p), dx, dy, dz, np.sqrt(dx * dx + dy * dy + dz * dz))
+    return _PairOffsets(local_xy_axes(p), dx, dy, dz, np.sqrt(dx * dx + dy * dy + dz * dz))
+
+
+def local_xy_axes(antenna_poses) -> np.ndarray:
+    """The first two columns of :func:`propagation.patterns.pose_rotation`, bit for bit.
+
+    The robot filter's poses share their pitch and roll (one antenna mount): their sines
+    and cosines are taken once and the products are formed as ``rotation_matrix`` forms
+    them (the same operations in the same order, so the same bits), a third of the work
+    of the full matrices.
+
+    Parameters
+    ----------
+    antenna_poses : array_like, shape (n, 4) or (n, 6)
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 6), float64
+        Local x axis (boresight), then local y axis, in world coordinates.
+    """
+    p = as_pose6(antenna_poses)
+    yaw, beta, gamma = p[:, 3], -p[:, 4], p[:, 5]
+    if len(p) and np.all(beta == beta[0]) and np.all(gamma == gamma[0]):
+        beta, gamma = beta[:1], gamma[:1]  # one mount: broadcast below
+    sa, ca = np.sin(yaw), np.cos(yaw)
+    sb, cb, sc, cc = np.sin(beta), np.cos(beta), np.sin(gamma), np.cos(gamma)
+    axes = np.empty((len(p), 6))
+    axes[:, 0] = ca * cb
+    axes[:, 1] = sa * cb
+    axes[:, 2] = -sb
+    axes[:, 3] = ca * sb * sc - sa * cc
+    axes[:, 4] = sa * sb * sc + ca * cc
+    axes[:, 5] = cb * sc
+    return axes
 
 
 def _wrapped_bearing(ly: np.ndarray, lx: np.ndarray) -> np.ndarray:

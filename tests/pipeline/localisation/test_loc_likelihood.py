@@ -21,12 +21,14 @@ from pipeline.localisation import (
     pair_geometry,
     rssi_residual_std,
 )
+from pipeline.localisation.observations import local_xy_axes
 from pipeline.localisation.synthetic import (
     corridor_scenario,
     free_space_gain_db,
     sample_attempts,
 )
 from propagation import LinkBudget, antenna_frame_angles
+from propagation.patterns import pose_rotation
 
 
 class DetectionOnly:
@@ -87,6 +89,25 @@ def test_pair_geometry_matches_propagation_frame():
     np.testing.assert_allclose(a2[near], ref.alpha_rad[near], atol=1e-12)
     assert np.all(np.isnan(a2[~near]))
 
+
+
+@pytest.mark.parametrize("one_mount", [True, False])
+def test_local_xy_axes_are_pose_rotation_columns_bit_for_bit(one_mount):
+    # the filter's geometry takes the mount's pitch and roll sines once: the axes must be
+    # exactly rotation_matrix's (same operations, same order), or the filter's resampling
+    # would drift from the bearings every other caller computes
+    rng = np.random.default_rng(3)
+    n = 257
+    pitch = np.full(n, 0.31) if one_mount else rng.uniform(-0.5, 0.5, n)
+    roll = np.full(n, -0.07) if one_mount else rng.uniform(-0.3, 0.3, n)
+    poses = np.column_stack([rng.uniform(-3, 3, (n, 3)), rng.uniform(-np.pi, np.pi, n),
+                             pitch, roll])
+    rot = pose_rotation(poses)
+    axes = local_xy_axes(poses)
+    assert axes.shape == (n, 6)
+    np.testing.assert_array_equal(axes[:, :3], rot[:, :, 0])
+    np.testing.assert_array_equal(axes[:, 3:], rot[:, :, 1])
+    assert local_xy_axes(np.zeros((0, 6))).shape == (0, 6)
 
 def test_gaussian_likelihood_closed_form():
     lk = ModelLikelihood(Constant(0.7, -60.0), sigma_rssi_db=2.0)
