@@ -280,11 +280,18 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         own_rows = np.flatnonzero(solve)
         valid = np.zeros(n_rows, bool)
         if len(own_rows):
-            own = cand if len(own_rows) == n_rows and not any(len(nb) for nb in neighbours) else \
-                cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
+            own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
+            # the sources as an array of their own, as the shared rows' below: the same
+            # image-method and field kernels then serve both buffers (a gathered index is
+            # one operation more, so other kernels, compiled again: ~3 s per process)
+            own._src_indices = jit_array(mi.UInt, src[own_rows], np.uint32)  # noqa: SLF001
             own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
             solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator,
                          discard=False)
+            # the validity and the fields in one kernel: evaluated alone, the validity
+            # leaves the image method's points unevaluated and the fields' kernel (built
+            # for this one buffer) computes them again
+            own.schedule()
             valid[own_rows] = own.valid.numpy().astype(bool)
             own.discard_invalid()
             collect_paths(own, out)

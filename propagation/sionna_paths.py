@@ -52,20 +52,28 @@ def solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_cal
 def collect_paths(buf, out: dict) -> None:
     """Append a solved buffer's paths to ``out``'s lists (``a``, ``src``, ``tgt``, ``tau``,
     ``k_tx``, ``k_rx``) as NumPy float64 / complex128 arrays."""
+    import drjit as dr
+
     if buf.buffer_size == 0:
         return
+    fields = (buf.a, buf.source_indices, buf.target_indices, buf.tau, buf.k_tx, buf.k_rx)
+    # one kernel for every field (they are gathers of the valid rows), then copies: a
+    # Vector3f converted whole is a kernel with its length as a literal, compiled again
+    # for every buffer length
+    dr.eval(*fields)
+    a_, src, tgt, tau, k_tx, k_rx = fields
     a = np.empty((buf.buffer_size, 2, 2), complex)
     for r in range(2):
         for t in range(2):
-            z = buf.a[r][t]
+            z = a_[r][t]
             a[:, r, t] = np.asarray(z.real, np.float64) + 1j * np.asarray(z.imag, np.float64)
     out["a"].append(a)
-    out["src"].append(buf.source_indices.numpy().astype(np.int64))
-    out["tgt"].append(buf.target_indices.numpy().astype(np.int64))
-    out["tau"].append(buf.tau.numpy().astype(np.float64))
-    # Dr.Jit's Vector3f.numpy() is (3, P)
-    out["k_tx"].append(np.asarray(buf.k_tx.numpy(), np.float64).T)
-    out["k_rx"].append(np.asarray(buf.k_rx.numpy(), np.float64).T)
+    out["src"].append(src.numpy().astype(np.int64))
+    out["tgt"].append(tgt.numpy().astype(np.int64))
+    out["tau"].append(tau.numpy().astype(np.float64))
+    for name, v in (("k_tx", k_tx), ("k_rx", k_rx)):
+        out[name].append(np.stack([np.asarray(c.numpy(), np.float64) for c in (v.x, v.y, v.z)],
+                                  axis=1))
 
 
 def to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
