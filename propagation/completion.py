@@ -38,6 +38,7 @@ from propagation.jitarrays import jit_array
 from propagation.pathcache import SourcePaths
 from propagation.sionna_paths import (
     collect_paths,
+    opaque_buffer,
     path_copies,
     points,
     solve_fields,
@@ -333,7 +334,8 @@ def triangle_planes(rt_scene, normal_step: float = 1e-4, offset_step_m: float = 
 
 
 def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes: Planes | None = None,
-                      *, need=None, min_order: int = 1, los: bool = False) -> list[SourcePaths]:
+                      *, need=None, min_order: int = 1, los: bool = False,
+                      buffer_depth: int | None = None) -> list[SourcePaths]:
     """Every specular-reflection path of order ``min_order..max_order`` over the large planes.
 
     Parameters
@@ -355,6 +357,11 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         Lowest number of reflections enumerated (1 by default).
     los : bool
         Also return the line-of-sight paths (Sionna's own visibility test).
+    buffer_depth : int, optional
+        Solve the chains in paths buffers of this depth (>= ``max_order``; the chains
+        padded with no interaction), default ``max_order``: a tracer's ``max_depth``
+        gives the image method and field kernels of its own buffers, compiled once for
+        both (Sionna bakes the depth into them). The paths are the same.
 
     Returns
     -------
@@ -378,9 +385,14 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         raise ValueError(f"need must have shape ({n}, {m}), got {need.shape}")
     if int(min_order) < 1 or int(max_order) < int(min_order):
         raise ValueError(f"need 1 <= min_order <= max_order, got {min_order}, {max_order}")
+    depth = int(max_order) if buffer_depth is None else int(buffer_depth)
+    if depth < int(max_order):
+        raise ValueError(f"buffer_depth ({buffer_depth}) must be >= max_order ({max_order})")
     planes = large_planes(rt_scene) if planes is None else planes
     link_src, link_tgt = np.nonzero(need)
     li, ch = candidate_chains(planes, src, tgt, link_src, link_tgt, int(min_order), int(max_order))
+    if ch.shape[1] < depth:  # no interaction (-1) after the chain
+        ch = np.pad(ch, ((0, 0), (0, depth - ch.shape[1])), constant_values=-1)
 
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
@@ -448,6 +460,7 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     buf._src_indices = jit_array(mi.UInt, link_src, u32)  # noqa: SLF001
     buf._tgt_indices = jit_array(mi.UInt, link_tgt, u32)  # noqa: SLF001
     buf._paths_counter = mi.UInt(len(ch))  # noqa: SLF001 - read by shrink() only, never in a kernel
+    opaque_buffer(buf)
     buf = ImageMethod()(rt_scene.mi_scene, buf, False, True, src_mi, tgt_mi)
     solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, 1, FieldCalculator)
     collect_paths(buf, out)

@@ -354,7 +354,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
                 # position's own; the cache must never hold an uncompleted link
                 done = None if plan is None else want
                 extra = complete_specular(rt_scene, uniq[chunk], tags[rec], completion_order,
-                                          planes, need=done)
+                                          planes, need=done,
+                                          buffer_depth=max(max_depth, completion_order))
                 fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
             t_trace += time.perf_counter() - t0
             n_calls += 1

@@ -44,6 +44,7 @@ from propagation.pathcache import SourcePaths
 from propagation.sionna_paths import (
     candidate_keys,
     collect_paths,
+    opaque_buffer,
     points,
     solve_fields,
     to_source_paths,
@@ -280,13 +281,14 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         own_rows = np.flatnonzero(solve)
         valid = np.zeros(n_rows, bool)
         if len(own_rows):
+            # in memory of its own, as the shared rows' and the completion's buffers: one
+            # image-method and one field kernel serve all three (opaque_buffer); and the
+            # field calculator's samples_per_src 1, as theirs: it scales diffuse ray
+            # tubes only (none here), and another value is another kernel
             own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
-            # the sources as an array of their own, as the shared rows' below: the same
-            # image-method and field kernels then serve both buffers (a gathered index is
-            # one operation more, so other kernels, compiled again: ~3 s per process)
-            own._src_indices = jit_array(mi.UInt, src[own_rows], np.uint32)  # noqa: SLF001
+            opaque_buffer(own)
             own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
-            solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator,
+            solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, 1, FieldCalculator,
                          discard=False)
             # the validity and the fields in one kernel: evaluated alone, the validity
             # leaves the image method's points unevaluated and the fields' kernel (built
@@ -301,8 +303,9 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         if len(rows):
             buf = cand.gather(jit_array(mi.UInt, rows, np.uint32))
             buf._src_indices = jit_array(mi.UInt, dest, np.uint32)  # noqa: SLF001 - re-targeted
+            opaque_buffer(buf)
             buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
-            solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+            solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, 1, FieldCalculator)
             collect_paths(buf, out)
     clear_devices(rt_scene)
     return to_source_paths(out, pos, tgt, need)

@@ -16,7 +16,8 @@ import numpy as np
 from propagation.jitarrays import jit_points
 from propagation.pathcache import SourcePaths
 
-__all__ = ["candidate_keys", "collect_paths", "path_copies", "points", "solve_fields", "to_source_paths"]
+__all__ = ["candidate_keys", "collect_paths", "opaque_buffer", "path_copies", "points", "solve_fields",
+           "to_source_paths"]
 
 _SPEED_OF_LIGHT = 299_792_458.0
 
@@ -47,6 +48,24 @@ def solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_cal
                        rt_scene.rx_array.antenna_pattern.patterns)
     if discard:
         buf.discard_invalid()
+
+
+def opaque_buffer(buf) -> None:
+    """Every candidate array of a paths buffer evaluated into memory of its own; in place.
+
+    Sionna's image method and field calculator then see the same kind of inputs whatever
+    made the buffer (rows gathered from the candidate generator's buffer, or a chain
+    enumeration's arrays with constant fields): one kernel of each serves all of them,
+    where a gather fused into the kernel or a constant folded into it makes another one
+    (~2 s of LLVM build each). The values are unchanged.
+    """
+    import drjit as dr
+
+    dr.make_opaque(buf._valid, buf._src_indices, buf._tgt_indices,  # noqa: SLF001
+                   buf._k_tx_x, buf._k_tx_y, buf._k_tx_z,  # noqa: SLF001
+                   buf._k_rx_x, buf._k_rx_y, buf._k_rx_z,  # noqa: SLF001
+                   buf._interaction_types, buf._vertices_x, buf._vertices_y,  # noqa: SLF001
+                   buf._vertices_z, buf._shapes, buf._primitives, buf._probs)  # noqa: SLF001
 
 
 def collect_paths(buf, out: dict) -> None:

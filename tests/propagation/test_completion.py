@@ -341,3 +341,23 @@ def test_planes_of_table_and_search_agree(monkeypatch):
             np.testing.assert_array_equal(got, expect)
         nothing = PlaneLookup(np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64))
         assert nothing.planes_of(shapes[:2], prims[:2]).tolist() == [[-1] * 3] * 2
+
+
+def test_completion_in_deeper_buffers_gives_the_same_paths(corridor_scene):
+    # buffer_depth pads the chains with "no interaction" so that the image method and
+    # field kernels are the tracer's own (Sionna bakes the depth into them): the paths
+    # must be the same, bit for bit (the padded steps do nothing); a depth below the
+    # order cannot hold the chains
+    rts = load_sionna_scene(corridor_scene, F)
+    planes = large_planes(rts, 1.0)
+    pos = np.array([[3.0, 1.2, 0.7], [4.5, 1.0, 0.9]])
+    tags = corridor_scene.tags.positions_m[:4]
+    a = complete_specular(rts, pos, tags, 2, planes)
+    b = complete_specular(rts, pos, tags, 2, planes, buffer_depth=5)
+    assert sum(len(x.tau_s) for x in a) > 0
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.tau_s, y.tau_s)
+        np.testing.assert_array_equal(x.transfer, y.transfer)
+        np.testing.assert_array_equal(x.k_tx, y.k_tx)
+    with pytest.raises(ValueError, match="buffer_depth"):
+        complete_specular(rts, pos, tags, 2, planes, buffer_depth=1)

@@ -385,31 +385,36 @@ def test_lone_position_is_the_solvers_paths_without_its_copies():
     np.testing.assert_allclose(direct.gain_db, lone.gain_db, atol=1e-3)
 
 
-
-def test_own_and_shared_rows_share_one_image_method_kernel(corridor_scene):
-    # The own rows and the neighbours' rows are solved by the same image method and field
-    # calculator: one kernel of ~11,500 operations must serve both buffers, and the own
-    # rows' validity must not be evaluated in a kernel of its own (which left the image
-    # method's points to be computed again by a second kernel for the fields). Before
-    # this was so, a chunk compiled three such kernels (own, its fields, shared): ~3 s of
-    # LLVM builds per process.
+def test_own_shared_and_completion_rows_share_one_image_method_kernel(corridor_scene):
+    # The own rows, the neighbours' rows and the completion's chains are solved by the
+    # same image method and field calculator: one kernel of each must serve all three
+    # buffers (each buffer's arrays in memory of their own, the completion's chains in
+    # buffers of the trace's depth), and the own rows' validity must not be evaluated in
+    # a kernel of its own (which left the image method's points to a second kernel that
+    # computed them again). Before this was so, a chunk compiled four image-method
+    # kernels (own, its fields again, shared, completion): ~6 s of LLVM builds per process.
     import drjit as dr
+
+    from propagation.completion import complete_specular, large_planes, plane_lookup
 
     tags = corridor_scene.tags.positions_m[:5]
     x = np.arange(3.0, 4.0, 0.1)
     pos = np.column_stack([x, np.full_like(x, 1.2), np.full_like(x, 0.7)])
     rts = load_sionna_scene(corridor_scene, F)
+    planes = large_planes(rts, 1.0)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
         dr.kernel_history()  # clears the history
-        shared = trace_shared(rts, pos, tags, sharing_neighbours(pos, 0.5), 3, 500, 1)
+        shared = trace_shared(rts, pos, tags, sharing_neighbours(pos, 0.5), 3, 500, 1,
+                              completion=(plane_lookup(rts, planes), 2))
+        extra = complete_specular(rts, pos, tags, 2, planes, buffer_depth=3)
         big = [e for e in dr.kernel_history()
                if "hash" in e and e.get("operation_count", 0) >= 3000]
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert sum(len(s.tau_s) for s in shared) > 0
-    # the shooting (~3,800 operations at depth 3), then the own rows' launch and the
-    # shared rows' launch of the image method (~6,000; this scene has rows of both)
+    assert sum(len(s.tau_s) for s in shared) > 0 and sum(len(s.tau_s) for s in extra) > 0
+    # the shooting (~3,800 operations at depth 3), then the image method (~5,900) for
+    # the own rows, the shared rows (this scene has rows of both) and the completion
     ops = [e["operation_count"] for e in big]
-    assert len(big) == 3, ops
-    assert big[1]["hash"] == big[2]["hash"] != big[0]["hash"], ops
+    assert len(big) == 4, ops
+    assert len({e["hash"] for e in big[1:]}) == 1 and big[0]["hash"] != big[1]["hash"], ops
