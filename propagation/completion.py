@@ -50,8 +50,10 @@ __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_
 
 _SPEED_OF_LIGHT = 299_792_458.0
 #: Candidate chains per call of Sionna's image method and field calculator: they hold
-#: ~330 B of Dr.Jit temporaries per candidate (measured on corridor_lab: 7.0 M order-2
-#: candidates peaked at 2.3 GB, 2.9 M order-3 ones at 1.0 GB), ~350 MB per call.
+#: ~330 B of Dr.Jit temporaries per candidate in buffers of depth 2-3 (measured on
+#: corridor_lab: 7.0 M order-2 candidates peaked at 2.3 GB, 2.9 M order-3 ones at
+#: 1.0 GB), ~350 MB per call; in the sharing tracer's depth-5 buffers (``buffer_depth``)
+#: about 1.5x that.
 _CANDIDATES_PER_CALL = 1 << 20
 #: (source, target) pairs per line-of-sight call (every pair of the call is solved).
 _LOS_PAIRS_PER_CALL = 1 << 18
@@ -391,8 +393,6 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
     planes = large_planes(rt_scene) if planes is None else planes
     link_src, link_tgt = np.nonzero(need)
     li, ch = candidate_chains(planes, src, tgt, link_src, link_tgt, int(min_order), int(max_order))
-    if ch.shape[1] < depth:  # no interaction (-1) after the chain
-        ch = np.pad(ch, ((0, 0), (0, depth - ch.shape[1])), constant_values=-1)
 
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
@@ -403,7 +403,11 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         ptr = np.asarray(dr.reinterpret_array(mi.UInt, mi.ShapePtr(shapes)).numpy(), np.uint32)
         for c0 in range(0, len(li), _CANDIDATES_PER_CALL):  # bounded Dr.Jit temporaries
             blk = slice(c0, c0 + _CANDIDATES_PER_CALL)
-            _solve_chains(rt_scene, ptr, planes, link_src[li[blk]], link_tgt[li[blk]], ch[blk],
+            # no interaction (-1) after the chain, up to the buffer's depth (per block:
+            # the padded chains of every block at once would double the chains' memory)
+            chb = ch[blk] if ch.shape[1] >= depth else \
+                np.pad(ch[blk], ((0, 0), (0, depth - ch.shape[1])), constant_values=-1)
+            _solve_chains(rt_scene, ptr, planes, link_src[li[blk]], link_tgt[li[blk]], chb,
                           src_mi, tgt_mi, n, m, out)
     if los:
         per = max(1, _LOS_PAIRS_PER_CALL // max(1, m))

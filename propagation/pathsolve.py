@@ -353,9 +353,11 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
                 # each position against the union of the chunk's tags, pooled only the
                 # position's own; the cache must never hold an uncompleted link
                 done = None if plan is None else want
+                # in buffers of the sharing tracer's depth: its image-method kernels
+                # (direct and pooled tracing solve theirs in Sionna's own buffers)
+                depth = int(max_depth) if plan is None and share_radius_m is not None else None
                 extra = complete_specular(rt_scene, uniq[chunk], tags[rec], completion_order,
-                                          planes, need=done,
-                                          buffer_depth=max(max_depth, completion_order))
+                                          planes, need=done, buffer_depth=depth)
                 fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
             t_trace += time.perf_counter() - t0
             n_calls += 1

@@ -287,6 +287,10 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
             # tubes only (none here), and another value is another kernel
             own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
             opaque_buffer(own)
+            if not any(len(nb) for nb in neighbours):
+                # nothing to share: the candidates go before their copy is solved (lone
+                # positions' chunks are sized for one buffer, not two)
+                del cand
             own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
             solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, 1, FieldCalculator,
                          discard=False)

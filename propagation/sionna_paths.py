@@ -57,7 +57,8 @@ def opaque_buffer(buf) -> None:
     made the buffer (rows gathered from the candidate generator's buffer, or a chain
     enumeration's arrays with constant fields): one kernel of each serves all of them,
     where a gather fused into the kernel or a constant folded into it makes another one
-    (~2 s of LLVM build each). The values are unchanged.
+    (~2 s of LLVM build each). The values are unchanged. Buffers with diffraction (never
+    made here) keep their wedges as they are.
     """
     import drjit as dr
 

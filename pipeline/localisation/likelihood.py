@@ -257,7 +257,8 @@ class ModelLikelihood:
         self.p_far = None if p_far is None else float(p_far)
         self.d_far_m = float(d_far_m)
         self.flat_logpdf = -np.log(hi - lo) if self.use_rssi else 0.0
-        if self.d_max_m is not None:  # the far rule's two values, (below, beyond d_far_m)
+        self._far_values = None  # the far rule's log P(read), log P(miss): below, beyond d_far_m
+        if self.d_max_m is not None:
             p = self.far_probability(np.array([-np.inf, np.inf]))
             self._far_values = (np.log(p), np.log1p(-p))
 

@@ -359,5 +359,6 @@ def test_completion_in_deeper_buffers_gives_the_same_paths(corridor_scene):
         np.testing.assert_array_equal(x.tau_s, y.tau_s)
         np.testing.assert_array_equal(x.transfer, y.transfer)
         np.testing.assert_array_equal(x.k_tx, y.k_tx)
+        np.testing.assert_array_equal(x.k_rx, y.k_rx)
     with pytest.raises(ValueError, match="buffer_depth"):
         complete_specular(rts, pos, tags, 2, planes, buffer_depth=1)

@@ -418,3 +418,29 @@ def test_own_shared_and_completion_rows_share_one_image_method_kernel(corridor_s
     ops = [e["operation_count"] for e in big]
     assert len(big) == 4, ops
     assert len({e["hash"] for e in big[1:]}) == 1 and big[0]["hash"] != big[1]["hash"], ops
+
+
+def test_sharing_trace_links_completes_in_its_own_kernels(corridor_scene, tmp_path):
+    # Through trace_links (the study's path): a chunk of sharing positions with the
+    # completion on builds two big kernels, its shooting and one image method for the
+    # own rows, the shared rows and the completion's chains (the completion solved in
+    # buffers of the tracer's depth, not of its order)
+    import drjit as dr
+
+    x = np.arange(3.0, 3.6, 0.1)
+    poses = np.column_stack([x, np.full_like(x, 1.2), np.full_like(x, 0.7), np.zeros_like(x)])
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()  # clears the history
+        links = trace_links(corridor_scene, poses, corridor_scene.tags.positions_m[:5],
+                            frequency_hz=F, samples_per_src=3000, max_depth=3, seed=2,
+                            share_radius_m=0.5, shared_samples_per_src=500,
+                            completion_order=2, cache_dir=tmp_path)
+        big = [e for e in dr.kernel_history()
+               if "hash" in e and e.get("operation_count", 0) >= 3000]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert links.n_traced_sources == len(poses)
+    ops = [e["operation_count"] for e in big]
+    assert len(big) >= 3, ops  # the shooting, then at least the own rows and the completion
+    assert len({e["hash"] for e in big}) == 2, ops

@@ -90,7 +90,6 @@ def test_pair_geometry_matches_propagation_frame():
     assert np.all(np.isnan(a2[~near]))
 
 
-
 @pytest.mark.parametrize("one_mount", [True, False])
 def test_local_xy_axes_are_pose_rotation_columns_bit_for_bit(one_mount):
     # the filter's geometry takes the mount's pitch and roll sines once: the axes must be
@@ -108,6 +107,7 @@ def test_local_xy_axes_are_pose_rotation_columns_bit_for_bit(one_mount):
     np.testing.assert_array_equal(axes[:, :3], rot[:, :, 0])
     np.testing.assert_array_equal(axes[:, 3:], rot[:, :, 1])
     assert local_xy_axes(np.zeros((0, 6))).shape == (0, 6)
+
 
 def test_gaussian_likelihood_closed_form():
     lk = ModelLikelihood(Constant(0.7, -60.0), sigma_rssi_db=2.0)
