@@ -52,8 +52,9 @@ _SPEED_OF_LIGHT = 299_792_458.0
 #: Candidate chains per call of Sionna's image method and field calculator: they hold
 #: ~330 B of Dr.Jit temporaries per candidate in buffers of depth 2-3 (measured on
 #: corridor_lab: 7.0 M order-2 candidates peaked at 2.3 GB, 2.9 M order-3 ones at
-#: 1.0 GB), ~350 MB per call; in the sharing tracer's depth-5 buffers (``buffer_depth``)
-#: about 1.5x that.
+#: 1.0 GB), ~350 MB per call; more in the sharing tracer's depth-5 buffers
+#: (``buffer_depth``; not measured alone: the paper-scale study's peak went from 4.1 to
+#: 4.4 GB with them and the reads' own buffers evaluated into memory of their own).
 _CANDIDATES_PER_CALL = 1 << 20
 #: (source, target) pairs per line-of-sight call (every pair of the call is solved).
 _LOS_PAIRS_PER_CALL = 1 << 18
