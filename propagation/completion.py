@@ -423,7 +423,7 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
             dr.eval()
             cand.shrink()
             if cand.buffer_size:
-                solve_fields(cand, rt_scene, g_mi, tgt_mi, len(grp), m, 1, FieldCalculator)
+                solve_fields(cand, rt_scene, g_mi, tgt_mi, len(grp), m, FieldCalculator)
                 part = {k: [] for k in out}
                 collect_paths(cand, part)
                 part["src"] = [x + s0 for x in part["src"]]
@@ -467,7 +467,7 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     buf._paths_counter = mi.UInt(len(ch))  # noqa: SLF001 - read by shrink() only, never in a kernel
     opaque_buffer(buf)
     buf = ImageMethod()(rt_scene.mi_scene, buf, False, True, src_mi, tgt_mi)
-    solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, 1, FieldCalculator)
+    solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, FieldCalculator)
     collect_paths(buf, out)
 
 

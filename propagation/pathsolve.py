@@ -166,7 +166,7 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
         out["k_tx"].append(unit_vec_from_theta_phi(th_t[valid], ph_t[valid]))
         out["k_rx"].append(unit_vec_from_theta_phi(th_r[valid], ph_r[valid]))
     clear_devices(rt_scene)
-    return to_source_paths(out, pos, tgt, np.ones((n_tx, n_rx), bool))
+    return to_source_paths(out, pos, tgt)
 
 
 def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lone_samples, lone_per_call,

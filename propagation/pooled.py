@@ -245,8 +245,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     if len(probed):
         probe = cand.gather(jit_array(mi.UInt, probed, np.uint32))
         probe = ImageMethod()(mi_scene, probe, False, True, lat_mi, tgt_mi)
-        solve_fields(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, samples_per_src, FieldCalculator,
-               discard=False)
+        solve_fields(probe, rt_scene, lat_mi, tgt_mi, len(lat), m, FieldCalculator, discard=False)
         c_valid[probed] = probe.valid.numpy().astype(bool)
         del probe
     # the first neighbour (the nearest lattice point) gives all its candidates, the
@@ -276,7 +275,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
         buf = cand.gather(jit_array(mi.UInt, rows, np.uint32))
         buf._src_indices = jit_array(mi.UInt, new_src, np.uint32)  # noqa: SLF001 - re-targeted
         buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
-        solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+        solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, FieldCalculator)
         collect_paths(buf, out_paths)
     # 3. line of sight, directly at the exact positions
     los = SBCandidateGenerator()(mi_scene, pos_mi, tgt_mi, samples_per_src=1,
@@ -288,7 +287,7 @@ def trace_pooled(rt_scene, lattice_m, positions_m, neighbours, targets_m, need, 
     dr.eval()
     los.shrink()
     if los.buffer_size:
-        solve_fields(los, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, FieldCalculator)
+        solve_fields(los, rt_scene, pos_mi, tgt_mi, n, m, FieldCalculator)
         collect_paths(los, out_paths)
     clear_devices(rt_scene)
     return to_source_paths(out_paths, pos, tgt, need)

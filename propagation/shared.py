@@ -238,7 +238,6 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     n, m = len(pos), len(tgt)
     if len(neighbours) != n:
         raise ValueError(f"need one neighbour list per position: {len(neighbours)} for {n}")
-    need = np.ones((n, m), bool)
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
     pos_mi, tgt_mi = points(pos), points(tgt)
@@ -282,9 +281,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         valid = np.zeros(n_rows, bool)
         if len(own_rows):
             # in memory of its own, as the shared rows' and the completion's buffers: one
-            # image-method and one field kernel serve all three (opaque_buffer); and the
-            # field calculator's samples_per_src 1, as theirs: it scales diffuse ray
-            # tubes only (none here), and another value is another kernel
+            # image-method and one field kernel serve all three (opaque_buffer)
             own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
             opaque_buffer(own)
             if not any(len(nb) for nb in neighbours):
@@ -292,12 +289,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
                 # positions' chunks are sized for one buffer, not two)
                 del cand
             own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
-            solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, 1, FieldCalculator,
-                         discard=False)
-            # the validity and the fields in one kernel: evaluated alone, the validity
-            # leaves the image method's points unevaluated and the fields' kernel (built
-            # for this one buffer) computes them again
-            own.schedule()
+            solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, FieldCalculator, discard=False)
             valid[own_rows] = own.valid.numpy().astype(bool)
             own.discard_invalid()
             collect_paths(own, out)
@@ -309,7 +301,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
             buf._src_indices = jit_array(mi.UInt, dest, np.uint32)  # noqa: SLF001 - re-targeted
             opaque_buffer(buf)
             buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
-            solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, 1, FieldCalculator)
+            solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, FieldCalculator)
             collect_paths(buf, out)
     clear_devices(rt_scene)
-    return to_source_paths(out, pos, tgt, need)
+    return to_source_paths(out, pos, tgt)

@@ -38,16 +38,25 @@ def candidate_keys(buf) -> np.ndarray:
     return np.concatenate([types, shapes, prims], axis=1)
 
 
-def solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, samples_per_src, field_calculator,
-           discard: bool = True) -> None:
+def solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, field_calculator,
+                 discard: bool = True) -> None:
     """Sionna's field calculator on a paths buffer of ``n`` sources and ``m`` targets, then
-    (``discard``) the invalid candidates dropped; in place."""
+    (``discard``) the invalid candidates dropped, else the whole buffer scheduled; in place.
+
+    Its ``samples_per_src`` is 1 for every buffer: it scales only diffuse ray tubes (the
+    buffers here never hold a diffuse path) and is a literal of the kernel, so another
+    value would be another kernel. Scheduled whole, a buffer whose validity is read next
+    is evaluated in one kernel: the validity evaluated alone leaves the image method's
+    points unevaluated, and the fields' kernel after it computes them again.
+    """
     # unrotated antennas at both ends (orientations are applied later, in NumPy)
-    field_calculator()(rt_scene.wavelength, buf, int(samples_per_src), False, pos_mi, tgt_mi,
+    field_calculator()(rt_scene.wavelength, buf, 1, False, pos_mi, tgt_mi,
                        points(np.zeros((n, 3))), points(np.zeros((m, 3))), rt_scene.tx_array.antenna_pattern.patterns,
                        rt_scene.rx_array.antenna_pattern.patterns)
     if discard:
         buf.discard_invalid()
+    else:
+        buf.schedule()
 
 
 def opaque_buffer(buf) -> None:
@@ -96,10 +105,11 @@ def collect_paths(buf, out: dict) -> None:
                                   axis=1))
 
 
-def to_source_paths(out: dict, pos, tgt, need) -> list[SourcePaths]:
+def to_source_paths(out: dict, pos, tgt, need=None) -> list[SourcePaths]:
     """The collected paths as one :class:`SourcePaths` per position of ``pos`` (n, 3),
-    to the targets ``tgt`` (m, 3) it ``need`` s ((n, m) bool), sorted by length, copies
-    removed."""
+    to the targets ``tgt`` (m, 3) it ``need`` s ((n, m) bool; default every pair), sorted
+    by length, copies removed."""
+    need = np.ones((len(pos), len(tgt)), bool) if need is None else np.asarray(need, bool)
     if out["src"]:
         src = np.concatenate(out["src"])
         tg = np.concatenate(out["tgt"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from kernel_history import launched_kernels
 
 from propagation.jitarrays import ALIGNMENT_BYTES, aligned_copy
 
@@ -22,16 +23,7 @@ def test_aligned_copy_is_aligned_and_equal(dtype):
 
 def _kernels(fn, min_ops: int = 0) -> set:
     """Hashes of the kernels of at least ``min_ops`` operations launched by ``fn()``."""
-    import drjit as dr
-
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        dr.kernel_history()  # clears the history
-        fn()
-        return {e["hash"] for e in dr.kernel_history()
-                if "hash" in e and e.get("operation_count", 0) >= min_ops}
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return {e["hash"] for e in launched_kernels(fn, min_ops)}
 
 
 def _endpoint_kernels(rts, endpoints_of) -> set:

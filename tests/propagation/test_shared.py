@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from kernel_history import launched_kernels
 from propagation_scenes import make_corridor
 
 from propagation import trace_links, two_ray_gain_db
@@ -393,8 +394,6 @@ def test_own_shared_and_completion_rows_share_one_image_method_kernel(corridor_s
     # a kernel of its own (which left the image method's points to a second kernel that
     # computed them again). Before this was so, a chunk compiled four image-method
     # kernels (own, its fields again, shared, completion): ~6 s of LLVM builds per process.
-    import drjit as dr
-
     from propagation.completion import complete_specular, large_planes, plane_lookup
 
     tags = corridor_scene.tags.positions_m[:5]
@@ -402,16 +401,15 @@ def test_own_shared_and_completion_rows_share_one_image_method_kernel(corridor_s
     pos = np.column_stack([x, np.full_like(x, 1.2), np.full_like(x, 0.7)])
     rts = load_sionna_scene(corridor_scene, F)
     planes = large_planes(rts, 1.0)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        dr.kernel_history()  # clears the history
-        shared = trace_shared(rts, pos, tags, sharing_neighbours(pos, 0.5), 3, 500, 1,
-                              completion=(plane_lookup(rts, planes), 2))
-        extra = complete_specular(rts, pos, tags, 2, planes, buffer_depth=3)
-        big = [e for e in dr.kernel_history()
-               if "hash" in e and e.get("operation_count", 0) >= 3000]
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    paths = {}
+
+    def run():
+        paths["shared"] = trace_shared(rts, pos, tags, sharing_neighbours(pos, 0.5), 3, 500, 1,
+                                       completion=(plane_lookup(rts, planes), 2))
+        paths["extra"] = complete_specular(rts, pos, tags, 2, planes, buffer_depth=3)
+
+    big = launched_kernels(run, 3000)
+    shared, extra = paths["shared"], paths["extra"]
     assert sum(len(s.tau_s) for s in shared) > 0 and sum(len(s.tau_s) for s in extra) > 0
     # the shooting (~3,800 operations at depth 3), then the image method (~5,900) for
     # the own rows, the shared rows (this scene has rows of both) and the completion
@@ -425,21 +423,14 @@ def test_sharing_trace_links_completes_in_its_own_kernels(corridor_scene, tmp_pa
     # completion on builds two big kernels, its shooting and one image method for the
     # own rows, the shared rows and the completion's chains (the completion solved in
     # buffers of the tracer's depth, not of its order)
-    import drjit as dr
-
     x = np.arange(3.0, 3.6, 0.1)
     poses = np.column_stack([x, np.full_like(x, 1.2), np.full_like(x, 0.7), np.zeros_like(x)])
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        dr.kernel_history()  # clears the history
-        links = trace_links(corridor_scene, poses, corridor_scene.tags.positions_m[:5],
-                            frequency_hz=F, samples_per_src=3000, max_depth=3, seed=2,
-                            share_radius_m=0.5, shared_samples_per_src=500,
-                            completion_order=2, cache_dir=tmp_path)
-        big = [e for e in dr.kernel_history()
-               if "hash" in e and e.get("operation_count", 0) >= 3000]
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    traced = []
+    big = launched_kernels(lambda: traced.append(trace_links(
+        corridor_scene, poses, corridor_scene.tags.positions_m[:5], frequency_hz=F,
+        samples_per_src=3000, max_depth=3, seed=2, share_radius_m=0.5,
+        shared_samples_per_src=500, completion_order=2, cache_dir=tmp_path)), 3000)
+    links = traced[0]
     assert links.n_traced_sources == len(poses)
     ops = [e["operation_count"] for e in big]
     assert len(big) >= 3, ops  # the shooting, then at least the own rows and the completion

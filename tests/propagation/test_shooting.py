@@ -4,20 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from kernel_history import launched_kernels
 
 
 def _shooting_kernels(fn) -> list:
     """Hashes of the shooting kernels (>= 3,000 operations) launched by ``fn()``, in order."""
-    import drjit as dr
-
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        dr.kernel_history()  # clears the history
-        fn()
-        return [e["hash"] for e in dr.kernel_history()
-                if "hash" in e and e.get("operation_count", 0) >= 3000]
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return [e["hash"] for e in launched_kernels(fn, 3000)]
 
 
 def _candidates(generator, rts, src, tgt, samples: int = 2000, depth: int = 3, seed: int = 5):
