@@ -4,7 +4,7 @@ Synthetic data of the default study's size: a 25 m x 2.4 m corridor, 16 held-out
 on its walls, one evaluation pass with the two default antennas (``--cycles`` read
 cycles; ``--mode all`` reads both antennas per cycle), candidates on both walls at
 ``--spacing`` (5 cm: ~29 000). Reads are sampled from a closed-form sensor
-(:class:`pipeline.localisation.synthetic.SyntheticSensor`); the four sensor models of a
+(:class:`tests.helpers.localisation.SyntheticSensor`); the four sensor models of a
 study (the chapter's FCM + ANFIS model and the Joho 2009, Liu 2006 and Vorst 2008
 competitors) are fitted on synthetic training attempts (d < 3 m) and used through
 :class:`pipeline.localisation.ModelLikelihood` with the far rule beyond 3 m.
@@ -14,7 +14,7 @@ second over all models, one ``localise_tags`` call with the four sources; the ta
 16 tags x 4 models in <= 30 s on 2 cores) with each model's median error, and the RFID
 particle filter's throughput in particle-updates per second (one slot = one update).
 
-    .venv/bin/python bench/localise.py [--cycles 400] [--mode round_robin|all]
+    .venv/bin/python -m bench.localise [--cycles 400] [--mode round_robin|all]
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from pipeline.localisation import (
     run_rfid_mcl,
     tag_position_errors,
 )
-from pipeline.localisation.synthetic import SyntheticSensor, corridor_scenario, sample_attempts
 from pipeline.robot.kinematics import default_antennas
 from pipeline.sensormodels import fit_joho2009, fit_liu2006, fit_vorst2008
+from tests.helpers.localisation import SyntheticSensor, corridor_scenario, sample_attempts
 
 D_MAX_M = 3.0
 

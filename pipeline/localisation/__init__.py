@@ -19,8 +19,6 @@
 * :mod:`.robot` - RFID-only robot localisation, a particle filter with global
   initialisation and random-particle injection (:func:`run_rfid_mcl`,
   :func:`filter_metrics`);
-* :mod:`.synthetic` - free-space gains, a closed-form sensor and a corridor scenario for
-  tests and benchmarks.
 """
 
 from .global_oracle import GlobalOracle, OracleSearch, global_oracle

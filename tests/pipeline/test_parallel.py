@@ -121,9 +121,10 @@ def test_an_unpicklable_task_error_comes_back_as_its_traceback():
 def _blas_threads() -> int:
     from threadpoolctl import threadpool_info
 
+    # 0 where threadpoolctl sees no BLAS pool (NumPy built without one, or a library it
+    # cannot inspect): the callers then skip, naming what could not be seen
     pools = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
-    assert pools, "no BLAS pool found: the test would pass vacuously"
-    return max(pools)
+    return max(pools, default=0)
 
 
 def test_pool_processes_share_the_blas_threads(monkeypatch):

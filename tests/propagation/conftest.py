@@ -3,7 +3,8 @@
 import os
 
 import pytest
-from propagation_scenes import make_corridor, make_far_floor_scene, make_floor_scene
+
+from tests.helpers.scenes import make_corridor, make_far_floor_scene, make_floor_scene
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kernel_history import launched_kernels
 
 from propagation.jitarrays import ALIGNMENT_BYTES, aligned_copy
+from tests.helpers.kernels import launched_kernels
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.uint32, np.float64])

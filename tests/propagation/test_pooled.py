@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from propagation_scenes import make_corridor
 
 from propagation import free_space_gain_db, trace_links, two_ray_gain_db
 from propagation.channels import link_channels
@@ -11,6 +10,7 @@ from propagation.pooled import lattice_points, pooling_plan, trace_pooled
 from propagation.sionna_scene import load_sionna_scene
 from propagation.tracing import tag_dipole_axes
 from scenes import material
+from tests.helpers.scenes import make_corridor
 
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 

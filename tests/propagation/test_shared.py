@@ -2,8 +2,6 @@
 
 import numpy as np
 import pytest
-from kernel_history import launched_kernels
-from propagation_scenes import make_corridor
 
 from propagation import trace_links, two_ray_gain_db
 from propagation.pathsolve import _trace_chunk
@@ -11,6 +9,8 @@ from propagation.shared import chain_ids, shared_rows, sharing_neighbours, trace
 from propagation.sionna_paths import path_copies
 from propagation.sionna_scene import load_sionna_scene
 from scenes import material
+from tests.helpers.kernels import launched_kernels
+from tests.helpers.scenes import make_corridor
 
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 

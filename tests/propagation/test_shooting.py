@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kernel_history import launched_kernels
+
+from tests.helpers.kernels import launched_kernels
 
 
 def _shooting_kernels(fn) -> list:

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from propagation_scenes import box, make_corridor
 
 import scenes
 from propagation import (
@@ -14,6 +13,7 @@ from propagation import (
 )
 from propagation.patterns import sionna_orientation
 from scenes import Scene, TagSet, UnknownMaterialError, material
+from tests.helpers.scenes import box, make_corridor
 
 # the material library warns (by design) that P.2040 fits are extrapolated below 1 GHz
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")

@@ -2,7 +2,6 @@ import json
 
 import numpy as np
 import pytest
-from synthetic_reads import gain_for_rssi, synthetic_reads
 
 from pipeline.evaluation import (
     BaselineSensorModel,
@@ -18,6 +17,7 @@ from pipeline.evaluation import (
     rssi_vs_truth,
     true_detected,
 )
+from tests.helpers.reads import gain_for_rssi, synthetic_reads
 
 WIDE = (-120.0, 0.0)  # normalisation range wide enough that no prediction is clipped
 TRUTH = LogDistanceModel(p0_dbm=-45.0, n=4.0, coefficients=(8.0,))

@@ -3,7 +3,6 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from synthetic_reads import gain_for_rssi, synthetic_reads
 
 from fuzzymodel import ANFIS, SensorModel, normalise_rssi
 from pipeline.evaluation import (
@@ -17,6 +16,7 @@ from pipeline.evaluation import (
     rho_points_truth,
     tags_table,
 )
+from tests.helpers.reads import gain_for_rssi, synthetic_reads
 
 RANGE = (-90.0, -10.0)
 TRUTH = LogDistanceModel(p0_dbm=-45.0, n=4.0, coefficients=(8.0,))

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from constant_sensor import ConstantSensor  # noqa: I001 - a module beside this file
 
 from pipeline.evaluation.cells import CellGrid
 from pipeline.evaluation.heldout import error_budget, heldout_scores
 from pipeline.evaluation.truth import detection_truth, true_rssi_dbm
 from propagation import LinkBudget
+from tests.helpers.constant_sensor import ConstantSensor
 
 
 def _reads(rng, n, gain_offset_db):

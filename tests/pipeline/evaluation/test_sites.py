@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from constant_sensor import ConstantSensor  # noqa: I001 - a module beside this file
 
 import scenes
 from pipeline.evaluation.sites import SiteTruth, obstructed_pairs, site_comparison
 from propagation import LinkBudget
+from tests.helpers.constant_sensor import ConstantSensor
 
 
 def test_wall_behind_a_cabinet_is_obstructed():

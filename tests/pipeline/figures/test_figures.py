@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import time
 
 import numpy as np
 import pandas as pd
@@ -178,12 +177,11 @@ def run_dir(tmp_path_factory):
     return run
 
 
-def test_draw_all_writes_every_figure_quickly(run_dir, tmp_path, request):
-    # --basetemp keeps them for a look; otherwise tmp_path
+def test_draw_all_writes_every_figure(run_dir, tmp_path, request):
+    # --basetemp keeps them for a look; otherwise tmp_path. (How fast is bench's business:
+    # a wall-clock bound here would assert a fact of the machine, not of the code.)
     out = tmp_path / "figs"
-    t0 = time.perf_counter()
     paths = draw_all(run_dir, out_dir=out)
-    elapsed = time.perf_counter() - t0
     names = {p.stem for p in paths}
     assert names == set(FIGURES)
     for name in FIGURES:
@@ -192,8 +190,6 @@ def test_draw_all_writes_every_figure_quickly(run_dir, tmp_path, request):
         assert png.stat().st_size > 5000, name
         assert pdf.read_bytes()[:5] == b"%PDF-", name
     assert not list(out.glob(".*tmp*"))  # no temporary files left
-    # "runs in seconds": generous bound for a shared 2-core machine
-    assert elapsed < 60.0
 
 
 def test_draw_all_skips_figures_with_missing_inputs(run_dir, tmp_path, caplog):

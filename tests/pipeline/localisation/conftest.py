@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.localisation.synthetic import SyntheticSensor, sample_attempts
 from pipeline.sensormodels import fit_joho2009
+from tests.helpers.localisation import SyntheticSensor, sample_attempts
 
 
 @pytest.fixture(scope="session")

@@ -22,13 +22,13 @@ from pipeline.localisation import (
     rssi_residual_std,
 )
 from pipeline.localisation.observations import local_xy_axes
-from pipeline.localisation.synthetic import (
+from propagation import LinkBudget, antenna_frame_angles
+from propagation.patterns import pose_rotation
+from tests.helpers.localisation import (
     corridor_scenario,
     free_space_gain_db,
     sample_attempts,
 )
-from propagation import LinkBudget, antenna_frame_angles
-from propagation.patterns import pose_rotation
 
 
 class DetectionOnly:

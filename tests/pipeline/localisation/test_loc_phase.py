@@ -19,8 +19,8 @@ from pipeline.localisation import (
     tag_position_errors,
 )
 from pipeline.localisation.observations import pair_geometry
-from pipeline.localisation.synthetic import straight_path, wall_candidates
 from pipeline.robot.kinematics import antenna_poses, default_antennas
+from tests.helpers.localisation import straight_path, wall_candidates
 
 L, W = 8.0, 2.4
 CHANNELS_HZ = np.array([865.7e6, 866.3e6, 866.9e6, 867.5e6])  # ETSI, hopping

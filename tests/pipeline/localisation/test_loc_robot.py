@@ -117,7 +117,7 @@ def test_box_free_space_sampling():
 def _free_space_field(spacing_m=0.2, n_heading=16):
     """A GainField of free-space gains (the synthetic truth) over the corridor."""
     from pipeline.localisation.robot_oracle import GainField
-    from pipeline.localisation.synthetic import free_space_gain_db
+    from tests.helpers.localisation import free_space_gain_db
 
     xs, ys = np.arange(0.0, L + 1e-9, spacing_m), np.arange(0.0, W + 1e-9, spacing_m)
     heads = 2 * np.pi * np.arange(n_heading) / n_heading
@@ -135,8 +135,8 @@ def test_oracle_field_filter_recovers_from_a_kidnapping():
     it converges, and after the robot is teleported back 4 m it recovers."""
     from pipeline.localisation import OracleLikelihood
     from pipeline.localisation.robot_oracle import FieldLikelihood
-    from pipeline.localisation.synthetic import free_space_gain_db
     from propagation import LinkBudget
+    from tests.helpers.localisation import free_space_gain_db
 
     field = _free_space_field()
     rng = np.random.default_rng(5)

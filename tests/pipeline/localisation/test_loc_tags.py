@@ -17,8 +17,8 @@ from pipeline.localisation import (
     read_region_mask,
     tag_position_errors,
 )
-from pipeline.localisation.synthetic import free_space_gain_db, straight_path, wall_candidates
 from pipeline.robot.kinematics import antenna_poses, default_antennas
+from tests.helpers.localisation import free_space_gain_db, straight_path, wall_candidates
 
 L, W = 6.0, 2.4
 IDS = ("a", "b", "c", "d")

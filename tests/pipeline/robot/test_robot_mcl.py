@@ -167,8 +167,25 @@ def test_logsumexp_is_scipys_bit_for_bit():
         assert _logsumexp(np.array(a)) == float(logsumexp(a))
     assert np.isnan(_logsumexp(np.array([np.nan, 1.0])))
     assert _logsumexp(np.zeros(0)) == float(logsumexp(np.zeros(0))) == -np.inf
-    # the test tells arithmetic apart: a plain max-shifted sum is off in the last bits
-    # on some of the same kind of arrays
-    arrays = [rng.normal(0.0, 3.0, 500) for _ in range(50)]
+
+
+def test_logsumexp_check_tells_arithmetic_apart():
+    """The bit-for-bit check above can fail: a plain max-shifted sum is off in the last
+    bits on some arrays of the same kind. Whether it is depends on the CPU and on NumPy's
+    summation and exp kernels (with numpy 2.4 / scipy 1.17 on some machines it never is),
+    so where no difference can be seen the check is skipped, not failed."""
+    from scipy.special import logsumexp
+
+    rng = np.random.default_rng(4)
+    arrays = [rng.normal(0.0, 3.0, n) for n in (7, 100, 500, 2499) for _ in range(50)]
     plain = [float(np.max(a) + np.log(np.sum(np.exp(a - np.max(a))))) for a in arrays]
-    assert any(p != float(logsumexp(a)) for p, a in zip(plain, arrays, strict=True))
+    differ = [p != float(logsumexp(a)) for p, a in zip(plain, arrays, strict=True)]
+    if not any(differ):
+        pytest.skip("on this CPU and NumPy the plain logsumexp equals SciPy's bit for bit on "
+                    "200 arrays: the bit-for-bit check cannot tell the two apart here")
+    from pipeline.robot.mcl import _logsumexp
+
+    # on exactly the arrays where the arithmetic shows, the filter's is SciPy's
+    for a, d in zip(arrays, differ, strict=True):
+        if d:
+            assert _logsumexp(a) == float(logsumexp(a))

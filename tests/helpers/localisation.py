@@ -18,11 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from pipeline.localisation.observations import Observations, as_pose6
 from propagation import antenna_frame_angles, pattern_gain_db
 from propagation import free_space_gain_db as _friis
 from propagation.analytic import wavelength_m
-
-from .observations import Observations, as_pose6
 
 __all__ = [
     "CorridorScenario",
