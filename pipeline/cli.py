@@ -196,6 +196,19 @@ def run(
     typer.echo(f"report: {res.run_dir / 'report.html'}")
 
 
+def _existing_run_dir(run_dir: Path, command: str):
+    """The :class:`~pipeline.runstore.RunStore` of an existing run directory, or a one-line
+    error: ``figures`` and ``report`` rewrite files, so they refuse any other directory."""
+    from pipeline.runstore import RunStore, is_run_dir
+
+    if not run_dir.is_dir():
+        _fail(f"{run_dir}: not a directory")
+    if not is_run_dir(run_dir):
+        _fail(f"{run_dir}: not a run directory of rfidstudy (no stages/, no manifest.json): "
+              f"`rfidstudy {command}` rewrites files only in a run directory")
+    return RunStore(run_dir)
+
+
 @app.command()
 def figures(
     run_dir: Annotated[Path, typer.Argument(help="A run directory.")],
@@ -204,14 +217,17 @@ def figures(
     """Redraw every figure from a run directory's files alone, then rewrite report.html."""
     _setup_logging(verbose)
     from pipeline.report import write_report
+    from pipeline.runstore import RunDirError
     from pipeline.stages import draw_figures
 
-    if not run_dir.is_dir():
-        _fail(f"{run_dir}: not a directory")
+    store = _existing_run_dir(run_dir, "figures")
     t0 = time.perf_counter()
     try:
-        paths = draw_figures(run_dir, run_dir / "figures")
-        report = write_report(run_dir)
+        with store.lock("rfidstudy figures"):
+            paths = draw_figures(run_dir, store.path("figures"))
+            report = write_report(run_dir)
+    except RunDirError as exc:
+        _fail(str(exc))
     except (FileNotFoundError, ValueError, KeyError) as exc:
         _fail(str(exc), code=1)
     except OSError as exc:
@@ -226,11 +242,14 @@ def figures(
 def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     """Rewrite report.html from a run directory's files."""
     from pipeline.report import write_report
+    from pipeline.runstore import RunDirError
 
-    if not run_dir.is_dir():
-        _fail(f"{run_dir}: not a directory")
+    store = _existing_run_dir(run_dir, "report")
     try:
-        typer.echo(str(write_report(run_dir)))
+        with store.lock("rfidstudy report"):
+            typer.echo(str(write_report(run_dir)))
+    except RunDirError as exc:
+        _fail(str(exc))
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc), code=1)
     except OSError as exc:

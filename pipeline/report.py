@@ -14,10 +14,11 @@ import datetime as _dt
 import html
 import json
 import logging
+import os
 import tomllib
 from pathlib import Path
 
-from pipeline.runstore import atomic_write_text
+from pipeline.runstore import atomic_write_text, regular_file
 
 __all__ = ["figure_captions", "headline_html", "metrics_tables", "model_comparison_tables",
            "write_report"]
@@ -39,12 +40,21 @@ pre{background:#f7f7f7;padding:.8em;overflow:auto;font-size:.8em;max-height:30em
 
 
 def _load_json(path: Path) -> dict | None:
-    if not path.exists():
+    """A JSON object from a run directory: a regular file (a link is not followed) of at
+    most 64 MiB holding an object; anything else is a ValueError naming the file."""
+    if not os.path.lexists(path):
         return None
+    if not regular_file(path):
+        raise ValueError(f"{path}: not a regular file (a link or a special file): not read")
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+        if path.stat().st_size > 64 << 20:
+            raise ValueError("larger than 64 MiB")
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
         raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
 
 
 def _fmt(v) -> str:
@@ -314,8 +324,13 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     manifest = _load_json(run / "manifest.json") or {}
     metrics = _load_json(run / "metrics.json")
     cfg_path = run / "config.toml"
-    cfg_text = cfg_path.read_text(encoding="utf-8") if cfg_path.exists() else ""
-    cfg = tomllib.loads(cfg_text) if cfg_text else {}
+    if os.path.lexists(cfg_path) and not regular_file(cfg_path):
+        raise ValueError(f"{cfg_path}: not a regular file (a link or a special file): not read")
+    try:
+        cfg_text = cfg_path.read_text(encoding="utf-8") if cfg_path.exists() else ""
+        cfg = tomllib.loads(cfg_text) if cfg_text else {}
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"{cfg_path}: not a valid TOML file: {exc}") from None
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>rfidstudy report: {html.escape(str(cfg.get('scene', run.name)))}</title>",
@@ -384,7 +399,11 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     # figures
     parts.append("<h2>Figures</h2>")
     captions = figure_captions(run)
-    pngs = sorted((run / "figures").glob("*.png")) if (run / "figures").is_dir() else []
+    fig_dir = run / "figures"
+    pngs = sorted(fig_dir.glob("*.png")) if fig_dir.is_dir() and not fig_dir.is_symlink() else []
+    for png in [p for p in pngs if not regular_file(p)]:  # a link could embed any file
+        log.warning("report: %s is not a regular file (a link?): not embedded", png)
+    pngs = [p for p in pngs if regular_file(p)]
     if not pngs:
         parts.append("<p>No figures in figures/.</p>")
     for png in pngs:

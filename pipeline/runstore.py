@@ -14,6 +14,21 @@ its record's inputs hash matches and every output still has the recorded digest
 A directory is a run directory when it holds ``stages/`` or ``manifest.json``;
 :func:`open_run_dir` refuses a path that is a file, and a non-empty directory that is
 not a run directory (unless told otherwise), with a :class:`RunDirError` naming it.
+
+Containment: a run directory may come from someone else, so nothing in it is trusted
+to point elsewhere. Every path the store reads, hashes, writes or deletes goes through
+:func:`inside`: relative, no ``..``, no component a symbolic link (a link is never
+followed, for reading or writing), and only regular files are read or hashed (a FIFO
+or device would hang or leak). A stage record naming a path that fails this is corrupt
+(named in a warning; its stage re-runs) and nothing it names is touched; a symbolic
+link where the store must write stops the run naming it (:class:`UnsafePathError`),
+as ``tar`` refuses to extract outside its target.
+
+One writer: :meth:`RunStore.lock` holds an exclusive ``filelock`` lock on
+``.rfidstudy.lock`` for a whole run (or a ``figures`` / ``report`` rewrite); a second
+writer is refused with the holder's process id, command and start time. The lock is
+an ``flock``: the kernel releases it when its process dies, so a stale lock is taken
+over by the next writer.
 """
 
 from __future__ import annotations
@@ -25,22 +40,31 @@ import logging
 import os
 import re
 import shutil
+import stat
+import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from scenes.fileio import atomic_write_bytes, atomic_write_text
 
 __all__ = [
+    "HOUSEKEEPING",
     "RunDirError",
+    "RunDirLocked",
     "RunStore",
     "StageRecord",
+    "UnsafePathError",
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
     "file_sha256",
     "final_name",
+    "inside",
+    "is_run_dir",
     "json_hash",
     "open_run_dir",
+    "regular_file",
     "save_npz",
     "write_error",
 ]
@@ -50,6 +74,14 @@ log = logging.getLogger(__name__)
 RECORD_DIR = "stages"
 STAGING_DIR = ".staging"
 MANIFEST = "manifest.json"
+LOCK_FILE = ".rfidstudy.lock"
+LOCK_OWNER = ".rfidstudy.owner.json"
+#: The lock's files: housekeeping of a run in progress, not results (not in the manifest;
+#: the lock file itself stays, as an flock's file must for the lock to be safe).
+HOUSEKEEPING = frozenset({LOCK_FILE, LOCK_OWNER})
+#: Files the tool writes at a run directory's top level outside any stage record: in a
+#: foreign directory (``force_dir``) a user's file under one of these names stops the run.
+OWN_TOP_LEVEL = ("config.toml", MANIFEST)
 
 #: errno values of a run directory that cannot be written (read-only mount, permissions,
 #: full disk, a file where a folder should be).
@@ -62,6 +94,68 @@ class RunDirError(RuntimeError):
 
     The message is one line naming the directory (or file) and the cause.
     """
+
+
+class UnsafePathError(RunDirError):
+    """A path in a run directory leads outside it (``..``, absolute, a symbolic link) or
+    is not a regular file: the store refuses to read, write or delete through it."""
+
+
+class RunDirLocked(RunDirError):
+    """Another process holds the run directory's lock (the message names it)."""
+
+
+def inside(root: str | Path, rel: str) -> Path:
+    """The path of run-directory entry ``rel``, checked to stay inside ``root``.
+
+    Parameters
+    ----------
+    root : path
+        The run directory (already resolved: its own path may pass through links the
+        user chose).
+    rel : str
+        A relative POSIX path, as stage records store them.
+
+    Returns
+    -------
+    Path
+        ``root / rel``; no component of ``rel`` that exists is a symbolic link.
+
+    Raises
+    ------
+    UnsafePathError
+        ``rel`` is not a string, is empty, absolute, holds ``..`` or a NUL, or one of its
+        existing components is a symbolic link (named).
+    """
+    root = Path(root)
+    if not isinstance(rel, str) or not rel or "\x00" in rel:
+        raise UnsafePathError(f"{root}: {rel!r} is not a relative path of the run directory")
+    parts = rel.split("/")
+    if rel.startswith("/") or os.path.isabs(rel) or any(p in ("", ".", "..") for p in parts):
+        raise UnsafePathError(f"{root}: {rel!r} leads outside the run directory (absolute, "
+                              "'..' or empty components are refused)")
+    here = root
+    for part in parts:
+        here = here / part
+        try:
+            st = os.lstat(here)
+        except FileNotFoundError:
+            break  # the rest does not exist yet: nothing there to follow
+        except OSError as exc:
+            raise UnsafePathError(f"{here}: cannot be inspected ({exc.strerror})") from None
+        if stat.S_ISLNK(st.st_mode):
+            raise UnsafePathError(f"{here} is a symbolic link inside the run directory {root}: "
+                                  "rfidstudy never follows links there; remove it (or copy "
+                                  "the real files in its place) and rerun")
+    return root / rel
+
+
+def regular_file(path: str | Path) -> bool:
+    """Whether ``path`` is a regular file (not a link, FIFO, device, socket or folder)."""
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
 
 
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.[^.]+\.tmp(?:\.[A-Za-z0-9]+)?$")
@@ -86,9 +180,16 @@ def write_error(exc: OSError, root) -> RunDirError | None:
 
 
 def is_run_dir(root: str | Path) -> bool:
-    """Whether ``root`` holds this tool's ``stages/`` records or ``manifest.json``."""
+    """Whether ``root`` holds this tool's ``stages/`` records or ``manifest.json`` (a real
+    folder and a regular file: links do not count)."""
     root = Path(root)
-    return (root / RECORD_DIR).is_dir() or (root / MANIFEST).is_file()
+    try:
+        st = os.lstat(root / RECORD_DIR)
+        if stat.S_ISDIR(st.st_mode):
+            return True
+    except OSError:
+        pass
+    return regular_file(root / MANIFEST)
 
 
 def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
@@ -109,6 +210,10 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
         ``stages/`` or ``manifest.json`` and ``force_dir`` is false; it cannot be created.
     """
     path = Path(root).expanduser()
+    try:
+        path.resolve(strict=False)
+    except (OSError, RuntimeError) as exc:  # a symbolic link loop (ELOOP)
+        raise RunDirError(f"{path}: cannot be resolved ({getattr(exc, 'strerror', None) or exc})") from None
     if path.exists() and not path.is_dir():
         raise RunDirError(f"{path} is a file, not a directory: choose a directory for the run")
     for parent in path.parents:
@@ -125,8 +230,16 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
                 f"{path} is not empty ({shown}) and is not a run directory of rfidstudy (no "
                 f"stages/, no {MANIFEST}): choose another directory, or pass --force-dir "
                 "(force_dir=True) to run into it")
+    foreign = path.is_dir() and not is_run_dir(path) and any(path.iterdir())
+    if foreign:  # --force-dir: the tool's own outputs only, never a user's file
+        for name in OWN_TOP_LEVEL:
+            if os.path.lexists(path / name):
+                raise RunDirError(
+                    f"{path / name}: a file of yours where rfidstudy writes its {name}; "
+                    "--force-dir writes only the tool's own outputs: move it, or choose "
+                    "another directory")
     try:
-        return RunStore(path)
+        return RunStore(path, foreign=foreign)
     except OSError as exc:
         err = write_error(exc, path)
         if err is None:
@@ -135,9 +248,13 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
 
 
 def file_sha256(path: str | Path) -> str:
-    """SHA-256 hex digest of a file's bytes."""
+    """SHA-256 hex digest of a file's bytes (opened without following a final link)."""
     h = hashlib.sha256()
-    with open(path, "rb") as fh:
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise UnsafePathError(f"{path} is not a regular file: not read")
+    with os.fdopen(fd, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
@@ -215,34 +332,110 @@ class StageRecord:
 class RunStore:
     """A run directory with staged, atomic stage outputs and stage records.
 
+    Every path goes through :func:`inside` (see the module docstring): nothing outside
+    the directory is read, hashed, written or deleted on the strength of a file in it.
+
     Parameters
     ----------
     root : path
         The run directory (created if missing).
+    foreign : bool
+        The directory held other files before (``--force-dir``): a stage output whose
+        name is already taken by a file no record of this tool lists stops the run
+        naming it, instead of replacing the user's file.
     """
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, foreign: bool = False):
         self.root = Path(root).resolve()
         self.root.mkdir(parents=True, exist_ok=True)
+        self.foreign = foreign
 
     def path(self, rel: str) -> Path:
-        """Absolute path of a run-directory file."""
-        return self.root / rel
+        """Absolute path of a run-directory file, checked by :func:`inside`."""
+        return inside(self.root, rel)
 
     def record_path(self, stage: str) -> Path:
         """Path of a stage record."""
-        return self.root / RECORD_DIR / f"{stage}.json"
+        return self.path(f"{RECORD_DIR}/{stage}.json")
+
+    @contextmanager
+    def lock(self, command: str = "rfidstudy"):
+        """Hold the directory's exclusive lock for the ``with`` block.
+
+        Raises
+        ------
+        RunDirLocked
+            Another live process holds it (its pid, command and start time named).
+        UnsafePathError
+            The lock file is a symbolic link or not a regular file.
+        """
+        from filelock import FileLock, Timeout
+
+        path = self.path(LOCK_FILE)
+        if os.path.lexists(path) and not regular_file(path):
+            raise UnsafePathError(f"{path} is not a regular file: it cannot serve as the lock")
+        lock = FileLock(str(path), timeout=0)
+        try:
+            lock.acquire()
+        except Timeout:
+            raise RunDirLocked(f"{self.root} is in use by {self._owner()}: one writer per run "
+                               "directory; wait for it to finish, or use another --out") from None
+        try:
+            atomic_write_json(self.path(LOCK_OWNER), {
+                "pid": os.getpid(), "command": command,
+                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+            yield self
+        finally:
+            try:
+                self.path(LOCK_OWNER).unlink(missing_ok=True)
+            except (OSError, UnsafePathError):
+                pass
+            lock.release()
+
+    def _owner(self) -> str:
+        """Who holds the lock, as the owner file says (best effort)."""
+        try:
+            p = self.path(LOCK_OWNER)
+            if regular_file(p) and p.stat().st_size < 4096:
+                o = json.loads(p.read_text(encoding="utf-8"))
+                return f"process {int(o['pid'])} ({str(o['command'])[:80]}, since {str(o['started_utc'])[:20]})"
+        except (OSError, ValueError, KeyError, TypeError, RunDirError):
+            pass
+        return "another process"
 
     def read_record(self, stage: str) -> StageRecord | None:
-        """The stage's record, or ``None`` if absent or unreadable (with a warning)."""
+        """The stage's record, or ``None`` if absent or unreadable (with a warning).
+
+        A record is data from the directory, so it is checked: a regular file of at
+        most 16 MiB holding the record's fields with their types.
+        """
         p = self.record_path(stage)
-        if not p.exists():
+        if not os.path.lexists(p):
             return None
         try:
+            if not regular_file(p):
+                raise ValueError("not a regular file")
+            if p.stat().st_size > 16 << 20:
+                raise ValueError("larger than 16 MiB")
             data = json.loads(p.read_text(encoding="utf-8"))
-            return StageRecord(**data)
-        except (OSError, ValueError, TypeError) as exc:
+            rec = StageRecord(**data)
+            if not (isinstance(rec.inputs_hash, str) and isinstance(rec.outputs, dict)
+                    and all(isinstance(k, str) and isinstance(v, str) for k, v in rec.outputs.items())
+                    and isinstance(rec.info, dict)):
+                raise ValueError("fields of the wrong type")
+            return rec
+        except (OSError, ValueError, TypeError, RecursionError) as exc:
             log.warning("stage record %s is corrupt (%s); stage %r will re-run", p, exc, stage)
+            return None
+
+    def _safe_output(self, stage: str, rel: str) -> Path | None:
+        """``inside(root, rel)`` for a path a record names, or None (warned) if unsafe."""
+        try:
+            return inside(self.root, rel)
+        except UnsafePathError as exc:
+            log.warning("stage record %s is corrupt: %s; nothing it names outside the run "
+                        "directory is touched, and stage %r will re-run",
+                        self.record_path(stage), exc, stage)
             return None
 
     def check_record(self, stage: str, inputs_hash: str) -> tuple[StageRecord | None, str]:
@@ -259,10 +452,16 @@ class RunStore:
         if rec.inputs_hash != inputs_hash:
             return None, "inputs changed"
         for rel, digest in rec.outputs.items():
-            p = self.path(rel)
-            if not p.exists():
+            p = self._safe_output(stage, rel)
+            if p is None:
+                return None, f"unsafe path {rel!r} in its record"
+            if not os.path.lexists(p):
                 log.warning("stage %r: output %s is missing; re-running the stage", stage, p)
                 return None, f"missing {rel}"
+            if not regular_file(p):
+                log.warning("stage %r: output %s is not a regular file; re-running the stage",
+                            stage, p)
+                return None, f"not a file {rel}"
             if file_sha256(p) != digest:
                 log.warning("stage %r: output %s was modified or is corrupt (checksum differs); "
                             "re-running the stage", stage, p)
@@ -271,8 +470,8 @@ class RunStore:
 
     def staging(self, stage: str) -> Path:
         """A fresh, empty staging directory for ``stage``."""
-        d = self.root / STAGING_DIR / stage
-        if d.exists():
+        d = self.path(f"{STAGING_DIR}/{stage}")
+        if os.path.lexists(d):
             shutil.rmtree(d)
         d.mkdir(parents=True)
         return d
@@ -285,20 +484,36 @@ class RunStore:
         run did not write is removed, so a run directory never holds a stale output of
         an earlier config (fewer sample poses, no field) beside the fresh ones; unless
         another stage's record lists it now (an output that moved to another stage).
+        Only paths inside the run directory are replaced or removed (:func:`inside`); a
+        symbolic link on the way stops the commit naming it.
         """
         previous = self.read_record(stage)
         others = {rel for name, rec in self.records().items() if name != stage for rel in rec.outputs}
-        self.record_path(stage).unlink(missing_ok=True)
+        owned = others | (set(previous.outputs) if previous is not None else set())
+        files = sorted(p for p in staged.rglob("*") if regular_file(p))
+        dests = {f: self.path(f.relative_to(staged).as_posix()) for f in files}
+        if self.foreign:  # --force-dir: never replace a file of the user's
+            for f, dest in dests.items():
+                rel = f.relative_to(staged).as_posix()
+                if os.path.lexists(dest) and rel not in owned:
+                    raise RunDirError(f"{dest}: a file of yours where stage {stage!r} writes its "
+                                      "output; --force-dir writes only the tool's own outputs: "
+                                      "move it, or choose another directory")
+        record = self.record_path(stage)
+        if os.path.lexists(record):
+            record.unlink()
         outputs = {}
-        for f in sorted(p for p in staged.rglob("*") if p.is_file()):
+        for f, dest in dests.items():
             rel = f.relative_to(staged).as_posix()
             outputs[rel] = file_sha256(f)
-            dest = self.path(rel)
             dest.parent.mkdir(parents=True, exist_ok=True)
+            self.path(rel)  # the folders just made: still no link on the way
             os.replace(f, dest)
         shutil.rmtree(staged, ignore_errors=True)
         for rel in sorted(set(previous.outputs) - set(outputs) - others) if previous is not None else ():
-            self.path(rel).unlink(missing_ok=True)
+            p = self._safe_output(stage, rel)
+            if p is not None and regular_file(p):
+                p.unlink(missing_ok=True)
         rec = StageRecord(stage=stage, inputs_hash=inputs_hash, outputs=outputs,
                           elapsed_s=round(elapsed_s, 3), peak_rss_mib=round(peak_rss_mib, 1),
                           finished_utc=finished_utc, info=info or {})
@@ -306,19 +521,27 @@ class RunStore:
         return rec
 
     def discard(self, stage: str) -> None:
-        """Remove a failed stage's staging directory."""
-        shutil.rmtree(self.root / STAGING_DIR / stage, ignore_errors=True)
+        """Remove a failed stage's staging directory (never through a link)."""
+        try:
+            d = self.path(f"{STAGING_DIR}/{stage}")
+        except UnsafePathError as exc:
+            log.warning("not removing the staging area: %s", exc)
+            return
+        shutil.rmtree(d, ignore_errors=True)
 
     def remove_staging_root(self) -> None:
         """Remove ``.staging/`` if nothing is left in it (after a finished run)."""
-        d = self.root / STAGING_DIR
+        try:
+            d = self.path(STAGING_DIR)
+        except UnsafePathError:
+            return
         if d.is_dir() and not any(d.iterdir()):
             d.rmdir()
 
     def records(self) -> dict[str, StageRecord]:
         """Every readable stage record, by stage name."""
         out = {}
-        d = self.root / RECORD_DIR
+        d = self.path(RECORD_DIR)
         if d.is_dir():
             for p in sorted(d.glob("*.json")):
                 rec = self.read_record(p.stem)

@@ -385,7 +385,10 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
         stages are kept, the manifest says ``"interrupted"`` and names the stage.
     RunDirError
         ``run_dir`` is a file, a non-empty directory that is not a run directory (and
-        ``force_dir`` is false), or cannot be written (read-only, no permission, full).
+        ``force_dir`` is false), or cannot be written (read-only, no permission, full);
+        another process runs into it (:class:`~pipeline.runstore.RunDirLocked`); a
+        symbolic link inside it where the run must write or read
+        (:class:`~pipeline.runstore.UnsafePathError`).
     pipeline.config.ConfigError
         A check failed (the message names the key and value).
     """
@@ -395,6 +398,20 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
     if unknown:
         raise ValueError(f"unknown stage(s) {unknown} in force; stages are {sorted(known)}")
     store = open_run_dir(run_dir, force_dir=force_dir)
+    try:
+        with store.lock(" ".join(command_line if command_line is not None else sys.argv)):
+            return _run_locked(store, config, stages, progress, force, command_line,
+                               manifest_extra, checks)
+    except OSError as exc:  # the lock itself could not be taken (read-only, full)
+        err = write_error(exc, store.root)
+        if err is None:
+            raise
+        raise err from None
+
+
+def _run_locked(store, config, stages, progress, force, command_line, manifest_extra,
+                checks) -> StudyResult:
+    """:func:`run_study`'s body, run while the directory's lock is held."""
     t0 = time.perf_counter()
     started = _utc_now()
     result = StudyResult(run_dir=store.root)

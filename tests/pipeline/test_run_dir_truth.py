@@ -28,7 +28,11 @@ pytestmark = pytest.mark.slow
 
 
 def _files(root: Path) -> set[str]:
-    return {p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file()}
+    """The run directory's files, less the lock's housekeeping (not results)."""
+    from pipeline.runstore import HOUSEKEEPING
+
+    return {p.relative_to(root).as_posix() for p in root.rglob("*")
+            if p.is_file() and p.name not in HOUSEKEEPING}
 
 
 def _numbers(obj, prefix=""):

@@ -152,7 +152,11 @@ PART_STAGES = (Stage("a", _a, ("seed",)), Stage("parts", _parts, ("training.epoc
 
 
 def _files(root):
-    return {p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file()}
+    """The run directory's files, less the lock's housekeeping (not results)."""
+    from pipeline.runstore import HOUSEKEEPING
+
+    return {p.relative_to(root).as_posix() for p in root.rglob("*")
+            if p.is_file() and p.name not in HOUSEKEEPING}
 
 
 def test_outputs_of_an_earlier_config_are_removed_and_the_manifest_lists_the_files(tmp_path):
