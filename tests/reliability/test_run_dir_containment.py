@@ -1,0 +1,230 @@
+"""A run directory from someone else cannot touch anything outside it (issue 33's battery).
+
+Every case plants something in a finished run directory of small fake stages (the engine
+is what is under test; tests/pipeline/test_study_runner.py has the same stages' basics)
+and checks that a canary file outside the run is intact, that the tool says what it
+refused, and that the directory stays usable.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.config import StudyConfig
+from pipeline.runstore import RunDirError, RunDirLocked, RunStore, UnsafePathError, inside
+from pipeline.study import Stage, run_study
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _a(ctx):
+    ctx.out("a/value.json").write_text(json.dumps({"seed": ctx.config.seed}))
+
+
+def _b(ctx):
+    v = json.loads(ctx.input("a/value.json").read_text())["seed"]
+    ctx.out("figures/b.txt").write_text(str(v))
+
+
+STAGES = (Stage("a", _a, ("seed",)), Stage("b", _b, ("training.epochs",), ("a",)))
+
+
+def _run(d, **kw):
+    return run_study(StudyConfig(), d, stages=STAGES, manifest_extra=None,
+                     command_line=["test"], **kw)
+
+
+@pytest.fixture
+def run_and_canary(tmp_path):
+    run = tmp_path / "run"
+    _run(run)
+    canary = tmp_path / "canary.txt"
+    canary.write_text("the user's file")
+    return run, canary
+
+
+def _edit_record(run: Path, stage: str, **changes) -> None:
+    p = run / "stages" / f"{stage}.json"
+    rec = json.loads(p.read_text())
+    rec.update(changes)
+    p.write_text(json.dumps(rec))
+
+
+@pytest.mark.parametrize("how", ["relative", "absolute"])
+def test_a_record_naming_a_path_outside_deletes_nothing(run_and_canary, how, caplog):
+    run, canary = run_and_canary
+    rel = "../canary.txt" if how == "relative" else str(canary)
+    rec = json.loads((run / "stages" / "b.json").read_text())
+    _edit_record(run, "b", outputs={**rec["outputs"], rel: "0" * 64})
+    res = _run(run)
+    assert canary.read_text() == "the user's file"
+    assert "b" in res.ran and "a" in res.cached  # the tampered record is corrupt: b re-ran
+    assert "leads outside the run directory" in caplog.text and rel in caplog.text
+    assert rel not in json.loads((run / "stages" / "b.json").read_text())["outputs"]
+
+
+def test_a_fifo_named_by_a_record_is_not_waited_on(run_and_canary):
+    run, _ = run_and_canary
+    (run / "figures" / "b.txt").unlink()
+    os.mkfifo(run / "figures" / "b.txt")
+    res = _run(run)  # would hang reading a FIFO
+    assert "b" in res.ran and (run / "figures" / "b.txt").read_text() == str(StudyConfig().seed)
+
+
+@pytest.mark.parametrize("outputs", [[], "x", {"a/value.json": 5}, None])
+def test_a_record_of_the_wrong_shape_is_corrupt_not_a_traceback(run_and_canary, outputs, caplog):
+    run, _ = run_and_canary
+    _edit_record(run, "a", outputs=outputs)
+    res = _run(run)
+    assert res.ran == ["a"] and "is corrupt" in caplog.text
+    assert json.loads((run / "manifest.json").read_text())["status"] == "complete"
+
+
+@pytest.mark.parametrize("link", [".staging", "figures", "stages", "a"])
+def test_a_symbolic_link_inside_the_run_is_refused_and_the_outside_is_intact(tmp_path, link):
+    run = tmp_path / "run"
+    _run(run)
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "b.txt").write_text("mine")
+    (outside / "value.json").write_text("mine")
+    (outside / "b.json").write_text("mine")
+    target = run / link
+    if target.exists():
+        import shutil
+
+        shutil.rmtree(target)
+    target.symlink_to(outside, target_is_directory=True)
+    with pytest.raises(RunDirError, match="symbolic link"):
+        _run(run, force=["a"])
+    assert sorted(p.name for p in outside.iterdir()) == ["b.json", "b.txt", "value.json"]
+    assert all(p.read_text() == "mine" for p in outside.iterdir())
+    target.unlink()  # the user removes the link: the directory resumes
+    _run(run)
+    assert (run / "figures" / "b.txt").read_text() == str(StudyConfig().seed)
+
+
+def test_inside_refuses_escapes_and_links(tmp_path):
+    (tmp_path / "d").mkdir()
+    (tmp_path / "l").symlink_to(tmp_path / "d")
+    assert inside(tmp_path, "d/x.json") == tmp_path / "d" / "x.json"
+    for bad in ("../x", "/etc/passwd", "d/../../x", "", "d//x", "./x", "l/x", "l"):
+        with pytest.raises(UnsafePathError):
+            inside(tmp_path, bad)
+
+
+def test_report_does_not_embed_a_linked_figure(run_and_canary, tmp_path):
+    from pipeline.report import write_report
+
+    run, canary = run_and_canary
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(b"\x89PNG secret bytes")
+    (run / "figures" / "leak.png").symlink_to(secret)
+    html = write_report(run).read_text()
+    import base64
+
+    assert base64.b64encode(secret.read_bytes()).decode() not in html
+    assert "leak" not in html
+
+
+@pytest.mark.parametrize("content", ["[]", "[1]", "[" * 100_000 + "]" * 100_000])
+def test_report_on_a_metrics_file_that_is_no_object_is_one_line(run_and_canary, content):
+    from pipeline.cli import app
+
+    run, _ = run_and_canary
+    (run / "metrics.json").write_text(content)
+    res = CliRunner().invoke(app, ["report", str(run)])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "metrics.json" in res.output
+
+
+@pytest.mark.parametrize("command", ["report", "figures"])
+def test_figures_and_report_refuse_a_directory_that_is_not_a_run(tmp_path, command):
+    from pipeline.cli import app
+
+    d = tmp_path / "home"
+    d.mkdir()
+    (d / "report.html").write_text("my report")
+    res = CliRunner().invoke(app, [command, str(d)])
+    assert res.exit_code == 2 and "not a run directory" in res.output
+    assert (d / "report.html").read_text() == "my report"
+    assert sorted(p.name for p in d.iterdir()) == ["report.html"]
+
+
+def test_force_dir_never_replaces_a_users_file(tmp_path):
+    d = tmp_path / "mine"
+    d.mkdir()
+    (d / "notes.md").write_text("mine")
+    (d / "config.toml").write_text("my config")
+    with pytest.raises(RunDirError, match=r"config\.toml: a file of yours"):
+        _run(d, force_dir=True)
+    assert (d / "config.toml").read_text() == "my config" and not (d / "stages").exists()
+    (d / "config.toml").unlink()
+    (d / "figures").mkdir()
+    (d / "figures" / "b.txt").write_text("my figure")
+    with pytest.raises(RunDirError, match=r"figures/b\.txt: a file of yours"):
+        _run(d, force_dir=True)
+    assert (d / "figures" / "b.txt").read_text() == "my figure"
+    (d / "figures" / "b.txt").unlink()
+    _run(d, force_dir=True)  # the tool's own outputs only; the user's notes stay
+    assert (d / "notes.md").read_text() == "mine" and (d / "figures" / "b.txt").read_text() == str(StudyConfig().seed)
+
+
+_HOLD = """
+import sys, time
+from pipeline.runstore import RunStore
+with RunStore(sys.argv[1]).lock("rfidstudy run --out elsewhere"):
+    print("held", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_a_dead_ones_lock_is_taken(tmp_path):
+    run = tmp_path / "run"
+    _run(run)
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD, str(run)], stdout=subprocess.PIPE,
+                              text=True, cwd=ROOT)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(RunDirLocked, match=rf"in use by process {holder.pid} \(rfidstudy run"):
+            _run(run, force=["b"])
+        from pipeline.cli import app
+
+        res = CliRunner().invoke(app, ["figures", str(run)])
+        assert res.exit_code == 2 and f"process {holder.pid}" in res.output
+    finally:
+        holder.send_signal(signal.SIGKILL)  # dies holding the lock: the kernel releases it
+        holder.wait(timeout=30)
+    t0 = time.monotonic()
+    res = _run(run, force=["b"])  # stale lock taken over; nothing was wedged
+    assert res.ran == ["b"] and time.monotonic() - t0 < 30
+    assert json.loads((run / "manifest.json").read_text())["status"] == "complete"
+
+
+def test_the_lock_file_must_not_be_a_link(tmp_path):
+    run = tmp_path / "run"
+    _run(run)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    (run / ".rfidstudy.lock").unlink()
+    (run / ".rfidstudy.lock").symlink_to(victim)
+    with pytest.raises(UnsafePathError):
+        _run(run)
+    assert victim.read_text() == "keep me"
+
+
+def test_a_symlink_loop_as_out_is_one_line(tmp_path):
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    with pytest.raises(RunDirError):
+        _run(loop / "run")
+    assert RunStore  # the store's module is the one under test
