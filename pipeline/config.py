@@ -102,8 +102,7 @@ class RobotConfig:
 
     antennas: tuple[AntennaMountConfig, ...] = option(
         doc="Reader antennas mounted on the robot ([[robot.antennas]] tables).",
-        factory=_default_antennas,
-    )
+        factory=_default_antennas, max=16)
 
     def __post_init__(self):
         if not self.antennas:
@@ -133,11 +132,9 @@ class TracingConfig:
     )
     max_depth: int = option(
         DEFAULT_MAX_DEPTH,
-        "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5).",
-    )
+        "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5).", max=10)
     samples_per_src: int = option(
-        DEFAULT_SAMPLES_PER_SRC, "Rays shot per antenna position (convergence check: bench/trace.py)."
-    )
+        DEFAULT_SAMPLES_PER_SRC, "Rays shot per antenna position (convergence check: bench/trace.py).", max=5_000_000)
     memory_budget_mb: float = option(2048.0, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
     lattice_spacing_m: float = option(
         0.0,
@@ -154,8 +151,7 @@ class TracingConfig:
         "alone). A position without a neighbour shoots samples_per_src rays.",
     )
     shared_samples_per_src: int = option(
-        3000, "Rays shot per antenna position that shares chains with neighbours (share_radius_m > 0)."
-    )
+        3000, "Rays shot per antenna position that shares chains with neighbours (share_radius_m > 0).", max=5_000_000)
     completion_order: int = option(
         3,
         "Also solve every specular reflection path of up to this order (0 = off, 1-3) over the "
@@ -167,7 +163,7 @@ class TracingConfig:
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
     )
     field_cell_m: float = option(0.1, "Cell size of the planar RSSI field [m].")
-    field_samples_per_tx: int = option(1_000_000, "Rays per transmitter for the RSSI field.")
+    field_samples_per_tx: int = option(1_000_000, "Rays per transmitter for the RSSI field.", max=50_000_000)
     field_walls: bool = option(False, "Also map the RSSI field on the wall surfaces (Sionna's "
                                "RadioMapSolver on a 0.1 m triangle mesh of the walls, 10x the rays of "
                                "the plane; saved in fields/field_*.npz as wall_gain): no figure or "
@@ -212,7 +208,7 @@ class TrainingConfig:
     alpha_bin_deg: float = option(10.0, "Bearing bin of the detection-model cells [deg].")
     n_clusters: int = option(3, "FCM clusters = Takagi-Sugeno rules per model.")
     fcm_exponent: float = option(2.0, "FCM fuzziness exponent m (Bezdek 1981).")
-    epochs: int = option(100, "ANFIS hybrid-learning epochs (Jang 1993); the best checking epoch is kept.")
+    epochs: int = option(100, "ANFIS hybrid-learning epochs (Jang 1993); the best checking epoch is kept.", max=100_000)
     step_size: float = option(0.01, "Initial ANFIS gradient step size (adapted per Jang 1993).")
     check_fraction: float = option(0.2, "Fraction of training samples held out as checking data.")
     max_samples: int = option(0, "Subsample the SSM training set to at most this many (0 = all).")
@@ -238,10 +234,10 @@ class EvaluationConfig:
     """Truth grids and comparison of the learned model with the propagation truth."""
 
     grid_d_max_m: float = option(3.0, "Fig. 6 (d, alpha) grid: largest distance [m].")
-    grid_n_d: int = option(13, "Fig. 6 grid: distance samples.")
-    grid_n_alpha: int = option(19, "Fig. 6 grid: bearing samples over [-90, 90] deg.")
-    n_sample_poses: int = option(4, "Antenna poses around which Fig. 6 truth points are traced.")
-    n_field_poses: int = option(1, "Of those, how many also get a ray-traced RSSI field (plane + walls).")
+    grid_n_d: int = option(13, "Fig. 6 grid: distance samples.", max=10_000)
+    grid_n_alpha: int = option(19, "Fig. 6 grid: bearing samples over [-90, 90] deg.", max=10_000)
+    n_sample_poses: int = option(4, "Antenna poses around which Fig. 6 truth points are traced.", max=10_000)
+    n_field_poses: int = option(1, "Of those, how many also get a ray-traced RSSI field (plane + walls).", max=100)
     fig7_radius_m: float = option(0.1, "Fig. 7: radius of the neighbourhood averaged around a tag [m].")
     field_height_m: float = option(1.0, "Height of the planar RSSI field (tag height) [m].")
     n_eval_tags: int = option(
@@ -262,6 +258,10 @@ class EvaluationConfig:
                   "fig7_radius_m", "field_height_m", "eval_tag_min_separation_m",
                   "site_spacing_m", "n_site_poses")
         _nonneg(self, "n_field_poses")
+        if self.n_field_poses > self.n_sample_poses:
+            raise ConfigError(f"n_field_poses = {self.n_field_poses} is more than n_sample_poses = "
+                              f"{self.n_sample_poses}: the fields are traced at some of the "
+                              "sample poses")
         if self.n_eval_tags < 8:
             raise ConfigError(f"n_eval_tags must be >= 8 (a held-out layout worth scoring on), "
                               f"got {self.n_eval_tags}")
@@ -292,11 +292,11 @@ class DownstreamConfig:
     oracle_reach_m: float = option(
         16.0, "The oracle's coarse pass scores slots whose antenna is within this distance of a "
         "candidate cell (beyond the longest read of the tour) [m].")
-    robot_particles: int = option(2000, "Particles of the RFID-only robot filter.")
+    robot_particles: int = option(2000, "Particles of the RFID-only robot filter.", max=1_000_000)
     robot_runs: int = option(
         3, "Runs of the RFID-only robot filter per model on independent particle streams; "
         "robot_localisation reports the median over runs and the spread of the per-run "
-        "median errors (one run is one noisy draw).")
+        "median errors (one run is one noisy draw).", max=1_000)
 
     def __post_init__(self):
         _positive(self, "candidate_spacing_m", "oracle_window_m", "oracle_reach_m",

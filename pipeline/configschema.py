@@ -31,6 +31,7 @@ from scenes.schema import ValueTypeError, convert_value
 __all__ = [
     "ConfigError",
     "UnknownKeyError",
+    "check_bounds",
     "check_keys",
     "from_dict",
     "option",
@@ -84,7 +85,8 @@ def check_keys(data, allowed, where: str, required=()) -> None:
         raise ConfigError(f"{where}: missing key(s) {missing}")
 
 
-def option(default: Any = dataclasses.MISSING, doc: str = "", *, factory: Any = None):
+def option(default: Any = dataclasses.MISSING, doc: str = "", *, factory: Any = None,
+           max: float | None = None):  # noqa: A002 - reads as the bound it is
     """Declare a configuration field with its documentation.
 
     Parameters
@@ -95,8 +97,16 @@ def option(default: Any = dataclasses.MISSING, doc: str = "", *, factory: Any = 
         One-line description, with the unit; shown in ``--help`` and reference.toml.
     factory : callable, optional
         Default factory (for mutable defaults).
+    max : float, optional
+        Upper bound of a size-like value (a count, a number of rays or of iterations),
+        or of a list's length; checked when the section is built, before any work, so
+        that a typo of a few zeros stops at once with the key named instead of running
+        for days or exhausting the memory. Shown in the reference config.
     """
     meta = {"doc": doc}
+    if max is not None:
+        meta["max"] = max
+        meta["doc"] = f"{doc} At most {max:,}." if doc else f"At most {max:,}."
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -116,8 +126,31 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
 
+def check_bounds(obj) -> None:
+    """Raise :class:`ConfigError` naming the first field of ``obj`` above its ``max``."""
+    for f in dataclasses.fields(obj):
+        bound = f.metadata.get("max")
+        if bound is None:
+            continue
+        v = getattr(obj, f.name)
+        size = len(v) if isinstance(v, (list, tuple)) else v
+        if isinstance(size, (int, float)) and not isinstance(size, bool) and size > bound:
+            what = f"has {size:,} entries" if isinstance(v, (list, tuple)) else f"= {v!r}"
+            raise ConfigError(f"{f.name} {what}: more than its upper bound {bound:,} (a size "
+                              "this tool refuses before any work; see the reference config)")
+
+
 def section(cls):
-    """Class decorator: a frozen dataclass whose docstring lists every field's doc."""
+    """Class decorator: a frozen dataclass whose docstring lists every field's doc, and
+    whose fields' upper bounds (``option(max=...)``) are checked on construction."""
+    post = getattr(cls, "__post_init__", None)
+
+    def __post_init__(self):
+        check_bounds(self)
+        if post is not None:
+            post(self)
+
+    cls.__post_init__ = __post_init__
     cls = dataclasses.dataclass(frozen=True)(cls)
     hints = typing.get_type_hints(cls)
     lines = [(cls.__doc__ or "").rstrip(), "", "Attributes", "----------"]

@@ -88,8 +88,9 @@ class Gen2Config:
             raise ConfigError(f"reader.gen2.miller_m must be 1, 2, 4 or 8, got {self.miller_m!r}")
         if not 0 <= self.q_initial <= _Q_MAX:
             raise ConfigError(f"reader.gen2.q_initial must be in [0, 15], got {self.q_initial!r}")
-        if not 0.0 < self.q_step < 1.0:
-            raise ConfigError(f"reader.gen2.q_step must be in (0, 1), got {self.q_step!r}")
+        if not 0.1 <= self.q_step <= 0.5:  # EPC Gen2 Annex D: typical 0.1 < C < 0.5
+            raise ConfigError(f"reader.gen2.q_step must be in [0.1, 0.5] (EPC Gen2 Annex D), "
+                              f"got {self.q_step!r}")
         if not self.antenna_switch_s >= 0:
             raise ConfigError(f"reader.gen2.antenna_switch_s must be >= 0, got {self.antenna_switch_s!r}")
         if self.antenna_dwell_s is not None and not self.antenna_dwell_s > 0:

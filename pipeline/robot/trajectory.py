@@ -92,8 +92,7 @@ class TourConfig:
     """
 
     n_passes: int = option(
-        2, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 9)."
-    )
+        2, "Passes along the corridor route, alternating direction (2 = up and back; paper_scale: 9).", max=1_000)
     lane_fractions: tuple[float, ...] = option(
         (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
     )
@@ -104,7 +103,7 @@ class TourConfig:
     max_length_m: float = option(
         0.0, "Drive only the first max_length_m metres of the scene's route (0 = whole route) [m]."
     )
-    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path (chapter Fig. 7: 200).")
+    n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path (chapter Fig. 7: 200).", max=100_000)
 
     def __post_init__(self):
         for k in ("n_passes", "speed_m_per_s", "dt_s", "n_eval_poses"):

@@ -1,0 +1,58 @@
+"""Every size-like key has an upper bound, checked before any work, named in the error.
+
+A few zeros too many (``tracing.max_depth = 1000`` took 20.5 GB before the kernel killed
+it; ``robot_runs = 1e9`` ran on with no end) stop at config time: exit code 2, one line
+naming the key and its bound, and no run directory made.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from pipeline.config import ConfigError, StudyConfig, replace_path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SIZES = ["tracing.max_depth", "tracing.samples_per_src", "tracing.shared_samples_per_src",
+         "tracing.field_samples_per_tx", "training.epochs", "localisation.n_particles",
+         "tour.n_passes", "tour.n_eval_poses", "downstream.robot_particles",
+         "downstream.robot_runs", "evaluation.n_sample_poses", "evaluation.grid_n_d",
+         "evaluation.grid_n_alpha"]
+
+
+@pytest.mark.parametrize("key", SIZES)
+def test_an_oversized_key_stops_before_any_work_naming_it(tmp_path, key):
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["run", str(ROOT / "configs" / "tiny.toml"), "--no-progress",
+                                   "--set", f"{key}=1000000000", "--out", str(out)])
+    assert res.exit_code == 2, res.output
+    line = res.output.strip().splitlines()[-1]
+    assert key.split(".")[-1] in line and "upper bound" in line and "Traceback" not in res.output
+    assert not out.exists()
+
+
+def test_the_bound_is_a_bound_not_a_default():
+    # the defaults and the paper-scale sizes stay inside their bounds
+    assert replace_path(StudyConfig(), "tracing.max_depth", 10).tracing.max_depth == 10
+    with pytest.raises(ConfigError, match=r"max_depth = 11: more than its upper bound 10"):
+        replace_path(StudyConfig(), "tracing.max_depth", 11)
+
+
+def test_too_many_antennas_is_named():
+    ants = [{"name": f"a{i}", "z_m": 0.7} for i in range(17)]
+    with pytest.raises(ConfigError, match=r"antennas has 17 entries: more than its upper bound 16"):
+        replace_path(StudyConfig(), "robot.antennas", ants)
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("reader.gen2.q_step", 0.9, "q_step must be in [0.1, 0.5]"),
+    ("evaluation.n_field_poses", 5, "n_field_poses = 5 is more than n_sample_poses = 4"),
+])
+def test_values_outside_their_documented_range_are_refused(key, value, words):
+    with pytest.raises(ConfigError) as err:
+        replace_path(StudyConfig(), key, value)
+    assert words in str(err.value)
