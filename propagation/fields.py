@@ -275,7 +275,7 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
         cache_file = Path(cache_dir) / f"rssi_field-{digest}.npz"
         if cache_file.exists():
             try:
-                return RssiField.load(cache_file)
+                return _load_checked(cache_file)
             except Exception as exc:  # noqa: BLE001 - any damage means "recompute"
                 warnings.warn(f"unreadable field cache file {cache_file} ({exc}); computing it again",
                               CacheWarning, stacklevel=2)
@@ -324,5 +324,35 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
         reader_polarization=reader_polarization,
     )
     if cache_file is not None:
-        out.save(cache_file)
+        _save_checked(out, cache_file)
     return out
+
+
+def _checksum_file(cache_file: Path) -> Path:
+    return cache_file.with_suffix(".sha256.json")
+
+
+def _field_sha256(field: RssiField) -> str:
+    from propagation.pathcache import values_sha256
+
+    return values_sha256({k: np.asarray(v) for k, v in asdict(field).items()})
+
+
+def _save_checked(field: RssiField, cache_file: Path) -> None:
+    """Save a cached field and, beside it, the checksum of its values (written last)."""
+    from scenes.fileio import atomic_write_text
+
+    field.save(cache_file)
+    atomic_write_text(_checksum_file(cache_file),
+                      json.dumps({"format": 1, "values_sha256": _field_sha256(field)}) + "\n")
+
+
+def _load_checked(cache_file: Path) -> RssiField:
+    """A cached field whose values match the checksum saved beside it (as the path cache
+    checks its packs): a file re-saved with other values, or without its checksum, is
+    refused with a ValueError naming it, and the caller recomputes it."""
+    meta = json.loads(_checksum_file(cache_file).read_text(encoding="utf-8"))
+    field = RssiField.load(cache_file)
+    if not isinstance(meta, dict) or meta.get("values_sha256") != _field_sha256(field):
+        raise ValueError(f"{cache_file}: its values do not match the checksum saved with it")
+    return field
