@@ -20,7 +20,7 @@ import tomllib
 from pathlib import Path
 
 from pipeline.config import StudyConfig, config_to_dict
-from pipeline.runstore import MANIFEST, RunStore
+from pipeline.runstore import MANIFEST, RunStore, regular_file
 
 __all__ = ["config_changes", "describe_previous_run", "final_paths_in_logs",
            "reproducible_outputs"]
@@ -100,15 +100,19 @@ def config_changes(old: dict, new: dict) -> dict[str, tuple]:
 def describe_previous_run(store: RunStore, config: StudyConfig, result) -> None:
     """Name what the previous run in this directory left, and how its config differs."""
     man_path = store.path(MANIFEST)
-    if man_path.is_file():
+    if regular_file(man_path):
         try:
+            if man_path.stat().st_size > 64 << 20:
+                raise ValueError("larger than 64 MiB")
             man = json.loads(man_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             man = None
             log.warning("%s is unreadable; the stage records decide what re-runs", man_path)
         if isinstance(man, dict):
             status = man.get("status")
-            stage = man.get("stage") or (man.get("failure") or {}).get("stage")
+            failure = man.get("failure") if isinstance(man.get("failure"), dict) else {}
+            stage = man.get("stage") or failure.get("stage")
+            stage = stage if isinstance(stage, str) else None
             at = f" during stage {stage}" if stage else ""
             if status == "running":
                 result.previous = f"the previous run stopped{at}"
@@ -120,10 +124,12 @@ def describe_previous_run(store: RunStore, config: StudyConfig, result) -> None:
                 result.previous = f"the previous run failed{' at stage ' + stage if stage else ''}"
                 log.info("%s; resuming", result.previous)
     cfg_path = store.path("config.toml")
-    if cfg_path.is_file():
+    if regular_file(cfg_path):
         try:
+            if cfg_path.stat().st_size > 16 << 20:
+                return
             old = tomllib.loads(cfg_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             return
         diff = config_changes(old, config_to_dict(config))
         if diff:

@@ -76,9 +76,12 @@ STAGING_DIR = ".staging"
 MANIFEST = "manifest.json"
 LOCK_FILE = ".rfidstudy.lock"
 LOCK_OWNER = ".rfidstudy.owner.json"
+#: Marks a directory that held other files when rfidstudy first ran into it
+#: (``--force-dir``): every later run keeps protecting the files no record lists.
+FOREIGN_MARK = ".rfidstudy.foreign"
 #: The lock's files: housekeeping of a run in progress, not results (not in the manifest;
 #: the lock file itself stays, as an flock's file must for the lock to be safe).
-HOUSEKEEPING = frozenset({LOCK_FILE, LOCK_OWNER})
+HOUSEKEEPING = frozenset({LOCK_FILE, LOCK_OWNER, FOREIGN_MARK})
 #: Files the tool writes at a run directory's top level outside any stage record: in a
 #: foreign directory (``force_dir``) a user's file under one of these names stops the run.
 OWN_TOP_LEVEL = ("config.toml", MANIFEST)
@@ -230,8 +233,9 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
                 f"{path} is not empty ({shown}) and is not a run directory of rfidstudy (no "
                 f"stages/, no {MANIFEST}): choose another directory, or pass --force-dir "
                 "(force_dir=True) to run into it")
-    foreign = path.is_dir() and not is_run_dir(path) and any(path.iterdir())
-    if foreign:  # --force-dir: the tool's own outputs only, never a user's file
+    first_time = path.is_dir() and not is_run_dir(path) and any(path.iterdir())
+    foreign = first_time or regular_file(path / FOREIGN_MARK)
+    if first_time:  # --force-dir: the tool's own outputs only, never a user's file
         for name in OWN_TOP_LEVEL:
             if os.path.lexists(path / name):
                 raise RunDirError(
@@ -239,7 +243,11 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
                     "--force-dir writes only the tool's own outputs: move it, or choose "
                     "another directory")
     try:
-        return RunStore(path, foreign=foreign)
+        store = RunStore(path, foreign=foreign)
+        if first_time:
+            atomic_write_text(store.path(FOREIGN_MARK), "rfidstudy ran into this directory with "
+                              "--force-dir: files no stage record lists are the user's\n")
+        return store
     except OSError as exc:
         err = write_error(exc, path)
         if err is None:

@@ -513,6 +513,13 @@ def _run_locked(store, config, stages, progress, force, command_line, manifest_e
             for name in current.split(" + "):
                 store.discard(name)
         raise err from None
+    except RunDirError as exc:  # a link on the way, a user's file: refused, named, recorded
+        stop_side()
+        if current and current != "checks":
+            for name in current.split(" + "):
+                store.discard(name)
+        _safe(manifest, "failed", current, {"stage": current, "error": str(exc)}, None)
+        raise
     except BaseException:
         stop_side()
         raise
