@@ -65,6 +65,7 @@ __all__ = [
     "json_hash",
     "open_run_dir",
     "regular_file",
+    "run_files",
     "save_npz",
     "write_error",
 ]
@@ -159,6 +160,25 @@ def regular_file(path: str | Path) -> bool:
         return stat.S_ISREG(os.lstat(path).st_mode)
     except OSError:
         return False
+
+
+def run_files(root: str | Path, folder: str, pattern: str) -> list[Path]:
+    """The regular files of run-directory ``folder`` matching ``pattern``, sorted.
+
+    For readers that list a folder instead of a record: ``folder`` is checked by
+    :func:`inside` (a linked folder raises :class:`UnsafePathError`), and a link, FIFO or
+    device among the matches is left out with a warning, never read.
+    """
+    d = inside(root, folder)
+    if not d.is_dir():
+        return []
+    out = []
+    for p in sorted(d.glob(pattern)):
+        if regular_file(p):
+            out.append(p)
+        else:
+            log.warning("%s is not a regular file (a link?): not read", p)
+    return out
 
 
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.[^.]+\.tmp(?:\.[A-Za-z0-9]+)?$")

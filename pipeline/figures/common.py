@@ -37,12 +37,26 @@ class MissingInput(FileNotFoundError):
 
 
 def require(run_dir, *relpaths: str) -> Path:
-    """First existing ``run_dir / p`` among `relpaths`; MissingInput naming all of them if none."""
+    """First existing ``run_dir / p`` among `relpaths`; MissingInput naming all of them if none.
+
+    Only a regular file reached without a symbolic link counts
+    (:func:`pipeline.runstore.inside`): a figure never reads a file outside the run
+    directory, and a link there is reported like a missing input, naming it.
+    """
+    from pipeline.runstore import UnsafePathError, inside, regular_file
+
     run_dir = Path(run_dir)
+    refused = []
     for p in relpaths:
-        if (run_dir / p).is_file():
-            return run_dir / p
-    raise MissingInput(f"{run_dir}: none of {list(relpaths)} exists")
+        try:
+            path = inside(run_dir, p)
+        except UnsafePathError as exc:
+            refused.append(str(exc))
+            continue
+        if regular_file(path):
+            return path
+    why = f" ({'; '.join(refused)})" if refused else ""
+    raise MissingInput(f"{run_dir}: none of {list(relpaths)} exists{why}")
 
 
 def find_first(run_dir, *relpaths: str) -> Path | None:

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.runstore import run_files
+
 from .common import (
     finite_or_nan,
     load_sensor,
@@ -43,7 +45,7 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
     from pipeline.evaluation.comparison import RhoPoints
 
     run_dir = Path(run_dir)
-    files = sorted((run_dir / "truth").glob("rho_points_*.npz"))
+    files = run_files(run_dir, "truth", "rho_points_*.npz")
     if not files:
         require(run_dir, "truth/rho_points_00.npz")
     files = files[:_MAX_POSES]

@@ -23,6 +23,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.collections import LineCollection
 
+from pipeline.runstore import run_files
+
 from .common import find_first, new_figure, require, save_figure
 
 __all__ = ["fig_fields", "fig_mcl_error", "fig_scene_top_view", "scene_top_view"]
@@ -170,7 +172,7 @@ def _field_arrays(path: Path) -> dict:
 def fig_fields(run_dir, out_dir=None) -> list[Path]:
     """Ray-traced one-way gain over the field plane for the sample antenna poses (up to 4)."""
     run_dir = Path(run_dir)
-    files = sorted((run_dir / "fields").glob("field_*.npz"))[:_MAX_FIELDS]
+    files = run_files(run_dir, "fields", "field_*.npz")[:_MAX_FIELDS]
     if not files:
         require(run_dir, "fields/field_00.npz")
     plan = find_first(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")

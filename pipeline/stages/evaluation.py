@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from pipeline.runstore import atomic_write_json
+from pipeline.runstore import atomic_write_json, run_files
 from pipeline.stages.common import antenna_tilts, link_budget, load_scene, read_reads
 from pipeline.study import Stage
 
@@ -134,11 +134,11 @@ def stage_evaluation(ctx) -> dict:
     insample["note"] = ("in_sample: scored on the training tour's reads of the training tags, "
                         "which the models were fitted on")
     metrics["in_sample"] = insample
-    rho_points = [RhoPoints.load(p) for p in sorted(ctx.store.path("truth").glob("rho_points_*.npz"))]
+    rho_points = [RhoPoints.load(p) for p in run_files(ctx.store.root, "truth", "rho_points_*.npz")]
     metrics["free_space_view"] = {
         name: rho_vs_truth(rho_points, sensors[name]).to_dict() for name in rssi_names
     } if rho_points else None
-    fields = sorted(ctx.store.path("fields").glob("field_*.npz"))
+    fields = run_files(ctx.store.root, "fields", "field_*.npz")
     coverage = field_coverage(cfg, load_scene(ctx), fields, eval_reads)
     if coverage is not None:
         metrics["coverage"] = coverage

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pipeline.runstore import run_files
+
 __all__ = ["corridor_coverage", "run_summary"]
 
 
@@ -101,7 +103,7 @@ def corridor_coverage(run_dir: str | Path) -> float | None:
         cov = json.loads(mpath.read_text()).get("coverage")
         if isinstance(cov, dict) and "corridor_fraction" in cov:
             return float(cov["corridor_fraction"])
-    files = sorted((run / "fields").glob("field_*.npz"))
+    files = run_files(run, "fields", "field_*.npz")
     if not files:
         return None
     cfg = config_from_mapping(tomllib.loads((run / "config.toml").read_text()),

@@ -245,3 +245,19 @@ def test_a_malformed_manifest_is_no_traceback_for_the_next_run(run_and_canary, m
     res = _run(run)
     assert res.ran == [] and json.loads((run / "manifest.json").read_text())["status"] == "complete"
     assert isinstance(RunStore(run).records(), dict)
+
+
+def test_folder_listings_skip_links_and_fifos_and_refuse_a_linked_folder(tmp_path, caplog):
+    from pipeline.runstore import run_files
+
+    (tmp_path / "fields").mkdir()
+    (tmp_path / "fields" / "field_00.npz").write_bytes(b"ours")
+    secret = tmp_path.parent / f"{tmp_path.name}-secret.npz"
+    secret.write_bytes(b"secret")
+    (tmp_path / "fields" / "field_01.npz").symlink_to(secret)
+    os.mkfifo(tmp_path / "fields" / "field_02.npz")
+    assert run_files(tmp_path, "fields", "field_*.npz") == [tmp_path / "fields" / "field_00.npz"]
+    assert "field_01.npz is not a regular file" in caplog.text
+    (tmp_path / "truth").symlink_to(tmp_path / "fields")
+    with pytest.raises(UnsafePathError, match="truth is a symbolic link"):
+        run_files(tmp_path, "truth", "*.npz")
