@@ -3,7 +3,8 @@
 .PHONY: setup demo test test-all bench lint clean
 
 OUT ?= runs/default
-# two pytest-xdist workers (a 2-core machine: 238 s -> 122 s measured, docs/benchmarks.md);
+# two pytest-xdist workers: on a 2-core machine they halve the wall time (measured in the
+# closing note of the issue that introduced them);
 # tests go to the workers by module (--dist loadscope): the tiny study is built once
 PYTEST_ARGS ?= -m "not slow and not gpu" -n 2 --dist loadscope --durations=15
 
