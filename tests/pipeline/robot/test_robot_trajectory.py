@@ -101,10 +101,12 @@ def test_tour_in_bundled_corridor_lab(robot):
     assert np.ptp(tour.poses[:, 0]) > 20.0  # most of the ~25 m corridor
 
 
-def test_collision_map_is_shared_only_for_the_same_settings(corridor, robot, cmap):
+def test_collision_map_is_shared_only_for_the_same_settings(corridor, robot, cmap, monkeypatch):
     # the same scene and robot get the same (read-only) map; a taller robot, another
     # route or resolution get maps of their own, so no caller sees another's map
     assert collision_map(corridor, robot) is cmap
+    # room for every map of this test: an identity below never depends on an eviction
+    monkeypatch.setattr("pipeline.robot.trajectory._COLLISION_MAPS_KEPT", 100)
     for arr in (cmap.origin_m, cmap.occupied, cmap.distance_m, cmap.boundary_distance_m):
         with pytest.raises(ValueError, match="read-only"):
             arr.flat[0] = arr.flat[0]
@@ -113,6 +115,8 @@ def test_collision_map_is_shared_only_for_the_same_settings(corridor, robot, cma
     assert collision_map(corridor, tall) is not cmap
     assert collision_map(corridor, tall).z_range_m[1] > cmap.z_range_m[1]
     assert collision_map(corridor, robot, resolution_m=0.1).resolution_m == 0.1
-    short_route = np.asarray(corridor.route_m, float)[:2]
+    # half the route (a two-point route's [:2] would be all of it: the same map)
+    route = np.asarray(corridor.route_m, float)
+    short_route = np.array([route[0], (route[0] + route[-1]) / 2])
     other = collision_map(corridor, robot, route_m=short_route)
     assert other is not cmap and other is not collision_map(corridor, robot, resolution_m=0.1)
