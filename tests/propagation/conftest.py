@@ -1,4 +1,4 @@
-"""Fixtures of the propagation tests: the backend and the small scenes of propagation_scenes."""
+"""Fixtures of the propagation tests: the backend and the small scenes of tests.helpers.scenes."""
 
 import os
 
