@@ -18,7 +18,13 @@ import os
 import tomllib
 from pathlib import Path
 
-from pipeline.runstore import atomic_write_text, regular_file
+from pipeline.runstore import (
+    UnsafePathError,
+    atomic_write_text,
+    read_run_json,
+    regular_file,
+    run_files,
+)
 
 __all__ = ["figure_captions", "headline_html", "metrics_tables", "model_comparison_tables",
            "write_report"]
@@ -40,18 +46,11 @@ pre{background:#f7f7f7;padding:.8em;overflow:auto;font-size:.8em;max-height:30em
 
 
 def _load_json(path: Path) -> dict | None:
-    """A JSON object from a run directory: a regular file (a link is not followed) of at
-    most 64 MiB holding an object; anything else is a ValueError naming the file."""
+    """A JSON object from a run directory (:func:`pipeline.runstore.read_run_json`: a
+    regular file, no link followed, size-capped); anything else is a ValueError naming it."""
     if not os.path.lexists(path):
         return None
-    if not regular_file(path):
-        raise ValueError(f"{path}: not a regular file (a link or a special file): not read")
-    try:
-        if path.stat().st_size > 64 << 20:
-            raise ValueError("larger than 64 MiB")
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
-        raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+    data = read_run_json(path)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got {type(data).__name__}")
     return data
@@ -399,11 +398,11 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     # figures
     parts.append("<h2>Figures</h2>")
     captions = figure_captions(run)
-    fig_dir = run / "figures"
-    pngs = sorted(fig_dir.glob("*.png")) if fig_dir.is_dir() and not fig_dir.is_symlink() else []
-    for png in [p for p in pngs if not regular_file(p)]:  # a link could embed any file
-        log.warning("report: %s is not a regular file (a link?): not embedded", png)
-    pngs = [p for p in pngs if regular_file(p)]
+    try:  # regular files only: a link could embed any file of the reader's
+        pngs = run_files(run, "figures", "*.png")
+    except UnsafePathError as exc:
+        log.warning("report: %s; no figure embedded", exc)
+        pngs = []
     if not pngs:
         parts.append("<p>No figures in figures/.</p>")
     for png in pngs:

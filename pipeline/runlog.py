@@ -7,23 +7,35 @@
 - :func:`reproducible_outputs`: ``SOURCE_DATE_EPOCH=0`` while a stage runs (no dates in
   PDF metadata), so identical inputs give identical bytes;
 - :func:`final_paths_in_logs`: log lines naming a file in the staging area name its
-  final place instead.
+  final place instead;
+- :func:`write_manifest`: the run's ``manifest.json`` (status, timings, files), with
+  :func:`peak_rss_mib` and :func:`utc_now`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
+import datetime as _dt
 import logging
 import os
+import resource
+import sys
+import time
 import tomllib
 from pathlib import Path
 
 from pipeline.config import StudyConfig, config_to_dict
-from pipeline.runstore import MANIFEST, RunStore, regular_file
+from pipeline.runstore import (
+    MANIFEST,
+    RECORD_DIR,
+    RunStore,
+    atomic_write_json,
+    read_run_json,
+    regular_file,
+)
 
-__all__ = ["config_changes", "describe_previous_run", "final_paths_in_logs",
-           "reproducible_outputs"]
+__all__ = ["config_changes", "describe_previous_run", "final_paths_in_logs", "peak_rss_mib",
+           "reproducible_outputs", "utc_now", "write_manifest"]
 
 log = logging.getLogger("pipeline.study")
 
@@ -102,10 +114,8 @@ def describe_previous_run(store: RunStore, config: StudyConfig, result) -> None:
     man_path = store.path(MANIFEST)
     if regular_file(man_path):
         try:
-            if man_path.stat().st_size > 64 << 20:
-                raise ValueError("larger than 64 MiB")
-            man = json.loads(man_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError, RecursionError):
+            man = read_run_json(man_path)
+        except ValueError:
             man = None
             log.warning("%s is unreadable; the stage records decide what re-runs", man_path)
         if isinstance(man, dict):
@@ -138,3 +148,61 @@ def describe_previous_run(store: RunStore, config: StudyConfig, result) -> None:
             more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
             log.info("%s holds a run of another config (%s%s); the stages that depend on "
                      "these keys re-run", store.root, shown, more)
+
+
+def peak_rss_mib() -> float:
+    """Peak resident set size of this process so far [MiB] (``getrusage``)."""
+    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kib / 1024.0 if sys.platform != "darwin" else kib / 2**20
+
+
+def utc_now() -> str:
+    """The current UTC time, ISO 8601 to the second."""
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _manifest_files(store: RunStore, result) -> list[str]:
+    """Files of this run: config.toml, every stage's outputs and records (not the manifest)."""
+    files = {"config.toml"} if store.path("config.toml").is_file() else set()
+    for name, rec in result.records.items():
+        files.update(rec.outputs)
+        files.add(f"{RECORD_DIR}/{name}.json")
+    return sorted(files)
+
+
+def write_manifest(store: RunStore, config: StudyConfig, result, started: str, t0: float,
+                   command_line, manifest_extra, failure, status=None, stage=None) -> None:
+    """Write ``manifest.json``: the run's status, stage under way, failure, timings per
+    stage, files, and ``manifest_extra(config)`` (package versions, backend)."""
+    result.elapsed_s = time.perf_counter() - t0
+    result.peak_rss_mib = peak_rss_mib()
+    manifest = {
+        "seed": config.seed,
+        "scene": config.scene,
+        "command_line": list(command_line if command_line is not None else sys.argv),
+        "started_utc": started,
+        "finished_utc": utc_now(),
+        "elapsed_s": round(result.elapsed_s, 3),
+        "peak_rss_mib": round(result.peak_rss_mib, 1),
+        "status": status or ("failed" if failure else "complete"),
+        "stage": stage,
+        "failure": failure,
+        "previous_run": result.previous or None,
+        "stages": {
+            name: {
+                "status": "ran" if name in result.ran else "cached",
+                "elapsed_s": rec.elapsed_s,
+                "peak_rss_mib": rec.peak_rss_mib,
+                "finished_utc": rec.finished_utc,
+                "info": rec.info,
+            }
+            for name, rec in result.records.items()
+        },
+        "files": _manifest_files(store, result),
+    }
+    if manifest_extra is not None:
+        try:
+            manifest.update(manifest_extra(config))
+        except Exception as exc:  # the manifest must not hide the real result
+            log.warning("manifest: could not collect environment info: %s", exc)
+    atomic_write_json(store.path(MANIFEST), manifest)

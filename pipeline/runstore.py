@@ -64,6 +64,7 @@ __all__ = [
     "is_run_dir",
     "json_hash",
     "open_run_dir",
+    "read_run_json",
     "regular_file",
     "run_files",
     "save_npz",
@@ -275,14 +276,53 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
         raise err from None
 
 
-def file_sha256(path: str | Path) -> str:
-    """SHA-256 hex digest of a file's bytes (opened without following a final link)."""
-    h = hashlib.sha256()
+def _open_regular(path: str | Path):
+    """A binary file object of ``path``, opened without following a final link and
+    without blocking (a FIFO is then refused by ``fstat``, not waited on); the check and
+    the read are on one descriptor, so the file cannot be swapped between them.
+
+    Raises
+    ------
+    UnsafePathError
+        ``path`` is not a regular file.
+    """
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
         raise UnsafePathError(f"{path} is not a regular file: not read")
-    with os.fdopen(fd, "rb") as fh:
+    return os.fdopen(fd, "rb")
+
+
+def read_run_json(path: str | Path, max_bytes: int = 64 << 20):
+    """The JSON document of a run-directory file, read as data from a stranger.
+
+    Parameters
+    ----------
+    path : path
+        The file (a regular file; a link or special file is refused).
+    max_bytes : int
+        Largest size read [bytes].
+
+    Raises
+    ------
+    ValueError
+        Naming the file: not a regular file (or a link), larger than ``max_bytes``, not
+        UTF-8 JSON, or nested too deeply to parse.
+    """
+    try:
+        with _open_regular(path) as fh:
+            data = fh.read(max_bytes + 1)
+        if len(data) > max_bytes:
+            raise ValueError(f"larger than {max_bytes >> 20} MiB")
+        return json.loads(data.decode("utf-8"))
+    except (OSError, ValueError, RecursionError, RunDirError) as exc:
+        raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 hex digest of a file's bytes (opened without following a final link)."""
+    h = hashlib.sha256()
+    with _open_regular(path) as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
@@ -423,10 +463,8 @@ class RunStore:
     def _owner(self) -> str:
         """Who holds the lock, as the owner file says (best effort)."""
         try:
-            p = self.path(LOCK_OWNER)
-            if regular_file(p) and p.stat().st_size < 4096:
-                o = json.loads(p.read_text(encoding="utf-8"))
-                return f"process {int(o['pid'])} ({str(o['command'])[:80]}, since {str(o['started_utc'])[:20]})"
+            o = read_run_json(self.path(LOCK_OWNER), max_bytes=4096)
+            return f"process {int(o['pid'])} ({str(o['command'])[:80]}, since {str(o['started_utc'])[:20]})"
         except (OSError, ValueError, KeyError, TypeError, RunDirError):
             pass
         return "another process"
@@ -441,18 +479,13 @@ class RunStore:
         if not os.path.lexists(p):
             return None
         try:
-            if not regular_file(p):
-                raise ValueError("not a regular file")
-            if p.stat().st_size > 16 << 20:
-                raise ValueError("larger than 16 MiB")
-            data = json.loads(p.read_text(encoding="utf-8"))
-            rec = StageRecord(**data)
+            rec = StageRecord(**read_run_json(p, max_bytes=16 << 20))
             if not (isinstance(rec.inputs_hash, str) and isinstance(rec.outputs, dict)
                     and all(isinstance(k, str) and isinstance(v, str) for k, v in rec.outputs.items())
                     and isinstance(rec.info, dict)):
                 raise ValueError("fields of the wrong type")
             return rec
-        except (OSError, ValueError, TypeError, RecursionError) as exc:
+        except (ValueError, TypeError) as exc:
             log.warning("stage record %s is corrupt (%s); stage %r will re-run", p, exc, stage)
             return None
 
@@ -535,7 +568,6 @@ class RunStore:
             rel = f.relative_to(staged).as_posix()
             outputs[rel] = file_sha256(f)
             dest.parent.mkdir(parents=True, exist_ok=True)
-            self.path(rel)  # the folders just made: still no link on the way
             os.replace(f, dest)
         shutil.rmtree(staged, ignore_errors=True)
         for rel in sorted(set(previous.outputs) - set(outputs) - others) if previous is not None else ():

@@ -118,9 +118,9 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
     _end_with_parent()
     if hasattr(os, "nice"):
         os.nice(SIDE_NICENESS)
-    from pipeline.runlog import final_paths_in_logs, reproducible_outputs
+    from pipeline.runlog import final_paths_in_logs, peak_rss_mib, reproducible_outputs
     from pipeline.runstore import RunStore
-    from pipeline.study import StageContext, peak_rss_mib
+    from pipeline.study import StageContext
 
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(f"%(levelname)s [{stage}] %(message)s"))
@@ -280,7 +280,8 @@ def start_side(st, config, store, digests, force, prog) -> Side | None:
 def finish_side(side: Side, store, result, prog, failed):
     """Wait for the stage's process and commit its outputs (its ``StageRecord``); a failure
     there is the stage's failure, given to ``failed(failure)`` for the manifest first."""
-    from pipeline.study import StageError, _utc_now
+    from pipeline.runlog import utc_now
+    from pipeline.study import StageError
 
     st = side.stage
     try:
@@ -296,6 +297,6 @@ def finish_side(side: Side, store, result, prog, failed):
                          "fix the cause and rerun to resume)") from (exc.cause or exc)
     if prog is not None and side.task is not None:
         prog.update(side.task, completed=1)
-    rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, _utc_now(), info)
+    rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, utc_now(), info)
     result.ran.append(st.name)
     return rec

@@ -38,9 +38,7 @@ sub-packages.
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import logging
-import resource
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -53,16 +51,16 @@ from pipeline.runlog import (
     config_changes,
     describe_previous_run,
     final_paths_in_logs,
+    peak_rss_mib,
     reproducible_outputs,
+    utc_now,
+    write_manifest,
 )
 from pipeline.runstore import (
-    MANIFEST,
-    RECORD_DIR,
     STAGING_DIR,
     RunDirError,
     RunStore,
     StageRecord,
-    atomic_write_json,
     atomic_write_text,
     json_hash,
     open_run_dir,
@@ -113,12 +111,6 @@ class StudyInterrupted(KeyboardInterrupt):
 
     def __str__(self) -> str:
         return str(self.args[0])
-
-
-def peak_rss_mib() -> float:
-    """Peak resident set size of this process so far [MiB] (``getrusage``)."""
-    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return kib / 1024.0 if sys.platform != "darwin" else kib / 2**20
 
 
 def _get(cfg_dict: dict, dotted: str):
@@ -297,10 +289,6 @@ class StudyResult:
     changed_keys: list[str] = field(default_factory=list)
 
 
-def _utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
 @contextlib.contextmanager
 def _progress_bars(enabled: bool):
     if not enabled:
@@ -413,7 +401,7 @@ def _run_locked(store, config, stages, progress, force, command_line, manifest_e
                 checks) -> StudyResult:
     """:func:`run_study`'s body, run while the directory's lock is held."""
     t0 = time.perf_counter()
-    started = _utc_now()
+    started = utc_now()
     result = StudyResult(run_dir=store.root)
     describe_previous_run(store, config, result)
     memo: dict = {}
@@ -421,8 +409,8 @@ def _run_locked(store, config, stages, progress, force, command_line, manifest_e
     current: str | None = None
 
     def manifest(status, stage=None, failure=None, extra=None):
-        _write_manifest(store, config, result, started, t0, command_line, extra, failure,
-                        status=status, stage=stage)
+        write_manifest(store, config, result, started, t0, command_line, extra, failure,
+                       status=status, stage=stage)
 
     side = None  # a stage running in its own process beside ``current``
 
@@ -484,7 +472,7 @@ def _run_locked(store, config, stages, progress, force, command_line, manifest_e
                                          "fix the cause and rerun to resume)") from exc
                     prev = store.read_record(st.name) if st.always else None
                     rec = store.commit(st.name, inputs_hash, staged, time.perf_counter() - ts,
-                                       peak_rss_mib(), _utc_now(), info)
+                                       peak_rss_mib(), utc_now(), info)
                     if prev is not None and prev.inputs_hash == inputs_hash and prev.outputs == rec.outputs:
                         result.cached.append(st.name)  # re-checked, outputs unchanged
                     else:
@@ -558,48 +546,3 @@ def _safe(manifest, status, stage, failure, extra) -> None:
         manifest(status, stage, failure, extra)
     except OSError as exc:
         log.warning("could not update manifest.json: %s", exc)
-
-
-def _run_files(store: RunStore, result: StudyResult) -> list[str]:
-    """Files of this run: config.toml, every stage's outputs and records (not the manifest)."""
-    files = {"config.toml"} if store.path("config.toml").is_file() else set()
-    for name, rec in result.records.items():
-        files.update(rec.outputs)
-        files.add(f"{RECORD_DIR}/{name}.json")
-    return sorted(files)
-
-
-def _write_manifest(store, config, result, started, t0, command_line, manifest_extra, failure,
-                    status=None, stage=None):
-    result.elapsed_s = time.perf_counter() - t0
-    result.peak_rss_mib = peak_rss_mib()
-    manifest = {
-        "seed": config.seed,
-        "scene": config.scene,
-        "command_line": list(command_line if command_line is not None else sys.argv),
-        "started_utc": started,
-        "finished_utc": _utc_now(),
-        "elapsed_s": round(result.elapsed_s, 3),
-        "peak_rss_mib": round(result.peak_rss_mib, 1),
-        "status": status or ("failed" if failure else "complete"),
-        "stage": stage,
-        "failure": failure,
-        "previous_run": result.previous or None,
-        "stages": {
-            name: {
-                "status": "ran" if name in result.ran else "cached",
-                "elapsed_s": rec.elapsed_s,
-                "peak_rss_mib": rec.peak_rss_mib,
-                "finished_utc": rec.finished_utc,
-                "info": rec.info,
-            }
-            for name, rec in result.records.items()
-        },
-        "files": _run_files(store, result),
-    }
-    if manifest_extra is not None:
-        try:
-            manifest.update(manifest_extra(config))
-        except Exception as exc:  # the manifest must not hide the real result
-            log.warning("manifest: could not collect environment info: %s", exc)
-    atomic_write_json(store.path(MANIFEST), manifest)

@@ -20,7 +20,7 @@ import trimesh
 
 from propagation.analytic import linear_to_db
 from propagation.backend import ensure_variant
-from propagation.pathcache import CacheWarning
+from propagation.pathcache import CacheWarning, values_sha256
 from propagation.patterns import PATTERNS, POLARIZATIONS, sionna_orientation
 from propagation.sionna_scene import (
     check_antenna_positions,
@@ -28,7 +28,7 @@ from propagation.sionna_scene import (
     device_point,
     load_sionna_scene,
 )
-from scenes.fileio import atomic_save_npz
+from scenes.fileio import atomic_save_npz, atomic_write_text
 from scenes.geometry import in_triangles_2d
 
 __all__ = ["RssiField", "rssi_field", "wall_surface_mesh"]
@@ -333,15 +333,11 @@ def _checksum_file(cache_file: Path) -> Path:
 
 
 def _field_sha256(field: RssiField) -> str:
-    from propagation.pathcache import values_sha256
-
     return values_sha256({k: np.asarray(v) for k, v in asdict(field).items()})
 
 
 def _save_checked(field: RssiField, cache_file: Path) -> None:
     """Save a cached field and, beside it, the checksum of its values (written last)."""
-    from scenes.fileio import atomic_write_text
-
     field.save(cache_file)
     atomic_write_text(_checksum_file(cache_file),
                       json.dumps({"format": 1, "values_sha256": _field_sha256(field)}) + "\n")

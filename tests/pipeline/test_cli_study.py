@@ -150,14 +150,14 @@ def test_ctrl_c_exits_130_naming_the_stage_and_resumes(tmp_path, fake_study, cap
 def test_read_only_run_dir_is_one_line(tmp_path, fake_study, monkeypatch):
     import errno
 
-    import pipeline.study
+    import pipeline.runlog
 
     def erofs(path, *a, **k):
         raise OSError(errno.EROFS, "Read-only file system", str(path))
 
     out = tmp_path / "run"
     assert runner.invoke(app, ["run", "--out", str(out), "--no-progress"]).exit_code == 0
-    monkeypatch.setattr(pipeline.study, "atomic_write_json", erofs)
+    monkeypatch.setattr(pipeline.runlog, "atomic_write_json", erofs)  # the manifest's writer
     line = _one_line_error(runner.invoke(app, ["run", "--out", str(out), "--no-progress"]), 2)
     assert "read-only" in line and str(out) in line
 

@@ -272,7 +272,7 @@ def test_a_run_directory_of_another_config_names_the_keys_that_differ(tmp_path, 
 def test_a_read_only_run_directory_is_one_clear_error(tmp_path, monkeypatch, where):
     import errno
 
-    from pipeline import runstore, study
+    from pipeline import runlog, runstore, study
     from pipeline.study import RunDirError
 
     cfg = StudyConfig()
@@ -285,7 +285,7 @@ def test_a_read_only_run_directory_is_one_clear_error(tmp_path, monkeypatch, whe
 
     if where == "config":
         monkeypatch.setattr(study, "atomic_write_text", lambda p, t: erofs(None, p))
-        monkeypatch.setattr(study, "atomic_write_json", lambda p, o: erofs(None, p))
+        monkeypatch.setattr(runlog, "atomic_write_json", lambda p, o: erofs(None, p))  # manifest
     else:
         monkeypatch.setattr(runstore.os, "replace", erofs)
     with pytest.raises(RunDirError) as ei:
