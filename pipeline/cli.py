@@ -55,8 +55,9 @@ def _setup_logging(verbose: bool) -> None:
         handler.setFormatter(logging.Formatter("%(message)s"))
         root.addHandler(handler)
     root.setLevel(logging.WARNING)
+    # the console shows progress bars and warnings; INFO and DEBUG lines only with -v
     for name in ("pipeline", "scenes", "propagation", "fuzzymodel"):
-        logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.INFO)
+        logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.WARNING)
 
 
 def _fail(msg: str, code: int = 2):
@@ -191,6 +192,8 @@ def run(
             raise
         _fail_os(exc, str(out))
     typer.echo(f"run directory: {res.run_dir}")
+    if res.previous:
+        typer.echo(f"resumed: {res.previous}")
     typer.echo(f"stages run: {', '.join(res.ran) or 'none'}; cached: {', '.join(res.cached) or 'none'}")
     typer.echo(f"elapsed {time.perf_counter() - t0:.1f} s, peak memory {res.peak_rss_mib:.0f} MiB")
     typer.echo(f"report: {res.run_dir / 'report.html'}")
@@ -212,7 +215,7 @@ def _existing_run_dir(run_dir: Path, command: str):
 @app.command()
 def figures(
     run_dir: Annotated[Path, typer.Argument(help="A run directory.")],
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also print INFO and DEBUG log lines (stages, traces, materials).")] = False,
 ):
     """Redraw every figure from a run directory's files alone, then rewrite report.html."""
     _setup_logging(verbose)
@@ -282,7 +285,7 @@ def sweep(
         help="Dask scheduler address (tcp://host:8786); default: local worker processes.")] = None,
     workers: Annotated[int | None, typer.Option(
         help="Local worker processes (default: min(points, 2)).")] = None,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also print INFO and DEBUG log lines (stages, traces, materials).")] = False,
 ):
     """Run a what-if grid (antenna height/yaw/tilt/count, power, tag sensitivity, scene)."""
     _setup_logging(verbose)

@@ -140,8 +140,8 @@ def test_ctrl_c_exits_130_naming_the_stage_and_resumes(tmp_path, fake_study, cap
     man = json.loads((out / "manifest.json").read_text())
     assert man["status"] == "interrupted" and man["stage"] == "b"
     fake_study["interrupt"] = False
-    with caplog.at_level(logging.INFO):
-        res = runner.invoke(app, ["run", "--out", str(out), "--no-progress"])
+    with caplog.at_level(logging.INFO):  # INFO lines are logged with -v only
+        res = runner.invoke(app, ["run", "--out", str(out), "--no-progress", "-v"])
     assert res.exit_code == 0, res.output
     assert "the previous run was interrupted during stage b" in caplog.text
     assert "stages run: b, c; cached: a" in res.output
