@@ -199,11 +199,19 @@ def stage_downstream(ctx) -> dict:
     rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
             for t, e in s.pop("per_tag_m", {}).items()]
     write_parquet_atomic(pd.DataFrame(rows), ctx.out("downstream/tag_errors.parquet"))
-    rrows = []
+    rrows, steps = [], []
     for n, s in robot_scores.items():
         t, e = s.pop("t_s"), s.pop("error_m")
         rrows += [{"model": n, "t_s": a, "error_m": b} for a, b in zip(t, e, strict=True)]
+        for j, run in enumerate(s.pop("runs_steps")):
+            steps.append(pd.DataFrame({
+                "model": n, "unit": f"run{j}", "t_s": run["t_s"], "error_m": run["error_m"],
+                "after_kidnap": run["after_kidnap"], "converge_s": run["converge_s"],
+                "recover_s": np.nan if run["recover_s"] is None else run["recover_s"]}))
     write_parquet_atomic(pd.DataFrame(rrows), ctx.out("downstream/robot_error.parquet"))
+    # every step of every filter run: what the robot's intervals resample (by run)
+    write_parquet_atomic(pd.concat(steps, ignore_index=True),
+                         ctx.out("downstream/robot_steps.parquet"))
     atomic_write_json(ctx.out("downstream/scores.json"),
                       {"tag_localisation": tag_scores, "robot_localisation": robot_scores,
                        "info": info})
@@ -213,9 +221,10 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=7,
+              ("scene", "tour", "reads", "models"), version=8,
               # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
               # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
               # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
-              # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin)
+              # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin);
+              # 8: robot medians over all steps, every run's steps (robot_steps.parquet)
               description="downstream localisation (tags, robot)")

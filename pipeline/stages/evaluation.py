@@ -52,7 +52,9 @@ def stage_evaluation(ctx) -> dict:
     evaluation tour, per model), ``tag_sites`` (truth where tags are, per model),
     ``error_budget``, ``localisation`` (MCL pose error and bias per tour), ``in_sample``
     (the same comparisons on the training tour's reads: labelled, not the headline),
-    ``free_space_view`` (the chapter's Fig. 6 plane at antenna height), ``coverage``.
+    ``free_space_view`` (the chapter's Fig. 6 plane at antenna height), ``coverage``,
+    ``intervals`` and ``comparisons`` (:func:`pipeline.evaluation.headline.headline_intervals`
+    on the per-unit tables ``evaluation/*.parquet``).
     """
     import pandas as pd
 
@@ -61,6 +63,7 @@ def stage_evaluation(ctx) -> dict:
     from pipeline.evaluation.comparison import RhoPoints, rho_vs_truth
     from pipeline.evaluation.evaluate import EvaluationInputs, evaluate_all
     from pipeline.evaluation.fig7 import fig7_errors
+    from pipeline.evaluation.headline import headline_intervals
     from pipeline.evaluation.heldout import error_budget, heldout_scores
     from pipeline.evaluation.metrics import nan_to_none
     from pipeline.evaluation.sites import SiteTruth, site_comparison
@@ -98,9 +101,9 @@ def stage_evaluation(ctx) -> dict:
                              detection_models=("anfis", "anfis_truepose", "grid_count", *extra))
     metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
                "reads": {"range_margin": _range_margin(meta, eval_meta)}}
-    fig7 = {}
+    fig7, fig7_results = {}, {}
     for name in rssi_names:
-        f7 = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
+        f7 = fig7_results[name] = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
                          pose_times_s=eval_poses["time_s"].to_numpy(float),
                          antenna_pitch_rad=antenna_tilts(cfg), d_max_m=tr.d_max_m)
         fig7[name] = f7.to_dict()
@@ -142,8 +145,42 @@ def stage_evaluation(ctx) -> dict:
     coverage = field_coverage(cfg, load_scene(ctx), fields, eval_reads)
     if coverage is not None:
         metrics["coverage"] = coverage
+    det_names = ("anfis", "anfis_truepose", "grid_count", *extra)
+    units = write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results,
+                              rssi_names=rssi_names, detection_names=det_names)
+    metrics.update(headline_intervals(units, seed=cfg.seed, min_attempts=tr.min_attempts))
     atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
     return {"models": sorted(sensors)}
+
+
+def write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results, *,
+                      rssi_names, detection_names):
+    """Write the per-unit tables of :mod:`pipeline.evaluation.units` under ``evaluation/``
+    and return them with the downstream stage's tag and robot tables (the intervals'
+    input)."""
+    import pandas as pd
+
+    from pipeline.evaluation import units as u
+    from pipeline.evaluation.tables import write_parquet_atomic
+    from pipeline.stages.truth import attempt_miss_probability
+
+    cfg = ctx.config
+    tables = u.UnitTables(
+        rssi_links=u.rssi_link_errors(eval_reads, sensors, budget, d_max_m=cfg.training.d_max_m,
+                                      names=rssi_names),
+        detection_attempts=u.detection_outcomes(
+            eval_reads, sensors, eval_truth, attempt_miss_probability(cfg, eval_reads, budget),
+            budget, names=detection_names),
+        detection_cells=u.detection_cells(sensors, eval_truth.grid, names=detection_names),
+        fig7_groups=u.fig7_groups(fig7_results))
+    for name in ("rssi_links", "detection_attempts", "detection_cells", "fig7_groups"):
+        write_parquet_atomic(getattr(tables, name), ctx.out(u.TABLES[name]))
+    for name in ("tag_errors", "robot_steps"):
+        path = ctx.store.path(u.TABLES[name])
+        if path.is_file():  # the downstream stage's (absent when it is disabled)
+            df = pd.read_parquet(ctx.input(u.TABLES[name]))
+            setattr(tables, name, df.rename(columns={"tag_id": "unit"}))
+    return tables
 
 
 def _range_margin(*metas) -> dict:
@@ -170,9 +207,10 @@ def _check_split(tags, reads, eval_reads, path) -> None:
                              "training and held-out layouts mix; rerun the reads stage")
 
 
-STAGE = Stage("evaluation", stage_evaluation, ("reader", "evaluation", "training", "robot"),
+STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
-              version=8,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              version=9,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
               # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
-              # 8: the Gen2 reader's miss probability at tag sites and fields
+              # 8: the Gen2 reader's miss probability at tag sites and fields;
+              # 9: per-unit tables, intervals and paired comparisons
               description="metrics")

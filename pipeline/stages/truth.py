@@ -11,7 +11,7 @@ import numpy as np
 from pipeline.stages.common import link_budget, read_reads
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "pose_miss_probability", "stage_truth"]
+__all__ = ["STAGE", "attempt_miss_probability", "pose_miss_probability", "stage_truth"]
 
 
 def stage_truth(ctx) -> dict:
@@ -29,10 +29,10 @@ def stage_truth(ctx) -> dict:
                     alpha_bin_deg=cfg.training.alpha_bin_deg)
     # the training truth is what a floor may be fitted on; the held-out one is scored on
     truth = detection_truth(reads, budget, grid=grid,
-                            miss_probability=_miss_probability(cfg, reads, budget))
+                            miss_probability=attempt_miss_probability(cfg, reads, budget))
     truth.save(ctx.out("truth/detection_grid.npz"))
     eval_truth = detection_truth(eval_reads, budget, grid=grid,
-                                 miss_probability=_miss_probability(cfg, eval_reads, budget))
+                                 miss_probability=attempt_miss_probability(cfg, eval_reads, budget))
     eval_truth.save(ctx.out("truth/detection_grid_eval.npz"))
     info = {"cells_with_attempts": int((truth.n_attempts > 0).sum()),
             "eval_cells_with_attempts": int((eval_truth.n_attempts > 0).sum())}
@@ -68,7 +68,7 @@ def _check_trace_poses(ctx) -> None:
                              "rerun with --force truth_traces")
 
 
-def _miss_probability(cfg, reads, budget):
+def attempt_miss_probability(cfg, reads, budget):
     """The truth's miss probability of a closing attempt of ``reads``: the constant of the
     ``"fixed"`` inventory (a float: the numbers of before), else one per row (Gen2,
     :func:`pipeline.acquisition.singulation.miss_probability_of_attempts`)."""

@@ -1,0 +1,268 @@
+"""Every headline number with its 95 % interval, and each model against the chapter's ANFIS.
+
+From the per-unit tables of one run or of a study's replicates pooled
+(:class:`~.units.UnitTables`), :func:`headline_intervals` computes the headline
+metrics of every model with a cluster-bootstrap interval over the independent units
+(:func:`~.intervals.unit_interval`), and the paired difference of each model to the
+reference model on the same units with its verdict
+(:func:`~.intervals.paired_difference`). ``metrics.json`` keeps them under
+``intervals`` and ``comparisons``; every ranking the report states comes from them.
+
+The metrics (:data:`METRICS`), each the pooled statistic over its units' observations:
+
+==================================  ===============================================  =========
+key                                 statistic                                        units
+==================================  ===============================================  =========
+heldout.rssi_mae_db / _rmse_db      mean |e| / sqrt(mean e^2) of fs_dbm - noise-     tags
+/ _abs_bias_db                      free RSSI over held-out closing links [dB]
+heldout.detection_mae               mean over (d, alpha) cells with >= min_attempts  tags
+                                    attempts of |fT(centre) - p_detect| (the cells'
+                                    truth rebuilt from the resampled tags' attempts)
+heldout.detection_brier             mean (fT - read)^2 over held-out attempts        tags
+fig7.median_pct / share_below_20    chapter Sec. 5 error |f̄s - s| x 100 of the       tags
+                                    in-domain (pose, antenna, tag) groups: median;
+                                    share below 20 %
+tag_localisation.median_m / p90_m   MAP error of the held-out tags' positions [m]    tags
+/ within_0_5m                       (per tag); share within 0.5 m
+robot_localisation.median_m         median position error over ALL steps of every    filter
+                                    filter run [m]; ``_before_kidnap`` /             runs
+                                    ``_after_kidnap``: the steps before / from the
+                                    kidnapping
+robot_localisation.converged_share  share of filter runs that converged / recovered  filter
+/ recovered_share                   (:func:`pipeline.localisation.filter_metrics`)   runs
+==================================  ===============================================  =========
+
+Units of different replicates are pooled as units of one sample: the tags of one
+replicate share its tour (a correlation the intervals do not model; the per-replicate
+values are reported beside them, ``replicates.json``).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .intervals import (
+    CONFIDENCE,
+    N_RESAMPLES,
+    paired_difference,
+    unit_interval,
+    weighted_mean,
+    weighted_quantile,
+)
+from .units import UnitTables
+
+__all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_intervals"]
+
+#: The model every other is compared with: the chapter's ANFIS on MCL poses.
+REFERENCE = "anfis"
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    """One headline metric.
+
+    Attributes
+    ----------
+    key : str
+        ``section.name`` in ``intervals`` / ``comparisons``.
+    label : str
+        What it is, with its unit, for tables.
+    table : str
+        The :class:`~.units.UnitTables` field it is computed from.
+    lower_is_better : bool
+    unit : str
+        What one resampled unit is.
+    """
+
+    key: str
+    label: str
+    table: str
+    lower_is_better: bool
+    unit: str
+
+
+METRICS: tuple[MetricSpec, ...] = (
+    MetricSpec("heldout.rssi_mae_db", "held-out RSSI MAE [dB]", "rssi_links", True, "tag"),
+    MetricSpec("heldout.rssi_rmse_db", "held-out RSSI RMSE [dB]", "rssi_links", True, "tag"),
+    MetricSpec("heldout.rssi_abs_bias_db", "held-out RSSI |bias| [dB]", "rssi_links", True, "tag"),
+    MetricSpec("heldout.detection_mae", "held-out detection MAE (cells)", "detection_attempts",
+               True, "tag"),
+    MetricSpec("heldout.detection_brier", "held-out detection Brier score", "detection_attempts",
+               True, "tag"),
+    MetricSpec("fig7.median_pct", "Fig. 7 median error [%]", "fig7_groups", True, "tag"),
+    MetricSpec("fig7.share_below_20pct", "Fig. 7 share of groups below 20 %", "fig7_groups",
+               False, "tag"),
+    MetricSpec("tag_localisation.median_m", "tag localisation median [m]", "tag_errors", True, "tag"),
+    MetricSpec("tag_localisation.p90_m", "tag localisation p90 [m]", "tag_errors", True, "tag"),
+    MetricSpec("tag_localisation.within_0_5m", "tags localised within 0.5 m", "tag_errors",
+               False, "tag"),
+    MetricSpec("robot_localisation.median_m", "robot median error, all steps [m]", "robot_steps",
+               True, "filter run"),
+    MetricSpec("robot_localisation.median_before_kidnap_m", "robot median before the kidnapping [m]",
+               "robot_steps", True, "filter run"),
+    MetricSpec("robot_localisation.median_after_kidnap_m", "robot median from the kidnapping [m]",
+               "robot_steps", True, "filter run"),
+    MetricSpec("robot_localisation.converged_share", "filter runs converged", "robot_steps",
+               False, "filter run"),
+    MetricSpec("robot_localisation.recovered_share", "filter runs recovered after the kidnapping",
+               "robot_steps", False, "filter run"),
+)
+
+Statistic = Callable[[np.ndarray], np.ndarray]
+
+
+def _sums(codes: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
+    return np.bincount(codes, weights=np.asarray(values, np.float64), minlength=n)
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> Statistic:
+    def stat(w):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (w @ num) / (w @ den)
+    return stat
+
+
+def _rssi(rows: pd.DataFrame, codes: np.ndarray, n: int, name: str) -> Statistic:
+    e = rows["error_db"].to_numpy(np.float64)
+    cnt = _sums(codes, n, np.ones_like(e))
+    if name == "heldout.rssi_mae_db":
+        return _ratio(_sums(codes, n, np.abs(e)), cnt)
+    if name == "heldout.rssi_abs_bias_db":
+        f = _ratio(_sums(codes, n, e), cnt)
+        return lambda w: np.abs(f(w))
+    f = _ratio(_sums(codes, n, e * e), cnt)
+    return lambda w: np.sqrt(f(w))
+
+
+def _detection(rows: pd.DataFrame, codes: np.ndarray, n: int, name: str, cells: pd.DataFrame,
+               min_attempts: int) -> Statistic:
+    ft = rows["ft"].to_numpy(np.float64)
+    read = rows["read"].to_numpy(np.float64)
+    if name == "heldout.detection_brier":
+        return _ratio(_sums(codes, n, (ft - read) ** 2), _sums(codes, n, np.ones_like(ft)))
+    cell_ids, cell_code = np.unique(rows["cell"].to_numpy(np.int64), return_inverse=True)
+    k = len(cell_ids)
+    flat = codes * k + cell_code
+    n_att = np.bincount(flat, minlength=n * k).reshape(n, k)
+    p_sum = np.bincount(flat, weights=rows["p_true"].to_numpy(np.float64),
+                        minlength=n * k).reshape(n, k)
+    centre = pd.Series(cells["ft_centre"].to_numpy(np.float64), index=cells["cell"].to_numpy(np.int64))
+    ft_c = centre.reindex(cell_ids).to_numpy(np.float64)
+
+    def stat(w):
+        att = w @ n_att
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = (w @ p_sum) / att
+            ok = att >= min_attempts
+            return np.where(ok, np.abs(ft_c - p), 0.0).sum(axis=-1) / ok.sum(axis=-1)
+    return stat
+
+
+def _pooled(values: np.ndarray, codes: np.ndarray, how: str) -> Statistic:
+    v = np.asarray(values, np.float64)
+    if how == "median":
+        return lambda w: weighted_quantile(v, w[..., codes], 0.5)
+    if how == "p90":
+        return lambda w: weighted_quantile(v, w[..., codes], 0.9)
+    return lambda w: weighted_mean(v, w[..., codes])  # a share: mean of a 0/1 indicator
+
+
+def _statistic(spec: MetricSpec, rows: pd.DataFrame, codes: np.ndarray, n: int,
+               cells: pd.DataFrame | None, min_attempts: int) -> Statistic:
+    name = spec.key
+    if spec.table == "rssi_links":
+        return _rssi(rows, codes, n, name)
+    if spec.table == "detection_attempts":
+        return _detection(rows, codes, n, name, cells, min_attempts)
+    if spec.table == "fig7_groups":
+        e = rows["error_pct"].to_numpy(np.float64)
+        return (_pooled(e, codes, "median") if name == "fig7.median_pct"
+                else _pooled(e < 20.0, codes, "share"))
+    if spec.table == "tag_errors":
+        e = rows["error_m"].to_numpy(np.float64)
+        return {"tag_localisation.median_m": _pooled(e, codes, "median"),
+                "tag_localisation.p90_m": _pooled(e, codes, "p90"),
+                "tag_localisation.within_0_5m": _pooled(e <= 0.5, codes, "share")}[name]
+    # robot_steps: every step of every filter run
+    e = rows["error_m"].to_numpy(np.float64)
+    after = rows["after_kidnap"].to_numpy(bool)
+    if name == "robot_localisation.median_m":
+        return _pooled(e, codes, "median")
+    if name.endswith("_kidnap_m"):
+        sel = after if "after" in name else ~after
+        return _pooled(e[sel], codes[sel], "median")
+    col = "converge_s" if name.endswith("converged_share") else "recover_s"
+    per_run = np.zeros(n)
+    per_run[codes] = np.isfinite(rows[col].to_numpy(np.float64))
+    return lambda w: weighted_mean(per_run, w)
+
+
+def _rng(seed: int, *names: str) -> np.random.Generator:
+    return np.random.default_rng([int(seed), *(zlib.crc32(s.encode()) for s in names)])
+
+
+def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
+                       reference: str = REFERENCE, n_resamples: int = N_RESAMPLES,
+                       replicated: bool = False) -> dict:
+    """Intervals of every headline metric and paired comparisons with ``reference``.
+
+    Parameters
+    ----------
+    tables : UnitTables
+        One run's tables, or the replicates' pooled (:func:`~.units.concat_unit_tables`).
+    seed : int
+        Seeds the resampling; each (metric, model) has its own stream, so a number does
+        not depend on which other models were scored.
+    min_attempts : int
+        Cells with fewer held-out attempts in a resample are left out of the detection
+        MAE (the study's ``training.min_attempts``).
+    reference : str
+    n_resamples : int
+    replicated : bool
+        The units are (replicate, tag) / (replicate, filter run) pairs (for the record).
+
+    Returns
+    -------
+    dict
+        ``{"intervals": {key: {"label", "unit", "n_units", "models": {name: Interval
+        dict}}}, "comparisons": {"reference", "confidence", "metrics": {key: {name:
+        Comparison dict}}}}``; a metric whose table is absent is left out.
+    """
+    intervals, comparisons = {}, {}
+    for spec in METRICS:
+        df = getattr(tables, spec.table)
+        if df is None or df.empty:
+            continue
+        units, codes_all = np.unique(df["unit"].astype(str).to_numpy(), return_inverse=True)
+        n = len(units)
+        models = list(dict.fromkeys(df["model"].astype(str)))
+        stats_ = {}
+        for model in models:
+            sel = (df["model"].astype(str) == model).to_numpy()
+            cells = None
+            if tables.detection_cells is not None:
+                cells = tables.detection_cells[tables.detection_cells["model"] == model]
+            stats_[model] = _statistic(spec, df.loc[sel], codes_all[sel], n, cells,
+                                       int(min_attempts))
+        unit = f"replicate x {spec.unit}" if replicated else spec.unit
+        intervals[spec.key] = {
+            "label": spec.label, "unit": unit, "n_units": int(n),
+            "models": {m: unit_interval(f, n, _rng(seed, spec.key, m), unit=unit,
+                                        n_resamples=n_resamples).to_dict()
+                       for m, f in stats_.items()}}
+        if reference in stats_:
+            comparisons[spec.key] = {
+                m: paired_difference(f, stats_[reference], n, _rng(seed, spec.key, m, reference),
+                                     lower_is_better=spec.lower_is_better, unit=unit,
+                                     n_resamples=n_resamples).to_dict()
+                for m, f in stats_.items() if m != reference}
+    return {"intervals": intervals,
+            "comparisons": {"reference": reference, "confidence": CONFIDENCE,
+                            "how": "model minus reference on the same resampled units; "
+                                   "'better'/'worse' where the 95 % interval excludes 0",
+                            "metrics": comparisons}}
