@@ -20,6 +20,16 @@ Paired comparisons (:func:`paired_difference`) evaluate two statistics on the *s
 resampled units and give the interval of their difference and a verdict: "better",
 "worse" or "not distinguishable at 95 %".
 
+Bootstrap intervals over few units are too narrow: on clustered data with a known
+RMSE (tests/pipeline/evaluation/test_intervals.py, 1,000 data sets) a plain 95 % BCa
+interval covered 85 % with 16 units, 89 % with 40. The resampling is therefore asked
+for Hesterberg's *expanded* level (T. Hesterberg, "What teachers should know about the
+bootstrap", The American Statistician 69(4), 2015, Sec. 5.2: the level whose normal
+quantile is sqrt(n / (n - 1)) t_{n-1} at the nominal level, :func:`expanded_level`),
+which gave 91 % with 16 units, 92 % with 30 and 94 % with 80 on the same data: a
+single run's 16 held-out tags give intervals a little short of 95 %, a replicated
+study's pooled units close to it.
+
 Where the bootstrap distribution is degenerate (every resample gives the same value,
 e.g. two models with identical errors on every unit) the interval is that value, with
 ``method = "degenerate"``; with fewer than :data:`MIN_UNITS` units no interval is
@@ -44,6 +54,7 @@ __all__ = [
     "N_RESAMPLES",
     "Comparison",
     "Interval",
+    "expanded_level",
     "multiplicity",
     "paired_difference",
     "unit_interval",
@@ -187,6 +198,16 @@ def weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> np.n
     return np.where(total > 0, out, np.nan)[..., 0]
 
 
+def expanded_level(n_units: int, confidence: float = CONFIDENCE) -> float:
+    """Hesterberg's (2015, Sec. 5.2) expanded confidence level for ``n_units`` units:
+    ``1 - 2 Phi(-sqrt(n / (n - 1)) t_{n-1, 1 - a/2})`` with ``a = 1 - confidence``
+    (0.972 for 16 units, 0.955 for 80, the nominal level as n grows)."""
+    n = int(n_units)
+    a = (1.0 - float(confidence)) / 2.0
+    z = np.sqrt(n / (n - 1.0)) * stats.t.ppf(1.0 - a, n - 1)
+    return float(1.0 - 2.0 * stats.norm.sf(z))
+
+
 def _no_interval(estimate: float, n: int, unit: str, note: str) -> Interval:
     return Interval(float(estimate), None, None, int(n), unit, "none", CONFIDENCE, note)
 
@@ -211,7 +232,8 @@ def unit_interval(statistic: WeightedStatistic, n_units: int, rng: np.random.Gen
     Returns
     -------
     Interval
-        BCa where it is defined, else the percentile interval; "degenerate" when every
+        BCa at the expanded level (:func:`expanded_level`; the nominal coverage is
+        :data:`CONFIDENCE`) where it is defined, else the percentile interval; "degenerate" when every
         resample gives the estimate; none below :data:`MIN_UNITS` units or when the
         statistic of the observed sample is not finite.
     """
@@ -232,7 +254,7 @@ def unit_interval(statistic: WeightedStatistic, n_units: int, rng: np.random.Gen
             try:
                 res = stats.bootstrap((np.arange(n),), stat, n_resamples=int(n_resamples),
                                       vectorized=True, method=method, rng=rng,
-                                      confidence_level=CONFIDENCE, batch=_BATCH)
+                                      confidence_level=expanded_level(n), batch=_BATCH)
             except stats.DegenerateDataWarning:
                 dist = stat(rng.integers(0, n, size=(200, n)))
                 if np.all(dist == est):

@@ -206,6 +206,48 @@ def test_metrics_have_the_heldout_sections(tiny):
     assert "held-out" in (base / "run" / "report.html").read_text()
 
 
+def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tiny):
+    """Each interval's estimate is the headline number of its section, recomputed here
+    from the per-unit tables the run saved; the robot median is over every step of every
+    filter run (recomputed from downstream/robot_steps.parquet)."""
+    _, base, _ = tiny
+    run = base / "run"
+    m = json.loads((run / "metrics.json").read_text())
+    iv, cmp_ = m["intervals"], m["comparisons"]
+    for name in ("anfis", "joho2009", "log_distance"):
+        h = m["heldout"]["models"][name]["rssi_dbm"]
+        assert iv["heldout.rssi_rmse_db"]["models"][name]["estimate"] == pytest.approx(h["rmse"])
+        assert iv["heldout.rssi_mae_db"]["models"][name]["estimate"] == pytest.approx(h["mae"])
+        assert iv["fig7.median_pct"]["models"][name]["estimate"] == pytest.approx(
+            m["fig7"][name]["median_pct"])
+        assert iv["tag_localisation.median_m"]["models"][name]["estimate"] == pytest.approx(
+            m["tag_localisation"][name]["median_m"])
+    brier = m["heldout"]["models"]["anfis"]["detection"]["brier"]
+    assert iv["heldout.detection_brier"]["models"]["anfis"]["estimate"] == pytest.approx(brier)
+    mae = m["heldout"]["models"]["anfis"]["detection"]["mae"]
+    assert iv["heldout.detection_mae"]["models"]["anfis"]["estimate"] == pytest.approx(mae)
+    # 16 held-out tags resampled: a real interval around the estimate
+    tag = iv["tag_localisation.median_m"]["models"]["anfis"]
+    assert tag["n_units"] == 16 and tag["low"] <= tag["estimate"] <= tag["high"]
+    steps = pd.read_parquet(run / "downstream" / "robot_steps.parquet")
+    runs = m["robot_localisation"]["anfis"]["n_runs"]
+    for name, rows in steps.groupby("model"):
+        rob = m["robot_localisation"][name]
+        assert rows["unit"].nunique() == runs
+        assert rob["median_m"] == pytest.approx(np.median(rows["error_m"]), abs=1e-4)
+        assert rob["median_after_kidnap_m"] == pytest.approx(
+            np.median(rows.loc[rows["after_kidnap"], "error_m"]), abs=1e-4)
+        assert iv["robot_localisation.median_m"]["models"][name]["estimate"] == pytest.approx(
+            np.median(rows["error_m"]))
+        conv = rows.groupby("unit")["converge_s"].first()
+        assert rob["converged_runs"] == int(np.isfinite(conv).sum())
+    # 3 filter runs: too few units for an interval, said so rather than invented
+    assert iv["robot_localisation.median_m"]["models"]["anfis"]["low"] is None
+    assert cmp_["reference"] == "anfis" and "anfis" not in cmp_["metrics"]["heldout.rssi_mae_db"]
+    assert {c["verdict"] for c in cmp_["metrics"]["heldout.rssi_mae_db"].values()} <= {
+        "better", "worse", "not distinguishable at 95 %"}
+
+
 def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path):
     """The oracle in the real study: the tiny study copied and run again with
     ``downstream.oracle = true``; only the downstream stage and what follows re-run."""
