@@ -148,6 +148,10 @@ def run(
     force_dir: Annotated[bool, typer.Option(
         "--force-dir", help="Run into a non-empty --out directory that is not a run directory "
                             "(its other files are left alone).")] = False,
+    replicates: Annotated[int | None, typer.Option(
+        "--replicates", "-r", help="Independent replicates of the study (sets replicates.n): "
+        "each its own seed stream, run into OUT/replicates/<k>/, pooled with 95 % intervals "
+        "in OUT/metrics.json and OUT/report.html.")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
 ):
     """Run (or resume) the whole study into a run directory.
@@ -166,7 +170,8 @@ def run(
     from pipeline.study import RunDirError, StageError, StudyInterrupted
 
     try:
-        cfg = resolve_target(target, set_, backend)
+        cfg = resolve_target(target, [*(set_ or []), *(
+            [f"replicates.n={replicates}"] if replicates is not None else [])], backend)
     except ConfigError as exc:
         _fail(str(exc))
     except KeyboardInterrupt:

@@ -40,6 +40,7 @@ __all__ = [
     "EvaluationConfig",
     "LocalisationConfig",
     "ReaderConfig",
+    "ReplicatesConfig",
     "RobotConfig",
     "StudyConfig",
     "TourConfig",
@@ -304,6 +305,36 @@ class DownstreamConfig:
 
 
 @section
+class ReplicatesConfig:
+    """Independent replicates of the study, pooled with 95 % intervals (pipeline.replicates).
+
+    The same scene and config, each replicate with its own seed stream (tour noise, MCL, reader noise,
+    held-out tag layout, robot filter), run into ``replicates/<k>/``; the run
+    directory's metrics.json and report pool them with intervals."""
+
+    n: int = option(
+        1, "Independent replicates (1: one study, intervals over its held-out tags; more: "
+        "the study run n times, replicate 0 with `seed`, the others with seeds spawned from it).",
+        max=1_000)
+    workers: int = option(
+        0, "Replicates side by side in local worker processes (0: min(n, 2)); ignored with a "
+        "scheduler.", max=256)
+    scheduler: str = option(
+        "", "Dask scheduler address (tcp://host:8786) the replicates run on, as sweeps do "
+        "('' = local worker processes).")
+
+    def __post_init__(self):
+        for name in ("n", "workers"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise ConfigError(f"replicates.{name} must be an integer, got {v!r}")
+        if self.n < 1:
+            raise ConfigError(f"replicates.n must be >= 1 (1 = a single study), got {self.n}")
+        if self.workers < 0:
+            raise ConfigError(f"replicates.workers must be >= 0 (0 = min(n, 2)), got {self.workers}")
+
+
+@section
 class StudyConfig:
     """A whole study: scene, robot, tour, reader, tracing, training and evaluation."""
 
@@ -319,6 +350,8 @@ class StudyConfig:
     evaluation: EvaluationConfig = option(doc="Evaluation.", factory=EvaluationConfig)
     downstream: DownstreamConfig = option(doc="Downstream localisation benchmark.",
                                           factory=DownstreamConfig)
+    replicates: ReplicatesConfig = option(doc="Independent replicates of the study.",
+                                          factory=ReplicatesConfig)
 
     def __post_init__(self):
         if not self.scene:

@@ -26,8 +26,8 @@ from pipeline.runstore import (
     run_files,
 )
 
-__all__ = ["figure_captions", "headline_html", "metrics_tables", "model_comparison_tables",
-           "write_report"]
+__all__ = ["figure_captions", "headline_html", "intervals_html", "metrics_tables",
+           "model_comparison_tables", "write_pooled_report", "write_report"]
 
 log = logging.getLogger(__name__)
 
@@ -233,9 +233,11 @@ def headline_html(metrics: dict) -> list[str]:
              ("median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "horizontal_median_m",
               "n_tags")),
             ("robot_localisation", "downstream: RFID-only robot localisation (unknown start, "
-             "kidnapped halfway; median over filter runs, with the range of the per-run "
-             "medians)", ("median_m", "median_m_min", "median_m_max", "p90_m", "converge_s",
-                          "recover_s", "heading_median_deg", "n_runs"))):
+             "kidnapped halfway; medians over every step of every filter run, before and "
+             "from the kidnapping; the range of the per-run medians; runs that converged "
+             "and recovered)", ("median_m", "median_before_kidnap_m", "median_after_kidnap_m",
+                                "median_m_min", "median_m_max", "p90_m", "converged_runs",
+                                "recovered_runs", "converge_s", "recover_s", "n_runs"))):
         sec = metrics.get(key)
         if isinstance(sec, dict) and sec:
             out.append(_table_html(title, ["model", *cols],
@@ -284,6 +286,85 @@ def figure_captions(run_dir: Path) -> dict[str, str]:
         return dict(caps) if isinstance(caps, dict) else {}
     except ImportError:
         return {}
+
+
+def _interval_text(iv: dict | None, digits: int = 3) -> str:
+    if not isinstance(iv, dict) or iv.get("estimate") is None:
+        return "–"
+    est = f"{iv['estimate']:.{digits}g}"
+    if iv.get("low") is None or iv.get("high") is None:
+        return f"{est} (no interval: {iv.get('note') or 'undefined'})"
+    return f"{est} [{iv['low']:.{digits}g}, {iv['high']:.{digits}g}]"
+
+
+def intervals_html(metrics: dict) -> list[str]:
+    """The ranking tables: per headline metric, every model's estimate with its 95 %
+    interval, its difference to the reference model on the same units and the verdict
+    (``metrics.json`` sections ``intervals`` and ``comparisons``,
+    :mod:`pipeline.evaluation.headline`). Models are listed best first by estimate; a
+    difference is stated only where its interval excludes 0."""
+    ivs = metrics.get("intervals")
+    if not isinstance(ivs, dict) or not ivs:
+        return []
+    cmp_ = metrics.get("comparisons") or {}
+    ref = cmp_.get("reference", "anfis")
+    by_metric = cmp_.get("metrics") or {}
+    out = ["<h3>Rankings with 95 % intervals</h3>",
+           f"<p>Each number with its 95 % confidence interval from a bootstrap over the "
+           f"independent units (held-out tags; filter runs; with replicates, both within each "
+           f"replicate), and each model against <b>{html.escape(ref)}</b> on the same units: "
+           "'better' or 'worse' only where the interval of the difference excludes 0, else "
+           "'not distinguishable at 95 %'. The order of the rows is the estimates' and is not "
+           "a ranking where the verdicts say 'not distinguishable'.</p>"]
+    for key, sec in ivs.items():
+        models = sec.get("models") or {}
+        lower = next((c.get("lower_is_better") for c in (by_metric.get(key) or {}).values()), True)
+        order = sorted(models, key=lambda m: (models[m].get("estimate") is None,
+                                              (1 if lower else -1) * (models[m].get("estimate") or 0)))
+        rows = []
+        for m in order:
+            c = (by_metric.get(key) or {}).get(m)
+            rows.append([m, _interval_text(models[m]),
+                         "(reference)" if m == ref else _interval_text(c),
+                         "" if m == ref else (c or {}).get("verdict", "–")])
+        out.append(_table_html(f"{sec.get('label', key)}: {sec.get('n_units')} {sec.get('unit')}s",
+                               ["model", "estimate [95 % interval]",
+                                f"minus {ref} [95 % interval]", "verdict"], rows))
+    return out
+
+
+def write_pooled_report(metrics: dict, out: str | Path) -> Path:
+    """``report.html`` of a replicated study (:mod:`pipeline.replicates`): which
+    replicates it covers, the pooled rankings with intervals, each replicate's own
+    estimates, and links to the replicates' reports."""
+    rep = metrics.get("replicates") or {}
+    parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
+             "<title>rfidstudy report: replicated study</title>",
+             f"<style>{_CSS}</style></head><body>",
+             f"<h1>Replicated study: {html.escape(str(rep.get('covers', '?')))}</h1>",
+             "<p>The same study run on independent seed streams (tour noise, MCL, reader "
+             "noise, held-out tag layout, robot filter runs); every number below pools the "
+             "complete replicates' held-out tags and filter runs.</p>"]
+    failed = rep.get("failed") or []
+    if failed:
+        parts.append(_table_html("failed replicates (not pooled)", ["replicate", "seed", "error"],
+                                 [[f.get("k"), f.get("seed"), f.get("error")] for f in failed]))
+    parts.extend(intervals_html(metrics))
+    per = metrics.get("per_replicate") or {}
+    reps = per.get("replicates") or []
+    parts.append("<h2>Each replicate's own estimates</h2>")
+    for key, models in (per.get("metrics") or {}).items():
+        label = ((metrics.get("intervals") or {}).get(key) or {}).get("label", key)
+        parts.append(_table_html(label, ["model", *[f"replicate {k}" for k in reps]],
+                                 [[m, *vals] for m, vals in models.items()]))
+    parts.append("<h2>Replicates</h2><ul>")
+    for k in reps:
+        parts.append(f"<li><a href='replicates/{int(k)}/report.html'>replicate {int(k)}</a> "
+                     f"(seed {html.escape(str((rep.get('seeds') or {}).get(str(k))))})</li>")
+    parts.append("</ul></body></html>\n")
+    out = Path(out)
+    atomic_write_text(out, "\n".join(parts))
+    return out
 
 
 def _table_html(title: str, cols: list[str], rows: list[list]) -> str:
@@ -372,8 +453,9 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         rest = dict(body)
         if isinstance(body.get("heldout"), dict):
             parts.extend(headline_html(body))
+            parts.extend(intervals_html(body))
             for key in ("heldout", "fig7", "error_budget", "localisation", "tag_sites",
-                        "tag_localisation", "robot_localisation"):
+                        "tag_localisation", "robot_localisation", "intervals", "comparisons"):
                 rest.pop(key, None)
             if isinstance(rest.get("in_sample"), dict):
                 parts.append("<h3>In-sample (training tour, training tags)</h3><p class='muted'>"

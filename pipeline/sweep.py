@@ -57,6 +57,7 @@ __all__ = [
     "expand_sweep",
     "load_sweep",
     "run_point",
+    "run_studies",
     "run_sweep",
 ]
 
@@ -260,7 +261,7 @@ def _deep_merge(a: dict, b: dict) -> dict:
     return out
 
 
-def run_point(config: dict, run_dir: str) -> dict:
+def run_point(config: dict, run_dir: str, command: str = "sweep") -> dict:
     """Run one sweep point (in a worker process) and return its summary row.
 
     Parameters
@@ -281,7 +282,7 @@ def run_point(config: dict, run_dir: str) -> dict:
     cfg = from_dict(StudyConfig, config, source=f"sweep point {run_dir}")
     try:
         res = run_full_study(cfg, run_dir, progress=False,
-                             command_line=["rfidstudy", "sweep", "(point)"])
+                             command_line=["rfidstudy", command, "(point)"])
     except Exception as exc:  # one failed point must not sink the sweep
         log.error("sweep point %s failed: %s", run_dir, exc)
         return {"status": "failed", "error": str(exc), "elapsed_s": float("nan")}
@@ -336,23 +337,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     (out / "runs").mkdir(parents=True, exist_ok=True)
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]
-    rows: list[dict | None] = [None] * len(args)
-    if client is not None or scheduler:
-        rows = _run_dask(args, scheduler, client, on_done)
-    else:
-        n_workers = workers or min(len(args), 2)
-        ctx = multiprocessing.get_context("spawn")
-        # points side by side share the CPUs (never more side by side than points)
-        nested = max(1, usable_cpus() // max(1, min(n_workers, len(args))))
-        with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
-                                    initializer=_cap_nested_workers,
-                                    initargs=(nested,)) as ex:
-            futs = {ex.submit(run_point, *a): i for i, a in enumerate(args)}
-            for fut in cf.as_completed(futs):
-                i = futs[fut]
-                rows[i] = fut.result()
-                if on_done:
-                    on_done(i, rows[i])
+    rows = run_studies(args, scheduler=scheduler, workers=workers, client=client,
+                       on_done=on_done)
     table = []
     for name, point, row in zip(plan.names, plan.points, rows, strict=True):
         r = {"run": name}
@@ -362,6 +348,32 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     df = pd.DataFrame(table)
     files = _write_summary(df, out, plan)
     return SweepResult(out_dir=out, summary=df, files=files)
+
+
+def run_studies(args: list, *, scheduler: str | None = None, workers: int | None = None,
+                client=None, on_done: Callable[[int, dict], None] | None = None) -> list[dict]:
+    """Run studies side by side: :func:`run_point` on each ``(config dict, run dir)`` of
+    ``args``, in local spawned worker processes (``workers``, default min(len, 2); the
+    CPUs shared between them) or on a Dask cluster (``client`` or ``scheduler``).
+    Returns :func:`run_point`'s rows in the order of ``args``; ``on_done(i, row)``
+    after each."""
+    if client is not None or scheduler:
+        return _run_dask(args, scheduler, client, on_done)
+    rows: list = [None] * len(args)
+    n_workers = workers or min(len(args), 2)
+    ctx = multiprocessing.get_context("spawn")
+    # studies side by side share the CPUs (never more side by side than studies)
+    nested = max(1, usable_cpus() // max(1, min(n_workers, len(args))))
+    with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
+                                initializer=_cap_nested_workers,
+                                initargs=(nested,)) as ex:
+        futs = {ex.submit(run_point, *a): i for i, a in enumerate(args)}
+        for fut in cf.as_completed(futs):
+            i = futs[fut]
+            rows[i] = fut.result()
+            if on_done:
+                on_done(i, rows[i])
+    return rows
 
 
 def _cap_nested_workers(cap: int) -> None:

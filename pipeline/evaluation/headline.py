@@ -56,7 +56,7 @@ from .intervals import (
 )
 from .units import UnitTables
 
-__all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_intervals"]
+__all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_estimates", "headline_intervals"]
 
 #: The model every other is compared with: the chapter's ANFIS on MCL poses.
 REFERENCE = "anfis"
@@ -206,6 +206,32 @@ def _rng(seed: int, *names: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), *(zlib.crc32(s.encode()) for s in names)])
 
 
+def _metric_statistics(tables: UnitTables, min_attempts: int):
+    """Per metric with a table: (spec, number of units, {model: weighted statistic})."""
+    for spec in METRICS:
+        df = getattr(tables, spec.table)
+        if df is None or df.empty:
+            continue
+        units, codes_all = np.unique(df["unit"].astype(str).to_numpy(), return_inverse=True)
+        n = len(units)
+        model_col = df["model"].astype(str)
+        stats_ = {}
+        for model in dict.fromkeys(model_col):
+            sel = (model_col == model).to_numpy()
+            cells = None
+            if tables.detection_cells is not None:
+                cells = tables.detection_cells[tables.detection_cells["model"] == model]
+            stats_[model] = _statistic(spec, df.loc[sel], codes_all[sel], n, cells,
+                                       int(min_attempts))
+        yield spec, n, stats_
+
+
+def headline_estimates(tables: UnitTables, *, min_attempts: int) -> dict:
+    """The headline metrics without intervals: ``{key: {model: estimate}}`` (NaN: undefined)."""
+    return {spec.key: {m: float(f(np.ones(n))) for m, f in stats_.items()}
+            for spec, n, stats_ in _metric_statistics(tables, min_attempts)}
+
+
 def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
                        reference: str = REFERENCE, n_resamples: int = N_RESAMPLES,
                        replicated: bool = False) -> dict:
@@ -234,21 +260,7 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
         Comparison dict}}}}``; a metric whose table is absent is left out.
     """
     intervals, comparisons = {}, {}
-    for spec in METRICS:
-        df = getattr(tables, spec.table)
-        if df is None or df.empty:
-            continue
-        units, codes_all = np.unique(df["unit"].astype(str).to_numpy(), return_inverse=True)
-        n = len(units)
-        models = list(dict.fromkeys(df["model"].astype(str)))
-        stats_ = {}
-        for model in models:
-            sel = (df["model"].astype(str) == model).to_numpy()
-            cells = None
-            if tables.detection_cells is not None:
-                cells = tables.detection_cells[tables.detection_cells["model"] == model]
-            stats_[model] = _statistic(spec, df.loc[sel], codes_all[sel], n, cells,
-                                       int(min_attempts))
+    for spec, n, stats_ in _metric_statistics(tables, min_attempts):
         unit = f"replicate x {spec.unit}" if replicated else spec.unit
         intervals[spec.key] = {
             "label": spec.label, "unit": unit, "n_units": int(n),

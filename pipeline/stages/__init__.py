@@ -89,8 +89,13 @@ def stage_names() -> list[str]:
 def run_full_study(config: StudyConfig, run_dir: str | Path, **kwargs) -> StudyResult:
     """Run (or resume) the whole study into ``run_dir``: :func:`pipeline.study.run_study`
     with :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info` (package versions and the
-    Dr.Jit backend in the manifest). Keyword arguments go to ``run_study`` and override
+    Dr.Jit backend in the manifest); with ``replicates.n > 1`` the stages of
+    :mod:`pipeline.replicates` (the study run into ``replicates/<k>/`` n times, pooled). Keyword arguments go to ``run_study`` and override
     those (``checks=()``, ``manifest_extra=None``)."""
     kwargs.setdefault("checks", CHECKS)
     kwargs.setdefault("manifest_extra", manifest_info)
+    if config.replicates.n > 1:  # N studies in replicates/<k>/, pooled (pipeline.replicates)
+        from pipeline import replicates
+
+        return run_study(config, run_dir, replicates.STAGES, **kwargs)
     return run_study(config, run_dir, STAGES, **kwargs)
