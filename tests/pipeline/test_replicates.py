@@ -1,0 +1,91 @@
+"""Replicated studies (pipeline.replicates): seeds, config, and a real two-replicate tiny
+study pooled, then grown to three with one replicate that cannot run."""
+
+from __future__ import annotations
+
+import json
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.config import ConfigError, config_from_mapping, load_config, replace_path
+from pipeline.replicates import replicate_configs, replicate_seed
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_replicate_seeds_are_distinct_streams_and_do_not_depend_on_n():
+    seeds = [replicate_seed(2011, k) for k in range(200)]
+    assert seeds[0] == 2011 and len(set(seeds)) == 200
+    assert all(0 <= s < 2**63 for s in seeds)
+    # the stage streams of two replicates (pipeline.stages.common.stage_rng) differ
+    draws = {tuple(np.random.default_rng([s, zlib.crc32(b"tour")]).integers(0, 2**31, 4))
+             for s in seeds}
+    assert len(draws) == 200
+    cfg = replace_path(load_config(ROOT / "configs" / "tiny.toml"), "replicates.n", 3)
+    more = replace_path(cfg, "replicates.n", 5)
+    assert [c.seed for c in replicate_configs(cfg)] == [c.seed for c in replicate_configs(more)][:3]
+    assert all(c.replicates.n == 1 for c in replicate_configs(cfg))
+    assert len({c.tracing.cache_dir for c in replicate_configs(more)}) == 1
+
+
+@pytest.mark.parametrize("value, match", [(0, "replicates.n must be >= 1"),
+                                          (-3, "replicates.n must be >= 1"),
+                                          (1.5, "must be an integer"),
+                                          (True, "must be an integer")])
+def test_bad_replicate_counts_are_refused(value, match):
+    with pytest.raises(ConfigError, match=match):
+        config_from_mapping({"replicates": {"n": value}})
+    with pytest.raises(ConfigError, match="workers"):
+        config_from_mapping({"replicates": {"workers": -1}})
+
+
+def test_two_replicates_pooled_then_a_third_that_fails(tmp_path):
+    from pipeline.stages import run_full_study
+
+    cfg = load_config(ROOT / "configs" / "tiny.toml")
+    cfg = replace_path(cfg, "tracing.cache_dir", str(tmp_path / "cache"))
+    cfg = replace_path(cfg, "replicates.n", 2)
+    run = tmp_path / "run"
+    res = run_full_study(cfg, run, progress=False, command_line=["pytest"])
+    assert res.ran == ["replicates", "pooled", "report"]
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["replicates"]["covers"] == "2 of 2 replicates" and not m["replicates"]["failed"]
+    seeds = m["replicates"]["seeds"]
+    assert seeds["0"] == cfg.seed and seeds["1"] == replicate_seed(cfg.seed, 1)
+    # each replicate is a study of its own, on its own held-out layout
+    held = [pd.read_parquet(run / "replicates" / k / "scene" / "tags.parquet").query("split == 'eval'")
+            for k in ("0", "1")]
+    assert not np.allclose(held[0][["x_m", "y_m", "z_m"]].to_numpy(),
+                           held[1][["x_m", "y_m", "z_m"]].to_numpy())
+    own = [json.loads((run / "replicates" / k / "metrics.json").read_text()) for k in ("0", "1")]
+    tag = m["intervals"]["tag_localisation.median_m"]
+    assert tag["unit"] == "replicate x tag" and tag["n_units"] == 32
+    assert tag["models"]["anfis"]["low"] <= tag["models"]["anfis"]["estimate"] <= \
+        tag["models"]["anfis"]["high"]
+    per = m["per_replicate"]["metrics"]["tag_localisation.median_m"]["anfis"]
+    assert per == pytest.approx([o["tag_localisation"]["anfis"]["median_m"] for o in own])
+    rmse = m["per_replicate"]["metrics"]["heldout.rssi_rmse_db"]["anfis"]
+    assert rmse == pytest.approx([o["heldout"]["models"]["anfis"]["rssi_dbm"]["rmse"] for o in own])
+    # the pooled robot sample: every filter run of both replicates
+    rob = m["intervals"]["robot_localisation.median_m"]
+    assert rob["n_units"] == 2 * cfg.downstream.robot_runs
+    assert "replicate 1" in (run / "report.html").read_text()
+
+    # a third replicate whose directory is taken by a file: named, the others kept
+    (run / "replicates" / "2").write_text("not a run directory")
+    res = run_full_study(replace_path(cfg, "replicates.n", 3), run, progress=False,
+                         command_line=["pytest"])
+    m3 = json.loads((run / "metrics.json").read_text())
+    assert m3["replicates"]["covers"] == "2 of 3 replicates"
+    assert [f["k"] for f in m3["replicates"]["failed"]] == [2]
+    assert "is a file" in m3["replicates"]["failed"][0]["error"]
+    assert m3["intervals"]["tag_localisation.median_m"]["n_units"] == 32
+    # the two complete replicates were not run again
+    for k in ("0", "1"):
+        man = json.loads((run / "replicates" / k / "manifest.json").read_text())
+        assert man["status"] == "complete"
+    assert (run / "replicates" / "2").read_text() == "not a run directory"
