@@ -65,7 +65,9 @@ def main(argv=None) -> None:
         print(json.dumps(rows[-1]), flush=True)
     # then the study itself: every replicate cached, the pooled numbers and the report
     t0 = time.perf_counter()
-    res = run_full_study(cfg, out, progress=False, command_line=["bench.replicates"])
+    # (force_dir: the folder holds only the replicates run above, not yet a run directory)
+    res = run_full_study(cfg, out, progress=False, command_line=["bench.replicates"],
+                         force_dir=True)
     pooled_s = time.perf_counter() - t0
     first = rows[0]["links_added"]
     print(json.dumps({

@@ -166,7 +166,7 @@ def stage_report(ctx) -> dict:
 STAGES: tuple[Stage, ...] = (
     Stage("replicates", stage_replicates, ("seed", "replicates.n", "tracing.cache_dir"), (),
           version=1, always=True, description="replicates"),
-    Stage("pooled", stage_pooled, ("seed", "training.min_attempts"), ("replicates",), version=1,
+    Stage("pooled", stage_pooled, ("seed", "training.min_attempts"), ("replicates",), version=3,
           description="pooled metrics"),
     Stage("report", stage_report, (), ("pooled",), version=1, description="report"),
 )

@@ -241,6 +241,11 @@ def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tin
             np.median(rows["error_m"]))
         conv = rows.groupby("unit")["converge_s"].first()
         assert rob["converged_runs"] == int(np.isfinite(conv).sum())
+    # every interval holds its own estimate
+    for key, sec in [*iv.items(), *((k, {"models": v}) for k, v in cmp_["metrics"].items())]:
+        for name, x in sec["models"].items():
+            if x["low"] is not None:
+                assert x["low"] - 1e-9 <= x["estimate"] <= x["high"] + 1e-9, (key, name, x)
     # 3 filter runs: too few units for an interval, said so rather than invented
     assert iv["robot_localisation.median_m"]["models"]["anfis"]["low"] is None
     assert cmp_["reference"] == "anfis" and "anfis" not in cmp_["metrics"]["heldout.rssi_mae_db"]
