@@ -296,8 +296,9 @@ class DownstreamConfig:
     robot_particles: int = option(2000, "Particles of the RFID-only robot filter.", max=1_000_000)
     robot_runs: int = option(
         3, "Runs of the RFID-only robot filter per model on independent particle streams; "
-        "robot_localisation reports the median over runs and the spread of the per-run "
-        "median errors (one run is one noisy draw).", max=1_000)
+        "robot_localisation reports the median error over every step of every run and the "
+        "spread of the per-run medians (one run is one noisy draw); intervals need at least 5 "
+        "runs (with replicates: runs x replicates).", max=1_000)
 
     def __post_init__(self):
         _positive(self, "candidate_spacing_m", "oracle_window_m", "oracle_reach_m",

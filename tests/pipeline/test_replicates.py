@@ -75,6 +75,19 @@ def test_two_replicates_pooled_then_a_third_that_fails(tmp_path):
     assert rob["n_units"] == 2 * cfg.downstream.robot_runs
     assert "replicate 1" in (run / "report.html").read_text()
 
+    # the README's tables are written from such a run, between their markers only
+    import runpy
+
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- headline-tables:begin -->\nold\n<!-- headline-tables:end -->\nrest\n")
+    tables = runpy.run_path(str(ROOT / "scripts" / "readme_tables.py"))
+    assert tables["main"]([str(run), "--write", str(readme)]) == 0
+    text = readme.read_text()
+    assert text.startswith("intro\n") and text.endswith("rest\n") and "old" not in text
+    est = m["intervals"]["heldout.rssi_mae_db"]["models"]["anfis"]
+    assert f"{est['estimate']:.2f} [{est['low']:.2f}, {est['high']:.2f}]" in text
+    assert "From 2 of 2 replicates" in text
+
     # a third replicate whose directory is taken by a file: named, the others kept
     (run / "replicates" / "2").write_text("not a run directory")
     res = run_full_study(replace_path(cfg, "replicates.n", 3), run, progress=False,
