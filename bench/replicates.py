@@ -38,11 +38,10 @@ def main(argv=None) -> None:
     ap.add_argument("-n", type=int, default=None, help="replicates (default: the config's)")
     args = ap.parse_args(argv)
 
-    from pipeline.config import load_config, replace_path
+    from pipeline.config import config_to_dict, load_config, replace_path
     from pipeline.replicates import replicate_configs
-    from pipeline.sweep import run_point
-    from pipeline.config import config_to_dict
     from pipeline.stages import run_full_study
+    from pipeline.sweep import run_point
 
     cfg = load_config(args.config)
     if args.n:
