@@ -103,7 +103,10 @@ def stage_replicates(ctx) -> dict:
         entries.append({"k": k, "seed": c.seed, "dir": f"replicates/{k}",
                         "status": row.get("status"), "error": row.get("error") or None,
                         "elapsed_s": None,  # times live in each replicate's manifest
-                        "digests": {f: _digest(d / f) for f in POOLED_INPUTS} if ok else None})
+                        # digests: so that the pooled stage re-runs when a replicate's
+                        # numbers change (its cache key), not a check of what it reads
+                        "digests": ({f: _digest(inside(d, f)) for f in POOLED_INPUTS}
+                                    if ok else None)})
     atomic_write_json(ctx.out(INDEX), {"n": rep.n, "replicates": entries})
     n_ok = sum(e["status"] == "complete" for e in entries)
     if n_ok == 0:
@@ -166,7 +169,7 @@ def stage_report(ctx) -> dict:
 STAGES: tuple[Stage, ...] = (
     Stage("replicates", stage_replicates, ("seed", "replicates.n", "tracing.cache_dir"), (),
           version=1, always=True, description="replicates"),
-    Stage("pooled", stage_pooled, ("seed", "training.min_attempts"), ("replicates",), version=3,
+    Stage("pooled", stage_pooled, ("seed", "training.min_attempts"), ("replicates",), version=4,
           description="pooled metrics"),
     Stage("report", stage_report, (), ("pooled",), version=1, description="report"),
 )

@@ -18,6 +18,7 @@ import os
 import tomllib
 from pathlib import Path
 
+from pipeline.evaluation.headline import METRICS
 from pipeline.runstore import (
     UnsafePathError,
     atomic_write_text,
@@ -318,7 +319,7 @@ def intervals_html(metrics: dict) -> list[str]:
            "a ranking where the verdicts say 'not distinguishable'.</p>"]
     for key, sec in ivs.items():
         models = sec.get("models") or {}
-        lower = next((c.get("lower_is_better") for c in (by_metric.get(key) or {}).values()), True)
+        lower = next((m.lower_is_better for m in METRICS if m.key == key), True)
         order = sorted(models, key=lambda m: (models[m].get("estimate") is None,
                                               (1 if lower else -1) * (models[m].get("estimate") or 0)))
         rows = []

@@ -223,30 +223,45 @@ def _rng(seed: int, *names: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), *(zlib.crc32(s.encode()) for s in names)])
 
 
-def _metric_statistics(tables: UnitTables, min_attempts: int):
-    """Per metric with a table: (spec, number of units, {model: weighted statistic})."""
+def _tables_of(tables: UnitTables):
+    """Per metric with a table: (spec, its table with ``unit`` as str)."""
     for spec in METRICS:
         df = getattr(tables, spec.table)
         if df is None or df.empty:
             continue
-        units, codes_all = np.unique(df["unit"].astype(str).to_numpy(), return_inverse=True)
-        n = len(units)
-        model_col = df["model"].astype(str)
-        stats_ = {}
-        for model in dict.fromkeys(model_col):
-            sel = (model_col == model).to_numpy()
-            cells = None
-            if tables.detection_cells is not None:
-                cells = tables.detection_cells[tables.detection_cells["model"] == model]
-            stats_[model] = _statistic(spec, df.loc[sel], codes_all[sel], n, cells,
-                                       int(min_attempts))
-        yield spec, n, stats_
+        yield spec, df.assign(unit=df["unit"].astype(str), model=df["model"].astype(str))
+
+
+def _stats_on(spec: MetricSpec, df: pd.DataFrame, models, units: np.ndarray, tables: UnitTables,
+              min_attempts: int) -> dict:
+    """The weighted statistics of ``models`` over exactly ``units`` (rows of other units
+    are left out), index i of a weight vector being ``units[i]`` for every model."""
+    index = pd.Series(np.arange(len(units)), index=units)
+    out = {}
+    for model in models:
+        rows = df.loc[(df["model"] == model).to_numpy() & df["unit"].isin(units).to_numpy()]
+        cells = None
+        if tables.detection_cells is not None:
+            cells = tables.detection_cells[tables.detection_cells["model"] == model]
+        out[model] = _statistic(spec, rows, index.loc[rows["unit"]].to_numpy(), len(units), cells,
+                                int(min_attempts))
+    return out
+
+
+def _units_of(df: pd.DataFrame, model: str) -> np.ndarray:
+    return np.unique(df.loc[df["model"] == model, "unit"].to_numpy())
 
 
 def headline_estimates(tables: UnitTables, *, min_attempts: int) -> dict:
     """The headline metrics without intervals: ``{key: {model: estimate}}`` (NaN: undefined)."""
-    return {spec.key: {m: float(f(np.ones(n))) for m, f in stats_.items()}
-            for spec, n, stats_ in _metric_statistics(tables, min_attempts)}
+    out = {}
+    for spec, df in _tables_of(tables):
+        out[spec.key] = {}
+        for m in dict.fromkeys(df["model"]):
+            units = _units_of(df, m)
+            f = _stats_on(spec, df, [m], units, tables, min_attempts)[m]
+            out[spec.key][m] = float(f(np.ones(len(units))))
+    return out
 
 
 def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
@@ -277,26 +292,39 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
         Comparison dict}}}}``; a metric whose table is absent is left out.
     """
     intervals, comparisons = {}, {}
-    for spec, n, stats_ in _metric_statistics(tables, min_attempts):
+    for spec, df in _tables_of(tables):
         unit = f"replicate x {spec.unit}" if replicated else spec.unit
+        models = list(dict.fromkeys(df["model"]))
+        own = {}  # each model over its own units
+        for m in models:
+            units = _units_of(df, m)
+            f = _stats_on(spec, df, [m], units, tables, min_attempts)[m]
+            own[m] = (f, len(units))
+        sec = {"label": spec.label, "unit": unit, "n_units": int(df["unit"].nunique())}
         if spec.no_interval:
-            intervals[spec.key] = {
-                "label": spec.label, "unit": unit, "n_units": int(n),
-                "models": {m: Interval(float(f(np.ones(n))), None, None, int(n), unit, "none",
-                                       note=spec.no_interval).to_dict()
-                           for m, f in stats_.items()}}
+            sec["models"] = {m: Interval(float(f(np.ones(n))), None, None, n, unit, "none",
+                                         note=spec.no_interval).to_dict()
+                             for m, (f, n) in own.items()}
+            intervals[spec.key] = sec
             continue
-        intervals[spec.key] = {
-            "label": spec.label, "unit": unit, "n_units": int(n),
-            "models": {m: unit_interval(f, n, _rng(seed, spec.key, m), unit=unit,
-                                        n_resamples=n_resamples).to_dict()
-                       for m, f in stats_.items()}}
-        if reference in stats_:
-            comparisons[spec.key] = {
-                m: paired_difference(f, stats_[reference], n, _rng(seed, spec.key, m, reference),
-                                     lower_is_better=spec.lower_is_better, unit=unit,
-                                     n_resamples=n_resamples).to_dict()
-                for m, f in stats_.items() if m != reference}
+        sec["models"] = {m: unit_interval(f, n, _rng(seed, spec.key, m), unit=unit,
+                                          n_resamples=n_resamples).to_dict()
+                         for m, (f, n) in own.items()}
+        intervals[spec.key] = sec
+        if reference not in own:
+            continue
+        comparisons[spec.key] = {}
+        ref_units = _units_of(df, reference)
+        for m in models:
+            if m == reference:
+                continue
+            # paired: both models on the units both were scored on
+            common = np.intersect1d(_units_of(df, m), ref_units)
+            pair = _stats_on(spec, df, [m, reference], common, tables, min_attempts)
+            comparisons[spec.key][m] = paired_difference(
+                pair[m], pair[reference], len(common), _rng(seed, spec.key, m, reference),
+                lower_is_better=spec.lower_is_better, unit=unit,
+                n_resamples=n_resamples).to_dict()
     return {"intervals": intervals,
             "comparisons": {"reference": reference, "confidence": CONFIDENCE,
                             "how": "model minus reference on the same resampled units; "

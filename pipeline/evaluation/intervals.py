@@ -228,6 +228,7 @@ def unit_interval(statistic: WeightedStatistic, n_units: int, rng: np.random.Gen
     unit : str
         What a unit is (for the record).
     n_resamples : int
+        At least; raised so that each tail holds about 25 resamples at the expanded level.
 
     Returns
     -------
@@ -247,14 +248,17 @@ def unit_interval(statistic: WeightedStatistic, n_units: int, rng: np.random.Gen
     def stat(idx, axis=-1):
         return statistic(multiplicity(np.moveaxis(idx, axis, -1), n))
 
+    level = expanded_level(n)
+    # each tail of the expanded level rests on >= ~25 resamples (5 units: 0.998, 25,000)
+    n_res = max(int(n_resamples), int(np.ceil(50.0 / (1.0 - level))))
     for method in ("BCa", "percentile"):
         with warnings.catch_warnings():
             warnings.simplefilter("error", stats.DegenerateDataWarning)
             warnings.simplefilter("ignore", RuntimeWarning)
             try:
-                res = stats.bootstrap((np.arange(n),), stat, n_resamples=int(n_resamples),
+                res = stats.bootstrap((np.arange(n),), stat, n_resamples=n_res,
                                       vectorized=True, method=method, rng=rng,
-                                      confidence_level=expanded_level(n), batch=_BATCH)
+                                      confidence_level=level, batch=_BATCH)
             except stats.DegenerateDataWarning:
                 dist = stat(rng.integers(0, n, size=(200, n)))
                 if np.all(dist == est):

@@ -81,10 +81,12 @@ class UnitTables:
         """Read the tables of one run directory (downstream tables absent: None).
 
         ``read_parquet(path)`` reads one file (a caller passes its checked reader)."""
+        from pipeline.runstore import inside
+
         root = Path(run_dir)
         out = {}
         for f in fields(cls):
-            p = root / TABLES[f.name]
+            p = inside(root, TABLES[f.name])  # a linked folder is refused, never followed
             out[f.name] = read_parquet(p) if p.is_file() or f.name not in (
                 "tag_errors", "robot_steps") else None
         tags = out["tag_errors"]

@@ -179,3 +179,20 @@ def test_replicates_pool_as_units_of_their_own():
     assert rmse["n_units"] == 32 and rmse["unit"] == "replicate x tag"
     e = pooled.rssi_links.query("model == 'anfis'")["error_db"].to_numpy()
     assert rmse["models"]["anfis"]["estimate"] == pytest.approx(np.sqrt(np.mean(e * e)))
+
+
+def test_a_model_scored_on_fewer_units_is_compared_on_the_shared_ones():
+    """A model with rows for 8 of the 16 tags: its interval is over its 8 tags, and its
+    comparison with ANFIS uses those 8 tags for both models."""
+    rng = np.random.default_rng(8)
+    t = _tables(rng)
+    part = t.rssi_links.query("model == 'anfis'").copy()
+    part = part[part["unit"] < "T08"].assign(model="partial", error_db=lambda d: d["error_db"] + 1.0)
+    t.rssi_links = pd.concat([t.rssi_links, part], ignore_index=True)
+    out = headline_intervals(t, seed=1, min_attempts=5, n_resamples=300)
+    iv = out["intervals"]["heldout.rssi_abs_bias_db"]
+    assert iv["models"]["partial"]["n_units"] == 8 and iv["models"]["anfis"]["n_units"] == 16
+    c = out["comparisons"]["metrics"]["heldout.rssi_abs_bias_db"]["partial"]
+    ref = t.rssi_links.query("model == 'anfis' and unit < 'T08'")["error_db"]
+    assert c["n_units"] == 8
+    assert c["estimate"] == pytest.approx(abs(ref.mean() + 1.0) - abs(ref.mean()))
