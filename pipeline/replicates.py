@@ -27,14 +27,18 @@ The engine is the study's (:func:`pipeline.study.run_study`) with the stages
 
 from __future__ import annotations
 
-import hashlib
 import logging
-from pathlib import Path
 
 import numpy as np
 
 from pipeline.config import StudyConfig, config_to_dict, replace_path
-from pipeline.runstore import atomic_write_json, inside, read_run_json, regular_file
+from pipeline.runstore import (
+    atomic_write_json,
+    file_sha256,
+    inside,
+    read_run_json,
+    regular_file,
+)
 from pipeline.study import Stage, StageError
 
 __all__ = ["STAGES", "replicate_configs", "replicate_seed", "stage_pooled", "stage_replicates"]
@@ -71,16 +75,6 @@ def replicate_configs(cfg: StudyConfig) -> list[StudyConfig]:
             for k in range(cfg.replicates.n)]
 
 
-def _digest(path: Path) -> str | None:
-    if not regular_file(path):
-        return None
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def stage_replicates(ctx) -> dict:
     """Run (or resume) every replicate into ``replicates/<k>/``; write the index."""
     from pipeline.sweep import run_studies
@@ -105,7 +99,8 @@ def stage_replicates(ctx) -> dict:
                         "elapsed_s": None,  # times live in each replicate's manifest
                         # digests: so that the pooled stage re-runs when a replicate's
                         # numbers change (its cache key), not a check of what it reads
-                        "digests": ({f: _digest(inside(d, f)) for f in POOLED_INPUTS}
+                        "digests": ({f: file_sha256(p) if regular_file(p := inside(d, f)) else None
+                                     for f in POOLED_INPUTS}
                                     if ok else None)})
     atomic_write_json(ctx.out(INDEX), {"n": rep.n, "replicates": entries})
     n_ok = sum(e["status"] == "complete" for e in entries)

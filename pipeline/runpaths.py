@@ -1,0 +1,161 @@
+"""Reading a run directory that may come from someone else: containment and checked reads.
+
+Nothing in a run directory is trusted to point elsewhere. :func:`inside` turns a
+relative path of the run directory into a path that stays inside it (relative, no
+``..``, no component a symbolic link: a link is never followed); :func:`regular_file`,
+:func:`run_files`, :func:`read_run_json` and :func:`file_sha256` read or hash regular
+files only (a FIFO or device would hang or leak), opened without following a final
+link and checked on the descriptor they read. A path that fails raises
+:class:`UnsafePathError`, naming it. :mod:`pipeline.runstore` builds the run directory's
+writes on these and re-exports them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import stat
+from pathlib import Path
+
+__all__ = ["RunDirError", "UnsafePathError", "file_sha256", "inside", "read_run_json",
+           "regular_file", "run_files"]
+
+log = logging.getLogger(__name__)
+
+
+class RunDirError(RuntimeError):
+    """The run directory cannot be used: a file, not a run directory, not writable.
+
+    The message is one line naming the directory (or file) and the cause.
+    """
+
+
+class UnsafePathError(RunDirError):
+    """A path in a run directory leads outside it (``..``, absolute, a symbolic link) or
+    is not a regular file: the store refuses to read, write or delete through it."""
+
+
+def inside(root: str | Path, rel: str) -> Path:
+    """The path of run-directory entry ``rel``, checked to stay inside ``root``.
+
+    Parameters
+    ----------
+    root : path
+        The run directory (already resolved: its own path may pass through links the
+        user chose).
+    rel : str
+        A relative POSIX path, as stage records store them.
+
+    Returns
+    -------
+    Path
+        ``root / rel``; no component of ``rel`` that exists is a symbolic link.
+
+    Raises
+    ------
+    UnsafePathError
+        ``rel`` is not a string, is empty, absolute, holds ``..`` or a NUL, or one of its
+        existing components is a symbolic link (named).
+    """
+    root = Path(root)
+    if not isinstance(rel, str) or not rel or "\x00" in rel:
+        raise UnsafePathError(f"{root}: {rel!r} is not a relative path of the run directory")
+    parts = rel.split("/")
+    if rel.startswith("/") or os.path.isabs(rel) or any(p in ("", ".", "..") for p in parts):
+        raise UnsafePathError(f"{root}: {rel!r} leads outside the run directory (absolute, "
+                              "'..' or empty components are refused)")
+    here = root
+    for part in parts:
+        here = here / part
+        try:
+            st = os.lstat(here)
+        except FileNotFoundError:
+            break  # the rest does not exist yet: nothing there to follow
+        except OSError as exc:
+            raise UnsafePathError(f"{here}: cannot be inspected ({exc.strerror})") from None
+        if stat.S_ISLNK(st.st_mode):
+            raise UnsafePathError(f"{here} is a symbolic link inside the run directory {root}: "
+                                  "rfidstudy never follows links there; remove it (or copy "
+                                  "the real files in its place) and rerun")
+    return root / rel
+
+
+def regular_file(path: str | Path) -> bool:
+    """Whether ``path`` is a regular file (not a link, FIFO, device, socket or folder)."""
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def run_files(root: str | Path, folder: str, pattern: str) -> list[Path]:
+    """The regular files of run-directory ``folder`` matching ``pattern``, sorted.
+
+    For readers that list a folder instead of a record: ``folder`` is checked by
+    :func:`inside` (a linked folder raises :class:`UnsafePathError`), and a link, FIFO or
+    device among the matches is left out with a warning, never read.
+    """
+    d = inside(root, folder)
+    if not d.is_dir():
+        return []
+    out = []
+    for p in sorted(d.glob(pattern)):
+        if regular_file(p):
+            out.append(p)
+        else:
+            log.warning("%s is not a regular file (a link?): not read", p)
+    return out
+
+
+def _open_regular(path: str | Path):
+    """A binary file object of ``path``, opened without following a final link and
+    without blocking (a FIFO is then refused by ``fstat``, not waited on); the check and
+    the read are on one descriptor, so the file cannot be swapped between them.
+
+    Raises
+    ------
+    UnsafePathError
+        ``path`` is not a regular file.
+    """
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise UnsafePathError(f"{path} is not a regular file: not read")
+    return os.fdopen(fd, "rb")
+
+
+def read_run_json(path: str | Path, max_bytes: int = 64 << 20):
+    """The JSON document of a run-directory file, read as data from a stranger.
+
+    Parameters
+    ----------
+    path : path
+        The file (a regular file; a link or special file is refused).
+    max_bytes : int
+        Largest size read [bytes].
+
+    Raises
+    ------
+    ValueError
+        Naming the file: not a regular file (or a link), larger than ``max_bytes``, not
+        UTF-8 JSON, or nested too deeply to parse.
+    """
+    try:
+        with _open_regular(path) as fh:
+            data = fh.read(max_bytes + 1)
+        if len(data) > max_bytes:
+            raise ValueError(f"larger than {max_bytes >> 20} MiB")
+        return json.loads(data.decode("utf-8"))
+    except (OSError, ValueError, RecursionError, RunDirError) as exc:
+        raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 hex digest of a file's bytes (opened without following a final link)."""
+    h = hashlib.sha256()
+    with _open_regular(path) as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
