@@ -96,7 +96,6 @@ def stage_replicates(ctx) -> dict:
             log.warning("replicate %d (%s) failed: %s", k, d, row.get("error"))
         entries.append({"k": k, "seed": c.seed, "dir": f"replicates/{k}",
                         "status": row.get("status"), "error": row.get("error") or None,
-                        "elapsed_s": None,  # times live in each replicate's manifest
                         # digests: so that the pooled stage re-runs when a replicate's
                         # numbers change (its cache key), not a check of what it reads
                         "digests": ({f: file_sha256(p) if regular_file(p := inside(d, f)) else None

@@ -48,6 +48,7 @@ __all__ = [
     "RhoComparison",
     "RhoPoints",
     "RssiComparison",
+    "closing_links",
     "detection_vs_truth",
     "rho_points_truth",
     "rho_vs_truth",
@@ -80,6 +81,14 @@ class RssiComparison:
                             "d_max_m": self.d_max_m, "unit": "dB"})
 
 
+def closing_links(reads: pd.DataFrame, budget, d_max_m: float) -> np.ndarray:
+    """The attempts an RSSI comparison scores: the noise-free link closes and the true
+    distance is below ``d_max_m``; shape (n_rows,) bool."""
+    require_columns(reads, ("d_true_m", "alpha_true_rad", "gain_db"), "reads")
+    return (true_detected(reads["gain_db"].to_numpy(np.float64), budget)
+            & (reads["d_true_m"].to_numpy(np.float64) < float(d_max_m)))
+
+
 def rssi_vs_truth(reads: pd.DataFrame, sensor, budget, d_max_m: float = 3.0) -> RssiComparison:
     """Compare ``sensor.fs_dbm`` with the noise-free RSSI (see module doc).
 
@@ -97,10 +106,9 @@ def rssi_vs_truth(reads: pd.DataFrame, sensor, budget, d_max_m: float = 3.0) -> 
     RssiComparison
     """
     sensor = check_sensor(sensor)
-    require_columns(reads, ("d_true_m", "alpha_true_rad", "gain_db"), "reads")
+    keep = closing_links(reads, budget, d_max_m)
     g = reads["gain_db"].to_numpy(np.float64)
     d = reads["d_true_m"].to_numpy(np.float64)
-    keep = true_detected(g, budget) & (d < float(d_max_m))
     truth = true_rssi_dbm(g[keep], budget)
     pred = np.asarray(sensor.fs_dbm(d[keep], reads["alpha_true_rad"].to_numpy(np.float64)[keep]),
                       dtype=np.float64)
@@ -135,10 +143,9 @@ def rssi_cell_mean_floor(reads: pd.DataFrame, truth: TruthGrid, budget, d_max_m:
     ErrorStats
         Of ``cell mean - truth`` over the closing links in cells with >= min_count links.
     """
-    require_columns(reads, ("d_true_m", "alpha_true_rad", "gain_db"), "reads")
+    keep = closing_links(reads, budget, d_max_m)
     g = reads["gain_db"].to_numpy(np.float64)
     d = reads["d_true_m"].to_numpy(np.float64)
-    keep = true_detected(g, budget) & (d < float(d_max_m))
     idx = truth.grid.index(d[keep], reads["alpha_true_rad"].to_numpy(np.float64)[keep])
     ok = idx.valid & (truth.n_closed.ravel()[np.maximum(idx.flat, 0)] >= int(min_count))
     cell_mean = truth.rssi_dbm.ravel()[np.maximum(idx.flat, 0)]

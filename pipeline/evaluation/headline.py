@@ -252,16 +252,21 @@ def _units_of(df: pd.DataFrame, model: str) -> np.ndarray:
     return np.unique(df.loc[df["model"] == model, "unit"].to_numpy())
 
 
+def _own_statistics(spec: MetricSpec, df: pd.DataFrame, tables: UnitTables,
+                    min_attempts: int) -> dict:
+    """Each model's statistic over its own units: ``{model: (statistic, n_units)}``."""
+    out = {}
+    for m in dict.fromkeys(df["model"]):
+        units = _units_of(df, m)
+        out[m] = (_stats_on(spec, df, [m], units, tables, min_attempts)[m], len(units))
+    return out
+
+
 def headline_estimates(tables: UnitTables, *, min_attempts: int) -> dict:
     """The headline metrics without intervals: ``{key: {model: estimate}}`` (NaN: undefined)."""
-    out = {}
-    for spec, df in _tables_of(tables):
-        out[spec.key] = {}
-        for m in dict.fromkeys(df["model"]):
-            units = _units_of(df, m)
-            f = _stats_on(spec, df, [m], units, tables, min_attempts)[m]
-            out[spec.key][m] = float(f(np.ones(len(units))))
-    return out
+    return {spec.key: {m: float(f(np.ones(n)))
+                       for m, (f, n) in _own_statistics(spec, df, tables, min_attempts).items()}
+            for spec, df in _tables_of(tables)}
 
 
 def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
@@ -277,8 +282,8 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
         Seeds the resampling; each (metric, model) has its own stream, so a number does
         not depend on which other models were scored.
     min_attempts : int
-        Cells with fewer held-out attempts in a resample are left out of the detection
-        MAE (the study's ``training.min_attempts``).
+        Cells with fewer held-out attempts are left out of the detection MAE (the
+        study's ``training.min_attempts``).
     reference : str
     n_resamples : int
     replicated : bool
@@ -294,12 +299,7 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
     intervals, comparisons = {}, {}
     for spec, df in _tables_of(tables):
         unit = f"replicate x {spec.unit}" if replicated else spec.unit
-        models = list(dict.fromkeys(df["model"]))
-        own = {}  # each model over its own units
-        for m in models:
-            units = _units_of(df, m)
-            f = _stats_on(spec, df, [m], units, tables, min_attempts)[m]
-            own[m] = (f, len(units))
+        own = _own_statistics(spec, df, tables, min_attempts)
         sec = {"label": spec.label, "unit": unit, "n_units": int(df["unit"].nunique())}
         if spec.no_interval:
             sec["models"] = {m: Interval(float(f(np.ones(n))), None, None, n, unit, "none",
@@ -315,7 +315,7 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
             continue
         comparisons[spec.key] = {}
         ref_units = _units_of(df, reference)
-        for m in models:
+        for m in own:
             if m == reference:
                 continue
             # paired: both models on the units both were scored on

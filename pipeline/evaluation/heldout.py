@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .comparison import detection_vs_truth, rssi_cell_mean_floor, rssi_vs_truth
+from .comparison import closing_links, detection_vs_truth, rssi_cell_mean_floor, rssi_vs_truth
 from .metrics import brier_score, error_stats, nan_to_none
 from .tables import require_columns
 from .truth import TruthGrid, true_detected, true_rssi_dbm
@@ -77,9 +77,8 @@ def floor_link_mask(eval_reads: pd.DataFrame, train_truth: TruthGrid, budget, d_
     """Rows of `eval_reads` the floor can score: closing links within ``d_max_m`` whose
     (d, alpha) cell holds at least ``min_count`` closing links in the TRAINING truth
     (:func:`~.comparison.rssi_cell_mean_floor`'s own selection), shape (n_rows,) bool."""
-    g = eval_reads["gain_db"].to_numpy(float)
+    keep = closing_links(eval_reads, budget, d_max_m)
     d = eval_reads["d_true_m"].to_numpy(float)
-    keep = true_detected(g, budget) & (d < float(d_max_m))
     idx = train_truth.grid.index(d, eval_reads["alpha_true_rad"].to_numpy(float))
     covered = idx.valid & (train_truth.n_closed.ravel()[np.maximum(idx.flat, 0)] >= int(min_count))
     return keep & covered

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .comparison import closing_links
 from .tables import require_columns
 from .truth import TruthGrid, true_detected, true_rssi_dbm
 
@@ -135,10 +136,10 @@ def rssi_link_errors(eval_reads: pd.DataFrame, sensors: dict, budget, *, d_max_m
     pandas.DataFrame
         model (str), unit (the tag), error_db (float64).
     """
-    require_columns(eval_reads, ("tag_id", "d_true_m", "alpha_true_rad", "gain_db"), "eval reads")
+    require_columns(eval_reads, ("tag_id",), "eval reads")
+    keep = closing_links(eval_reads, budget, d_max_m)
     g = eval_reads["gain_db"].to_numpy(np.float64)
     d = eval_reads["d_true_m"].to_numpy(np.float64)
-    keep = true_detected(g, budget) & (d < float(d_max_m))
     a = eval_reads["alpha_true_rad"].to_numpy(np.float64)[keep]
     truth = true_rssi_dbm(g[keep], budget)
     unit = eval_reads["tag_id"].astype(str).to_numpy()[keep]
