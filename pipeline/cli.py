@@ -6,6 +6,7 @@
     rfidstudy figures RUN_DIR                          # redraw figures + report from saved files
     rfidstudy report RUN_DIR                           # rewrite report.html only
     rfidstudy sweep SWEEP.toml --out sweeps/x [--scheduler tcp://host:8786] [--workers N]
+    rfidstudy placement PLACEMENT.toml --out runs/placement [--workers N | --scheduler ADDR]
     rfidstudy scenes list | show NAME [--png top.png]
     rfidstudy config [CONFIG.toml]                     # print the resolved (or reference) config
 
@@ -311,6 +312,67 @@ def sweep(
     typer.echo(f"summary: {res.out_dir / 'summary.csv'}")
     if (res.summary["status"] != "complete").any():
         raise typer.Exit(1)
+
+
+def _duration(s: float | None) -> str:
+    if s is None:
+        return "?"
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+@app.command()
+def placement(
+    placement_file: Annotated[Path, typer.Argument(
+        help="Placement TOML: candidate mounts, replicates, objectives, constraints "
+             "(see configs/placement_example.toml and docs/placement.md).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Placement directory (new, empty, "
+                                      "or an earlier one of this study: it resumes).")] = Path(
+        "runs/placement"),
+    scheduler: Annotated[str | None, typer.Option(
+        help="Dask scheduler address (tcp://host:8786); default: local worker processes.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Local worker processes (default: the file's workers, else up to 2).")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also print INFO and DEBUG log lines (stages, traces, materials).")] = False,
+):
+    """Choose an antenna mount: run every candidate with replicates, rank them with 95 %
+    intervals, recommend one and say whether its lead is real."""
+    _setup_logging(verbose)
+    from pipeline.placement import candidates_of, load_placement, run_placement
+    from pipeline.placement.summary import ranking_table
+    from pipeline.runstore import RunDirError
+
+    if workers is not None and workers < 1:
+        _fail(f"--workers {workers}: at least 1")
+    try:
+        spec = load_placement(placement_file)
+    except ConfigError as exc:
+        _fail(str(exc))
+    n = len(candidates_of(spec))
+    s = spec.settings
+    typer.echo(f"{n} candidates x {s.replicates} replicates"
+               + (f" + {s.optimise.n_trials} optimiser trials" if s.optimise.n_trials else "")
+               + f"; ranked by {s.primary}")
+
+    def progress(ev):
+        typer.echo(f"  [{ev.done}/{ev.total}] {ev.candidate}: {_duration(ev.elapsed_s)} compute, "
+                   f"{ev.n_sources_traced} antenna positions traced"
+                   + (f", {ev.failed} replicate(s) failed" if ev.failed else "")
+                   + (f"; about {_duration(ev.remaining_s)} left" if ev.done < ev.total else ""))
+
+    try:
+        res = run_placement(spec, out, workers=workers, scheduler=scheduler, progress=progress)
+    except (ConfigError, RunDirError) as exc:
+        _fail(str(exc))
+    table = ranking_table(res.summary, s)
+    cols = ["rank", "candidate", "feasible", s.primary, f"{s.primary} minus best", "verdict"]
+    typer.echo(table[cols].head(10).to_string(index=False, max_colwidth=34))
+    a = res.answer
+    if a.get("recommended"):
+        lead = ("its lead over the runner-up exceeds the 95 % interval"
+                if a.get("margin_exceeds_interval") else
+                "not distinguishable from the runner-up at 95 %")
+        typer.echo(f"recommended: {a['recommended']} ({lead})")
+    typer.echo(f"report: {res.out_dir / 'placement' / 'report.html'}")
 
 
 @scenes_app.command("list")

@@ -207,6 +207,7 @@ def simulate_reads(
         "n_pairs": int(n * m),
         "n_pairs_in_range": int(mask.sum()),
         "n_pairs_traced": int(links.n_traced),
+        "n_sources_traced": int(links.n_traced_sources),  # fresh antenna positions (0: all cached)
         "max_range_m": float(budget.max_range_m(margin_db=reader.range_margin_db)),
         "range_margin_db": float(reader.range_margin_db),
         "max_excess_over_free_space_db": excess_db,

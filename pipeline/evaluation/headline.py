@@ -57,7 +57,8 @@ from .intervals import (
 )
 from .units import UnitTables
 
-__all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_estimates", "headline_intervals"]
+__all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_estimates", "headline_intervals",
+           "metric_statistic"]
 
 #: The model every other is compared with: the chapter's ANFIS on MCL poses.
 REFERENCE = "anfis"
@@ -217,6 +218,37 @@ def _statistic(spec: MetricSpec, rows: pd.DataFrame, codes: np.ndarray, n: int,
     per_run = np.zeros(n)
     per_run[codes] = np.isfinite(rows[col].to_numpy(np.float64))
     return lambda w: weighted_mean(per_run, w)
+
+
+def metric_statistic(key: str, rows: pd.DataFrame, codes: np.ndarray, n_units: int, *,
+                     cells: pd.DataFrame | None = None, min_attempts: int = 1) -> Statistic:
+    """The weighted statistic of headline metric ``key`` on one model's ``rows``.
+
+    Parameters
+    ----------
+    key : str
+        A :data:`METRICS` key.
+    rows : pandas.DataFrame
+        That model's rows of the metric's :class:`~.units.UnitTables` table.
+    codes : numpy.ndarray, int
+        Unit index of each row, in [0, n_units): rows of the same unit share a code, and
+        two statistics with the same codes are paired (a placement study compares
+        candidates on the same (replicate, tag) units this way).
+    n_units : int
+    cells : pandas.DataFrame, optional
+        The model's ``detection_cells`` (detection metrics only).
+    min_attempts : int
+
+    Returns
+    -------
+    callable
+        ``statistic(w)`` as :func:`~.intervals.unit_interval` takes it.
+    """
+    spec = next((m for m in METRICS if m.key == key), None)
+    if spec is None:
+        raise KeyError(f"unknown headline metric {key!r}")
+    return _statistic(spec, rows, np.asarray(codes, np.int64), int(n_units), cells,
+                      int(min_attempts))
 
 
 def _rng(seed: int, *names: str) -> np.random.Generator:

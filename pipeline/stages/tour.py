@@ -24,12 +24,16 @@ def _localise(scene, robot, traj, lcfg, rng, robot_map=None) -> dict:
 
     true = np.asarray(traj.poses, dtype=float)
     t = np.asarray(traj.t_s, dtype=float)
+    # which pass along the route each pose belongs to (-1 while turning around): the
+    # placement study's inventory completeness is counted per pass
+    passes = np.asarray(traj.pass_index, dtype=np.int64)
     if lcfg is None:
-        return {"t_s": t, "true": true, "odom": true.copy(), "est": true.copy()}
+        return {"t_s": t, "true": true, "odom": true.copy(), "est": true.copy(),
+                "pass_index": passes}
     res = simulate_localisation(scene, robot, traj, rng, lcfg, occupancy_map=robot_map)
     return {"t_s": t, "true": true, "odom": np.asarray(res.odometry_poses),
             "est": np.asarray(res.estimated_poses),
-            "position_error_m": np.asarray(res.position_error_m)}
+            "position_error_m": np.asarray(res.position_error_m), "pass_index": passes}
 
 
 def _eval_path(sc, robot, cfg, rng):
@@ -160,5 +164,5 @@ def stage_tour(ctx) -> dict:
 
 
 STAGE = Stage("tour", stage_tour, ("seed", "robot", "tour", "localisation"), ("scene",),
-              version=2,  # 2: one biased robot map per building (tour/map_error.npz, localisation.json)
+              version=3,  # 3: pass_index in the tracks (inventory completeness per pass)
               description="robot tours and MCL")

@@ -81,6 +81,7 @@ def _trace_sites(ctx, attempt_pose_rows: np.ndarray) -> dict:
     traced = np.zeros(pairs.shape, bool)
     gain = np.full(pairs.shape, -np.inf)
     update = ctx.progress("truth at tag sites", total=len(poses))
+    fresh = 0
     # one call per pose: the solver's cost grows with the receivers of a call, and poses
     # batched together would each be traced against the union of their sites
     for i in range(len(poses)):
@@ -90,6 +91,7 @@ def _trace_sites(ctx, attempt_pose_rows: np.ndarray) -> dict:
                 sc, poses[i:i + 1], sites.positions_m[cols], frequency_hz=cfg.frequency_hz,
                 tag_normals=sites.normals[cols], cache_dir=resolve_cache_dir(cfg),
                 **trace_options(cfg))
+            fresh += int(links.n_traced_sources)
             traced[i, cols] = np.asarray(links.traced, bool)[0]
             gain[i, cols] = np.where(traced[i, cols], np.asarray(links.gain_db, float)[0], -np.inf)
         update(advance=1)
@@ -98,7 +100,7 @@ def _trace_sites(ctx, attempt_pose_rows: np.ndarray) -> dict:
               obstructed=obstructed_pairs(sc, poses[:, :3], sites.positions_m)
               ).save(ctx.out("truth/site_truth.npz"))
     return {"n_site_poses": int(len(poses)), "n_sites": int(len(sites)),
-            "n_site_links": int(traced.sum())}
+            "n_site_links": int(traced.sum()), "n_site_sources_traced": fresh}
 
 
 def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
@@ -119,7 +121,7 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
     update = ctx.progress("Fig. 6 free-space view + fields", total=len(poses))
     lo, hi = sc.bounds_m
     bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
-    n_free = 0
+    n_free = fresh = 0
     for i, pose in enumerate(poses):
         pts = _polar_points(pose, d, a)
         free = is_free(sc, pts)
@@ -128,6 +130,7 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
         gain = np.full(len(pts), -np.inf)
         gain[free] = np.asarray(links.gain_db, float)[0]
         n_free += int(free.sum())
+        fresh += int(links.n_traced_sources)
         atomic_save_npz(ctx.out(f"truth/free_space_points_{i:02d}.npz"), pose=pose, points_m=pts,
                         gain_db=gain)
         if i < ev.n_field_poses:
@@ -139,7 +142,8 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
                 include_walls=cfg.tracing.field_walls, plane_bounds_m=bounds, cache_dir=cache)
             field.save(ctx.out(f"fields/field_{i:02d}.npz"))
         update(advance=1)
-    return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free}
+    return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free,
+            "n_view_sources_traced": fresh}
 
 
 STAGE = Stage("truth_traces", stage_truth_traces,

@@ -1,0 +1,199 @@
+"""Inventory numbers of a tour: read rate, completeness per pass, coverage along the route.
+
+What an engineer choosing an antenna mount asks of a tour is how well it inventories
+the tags, counted where the tags are (their own positions on the shelf fronts and
+walls at their own heights), not on a free-space plane. From a tour's read log
+(``reads.parquet``), its pose track (``tour/train_track.npz``: times and
+``pass_index``) and the tags, :func:`tour_tag_table` counts per (tag, pass):
+
+- ``n_attempts``: read attempts of the tag during the pass (one per antenna per cycle);
+- ``n_in_range``: those within the reader's range (the attempts the read rate counts);
+- ``n_reads``: successful reads;
+- ``n_cycles``: read cycles during the pass;
+- ``n_cycles_closed``: cycles in which the tag's local-mean link closes for at least one
+  antenna (:func:`link_closed`: tag powered and backscatter above the reader's
+  sensitivity, from the ray-traced gain, no fading or reader noise): the share of the
+  route along which the tag *can* be read.
+
+Turn-arounds (``pass_index`` -1) belong to no pass and are left out.
+
+The statistics (:data:`INVENTORY_METRICS`), each over (tag, pass) rows pooled per tag
+(the unit of the intervals, :mod:`pipeline.evaluation.intervals`):
+
+- ``read_rate``: sum of reads / sum of in-range attempts;
+- ``completeness``: share of (tag, pass) with at least ``min_reads`` reads: the share
+  of tags an inventory pass finds ``min_reads`` times;
+- ``surface_coverage``: sum of closed cycles / sum of cycles: the share of the route,
+  tag by tag, along which the link closes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "INVENTORY_COLUMNS",
+    "INVENTORY_METRICS",
+    "InventoryMetric",
+    "inventory_statistic",
+    "link_closed",
+    "tour_tag_table",
+]
+
+#: Columns of :func:`tour_tag_table`.
+INVENTORY_COLUMNS = ("unit", "pass", "z_m", "n_attempts", "n_in_range", "n_reads", "n_cycles",
+                     "n_cycles_closed")
+
+
+@dataclass(frozen=True)
+class InventoryMetric:
+    """One inventory statistic.
+
+    Attributes
+    ----------
+    key : str
+    label : str
+        What it is, for tables.
+    lower_is_better : bool
+    """
+
+    key: str
+    label: str
+    lower_is_better: bool = False
+
+
+INVENTORY_METRICS: tuple[InventoryMetric, ...] = (
+    InventoryMetric("read_rate", "read rate (reads / in-range attempts)"),
+    InventoryMetric("completeness", "tags read >= k times per pass (share)"),
+    InventoryMetric("surface_coverage", "route share along which a tag's link closes"),
+)
+
+
+def link_closed(gain_db, budget) -> np.ndarray:
+    """Whether the local-mean backscatter link closes, per gain.
+
+    Parameters
+    ----------
+    gain_db : array_like, float64
+        One-way reader-to-tag channel gain, reader pattern and tag antenna pattern
+        included (as the read log's ``gain_db``) [dB]; -inf or NaN where not traced.
+    budget : propagation.LinkBudget
+        Its ``detected`` applies both thresholds (tag sensitivity, reader sensitivity).
+
+    Returns
+    -------
+    numpy.ndarray of bool, same shape
+    """
+    g = np.asarray(gain_db, dtype=np.float64)
+    ok = np.isfinite(g)
+    out = np.zeros(g.shape, dtype=bool)
+    out[ok] = np.asarray(budget.detected(g[ok]), dtype=bool)
+    return out
+
+
+def tour_tag_table(reads: pd.DataFrame, t_s, pass_index, tags: pd.DataFrame, budget) -> pd.DataFrame:
+    """Counts per (tag, pass) of one tour (see the module docstring).
+
+    Parameters
+    ----------
+    reads : pandas.DataFrame
+        The tour's read log: ``time_s``, ``cycle``, ``tag_id``, ``read``, ``in_range``,
+        ``gain_db``.
+    t_s : array_like, float64, (n_poses,)
+        Pose times of the tour [s], increasing.
+    pass_index : array_like, int, (n_poses,)
+        Pass of each pose, -1 while turning around.
+    tags : pandas.DataFrame
+        ``tag_id`` and ``z_m`` of (at least) the tags in ``reads``.
+    budget : propagation.LinkBudget
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns :data:`INVENTORY_COLUMNS`, one row per (tag, pass) with at least one
+        attempt; ``unit`` is the tag id.
+
+    Raises
+    ------
+    ValueError
+        A tag of the read log without a height, or ``t_s`` / ``pass_index`` of different
+        lengths.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    passes = np.asarray(pass_index, dtype=np.int64)
+    if t.shape != passes.shape:
+        raise ValueError(f"t_s has {t.size} poses, pass_index {passes.size}")
+    z = pd.Series(tags["z_m"].to_numpy(np.float64), index=tags["tag_id"].astype(str))
+    tag = reads["tag_id"].astype(str).to_numpy()
+    missing = sorted(set(tag) - set(z.index))
+    if missing:
+        raise ValueError(f"tags {missing[:5]} of the read log have no height in the tag table")
+    pose = np.clip(np.searchsorted(t, reads["time_s"].to_numpy(np.float64), side="right") - 1,
+                   0, len(t) - 1)
+    df = pd.DataFrame({
+        "unit": tag,
+        "pass": passes[pose],
+        "cycle": reads["cycle"].to_numpy(np.int64),
+        "in_range": reads["in_range"].to_numpy(bool),
+        "read": reads["read"].to_numpy(bool),
+        "closed": link_closed(reads["gain_db"].to_numpy(np.float64), budget)
+        & reads["in_range"].to_numpy(bool),
+    })
+    df = df[df["pass"] >= 0]
+    per_cycle = df.groupby(["unit", "pass", "cycle"], sort=True)["closed"].any()
+    cyc = per_cycle.groupby(level=["unit", "pass"]).agg(["size", "sum"])
+    att = df.groupby(["unit", "pass"], sort=True).agg(
+        n_attempts=("read", "size"), n_in_range=("in_range", "sum"), n_reads=("read", "sum"))
+    out = att.join(cyc.rename(columns={"size": "n_cycles", "sum": "n_cycles_closed"})).reset_index()
+    out["z_m"] = z.reindex(out["unit"]).to_numpy()
+    out = out.astype({"n_attempts": np.int64, "n_in_range": np.int64, "n_reads": np.int64,
+                      "n_cycles": np.int64, "n_cycles_closed": np.int64, "pass": np.int64})
+    return out[list(INVENTORY_COLUMNS)]
+
+
+Statistic = Callable[[np.ndarray], np.ndarray]
+
+
+def inventory_statistic(key: str, rows: pd.DataFrame, codes: np.ndarray, n_units: int, *,
+                        min_reads: int = 1) -> Statistic:
+    """The weighted statistic of inventory metric ``key`` over ``n_units`` units.
+
+    Parameters
+    ----------
+    key : {"read_rate", "completeness", "surface_coverage"}
+    rows : pandas.DataFrame
+        :func:`tour_tag_table` rows (of any number of replicates and tags).
+    codes : numpy.ndarray, int, (len(rows),)
+        Unit index of each row, in [0, n_units).
+    n_units : int
+    min_reads : int
+        Reads a tag needs in a pass to count as inventoried (``completeness``).
+
+    Returns
+    -------
+    callable
+        ``statistic(w)``, ``w`` the units' multiplicities (..., n_units), as
+        :func:`pipeline.evaluation.intervals.unit_interval` takes it.
+    """
+    def sums(col) -> np.ndarray:
+        return np.bincount(codes, weights=np.asarray(col, np.float64), minlength=n_units)
+
+    if key == "read_rate":
+        num, den = sums(rows["n_reads"]), sums(rows["n_in_range"])
+    elif key == "completeness":
+        num, den = sums(rows["n_reads"] >= int(min_reads)), sums(np.ones(len(rows)))
+    elif key == "surface_coverage":
+        num, den = sums(rows["n_cycles_closed"]), sums(rows["n_cycles"])
+    else:
+        raise KeyError(f"unknown inventory metric {key!r}; known: "
+                       f"{', '.join(m.key for m in INVENTORY_METRICS)}")
+
+    def stat(w):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (w @ num) / (w @ den)
+    return stat
+

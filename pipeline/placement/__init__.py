@@ -1,0 +1,31 @@
+"""Antenna placement as a study: candidate mounts, replicates, objectives with intervals,
+a ranked answer and an optimiser that reuses the traces.
+
+``rfidstudy placement PLACEMENT.toml --out DIR`` (:func:`run_placement`); the file's
+format is :mod:`pipeline.placement.spec`'s, the objectives
+:mod:`pipeline.placement.objectives`', the outputs :mod:`pipeline.placement.summary`'s.
+"""
+
+from .candidates import Candidate, candidates_of, check_candidate, mount_antennas
+from .objectives import OBJECTIVES, CandidateData, Objective, load_candidate_data
+from .optimise import search
+from .runner import PlacementResult, ProgressEvent, run_placement
+from .spec import PlacementSpec, load_placement, placement_from_mapping
+
+__all__ = [
+    "OBJECTIVES",
+    "Candidate",
+    "CandidateData",
+    "Objective",
+    "PlacementResult",
+    "PlacementSpec",
+    "ProgressEvent",
+    "candidates_of",
+    "check_candidate",
+    "load_candidate_data",
+    "load_placement",
+    "mount_antennas",
+    "placement_from_mapping",
+    "run_placement",
+    "search",
+]

@@ -1,0 +1,106 @@
+"""An optimiser over continuous mount ranges: Optuna's TPE or CMA-ES, a study per trial.
+
+The search is Optuna's (T. Akiba et al., "Optuna: a next-generation hyperparameter
+optimization framework", KDD 2019) ask-and-tell interface: :class:`optuna.samplers.TPESampler`
+(tree-structured Parzen estimator) or :class:`optuna.samplers.CmaEsSampler`, seeded, so
+that a rerun proposes the same trials and finds their studies done (each trial is a
+candidate whose replicate run directories are a cache). Each trial's value is the
+primary objective's estimate over all its replicates' units; the trials' intervals
+come with the summary like every candidate's.
+
+Cost structure: a trial that changes only yaw or tilt traces no new antenna
+position (the propagation cache is keyed by position); trials at heights already
+traced reuse them; every trial shares the scene.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+__all__ = ["optimise", "search"]
+
+log = logging.getLogger(__name__)
+
+
+def search(ranges: dict, evaluate: Callable[[dict], float], *, n_trials: int,
+           sampler: str = "tpe", seed: int = 0, minimise: bool = True) -> list[tuple[dict, float]]:
+    """Ask-and-tell search of ``evaluate`` over the box ``ranges``.
+
+    Parameters
+    ----------
+    ranges : dict[str, tuple[float, float]]
+        Parameter -> (low, high).
+    evaluate : callable
+        ``evaluate(values) -> float``; NaN marks a failed trial (told as failed).
+    n_trials : int
+    sampler : {"tpe", "cmaes"}
+    seed : int
+        Seeds the sampler: the same told values give the same proposals.
+    minimise : bool
+
+    Returns
+    -------
+    list of (dict, float)
+        Each trial's values (as ``evaluate`` got them) and value, in trial order.
+    """
+    import math
+
+    import optuna
+    from optuna.distributions import FloatDistribution
+    from optuna.trial import TrialState
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if sampler == "cmaes":
+        samp = optuna.samplers.CmaEsSampler(seed=int(seed), warn_independent_sampling=False)
+    else:
+        # a few random trials first, then the Parzen estimators (Optuna's default is 10,
+        # too many for a budget of about ten studies)
+        samp = optuna.samplers.TPESampler(seed=int(seed),
+                                          n_startup_trials=max(2, min(10, n_trials // 3)))
+    study = optuna.create_study(direction="minimize" if minimise else "maximize", sampler=samp)
+    dists = {k: FloatDistribution(float(lo), float(hi)) for k, (lo, hi) in ranges.items()}
+    out = []
+    for _ in range(int(n_trials)):
+        trial = study.ask(dists)
+        values = dict(trial.params)
+        value = float(evaluate(values))
+        if math.isfinite(value):
+            study.tell(trial, value)
+        else:
+            study.tell(trial, state=TrialState.FAIL)
+        out.append((values, value))
+    return out
+
+
+def optimise(spec, runner, out) -> list:
+    """Run the placement file's ``[optimise]`` trials with ``runner`` (each trial a
+    candidate with every replicate); return the trials' candidates in trial order."""
+    from pipeline.stages.common import link_budget
+
+    from .candidates import Candidate
+    from .objectives import OBJECTIVES, load_candidate_data, objective_estimate
+    from .runner import candidate_from_trial
+    from .spec import MOUNT_FIELDS
+
+    s = spec.settings
+    opt = s.optimise
+    ranges = {k: tuple(getattr(opt.ranges, k)) for k in MOUNT_FIELDS
+              if k != "count" and getattr(opt.ranges, k)}
+    budget = link_budget(spec.base)
+    trials: list[Candidate] = []
+
+    def evaluate(values: dict) -> float:
+        cand = candidate_from_trial(spec, values)
+        trials.append(cand)
+        runner.run([cand])
+        dirs = {k: out / "candidates" / cand.name / str(k) for k in range(s.replicates)
+                if (out / "candidates" / cand.name / str(k) / "metrics.json").is_file()}
+        if not dirs:
+            return float("nan")
+        data = load_candidate_data(dirs, budget)
+        return objective_estimate(data, s.primary, min_reads=s.min_reads)
+
+    search(ranges, evaluate, n_trials=opt.n_trials, sampler=opt.sampler, seed=opt.seed,
+           minimise=OBJECTIVES[s.primary].lower_is_better)
+    return trials

@@ -1,0 +1,273 @@
+"""Run a placement study: every candidate's replicates, the optimiser's trials, the answer.
+
+Directory layout of ``rfidstudy placement FILE --out DIR``::
+
+    DIR/placement.json                 the file as read, the candidates (marks DIR as a
+                                       placement directory: nothing else is written into
+                                       a non-empty directory without it)
+    DIR/candidates/<name>/<k>/         replicate k of candidate <name>: a study run directory
+    DIR/placement/summary.parquet      one row per candidate (see pipeline.placement.summary)
+    DIR/placement/ranking.csv          the ranked table
+    DIR/placement/answer.json          recommendation, margin, comparisons, Pareto front
+    DIR/placement/figures/*.png        heatmap, Pareto front, bands, marginals, read maps
+    DIR/placement/report.html
+
+Replicate k of every candidate has the seed :func:`pipeline.replicates.replicate_seed`
+gives it (the same for all candidates: paired comparisons) and all studies share the
+propagation cache, so what one candidate traced another reads: orientation-only
+candidates trace nothing new, candidates at one height share every antenna position
+of the tours. A study that finished is skipped stage by stage on a rerun (its run
+directory is a cache), so a rerun computes nothing and an interrupted placement study
+resumes where it stopped; the optimiser's sampler is seeded, so it proposes the same
+trials again and finds them done.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pipeline.config import ConfigError, config_to_dict, replace_path
+from pipeline.runstore import atomic_write_json
+
+from .candidates import Candidate, candidate_from_values, candidates_of, check_candidate
+from .spec import MOUNT_FIELDS, PlacementSpec
+
+__all__ = ["PlacementResult", "ProgressEvent", "run_placement"]
+
+log = logging.getLogger(__name__)
+
+MARKER = "placement.json"
+LOCK = ".placement.lock"
+
+
+@dataclass
+class ProgressEvent:
+    """One candidate finished (all its replicates).
+
+    Attributes
+    ----------
+    candidate : str
+    done, total : int
+        Candidates finished / planned so far (the optimiser adds trials as it goes).
+    elapsed_s : float
+        Wall time of this candidate's replicates (0 when they were all cached).
+    n_sources_traced : int
+        Antenna positions its studies traced afresh (0: everything from the cache).
+    failed : int
+        Its replicates that failed.
+    remaining_s : float or None
+        Estimate of the time still to run (mean candidate time x candidates left).
+    """
+
+    candidate: str
+    done: int
+    total: int
+    elapsed_s: float
+    n_sources_traced: int
+    failed: int
+    remaining_s: float | None
+
+
+@dataclass
+class PlacementResult:
+    """Outcome of :func:`run_placement`.
+
+    Attributes
+    ----------
+    out_dir : pathlib.Path
+    summary : pandas.DataFrame
+        One row per candidate (:func:`pipeline.placement.summary.summarise`).
+    answer : dict
+        Recommendation, margin to the runner-up and its verdict, Pareto front.
+    files : list of pathlib.Path
+    """
+
+    out_dir: Path
+    summary: object
+    answer: dict
+    files: list = field(default_factory=list)
+
+
+def _prepare_dir(out: Path, spec: PlacementSpec) -> None:
+    from pipeline.runstore import UnsafePathError, regular_file
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a directory")
+    marker = out / MARKER
+    if out.is_dir() and any(out.iterdir()) and not regular_file(marker):
+        raise ConfigError(f"--out {out}: a non-empty directory that is not a placement study "
+                          f"(no {MARKER}); choose a new or empty directory")
+    for sub in ("candidates", "placement"):
+        p = out / sub
+        if os.path.islink(p):
+            raise UnsafePathError(f"{p} is a symbolic link: a placement directory's folders "
+                                  "must be its own")
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def _replicate_config(spec: PlacementSpec, cand: Candidate, k: int, cache_dir: str):
+    from pipeline.replicates import replicate_seed
+
+    cfg = cand.config(spec.base)
+    cfg = replace_path(cfg, "replicates.n", 1)
+    cfg = replace_path(cfg, "tracing.cache_dir", cache_dir)
+    return replace_path(cfg, "seed", replicate_seed(spec.base.seed, k))
+
+
+class _Runner:
+    """Runs candidates' replicates in batches and keeps the progress books."""
+
+    def __init__(self, spec, out, workers, scheduler, client, progress):
+        from pipeline.stages import resolve_cache_dir
+
+        self.spec, self.out = spec, out
+        self.workers, self.scheduler, self.client = workers, scheduler, client
+        self.progress = progress
+        self.cache = str(resolve_cache_dir(spec.base))
+        self.done: dict[str, dict] = {}
+        self.expected = 0  # candidates this study will run (grid + presets + trials)
+        self.wall_s = 0.0  # wall time spent running batches
+        self.n_run = 0  # candidates finished in those batches
+
+    def run(self, cands: list[Candidate]) -> None:
+        from pipeline.sweep import run_studies
+
+        from .objectives import traced_counts
+
+        todo = [c for c in cands if c.name not in self.done]
+        if not todo:
+            return
+        self.expected = max(self.expected, len(self.done) + len(todo))
+        n = self.spec.settings.replicates
+        args, owner = [], []
+        for c in todo:
+            for k in range(n):
+                run_dir = self.out / "candidates" / c.name / str(k)
+                args.append((config_to_dict(_replicate_config(self.spec, c, k, self.cache)),
+                             str(run_dir)))
+                owner.append(c.name)
+        books: dict[str, dict] = {c.name: {} for c in todo}
+        t0 = time.monotonic()
+        batch_done = [0]
+
+        def on_done(i: int, row: dict) -> None:
+            name = owner[i]
+            b = books[name]
+            b[i] = row
+            if len(b) < n:
+                return
+            rows = list(b.values())
+            elapsed = float(sum(r.get("elapsed_s") or 0.0 for r in rows
+                                if r.get("status") == "complete"))
+            traced = sum(traced_counts(self.out / "candidates" / name / str(k))["n_sources_traced"]
+                         for k in range(n))
+            failed = sum(r.get("status") != "complete" for r in rows)
+            self.done[name] = {"elapsed_s": elapsed, "failed": failed,
+                               "errors": [r.get("error") for r in rows if r.get("error")]}
+            batch_done[0] += 1
+            # wall time per finished candidate so far (batches run their studies side by
+            # side, so this is the pace, not one candidate's time) x candidates left
+            per = (self.wall_s + time.monotonic() - t0) / (self.n_run + batch_done[0])
+            eta = per * max(0, self.expected - len(self.done))
+            if self.progress:
+                self.progress(ProgressEvent(name, len(self.done), self.expected, elapsed, traced,
+                                            failed, eta))
+
+        run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
+                    client=self.client, on_done=on_done)
+        self.wall_s += time.monotonic() - t0
+        self.n_run += batch_done[0]
+
+
+def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | None = None,
+                  scheduler: str | None = None, client=None,
+                  progress: Callable[[ProgressEvent], None] | None = None) -> PlacementResult:
+    """Run (or resume) a placement study and write its answer.
+
+    Parameters
+    ----------
+    spec : PlacementSpec
+        From :func:`~.spec.load_placement`.
+    out_dir : path
+        New, empty, or an earlier placement directory of this study.
+    workers : int, optional
+        Local worker processes (default: the file's ``workers``, else 2 at most).
+    scheduler : str, optional
+        Dask scheduler address: the studies run on that cluster.
+    client : distributed.Client, optional
+    progress : callable, optional
+        Called with a :class:`ProgressEvent` as each candidate finishes.
+
+    Raises
+    ------
+    ConfigError
+        The directory is not a placement directory; no candidate finished.
+    pipeline.runstore.RunDirLocked
+        Another process runs a placement study in it.
+    """
+    from filelock import FileLock, Timeout
+
+    from pipeline.runstore import RunDirLocked, UnsafePathError, regular_file
+
+    from .summary import write_outputs
+
+    out = Path(out_dir).resolve()
+    _prepare_dir(out, spec)
+    lock_path = out / LOCK
+    if os.path.lexists(lock_path) and not regular_file(lock_path):
+        raise UnsafePathError(f"{lock_path} is not a regular file: it cannot serve as the lock")
+    lock = FileLock(str(lock_path), timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise RunDirLocked(f"{out} is in use by another placement study; wait for it or use "
+                           "another --out") from None
+    try:
+        cands = candidates_of(spec)
+        runner = _Runner(spec, out, workers or spec.settings.workers or None, scheduler, client,
+                         progress)
+        _write_marker(out, spec, cands)
+        runner.expected = len(cands) + spec.settings.optimise.n_trials
+        runner.run(cands)
+        if spec.settings.optimise.n_trials:
+            from .optimise import optimise
+
+            trials = optimise(spec, runner, out)
+            cands = cands + [t for t in trials if t.name not in {c.name for c in cands}]
+            _write_marker(out, spec, cands)
+        return write_outputs(spec, out, cands, runner.done)
+    finally:
+        lock.release()
+
+
+def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> None:
+    atomic_write_json(out / MARKER, {
+        "source": spec.source,
+        "file": spec.raw,
+        "replicates": spec.settings.replicates,
+        "candidates": [{"name": c.name, "origin": c.origin, "values": c.values,
+                        "antennas": [a.__dict__ for a in c.antennas]} for c in cands],
+    })
+
+
+def candidate_from_trial(spec: PlacementSpec, values: dict) -> Candidate:
+    """The optimiser's candidate for ``values`` (rounded to 1 mm / 0.1 deg: a mount is
+    built to that precision, and equal rounded values share one run directory)."""
+    vals = {k: round(float(v), 3 if k.endswith("_m") else 1) for k, v in values.items()
+            if k in MOUNT_FIELDS}
+    c = candidate_from_values(spec, vals, origin="optimiser", prefix="opt_")
+    check_candidate(c, spec, what="optimiser trial")
+    return c
+
+
+def read_marker(out: Path) -> dict:
+    """The placement directory's ``placement.json``."""
+    from pipeline.runstore import read_run_json
+
+    return read_run_json(out / MARKER)
+

@@ -1,0 +1,252 @@
+"""The placement study's answer: per-candidate table, ranking, recommendation, Pareto front.
+
+``placement/summary.parquet`` has one row per candidate:
+
+- ``candidate``, ``origin`` (grid / preset / optimiser), the mount values it sets
+  (``z_m``, ``tilt_deg``, ...; NaN where it sets none), ``antennas`` (readable mounts);
+- per objective (:data:`~.objectives.OBJECTIVES`): ``<key>`` the estimate and
+  ``<key>_low`` / ``<key>_high`` its 95 % interval over (replicate, unit) units;
+- ``completeness_<lo>_<hi>m`` (and ``_low`` / ``_high``): completeness of the tags
+  whose height is in that band;
+- ``feasible``: every ``[[constraint]]`` met by the estimate; ``rank`` (1 = best
+  feasible by the primary objective; infeasible candidates after them);
+- ``diff_vs_best``, ``diff_vs_best_low/high``, ``verdict_vs_best``: the primary
+  objective minus the recommended candidate's on the same units;
+- ``n_replicates`` complete, ``n_sources_traced`` (antenna positions traced afresh by
+  its studies), ``n_links`` (links its studies used), ``compute_s`` (its studies'
+  stage times summed).
+
+``placement/answer.json`` holds the recommendation, its margin to the runner-up on
+the primary objective with the margin's interval and whether it exceeds it ("better"
+verdict), and the Pareto front of the two ``pareto`` objectives.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.runstore import atomic_write_bytes, atomic_write_json
+
+from .objectives import (
+    OBJECTIVES,
+    compare_objective,
+    load_candidate_data,
+    objective_interval,
+    traced_counts,
+)
+from .spec import MOUNT_FIELDS
+
+__all__ = ["pareto_front", "rank_candidates", "summarise", "write_outputs"]
+
+
+def _complete_dirs(out: Path, name: str, n: int) -> dict:
+    from pipeline.runstore import regular_file
+
+    dirs = {}
+    for k in range(n):
+        d = out / "candidates" / name / str(k)
+        if regular_file(d / "metrics.json"):
+            dirs[k] = d
+    return dirs
+
+
+def _compute_s(run_dir: Path) -> float:
+    total = 0.0
+    for p in sorted((run_dir / "stages").glob("*.json")):
+        try:
+            total += float(json.loads(p.read_text()).get("elapsed_s") or 0.0)
+        except (OSError, ValueError):
+            continue
+    return total
+
+
+def _antennas_text(c) -> str:
+    return "; ".join(f"{a.name} ({a.x_m:g}, {a.y_m:g}, {a.z_m:g}) m yaw {a.yaw_deg:g} "
+                     f"tilt {a.tilt_deg:g} deg" for a in c.antennas)
+
+
+def _bands(edges) -> list[tuple[float, float]]:
+    return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def band_key(band: tuple[float, float]) -> str:
+    """Column name of the completeness of a tag-height band."""
+    return f"completeness_{band[0]:g}_{band[1]:g}m"
+
+
+def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
+    """The summary table and each candidate's data (``{name: CandidateData}``)."""
+    from pipeline.stages.common import link_budget
+
+    s = spec.settings
+    budget = link_budget(spec.base)
+    seed = int(spec.base.seed)
+    rows, datas = [], {}
+    for c in cands:
+        dirs = _complete_dirs(out, c.name, s.replicates)
+        row = {"candidate": c.name, "origin": c.origin, "antennas": _antennas_text(c),
+               "n_antennas": len(c.antennas), "n_replicates": len(dirs)}
+        for k in MOUNT_FIELDS:
+            row[k] = float(c.values[k]) if k in c.values else float("nan")
+        counts = [traced_counts(d) for d in dirs.values()]
+        row["n_sources_traced"] = int(sum(x["n_sources_traced"] for x in counts))
+        row["n_links"] = int(sum(x["n_links"] for x in counts))
+        row["compute_s"] = float(sum(_compute_s(d) for d in dirs.values()))
+        if dirs:
+            data = load_candidate_data(dirs, budget)
+            datas[c.name] = data
+            for key in OBJECTIVES:
+                iv = objective_interval(data, key, seed=seed, candidate=c.name,
+                                        min_reads=s.min_reads)
+                row[key], row[f"{key}_low"], row[f"{key}_high"] = iv.estimate, iv.low, iv.high
+            for band in _bands(s.height_bands_m):
+                iv = objective_interval(data, "completeness", seed=seed, candidate=c.name,
+                                        min_reads=s.min_reads, band=band)
+                bk = band_key(band)
+                row[bk], row[f"{bk}_low"], row[f"{bk}_high"] = iv.estimate, iv.low, iv.high
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    for col in df.columns:  # None (no interval) -> NaN: numeric columns stay numeric
+        if col.endswith(("_low", "_high")):
+            df[col] = pd.to_numeric(df[col], errors="coerce")
+    return df, datas
+
+
+def _feasible(row: pd.Series, constraints) -> bool:
+    for c in constraints:
+        v = row.get(c.objective, float("nan"))
+        if v is None or not math.isfinite(float(v)):
+            return False
+        if c.min is not None and v < c.min:
+            return False
+        if c.max is not None and v > c.max:
+            return False
+    return True
+
+
+def rank_candidates(df: pd.DataFrame, primary: str, constraints=()) -> pd.DataFrame:
+    """``df`` with ``feasible`` and ``rank``, sorted: feasible candidates by the primary
+    objective's estimate (best first), then the infeasible ones, then those without one."""
+    out = df.copy()
+    if primary not in out.columns:
+        out[primary] = np.nan
+    out["feasible"] = [_feasible(r, constraints) for _, r in out.iterrows()]
+    sign = 1.0 if OBJECTIVES[primary].lower_is_better else -1.0
+    key = pd.to_numeric(out[primary], errors="coerce") * sign
+    out["_order"] = list(zip(~out["feasible"], key.isna(), key.fillna(0.0), strict=True))
+    out = out.sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
+    out["rank"] = np.arange(1, len(out) + 1)
+    return out
+
+
+def pareto_front(df: pd.DataFrame, a: str, b: str) -> list[str]:
+    """Candidates no other candidate beats on both objectives ``a`` and ``b`` (their
+    estimates; each objective's own direction)."""
+    sa = 1.0 if OBJECTIVES[a].lower_is_better else -1.0
+    sb = 1.0 if OBJECTIVES[b].lower_is_better else -1.0
+    pts = [(r["candidate"], sa * r[a], sb * r[b]) for _, r in df.iterrows()
+           if np.isfinite(r.get(a, np.nan)) and np.isfinite(r.get(b, np.nan))]
+    front = []
+    for n, x, y in pts:
+        dominated = any((x2 <= x and y2 <= y) and (x2 < x or y2 < y) for _, x2, y2 in pts)
+        if not dominated:
+            front.append(n)
+    return front
+
+
+def write_outputs(spec, out: Path, cands: list, done: dict):
+    """Summarise, rank, compare, draw and report; return a :class:`~.runner.PlacementResult`."""
+    from pipeline.config import ConfigError
+
+    from .figures import draw_figures
+    from .report import write_report
+    from .runner import PlacementResult
+
+    s = spec.settings
+    df, datas = summarise(spec, out, cands)
+    if not datas:
+        errors = sorted({e for d in done.values() for e in d.get("errors", [])})
+        raise ConfigError(f"{out}: no candidate finished a single replicate"
+                          + (f"; first error: {errors[0]}" if errors else ""))
+    df = rank_candidates(df, s.primary, s.constraint)
+    seed = int(spec.base.seed)
+    best = df.iloc[0]["candidate"] if df.iloc[0]["candidate"] in datas else None
+    comparisons = {}
+    for col in ("diff_vs_best", "diff_vs_best_low", "diff_vs_best_high"):
+        df[col] = np.nan
+    df["verdict_vs_best"] = ""
+    if best is not None:
+        for i, r in df.iterrows():
+            name = r["candidate"]
+            if name == best or name not in datas:
+                continue
+            cmp_ = compare_objective(datas[name], datas[best], s.primary, seed=seed,
+                                     names=(name, best), min_reads=s.min_reads)
+            d = cmp_.difference
+            df.loc[i, ["diff_vs_best", "diff_vs_best_low", "diff_vs_best_high"]] = [
+                d.estimate, np.nan if d.low is None else d.low, np.nan if d.high is None else d.high]
+            df.loc[i, "verdict_vs_best"] = cmp_.verdict
+            comparisons[name] = cmp_.to_dict()
+    runner_up = None
+    if best is not None and len(df) > 1 and df.iloc[1]["candidate"] in datas:
+        runner_up = df.iloc[1]["candidate"]
+    answer = {
+        "primary": s.primary,
+        "primary_label": OBJECTIVES[s.primary].label,
+        "constraints": [{"objective": c.objective, "min": c.min, "max": c.max} for c in s.constraint],
+        "recommended": best,
+        "recommended_feasible": bool(df.iloc[0]["feasible"]) if best is not None else False,
+        "runner_up": runner_up,
+        "margin": None if runner_up is None else comparisons.get(runner_up),
+        "margin_exceeds_interval": (runner_up is not None
+                                    and comparisons[runner_up]["verdict"] == "worse"),
+        "pareto_objectives": list(s.pareto),
+        "pareto_front": pareto_front(df, *s.pareto),
+        "replicates": s.replicates,
+        "n_candidates": int(len(df)),
+        "comparisons_vs_recommended": comparisons,
+    }
+    pdir = out / "placement"
+    pdir.mkdir(exist_ok=True)
+    buf = io.BytesIO()
+    df.to_parquet(buf, index=False)
+    files = [atomic_write_bytes(pdir / "summary.parquet", buf.getvalue())]
+    files.append(atomic_write_bytes(pdir / "ranking.csv", ranking_table(df, s).to_csv(
+        index=False).encode()))
+    files.append(atomic_write_json(pdir / "answer.json", answer))
+    figs = draw_figures(spec, out, df, datas, answer)
+    files.extend(figs)
+    files.append(write_report(spec, out, df, answer, figs))
+    return PlacementResult(out_dir=out, summary=df, answer=answer, files=files)
+
+
+def ranking_table(df: pd.DataFrame, settings) -> pd.DataFrame:
+    """The ranked table as people read it: candidate, feasibility, each objective as
+    ``estimate [low, high]``, the primary's difference to the best with its verdict."""
+    def fmt(v, lo, hi):
+        if v is None or not np.isfinite(v):
+            return "–"
+        if lo is None or hi is None or not (np.isfinite(lo) and np.isfinite(hi)):
+            return f"{v:.3g}"
+        return f"{v:.3g} [{lo:.3g}, {hi:.3g}]"
+
+    rows = []
+    for _, r in df.iterrows():
+        row = {"rank": int(r["rank"]), "candidate": r["candidate"],
+               "feasible": "yes" if r["feasible"] else "no"}
+        for key in OBJECTIVES:
+            row[key] = fmt(r.get(key), r.get(f"{key}_low"), r.get(f"{key}_high"))
+        row[f"{settings.primary} minus best"] = (
+            "(recommended)" if r["rank"] == 1 else fmt(r["diff_vs_best"], r["diff_vs_best_low"],
+                                                       r["diff_vs_best_high"]))
+        row["verdict"] = r.get("verdict_vs_best", "")
+        row["new antenna positions traced"] = int(r["n_sources_traced"])
+        row["compute [s]"] = f"{r['compute_s']:.0f}"
+        rows.append(row)
+    return pd.DataFrame(rows)
