@@ -354,8 +354,9 @@ def placement(
                + f"; ranked by {s.primary}")
 
     def progress(ev):
-        typer.echo(f"  [{ev.done}/{ev.total}] {ev.candidate}: {_duration(ev.elapsed_s)} compute, "
-                   f"{ev.n_sources_traced} antenna positions traced"
+        what = ("done before, nothing computed" if ev.n_stages_run == 0 and not ev.failed else
+                f"{_duration(ev.elapsed_s)}, {ev.n_sources_traced} antenna positions traced")
+        typer.echo(f"  [{ev.done}/{ev.total}] {ev.candidate}: {what}"
                    + (f", {ev.failed} replicate(s) failed" if ev.failed else "")
                    + (f"; about {_duration(ev.remaining_s)} left" if ev.done < ev.total else ""))
 

@@ -60,6 +60,8 @@ class ProgressEvent:
         Antenna positions its studies traced afresh (0: everything from the cache).
     failed : int
         Its replicates that failed.
+    n_stages_run : int
+        Study stages its replicates computed (0: everything was in their run directories).
     remaining_s : float or None
         Estimate of the time still to run (mean candidate time x candidates left).
     """
@@ -71,6 +73,7 @@ class ProgressEvent:
     n_sources_traced: int
     failed: int
     remaining_s: float | None
+    n_stages_run: int = 0
 
 
 @dataclass
@@ -175,8 +178,9 @@ class _Runner:
             per = (self.wall_s + time.monotonic() - t0) / (self.n_run + batch_done[0])
             eta = per * max(0, self.expected - len(self.done))
             if self.progress:
+                ran = int(sum(r.get("stages_ran") or 0 for r in rows))
                 self.progress(ProgressEvent(name, len(self.done), self.expected, elapsed, traced,
-                                            failed, eta))
+                                            failed, eta, ran))
 
         run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
                     client=self.client, on_done=on_done)

@@ -1,0 +1,97 @@
+"""A real placement study on the tiny corridor: paired replicates, trace reuse, the ranked
+answer with intervals, resumption that computes nothing, and a refused foreign directory."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.config import ConfigError, load_config
+from pipeline.placement import load_placement, run_placement
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _spec(tmp_path: Path, tilts: list[float]):
+    p = tmp_path / f"placement_{len(tilts)}.toml"
+    p.write_text(
+        f'base = "{ROOT / "configs" / "tiny.toml"}"\n'
+        "replicates = 2\n"
+        "[grid]\n"
+        f"tilt_deg = {tilts}\n"
+        "[study.tracing]\n"
+        f'cache_dir = "{tmp_path / "cache"}"\n'  # a cold cache of its own
+        "[study.downstream]\n"
+        "enabled = false\n")  # its objectives are tested with the replicates' tables
+    return load_placement(p)
+
+
+def test_placement_study(tmp_path):
+    out = tmp_path / "out"
+    first = run_placement(_spec(tmp_path, [0.0]), out, workers=2)
+    cold = first.summary.set_index("candidate").loc["tilt0"]
+    assert cold["n_sources_traced"] > 0  # a cold cache: the tours' antenna positions traced
+
+    events = []
+    res = run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=2, progress=events.append)
+    s = res.summary.set_index("candidate")
+    # an orientation-only candidate traces no new antenna position (the path cache is
+    # keyed by position; tilt turns the antenna about its phase centre)
+    assert s.loc["tilt25", "n_sources_traced"] == 0
+    assert s.loc["tilt25", "n_replicates"] == 2
+    ran = {e.candidate: e.n_stages_run for e in events}
+    assert ran["tilt0"] == 0 and ran["tilt25"] > 0  # tilt0 was done: nothing computed again
+
+    # replicates change the seed and nothing else; candidates share the replicate seeds
+    cfg = {(c, k): load_config(out / "candidates" / c / str(k) / "config.toml")
+           for c in ("tilt0", "tilt25") for k in (0, 1)}
+    assert cfg["tilt25", 0].seed != cfg["tilt25", 1].seed
+    assert dataclasses.replace(cfg["tilt25", 1], seed=cfg["tilt25", 0].seed) == cfg["tilt25", 0]
+    assert cfg["tilt0", 1].seed == cfg["tilt25", 1].seed
+    assert cfg["tilt0", 0].robot.antennas != cfg["tilt25", 0].robot.antennas
+
+    # every objective with an interval around its estimate (or none, said so)
+    for key in ("read_rate", "completeness", "surface_coverage", "rssi_rmse_db"):
+        for c in ("tilt0", "tilt25"):
+            v, lo, hi = s.loc[c, key], s.loc[c, f"{key}_low"], s.loc[c, f"{key}_high"]
+            assert np.isfinite(v)
+            assert lo <= v <= hi, (key, c, lo, v, hi)
+    answer = json.loads((out / "placement" / "answer.json").read_text())
+    assert answer["recommended"] in ("tilt0", "tilt25") and answer["runner_up"] in ("tilt0", "tilt25")
+    best = answer["recommended"]
+    other = answer["runner_up"]
+    # the ranking follows the estimates; the margin is the runner-up minus the best
+    sign = -1.0  # read_rate: higher is better
+    assert sign * s.loc[best, "read_rate"] <= sign * s.loc[other, "read_rate"]
+    assert answer["margin"]["estimate"] == pytest.approx(
+        s.loc[other, "read_rate"] - s.loc[best, "read_rate"], abs=1e-12)
+    assert answer["margin_exceeds_interval"] == (answer["margin"]["verdict"] == "worse")
+    report = (out / "placement" / "report.html").read_text()
+    assert f"Recommended: {best}" in report and "None" not in report
+    assert (out / "placement" / "figures" / "ranking.png").is_file()
+
+    # a rerun computes nothing: no stage record changes but the scene stage's, which
+    # always runs (it loads the scene and checks it against the record)
+    def records():
+        return {p: p.read_bytes() for p in out.glob("candidates/*/*/stages/*.json")
+                if p.name != "scene.json"}
+
+    before = records()
+    assert len(before) > 20
+    events.clear()
+    run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=2, progress=events.append)
+    assert records() == before
+    assert [e.n_stages_run for e in events] == [0, 0]
+    assert not np.isfinite(s.loc["tilt0", "tag_localisation_median_m"])  # downstream off: none
+
+    # a directory holding someone's files is not a placement directory
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="not a placement study"):
+        run_placement(_spec(tmp_path, [0.0]), foreign)
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]
