@@ -11,7 +11,7 @@ A sweep TOML names a base study config and the values of a few parameters::
     seed = 7
 
 Parameters (:data:`PARAMETERS`) are antenna mounting height, yaw, tilt and count,
-reader power, tag sensitivity and scene; any dotted study key (``training.epochs``)
+reader power, tag sensitivity, scene, seed and replicates; any dotted study key (``training.epochs``)
 is accepted too. Every point becomes a :class:`~pipeline.config.StudyConfig` run into
 ``OUT/runs/<index>_<slug>/``; all runs share the propagation cache, so points that
 only change antenna orientation, power or sensitivity trace nothing new where the
@@ -19,8 +19,11 @@ propagation package caches per antenna position.
 
 Runs go to local worker processes (``concurrent.futures``, spawn context) or, with
 ``scheduler``, to a Dask distributed cluster (``distributed.Client(address)``). The
-summary (one row per point: parameters, read rate, tag coverage, corridor coverage,
-model errors) is written as Parquet and CSV, with one plot per swept parameter.
+summary (one row per point: parameters, read rate, completeness per pass, coverage
+along the route at the tags, model errors; a replicated point: the replicates' mean
+and ``n_replicates``) is written as Parquet and CSV, with one plot per swept
+parameter, each saying what it averages over. For a ranked answer with intervals
+over replicates and tags, use ``rfidstudy placement`` (:mod:`pipeline.placement`).
 """
 
 from __future__ import annotations
@@ -72,6 +75,8 @@ PARAMETERS = {
     "tx_power_dbm": "reader.tx_power_dbm: conducted reader power [dBm]",
     "tag_sensitivity_dbm": "reader.tag_sensitivity_dbm: tag chip sensitivity [dBm]",
     "scene": "scene: bundled scene name or scene path",
+    "seed": "seed: the study's seed (a noise estimate: the same point on other seeds)",
+    "replicates": "replicates.n: replicates of each point, pooled with intervals (rfidstudy run -r)",
 }
 
 _SWEEP_KEYS = ("base", "mode", "parameters", "study")
@@ -109,6 +114,10 @@ def apply_parameter(cfg: StudyConfig, name: str, value) -> StudyConfig:
         return replace_path(cfg, "reader.tag_sensitivity_dbm", float(value))
     if name == "scene":
         return dataclasses.replace(cfg, scene=str(value))
+    if name in ("seed", "replicates"):
+        if isinstance(value, bool) or not isinstance(value, int) or value < (0 if name == "seed" else 1):
+            raise ConfigError(f"{name} = {value!r}: expected an integer >= {0 if name == 'seed' else 1}")
+        return replace_path(cfg, "seed" if name == "seed" else "replicates.n", int(value))
     if "." in name and "[" not in name:
         data = config_to_dict(cfg)
         cur = data
@@ -430,8 +439,8 @@ def _write_summary(df, out: Path, plan: SweepPlan) -> list[Path]:
 
 _PLOT_METRICS = (
     ("read_rate", "read rate (reads / attempts in range)"),
-    ("tag_coverage", "tags read at least once (fraction)"),
-    ("corridor_coverage", "corridor with P(detect) > 0.5 (fraction)"),
+    ("completeness", "tags read >= 3 times per pass (share)"),
+    ("surface_coverage", "route share with a closing link, at the tags"),
     ("ssm_rmse_db", "RSSI model RMSE [dB]"),
     ("tdm_rmse", "detection model RMSE"),
 )
@@ -463,7 +472,9 @@ def _plots(df, out: Path, params: list[str]) -> list[Path]:
                 ax.bar(range(len(g)), g.values)
                 ax.set_xticks(range(len(g)), [str(i) for i in g.index], rotation=30, fontsize=7)
             ax.set_xlabel(p)
-            ax.set_title(lab, fontsize=8)
+            others = [o for o in params if o != p and df[o].nunique() > 1]
+            # no silent averaging: the title names what each point averages over
+            ax.set_title(lab + (f"\n(mean over {', '.join(others)})" if others else ""), fontsize=8)
             ax.grid(alpha=0.3)
         fig.tight_layout()
         buf = io.BytesIO()

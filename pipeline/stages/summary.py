@@ -6,7 +6,7 @@ from pathlib import Path
 
 from pipeline.runstore import run_files
 
-__all__ = ["corridor_coverage", "run_summary"]
+__all__ = ["corridor_coverage", "inventory_summary", "run_summary"]
 
 
 def run_summary(run_dir: str | Path) -> dict:
@@ -22,6 +22,15 @@ def run_summary(run_dir: str | Path) -> dict:
     import pandas as pd
 
     run = Path(run_dir)
+    if (run / "replicates" / "index.json").is_file():  # a replicated study: their mean
+        reps = sorted((p for p in (run / "replicates").iterdir()
+                       if p.name.isdecimal() and (p / "metrics.json").is_file()),
+                      key=lambda p: int(p.name))
+        rows = pd.DataFrame([run_summary(p) for p in reps])
+        out = {k: float(rows[k].mean()) for k in rows.columns
+               if pd.api.types.is_numeric_dtype(rows[k])}
+        out["n_replicates"] = len(reps)
+        return out
     row: dict = {}
     reads = pd.read_parquet(run / "reads.parquet", columns=["tag_id", "read", "in_range"])
     scene_info = json.loads((run / "scene" / "scene.json").read_text())
@@ -36,10 +45,41 @@ def run_summary(run_dir: str | Path) -> dict:
     if mpath.exists():
         metrics = json.loads(mpath.read_text())
         row.update(_metric_columns(metrics))
-    cov = corridor_coverage(run)
-    if cov is not None:
-        row["corridor_coverage"] = cov
+    # counted at the tags, on point-to-point links: the former plane coverage (one field
+    # plane at one height) had an artefact with the antenna at the plane's height
+    row.update(inventory_summary(run))
     return row
+
+
+def inventory_summary(run_dir: str | Path, min_reads: int = 3) -> dict:
+    """``completeness`` (share of (tag, pass) read >= ``min_reads`` times) and
+    ``surface_coverage`` (route share along which each tag's link closes) of the run's
+    training tour (:mod:`pipeline.evaluation.inventory`); empty for a run directory
+    whose track predates ``pass_index``."""
+    import tomllib
+
+    import numpy as np
+    import pandas as pd
+
+    from pipeline.config import config_from_mapping
+    from pipeline.evaluation.inventory import inventory_statistic, tour_tag_table
+    from pipeline.runstore import inside
+
+    run = Path(run_dir)
+    with np.load(inside(run, "tour/train_track.npz")) as z:
+        if "pass_index" not in z.files:
+            return {}
+        t_s, passes = z["t_s"], z["pass_index"]
+    cfg = config_from_mapping(tomllib.loads(inside(run, "config.toml").read_text()),
+                              source=str(run / "config.toml"))
+    reads = pd.read_parquet(inside(run, "reads.parquet"),
+                            columns=["time_s", "cycle", "tag_id", "read", "in_range", "gain_db"])
+    tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "z_m"])
+    rows = tour_tag_table(reads, t_s, passes, tags, cfg.reader.link_budget(cfg.frequency_hz))
+    units, codes = np.unique(rows["unit"].to_numpy(), return_inverse=True)
+    w = np.ones(len(units))
+    return {k: float(inventory_statistic(k, rows, codes, len(units), min_reads=min_reads)(w))
+            for k in ("completeness", "surface_coverage")}
 
 
 def _find(d, *path):

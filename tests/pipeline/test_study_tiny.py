@@ -143,7 +143,8 @@ def test_run_summary_row(tiny):
     _, base, _ = tiny
     row = run_summary(base / "run")
     assert 0 < row["read_rate"] <= 1 and 0 < row["tag_coverage"] <= 1
-    assert 0 <= row["corridor_coverage"] <= 1
+    assert 0 <= row["completeness"] <= 1 and 0 < row["surface_coverage"] <= 1
+    assert "corridor_coverage" not in row  # the plane metric left the sweeps (its artefact)
     assert row["ssm_rmse_db"] > 0
 
 

@@ -40,7 +40,7 @@ def test_sweep_on_local_dask_cluster(tmp_path):
     assert list(df["tx_power_dbm"]) == [24.0, 27.15]
     # more power reads at least as many tags: the sweep carries the physics through
     assert df["tag_coverage"].iloc[1] >= df["tag_coverage"].iloc[0]
-    for col in ("read_rate", "tag_coverage", "corridor_coverage", "ssm_rmse_db"):
+    for col in ("read_rate", "tag_coverage", "surface_coverage", "completeness", "ssm_rmse_db"):
         assert df[col].notna().all(), col
     back = pd.read_parquet(tmp_path / "out" / "summary.parquet")
     assert list(back["run"]) == plan.names

@@ -83,3 +83,18 @@ def test_a_sweep_worker_caps_its_studys_forks(monkeypatch):
             monkeypatch.setenv(WORKERS_ENV, before)
         _cap_nested_workers(2)
         assert os.environ[WORKERS_ENV] == after, before
+
+
+def test_seed_and_replicates_are_ordinary_parameters():
+    plan = expand_sweep(StudyConfig(), {"antenna_height_m": [0.5, 0.9], "seed": [1, 2, 3]})
+    assert len(plan.configs) == 6
+    assert sorted({c.seed for c in plan.configs}) == [1, 2, 3]
+    # a seed changes the seed and nothing else
+    a, b = plan.configs[0], plan.configs[1]
+    assert a.seed != b.seed and a.robot == b.robot and a.tracing == b.tracing
+    rep = expand_sweep(StudyConfig(), {"replicates": [3]})
+    assert rep.configs[0].replicates.n == 3
+    with pytest.raises(ConfigError, match="seed"):
+        expand_sweep(StudyConfig(), {"seed": [1.5]})
+    with pytest.raises(ConfigError, match="replicates"):
+        expand_sweep(StudyConfig(), {"replicates": [0]})
