@@ -84,6 +84,10 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> l
     written: list[Path] = []
     for name, (paths, missing) in zip(names, results, strict=True):
         if missing is not None:
-            log.warning("figure %s skipped: %s", name, missing)
+            # a stage switched off in the config wrote nothing: its figures are skipped
+            # quietly; a missing file of a stage that ran is worth a warning
+            off = name == "downstream" and not (run_dir / "downstream").is_dir()
+            log.log(logging.INFO if off else logging.WARNING, "figure %s skipped: %s", name,
+                    missing)
         written.extend(paths)
     return written
