@@ -369,9 +369,10 @@ def placement(
     typer.echo(table[cols].head(10).to_string(index=False, max_colwidth=34))
     a = res.answer
     if a.get("recommended"):
-        lead = ("its lead over the runner-up exceeds the 95 % interval"
-                if a.get("margin_exceeds_interval") else
-                "not distinguishable from the runner-up at 95 %")
+        verdict = (a.get("margin") or {}).get("verdict")
+        lead = ("its lead over the runner-up exceeds the 95 % interval" if verdict == "worse" else
+                "the runner-up is ahead on the units both share: run more replicates"
+                if verdict == "better" else "not distinguishable from the runner-up at 95 %")
         typer.echo(f"recommended: {a['recommended']} ({lead})")
     typer.echo(f"report: {res.out_dir / 'placement' / 'report.html'}")
 

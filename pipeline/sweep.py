@@ -297,7 +297,11 @@ def run_point(config: dict, run_dir: str, command: str = "sweep") -> dict:
         return {"status": "failed", "error": str(exc), "elapsed_s": float("nan")}
     row = {"status": "complete", "error": "", "elapsed_s": res.elapsed_s,
            "stages_ran": len(res.ran)}
-    row.update(run_summary(run_dir))
+    try:
+        row.update(run_summary(run_dir))
+    except Exception as exc:  # a summary that cannot be read fails its point, not the sweep
+        log.error("sweep point %s: its summary failed: %s", run_dir, exc)
+        row.update(status="failed", error=f"summary: {exc}")
     return row
 
 

@@ -10,10 +10,11 @@ walls at their own heights), not on a free-space plane. From a tour's read log
 - ``n_in_range``: those within the reader's range (the attempts the read rate counts);
 - ``n_reads``: successful reads;
 - ``n_cycles``: read cycles during the pass;
-- ``n_cycles_closed``: cycles in which the tag's local-mean link closes for at least one
-  antenna (:func:`link_closed`: tag powered and backscatter above the reader's
-  sensitivity, from the ray-traced gain, no fading or reader noise): the share of the
-  route along which the tag *can* be read.
+- ``n_cycles_closed``: cycles in which the tag's link closes for at least one antenna
+  (:func:`link_closed`: tag powered and backscatter above the reader's sensitivity, for
+  the nominal tag, from the ray-traced gain on the attempt's hopped channel, which holds
+  the multipath but no reader noise or tag-to-tag spread): the share of the tour's
+  *time* (stops and slow stretches weigh more) along which the tag can be read.
 
 Turn-arounds (``pass_index`` -1) belong to no pass and are left out.
 

@@ -29,7 +29,8 @@ __all__ = [
 
 # short labels of the mount fields in candidate names
 _LABEL = {"x_m": "x", "y_m": "y", "z_m": "z", "yaw_deg": "yaw", "tilt_deg": "tilt",
-          "z_right_m": "zR", "tilt_right_deg": "tiltR", "yaw_right_deg": "yawR", "count": "n"}
+          "z_right_m": "zR", "tilt_right_deg": "tiltR", "yaw_right_deg": "yawR", "y_right_m": "yR",
+          "count": "n"}
 
 
 @dataclass(frozen=True)
@@ -89,7 +90,8 @@ def mount_antennas(mount, values: dict | None = None) -> tuple[AntennaMountConfi
         return (left,)
     mirror = m.symmetric
     right = AntennaMountConfig(
-        name="right", x_m=m.x_m, y_m=-m.y_m if mirror else m.y_m,
+        name="right", x_m=m.x_m,
+        y_m=(-m.y_m if mirror else m.y_m) if m.y_right_m is None else m.y_right_m,
         z_m=m.z_m if m.z_right_m is None else m.z_right_m,
         yaw_deg=(-m.yaw_deg if mirror else m.yaw_deg) if m.yaw_right_deg is None else m.yaw_right_deg,
         tilt_deg=m.tilt_deg if m.tilt_right_deg is None else m.tilt_right_deg)
@@ -115,9 +117,13 @@ def candidates_of(spec) -> list[Candidate]:
         keys = list(grid)
         for combo in itertools.product(*(grid[k] for k in keys)):
             out.append(candidate_from_values(spec, dict(zip(keys, combo, strict=True))))
-    for p in s.preset:
-        out.append(Candidate(re.sub(r"[^A-Za-z0-9_.+-]", "-", p.name), {}, tuple(p.antennas),
-                             "preset"))
+    for i, p in enumerate(s.preset):
+        name = re.sub(r"[^A-Za-z0-9_.+-]", "-", p.name)
+        # a preset's name is a folder name; "opt_" names are the optimiser's trials
+        if name in ("", ".", "..") or name.startswith(("opt_", ".")):
+            raise ConfigError(f"{spec.source}: preset[{i}].name = {p.name!r}: give a name that "
+                              "does not start with '.' or 'opt_' (the optimiser's trials)")
+        out.append(Candidate(name, {}, tuple(p.antennas), "preset"))
     names = [c.name for c in out]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:

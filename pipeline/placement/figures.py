@@ -58,7 +58,9 @@ def draw_figures(spec, out: Path, df: pd.DataFrame, datas: dict, answer: dict) -
     import matplotlib.pyplot as plt
 
     s = spec.settings
-    fdir = out / "placement" / "figures"
+    from pipeline.runstore import inside
+
+    fdir = inside(out, "placement/figures")  # a planted link is refused, never followed
     fdir.mkdir(parents=True, exist_ok=True)
     files = []
     prim = s.primary
@@ -158,7 +160,9 @@ def draw_figures(spec, out: Path, df: pd.DataFrame, datas: dict, answer: dict) -
 
     for name in (answer.get("recommended"), answer.get("runner_up")):
         if name:
-            p = _read_map(out / "candidates" / name / "0", fdir / f"readmap_{name}.png", name)
+            from .runner import candidate_dir
+
+            p = _read_map(candidate_dir(out, name, 0), fdir / f"readmap_{name}.png", name)
             if p:
                 files.append(p)
     return files

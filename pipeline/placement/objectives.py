@@ -22,10 +22,14 @@ robot_median_m               median robot position error over all steps   replic
                              of the RFID-only filter runs (ANFIS) [m]     run
 ===========================  ===========================================  ====================
 
-Candidates run the same replicate seeds, so replicate k of every candidate has the
-same tour, held-out tags and filter-run draws: two candidates are compared on the
-units both have (:func:`compare_objective`), the difference's interval from the
-same resampled units.
+Candidates run the same replicate seeds, so replicate k of every candidate draws the
+same held-out tags, tour randomness and filter-run draws (the tour itself is the same
+unless a taller mast changes the drivable band, e.g. under shelves): two candidates
+are compared on the units both have (:func:`compare_objective`), the difference's
+interval from the same resampled units. The inventory objectives count the training
+tags (the same physical tags in every replicate); the (replicate, tag) units are
+resampled as independent, so their intervals leave out the tag-to-tag variation of a
+building's other tags and are narrower than a new building's would be.
 
 ``surface_coverage`` replaces the sweeps' former "corridor coverage", the covered
 share of one horizontal field plane at ``evaluation.field_height_m`` from one antenna
@@ -36,7 +40,6 @@ Coverage is counted here on point-to-point traced links at the tags themselves.
 
 from __future__ import annotations
 
-import json
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +53,7 @@ from pipeline.evaluation.intervals import (
     Interval,
     paired_difference,
     unit_interval,
+    verdict,
 )
 from pipeline.evaluation.inventory import inventory_statistic, tour_tag_table
 from pipeline.evaluation.units import UnitTables
@@ -239,6 +243,10 @@ def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int
     ra = _rows(a, key).assign(unit=lambda d: d["unit"].astype(str))
     rb = _rows(b, key).assign(unit=lambda d: d["unit"].astype(str))
     common = np.intersect1d(ra["unit"].unique(), rb["unit"].unique())
+    if len(common) == 0:  # the objective's table is absent, or no unit in common
+        none = Interval(float("nan"), None, None, 0, obj.unit, "none",
+                        note="no units both candidates were scored on")
+        return Comparison(none, verdict(none, obj.lower_is_better), obj.lower_is_better)
     fa = _statistic(key, ra, common, min_reads)
     fb = _statistic(key, rb, common, min_reads)
     return paired_difference(fa, fb, len(common), _rng(seed, key, *names),
@@ -248,13 +256,13 @@ def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int
 def traced_counts(run_dir: Path) -> dict:
     """Antenna positions traced afresh and link pairs used by one study (from its stage
     records; absent numbers are 0)."""
-    from pipeline.runstore import inside
+    from pipeline.runstore import inside, read_run_json
 
     out = {"n_sources_traced": 0, "n_links": 0}
     for stage, keys in (("reads", ("train", "eval")), ("truth_traces", (None,))):
         try:
-            info = json.loads(inside(Path(run_dir), f"stages/{stage}.json").read_text()).get("info") or {}
-        except (OSError, ValueError):
+            info = read_run_json(inside(Path(run_dir), f"stages/{stage}.json")).get("info") or {}
+        except (OSError, ValueError, AttributeError):
             continue
         for k in keys:
             sec = info if k is None else (info.get(k) or {})

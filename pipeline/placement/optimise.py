@@ -76,11 +76,12 @@ def search(ranges: dict, evaluate: Callable[[dict], float], *, n_trials: int,
 def optimise(spec, runner, out) -> list:
     """Run the placement file's ``[optimise]`` trials with ``runner`` (each trial a
     candidate with every replicate); return the trials' candidates in trial order."""
+    from pipeline.runstore import inside, regular_file
     from pipeline.stages.common import link_budget
 
     from .candidates import Candidate
     from .objectives import OBJECTIVES, load_candidate_data, objective_estimate
-    from .runner import candidate_from_trial
+    from .runner import candidate_dir, candidate_from_trial
     from .spec import MOUNT_FIELDS
 
     s = spec.settings
@@ -94,8 +95,8 @@ def optimise(spec, runner, out) -> list:
         cand = candidate_from_trial(spec, values)
         trials.append(cand)
         runner.run([cand])
-        dirs = {k: out / "candidates" / cand.name / str(k) for k in range(s.replicates)
-                if (out / "candidates" / cand.name / str(k) / "metrics.json").is_file()}
+        dirs = {k: candidate_dir(out, cand.name, k) for k in range(s.replicates)}
+        dirs = {k: d for k, d in dirs.items() if regular_file(inside(d, "metrics.json"))}
         if not dirs:
             return float("nan")
         data = load_candidate_data(dirs, budget)

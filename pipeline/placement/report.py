@@ -13,7 +13,7 @@ from pipeline.runstore import atomic_write_bytes
 from .objectives import OBJECTIVES
 from .summary import ranking_table
 
-__all__ = ["write_report"]
+__all__ = ["margin_sentence", "write_report"]
 
 _TEMPLATE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>Antenna placement: {{ title }}</title>
@@ -68,6 +68,28 @@ def _caption(name: str) -> str:
     return _CAPTIONS.get(name, name)
 
 
+def margin_sentence(answer: dict, lower_is_better: bool) -> str:
+    """The recommended candidate against the runner-up, from ``answer.json``'s margin
+    (runner-up minus recommended on the same units), as a sentence with its verdict."""
+    m, ru = answer.get("margin"), answer.get("runner_up")
+    if not m or not ru or m.get("estimate") is None:
+        return ""
+    sgn = 1.0 if lower_is_better else -1.0  # the lead, positive when the recommended is ahead
+    lead = sgn * m["estimate"]
+    iv = ""
+    if m.get("low") is not None and m.get("high") is not None:
+        lo, hi = sorted((sgn * m["low"], sgn * m["high"]))
+        iv = f" [{lo:.3g}, {hi:.3g}]"
+    if m.get("verdict") == "worse":  # the runner-up is worse: a real lead
+        return (f"It leads the runner-up {ru} by {lead:.3g}{iv} (95 % interval): a margin larger "
+                "than its interval.")
+    if m.get("verdict") == "better":  # the runner-up wins on the units both share
+        return (f"On the units both were scored on, the runner-up {ru} is ahead by {-lead:.3g}"
+                f"{iv}: the recommendation rests on units only it has; run more replicates.")
+    return (f"Its lead over the runner-up {ru}, {lead:.3g}{iv}, is <b>not distinguishable at "
+            "95 %</b>: choose between them on cost or mounting, or run more replicates.")
+
+
 def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
     """Write ``out/placement/report.html`` (figures embedded) and return its path."""
     from jinja2 import Environment, select_autoescape
@@ -81,16 +103,7 @@ def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
         iv = (f" [{lo:.3g}, {hi:.3g}]" if lo is not None and np.isfinite(lo) and np.isfinite(hi)
               else "")
         sentence = f"{OBJECTIVES[s.primary].label}: {r[s.primary]:.3g}{iv}."
-        m = answer.get("margin")
-        if m and answer.get("runner_up"):
-            diff = -m["estimate"] if m.get("estimate") is not None else float("nan")
-            if answer.get("margin_exceeds_interval"):
-                sentence += (f" It beats the runner-up {answer['runner_up']} by {diff:.3g}, a margin "
-                             f"larger than its 95 % interval [{-m['high']:.3g}, {-m['low']:.3g}].")
-            else:
-                sentence += (f" The runner-up {answer['runner_up']} is {diff:.3g} behind, which is "
-                             "<b>not distinguishable at 95 %</b>: choose between them on cost or "
-                             "mounting, or run more replicates.")
+        sentence += " " + margin_sentence(answer, OBJECTIVES[s.primary].lower_is_better)
     cons = ", ".join(f"{c['objective']} {'>= ' + format(c['min'], 'g') if c['min'] is not None else ''}"
                      f"{' and ' if c['min'] is not None and c['max'] is not None else ''}"
                      f"{'<= ' + format(c['max'], 'g') if c['max'] is not None else ''}"

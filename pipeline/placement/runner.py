@@ -37,7 +37,7 @@ from pipeline.runstore import atomic_write_json
 from .candidates import Candidate, candidate_from_values, candidates_of, check_candidate
 from .spec import MOUNT_FIELDS, PlacementSpec
 
-__all__ = ["PlacementResult", "ProgressEvent", "run_placement"]
+__all__ = ["PlacementResult", "ProgressEvent", "candidate_dir", "run_placement"]
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +113,15 @@ def _prepare_dir(out: Path, spec: PlacementSpec) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
+def candidate_dir(out: Path, name: str, k: int) -> Path:
+    """``out/candidates/<name>/<k>``, checked to stay inside ``out`` without passing a
+    symbolic link (:func:`pipeline.runstore.inside`): a link planted in a placement
+    directory never leads a study's writes, or the summary's reads, elsewhere."""
+    from pipeline.runstore import inside
+
+    return inside(out, f"candidates/{name}/{int(k)}")
+
+
 def _replicate_config(spec: PlacementSpec, cand: Candidate, k: int, cache_dir: str):
     from pipeline.replicates import replicate_seed
 
@@ -150,7 +159,7 @@ class _Runner:
         args, owner = [], []
         for c in todo:
             for k in range(n):
-                run_dir = self.out / "candidates" / c.name / str(k)
+                run_dir = candidate_dir(self.out, c.name, k)
                 args.append((config_to_dict(_replicate_config(self.spec, c, k, self.cache)),
                              str(run_dir)))
                 owner.append(c.name)
@@ -167,7 +176,7 @@ class _Runner:
             rows = list(b.values())
             elapsed = float(sum(r.get("elapsed_s") or 0.0 for r in rows
                                 if r.get("status") == "complete"))
-            traced = sum(traced_counts(self.out / "candidates" / name / str(k))["n_sources_traced"]
+            traced = sum(traced_counts(candidate_dir(self.out, name, k))["n_sources_traced"]
                          for k in range(n))
             failed = sum(r.get("status") != "complete" for r in rows)
             self.done[name] = {"elapsed_s": elapsed, "failed": failed,
@@ -242,7 +251,9 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
             from .optimise import optimise
 
             trials = optimise(spec, runner, out)
-            cands = cands + [t for t in trials if t.name not in {c.name for c in cands}]
+            for t in trials:  # a trial rounded onto an earlier one is that candidate
+                if t.name not in {c.name for c in cands}:
+                    cands.append(t)
             _write_marker(out, spec, cands)
         return write_outputs(spec, out, cands, runner.done)
     finally:

@@ -89,7 +89,10 @@ OBJECTIVE_KEYS = ("read_rate", "completeness", "surface_coverage",
 
 #: Mount fields a grid or a range may vary (``*_right_*``: the right antenna's own value).
 MOUNT_FIELDS = ("x_m", "y_m", "z_m", "yaw_deg", "tilt_deg", "z_right_m", "tilt_right_deg",
-                "yaw_right_deg", "count")
+                "yaw_right_deg", "y_right_m", "count")
+
+#: Objectives only the downstream stage computes (refused with [downstream] off).
+DOWNSTREAM_OBJECTIVES = ("tag_localisation_median_m", "robot_median_m")
 
 
 @section
@@ -107,6 +110,7 @@ class MountConfig:
     z_right_m: float | None = option(None, "The right antenna's own height (None: z_m) [m].")
     tilt_right_deg: float | None = option(None, "The right antenna's own tilt (None: tilt_deg) [deg].")
     yaw_right_deg: float | None = option(None, "The right antenna's own yaw (None: -yaw_deg) [deg].")
+    y_right_m: float | None = option(None, "The right antenna's own lateral offset (None: -y_m) [m].")
 
 
 @section
@@ -121,6 +125,7 @@ class GridConfig:
     z_right_m: tuple[float, ...] = option((), "Heights of the right antenna [m].")
     tilt_right_deg: tuple[float, ...] = option((), "Tilts of the right antenna [deg].")
     yaw_right_deg: tuple[float, ...] = option((), "Yaws of the right antenna [deg].")
+    y_right_m: tuple[float, ...] = option((), "Lateral offsets of the right antenna [m].")
     count: tuple[int, ...] = option((), "Antenna counts (1 or 2).")
 
 
@@ -136,6 +141,7 @@ class RangesConfig:
     z_right_m: tuple[float, ...] = option((), "Right antenna height range [m].")
     tilt_right_deg: tuple[float, ...] = option((), "Right antenna tilt range [deg].")
     yaw_right_deg: tuple[float, ...] = option((), "Right antenna yaw range [deg].")
+    y_right_m: tuple[float, ...] = option((), "Right antenna lateral offset range [m].")
 
 
 @section
@@ -290,6 +296,13 @@ def check_placement(spec: PlacementSpec) -> None:
     for key, name in [("primary", s.primary), *((f"pareto[{i}]", p) for i, p in enumerate(s.pareto))]:
         if name not in OBJECTIVE_KEYS:
             raise _fail(src, f"{key} = {name!r}: unknown objective; known: {', '.join(OBJECTIVE_KEYS)}")
+    if not spec.base.downstream.enabled:  # these objectives would be NaN for every candidate
+        used = [("primary", s.primary), *((f"pareto[{i}]", p) for i, p in enumerate(s.pareto)),
+                *((f"constraint[{i}].objective", c.objective) for i, c in enumerate(s.constraint))]
+        for key, name in used:
+            if name in DOWNSTREAM_OBJECTIVES:
+                raise _fail(src, f"{key} = {name!r} needs the downstream stage, which the study "
+                                 "switches off (downstream.enabled = false)")
     if len(s.pareto) != 2 or s.pareto[0] == s.pareto[1]:
         raise _fail(src, f"pareto = {list(s.pareto)}: name two different objectives")
     if s.min_reads < 1:

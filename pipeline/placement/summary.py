@@ -24,7 +24,6 @@ verdict), and the Pareto front of the two ``pareto`` objectives.
 from __future__ import annotations
 
 import io
-import json
 import math
 from pathlib import Path
 
@@ -46,22 +45,26 @@ __all__ = ["pareto_front", "rank_candidates", "summarise", "write_outputs"]
 
 
 def _complete_dirs(out: Path, name: str, n: int) -> dict:
-    from pipeline.runstore import regular_file
+    from pipeline.runstore import inside, regular_file
+
+    from .runner import candidate_dir
 
     dirs = {}
     for k in range(n):
-        d = out / "candidates" / name / str(k)
-        if regular_file(d / "metrics.json"):
+        d = candidate_dir(out, name, k)
+        if regular_file(inside(d, "metrics.json")):
             dirs[k] = d
     return dirs
 
 
 def _compute_s(run_dir: Path) -> float:
+    from pipeline.runstore import read_run_json, run_files
+
     total = 0.0
-    for p in sorted((run_dir / "stages").glob("*.json")):
+    for p in run_files(run_dir, "stages", "*.json"):  # regular files only, never a link
         try:
-            total += float(json.loads(p.read_text()).get("elapsed_s") or 0.0)
-        except (OSError, ValueError):
+            total += float(read_run_json(p).get("elapsed_s") or 0.0)
+        except (OSError, ValueError, AttributeError, TypeError):
             continue
     return total
 
@@ -105,9 +108,12 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
                 iv = objective_interval(data, key, seed=seed, candidate=c.name,
                                         min_reads=s.min_reads)
                 row[key], row[f"{key}_low"], row[f"{key}_high"] = iv.estimate, iv.low, iv.high
-            for band in _bands(s.height_bands_m):
+            bands = _bands(s.height_bands_m)
+            for j, band in enumerate(bands):
+                # the last band holds its upper edge too (a tag at the top edge counts)
+                sel = (band[0], float(np.nextafter(band[1], np.inf))) if j == len(bands) - 1 else band
                 iv = objective_interval(data, "completeness", seed=seed, candidate=c.name,
-                                        min_reads=s.min_reads, band=band)
+                                        min_reads=s.min_reads, band=sel)
                 bk = band_key(band)
                 row[bk], row[f"{bk}_low"], row[f"{bk}_high"] = iv.estimate, iv.low, iv.high
         rows.append(row)
@@ -193,9 +199,7 @@ def write_outputs(spec, out: Path, cands: list, done: dict):
                 d.estimate, np.nan if d.low is None else d.low, np.nan if d.high is None else d.high]
             df.loc[i, "verdict_vs_best"] = cmp_.verdict
             comparisons[name] = cmp_.to_dict()
-    runner_up = None
-    if best is not None and len(df) > 1 and df.iloc[1]["candidate"] in datas:
-        runner_up = df.iloc[1]["candidate"]
+    runner_up = next((n for n in df["candidate"] if n != best and n in comparisons), None)
     answer = {
         "primary": s.primary,
         "primary_label": OBJECTIVES[s.primary].label,
@@ -205,14 +209,16 @@ def write_outputs(spec, out: Path, cands: list, done: dict):
         "runner_up": runner_up,
         "margin": None if runner_up is None else comparisons.get(runner_up),
         "margin_exceeds_interval": (runner_up is not None
-                                    and comparisons[runner_up]["verdict"] == "worse"),
+                                    and comparisons[runner_up].get("verdict") == "worse"),
         "pareto_objectives": list(s.pareto),
         "pareto_front": pareto_front(df, *s.pareto),
         "replicates": s.replicates,
         "n_candidates": int(len(df)),
         "comparisons_vs_recommended": comparisons,
     }
-    pdir = out / "placement"
+    from pipeline.runstore import inside
+
+    pdir = inside(out, "placement")
     pdir.mkdir(exist_ok=True)
     buf = io.BytesIO()
     df.to_parquet(buf, index=False)

@@ -54,7 +54,13 @@ def test_asymmetric_and_single_antenna_mounts():
     ("primary = 'speed'\n[grid]\nz_m = [1.0]\n", "primary"),
     ("[grid]\nz_m = [3.5]\n", "envelope.z_m"),  # outside the mounting envelope
     ("[optimise]\nn_trials = 4\n[optimise.ranges]\nz_m = [0.1, 1.5]\n[mount]\nx_m = 0.0\ny_m = 0.1\n",
-     "body"),  # a search box reaching into the chassis
+     "body"),  # a search box reaching into the chassis (a corner is inside)
+    ("[optimise]\nn_trials = 4\n[optimise.ranges]\nx_m = [-0.44, 0.44]\n[mount]\nz_m = 0.2\n"
+     "y_m = 0.1\n", "into the robot's body"),  # every corner outside, the box across it
+    ("[grid]\nz_m = [1.0]\n[[preset]]\nname = 'opt_mine'\n[[preset.antennas]]\nname = 'a'\n",
+     "preset[0].name"),  # the optimiser's names are its own
+    ("primary = 'robot_median_m'\n[grid]\nz_m = [1.0]\n[study.downstream]\nenabled = false\n",
+     "downstream"),  # an objective the study does not compute
     ("", "no candidates"),
 ])
 def test_bad_placement_files_name_the_key(tmp_path, text, names):
@@ -85,3 +91,19 @@ def test_optimiser_finds_the_known_best_of_a_noisy_objective():
         late = [t[0] for t in trials[20:]]
         near = sum(abs(x["z_m"] - 0.9) < 0.3 and abs(x["tilt_deg"] + 12) < 15 for x in late)
         assert near >= 10, (sampler, near)
+
+
+def test_report_states_the_lead_in_the_objectives_own_direction():
+    from pipeline.placement.report import margin_sentence
+
+    # tag localisation (lower is better): recommended 0.4 m, runner-up 0.6 m; the margin
+    # is the runner-up minus the recommended, +0.2 m, with an interval excluding 0
+    answer = {"runner_up": "b", "margin": {"estimate": 0.2, "low": 0.1, "high": 0.3,
+                                           "verdict": "worse"}}
+    text = margin_sentence(answer, lower_is_better=True)
+    assert "leads the runner-up b by 0.2 [0.1, 0.3]" in text
+    # read rate (higher is better): recommended 0.5, runner-up 0.45 -> margin -0.05
+    answer = {"runner_up": "b", "margin": {"estimate": -0.05, "low": -0.08, "high": 0.01,
+                                           "verdict": "not distinguishable at 95 %"}}
+    text = margin_sentence(answer, lower_is_better=False)
+    assert "0.05 [-0.01, 0.08]" in text and "not distinguishable" in text
