@@ -22,6 +22,7 @@ from ._common import (
     Attempts,
     CompetitorModel,
     attempts_from_reads,
+    group_folds,
     read_model_file,
 )
 from .ablations import ABLATIONS, fit_ablation
@@ -39,6 +40,7 @@ __all__ = [
     "MODEL_CLASSES",
     "VORST2008",
     "Attempts",
+    "group_folds",
     "CompetitorModel",
     "Joho2009Model",
     "Liu2006Model",
