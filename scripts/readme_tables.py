@@ -28,7 +28,7 @@ NAMES = {
     "joho2009": "Joho et al. 2009 (`joho2009`)",
     "log_distance": "log-distance + pattern (`log_distance`)",
     "grid_count": "Hähnel et al. 2004 grid count (`grid_count`)",
-    "liu2006": "Liu et al. 2006 (`liu2006`)",
+    "liu2006": "sector read region, project's own (`liu2006`)",
     "vorst2008": "Vorst & Zell 2008 (`vorst2008`)",
     "phase": "reader phase alone (`phase`)",
     "phase_anfis": "reader phase x ANFIS (`phase_anfis`)",

@@ -30,11 +30,22 @@ TRcal = DR / BLF with DR = 64/3 (1.1 RTcal <= TRcal <= 3 RTcal is checked); deli
 12.5 us; a Query carries the preamble (delimiter, data-0, RTcal, TRcal) and 22 bits,
 QueryRep the frame-sync (delimiter, data-0, RTcal) and 4 bits, QueryAdjust 9, ACK 18.
 A tag reply takes ``M`` subcarrier cycles per bit (FM0: M = 1) with a preamble of 6 bits
-(FM0) or 10 symbols (Miller, TRext = 0) and a trailing dummy 1. Link turnarounds:
-T1 = max(RTcal, 10 Tpri) (nominal), T2 = 10 Tpri (the spec allows 3-20 Tpri), and an
-empty slot is declared T3 = 10 Tpri after T1. The defaults (Tari 25 us, BLF 250 kHz,
-Miller 4: Impinj's dense-reader mode for ETSI) give empty / collided / single slots of
-0.33 / 0.76 / 3.7 ms, about 200 reads/s for a handful of tags.
+(FM0) or 10 symbols (Miller, TRext = 0) and a trailing dummy 1. Link turnarounds
+(6.3.1.6 "Link timing", Table 6.16 "Link timing parameters"):
+
+* T1, reader command to tag reply: nominal ``MAX(RTcal, 10 Tpri)`` (the table's limits
+  are that times ``1 -+ |FT|`` -+ 2 us), used as is;
+* T2, tag reply to the next reader command: 3.0-20.0 Tpri; 10 Tpri here;
+* T3, the time a reader waits after T1 before it issues another command when no reply
+  came: at least 0.0 Tpri; 10 Tpri here (the reader must let a late reply's preamble
+  start before it declares the slot empty);
+* T4, the minimum time between two reader commands: at least 2.0 RTcal.
+
+So an empty slot lasts ``QueryRep + MAX(T1 + T3, T4)``: with the defaults T1 + T3 =
+102.5 us falls short of T4 = 125 us, and T4 sets it. Collided and single slots end with
+a tag reply plus T2, well beyond T4. The defaults (Tari 25 us, BLF 250 kHz, Miller 4:
+Impinj's dense-reader mode for ETSI) give empty / collided / single slots of 0.35 /
+0.76 / 3.7 ms, about 200 reads/s for a handful of tags.
 """
 
 from __future__ import annotations
@@ -130,6 +141,8 @@ class Gen2Timing:
         Extra time when the slot is opened by ``Query`` instead of ``QueryRep``.
     adjust_extra_s : float
         Extra time when it is opened by ``QueryAdjust``.
+    t1_s, t2_s, t3_s, t4_s : float
+        The link turnarounds used (Gen2 Table 6.16, module doc).
     """
 
     empty_s: float
@@ -137,10 +150,15 @@ class Gen2Timing:
     single_s: float
     query_extra_s: float
     adjust_extra_s: float
+    t1_s: float = 0.0
+    t2_s: float = 0.0
+    t3_s: float = 0.0
+    t4_s: float = 0.0
 
 
 def link_timing(cfg: Gen2Config) -> Gen2Timing:
-    """Slot durations of a Gen2 link (Gen2 6.3.1.2-6.3.1.6, assumptions in the module doc)."""
+    """Slot durations of a Gen2 link (Gen2 v2.0.1 6.3.1.2-6.3.1.6 and Table 6.16;
+    assumptions in the module doc)."""
     tari = cfg.tari_s
     bit_r = 1.25 * tari
     rtcal = 2.5 * tari
@@ -148,9 +166,10 @@ def link_timing(cfg: Gen2Config) -> Gen2Timing:
     tpri = 1.0 / cfg.blf_hz
     frame_sync = _DELIMITER_S + tari + rtcal
     preamble = frame_sync + trcal
-    t1 = max(rtcal, 10.0 * tpri)
-    t2 = 10.0 * tpri
-    t3 = 10.0 * tpri
+    t1 = max(rtcal, 10.0 * tpri)  # Table 6.16: nominal T1
+    t2 = 10.0 * tpri  # Table 6.16: 3.0-20.0 Tpri
+    t3 = 10.0 * tpri  # Table 6.16: >= 0.0 Tpri
+    t4 = 2.0 * rtcal  # Table 6.16: >= 2.0 RTcal between reader commands
     tag_pre = 6 if cfg.miller_m == 1 else 10
 
     def reply(bits):
@@ -162,9 +181,10 @@ def link_timing(cfg: Gen2Config) -> Gen2Timing:
     ack = frame_sync + _BITS["ack"] * bit_r
     rn16 = reply(_BITS["rn16"])
     epc = reply(_BITS["epc"])
-    return Gen2Timing(empty_s=rep + t1 + t3, collided_s=rep + t1 + rn16 + t2,
+    return Gen2Timing(empty_s=rep + max(t1 + t3, t4), collided_s=rep + t1 + rn16 + t2,
                       single_s=rep + t1 + rn16 + t2 + ack + t1 + epc + t2,
-                      query_extra_s=query - rep, adjust_extra_s=adjust - rep)
+                      query_extra_s=query - rep, adjust_extra_s=adjust - rep,
+                      t1_s=t1, t2_s=t2, t3_s=t3, t4_s=t4)
 
 
 @dataclass

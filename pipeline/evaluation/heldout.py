@@ -1,4 +1,4 @@
-"""Held-out scores: every model and the floor on data no model saw, and the error budget.
+"""Held-out scores: every model and the oracle bound on data no model saw, and the error budget.
 
 The evaluation tour reads a tag layout the training tour never read (``scene/tags.parquet``
 column ``split``), on its own MCL run in the same map. Every number here is computed on
@@ -12,12 +12,16 @@ Detection (per model that predicts fT)
     :func:`~.comparison.detection_vs_truth`: fT at the cell centres against the held-out
     truth's detection probability per (d, alpha) cell (MAE), and the Brier score of
     ``fT(d_true, alpha_true)`` on the held-out read outcomes.
-Floor (fitted on TRAINING data only)
-    The best any (d, alpha) cell model can do at the grid's resolution, learned from the
-    training tour: each held-out link predicted by the mean noise-free RSSI of its cell
-    in the training truth (:func:`~.comparison.rssi_cell_mean_floor` with the training
-    :class:`~.truth.TruthGrid`), and each held-out attempt's read probability by the
-    training truth's cell ``p_detect``.
+Bound (an oracle on the held-out data itself, not a model)
+    The held-out truth's own (d, alpha) cell means on its own links
+    (:func:`~.bound.cell_mean_bound`, cells of the truth grid holding at least
+    ``min_attempts`` closing links): no function constant on those cells has a lower RSSI
+    RMSE on those links, and every RSSI model is also scored on exactly them
+    (``rssi_dbm_bound_links``) with its excess split into a between-cell term (>= 0) and
+    a signed within-cell term (``bound_excess``, :func:`~.bound.excess_over_bound`); the
+    bound at other cell sizes is in ``by_cell_size``. For detection, the held-out cell
+    frequencies' own Brier score (no function constant on the cells has a lower one on
+    those attempts).
 
 The error budget (:func:`error_budget`) splits the learned model's held-out RSSI error.
 """
@@ -27,61 +31,47 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .comparison import closing_links, detection_vs_truth, rssi_cell_mean_floor, rssi_vs_truth
+from .bound import bound_by_cell_size, cell_mean_bound, excess_over_bound
+from .comparison import detection_vs_truth, rssi_vs_truth
 from .metrics import brier_score, error_stats, nan_to_none
 from .tables import require_columns
 from .truth import TruthGrid, true_detected, true_rssi_dbm
 
-__all__ = ["detection_floor", "error_budget", "floor_link_mask", "heldout_scores",
-           "reader_noise_stats"]
+__all__ = ["detection_bound", "error_budget", "heldout_scores", "reader_noise_stats"]
 
 
-def detection_floor(eval_reads: pd.DataFrame, train_truth: TruthGrid, eval_truth: TruthGrid,
+def detection_bound(eval_reads: pd.DataFrame, eval_truth: TruthGrid,
                     min_attempts: int = 5) -> dict:
-    """Detection scores of the training truth's cell probabilities on held-out data.
+    """Brier score of the held-out truth's own cell read frequencies on its own attempts.
+
+    The frequency of reads in a cell minimises the Brier score among forecasts constant on
+    the cell, so no cell model scores lower on these attempts: an oracle bound.
 
     Parameters
     ----------
     eval_reads : pandas.DataFrame
         Held-out read attempts (read, d_true_m, alpha_true_rad).
-    train_truth : TruthGrid
-        :func:`~.truth.detection_truth` of the TRAINING reads: the predictor.
     eval_truth : TruthGrid
-        The same of the held-out reads: the target of the cell MAE (same grid).
+        :func:`~.truth.detection_truth` of the same reads.
     min_attempts : int
-        Cells with fewer attempts in either grid are not compared.
+        Attempts in cells with fewer are left out.
 
     Returns
     -------
     dict
-        ``mae``, ``rmse``, ``bias`` (cells), ``n_cells``, ``brier`` (attempts whose cell
-        the training truth covers), ``n_attempts``.
+        ``brier``, ``n_attempts``, ``n_cells``.
     """
     require_columns(eval_reads, ("read", "d_true_m", "alpha_true_rad"), "eval reads")
-    if train_truth.grid.to_dict() != eval_truth.grid.to_dict():
-        raise ValueError("detection_floor: training and held-out truth grids differ")
-    ok = (train_truth.n_attempts >= min_attempts) & (eval_truth.n_attempts >= min_attempts)
-    cells = error_stats(train_truth.p_detect[ok], eval_truth.p_detect[ok])
-    idx = train_truth.grid.index(eval_reads["d_true_m"].to_numpy(float),
-                                 eval_reads["alpha_true_rad"].to_numpy(float))
+    idx = eval_truth.grid.index(eval_reads["d_true_m"].to_numpy(float),
+                                eval_reads["alpha_true_rad"].to_numpy(float))
     flat = np.maximum(idx.flat, 0)
-    covered = idx.valid & (train_truth.n_attempts.ravel()[flat] >= min_attempts)
-    p = train_truth.p_detect.ravel()[flat[covered]]
-    outcome = eval_reads["read"].to_numpy(bool)[covered]
-    return {"mae": cells.mae, "rmse": cells.rmse, "bias": cells.bias, "n_cells": int(ok.sum()),
-            "brier": brier_score(p, outcome), "n_attempts": int(covered.sum())}
-
-
-def floor_link_mask(eval_reads: pd.DataFrame, train_truth: TruthGrid, budget, d_max_m: float,
-                    min_count: int) -> np.ndarray:
-    """Rows of `eval_reads` the floor can score: closing links within ``d_max_m`` whose
-    (d, alpha) cell holds at least ``min_count`` closing links in the TRAINING truth
-    (:func:`~.comparison.rssi_cell_mean_floor`'s own selection), shape (n_rows,) bool."""
-    keep = closing_links(eval_reads, budget, d_max_m)
-    d = eval_reads["d_true_m"].to_numpy(float)
-    idx = train_truth.grid.index(d, eval_reads["alpha_true_rad"].to_numpy(float))
-    covered = idx.valid & (train_truth.n_closed.ravel()[np.maximum(idx.flat, 0)] >= int(min_count))
-    return keep & covered
+    ok = idx.valid & (eval_truth.n_attempts.ravel()[flat] >= int(min_attempts))
+    read = eval_reads["read"].to_numpy(bool)[ok]
+    cell = flat[ok]
+    _, inv, count = np.unique(cell, return_inverse=True, return_counts=True)
+    freq = (np.bincount(inv.reshape(-1), weights=read.astype(float)) / count)[inv.reshape(-1)]
+    return {"brier": brier_score(freq, read) if read.size else float("nan"),
+            "n_attempts": int(ok.sum()), "n_cells": int(count.size)}
 
 
 def reader_noise_stats(eval_reads: pd.DataFrame, budget, d_max_m: float) -> dict:
@@ -103,7 +93,7 @@ def reader_noise_stats(eval_reads: pd.DataFrame, budget, d_max_m: float) -> dict
 def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGrid,
                    eval_truth: TruthGrid, budget, *, d_max_m: float, min_attempts: int,
                    rssi_models=None, detection_models=None) -> dict:
-    """RSSI and detection scores of every model and of the floor on held-out reads.
+    """RSSI and detection scores of every model and the oracle bound on held-out reads.
 
     Parameters
     ----------
@@ -112,7 +102,8 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
     eval_reads : pandas.DataFrame
         The evaluation tour's reads of the held-out tags.
     train_truth, eval_truth : TruthGrid
-        Truth grids of the training and of the held-out reads (same cells).
+        Truth grids of the training and of the held-out reads (same cells); the bound
+        uses the held-out one's cells.
     budget : propagation.LinkBudget
     d_max_m : float
         Distance limit of the RSSI comparison (the models' training domain) [m].
@@ -125,32 +116,46 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
     Returns
     -------
     dict
-        ``{"models": {name: {"rssi_dbm": dict | None, "detection": dict | None}},
-        "floor": {...}, "data": {...}}``, NaN as None.
+        ``{"models": {name: {"rssi_dbm", "rssi_dbm_bound_links", "bound_excess",
+        "detection"}}, "bound": {...}, "data": {...}}`` (None where a model predicts no
+        such quantity), NaN as None.
     """
     names = list(sensors)
     rssi_models = set(names if rssi_models is None else rssi_models)
     detection_models = set(names if detection_models is None else detection_models)
+    bound = cell_mean_bound(eval_reads, eval_truth.grid, budget, d_max_m=d_max_m,
+                            min_count=min_attempts)
+    on_bound = eval_reads.loc[bound.rows]
     models = {}
-    on_floor = eval_reads.loc[floor_link_mask(eval_reads, train_truth, budget, d_max_m,
-                                              min_attempts)]
     for name, s in sensors.items():
+        scored = name in rssi_models
+        excess = None
+        if scored and bound.n_links:
+            pred = np.asarray(s.fs_dbm(on_bound["d_true_m"].to_numpy(float),
+                                       on_bound["alpha_true_rad"].to_numpy(float)), float)
+            if np.all(np.isfinite(pred)):
+                excess = excess_over_bound(bound, pred).to_dict()
         models[name] = {
             "rssi_dbm": (rssi_vs_truth(eval_reads, s, budget, d_max_m=d_max_m).to_dict()
-                         if name in rssi_models else None),
-            # the same model on exactly the links the floor scores (matched comparison)
-            "rssi_dbm_floor_links": (rssi_vs_truth(on_floor, s, budget, d_max_m=d_max_m).to_dict()
-                                     if name in rssi_models else None),
+                         if scored else None),
+            # the same model on exactly the bound's links (matched comparison)
+            "rssi_dbm_bound_links": (rssi_vs_truth(on_bound, s, budget, d_max_m=d_max_m).to_dict()
+                                     if scored else None),
+            "bound_excess": excess,
             "detection": (detection_vs_truth(eval_reads, s, eval_truth,
                                              min_attempts=min_attempts).to_dict()
                           if name in detection_models else None),
         }
-    floor = {
-        "rssi_dbm": rssi_cell_mean_floor(eval_reads, train_truth, budget, d_max_m=d_max_m,
-                                         min_count=min_attempts).to_dict(),
-        "detection": detection_floor(eval_reads, train_truth, eval_truth, min_attempts),
-        "how": "training truth's (d, alpha) cell means (noise-free RSSI, p_detect) applied to "
-               "the held-out links; fitted on training data only",
+    bound_out = {
+        "rssi_dbm": error_stats(bound.cell_mean_dbm, bound.truth_dbm).to_dict(),
+        "cells": bound.to_dict(),
+        "by_cell_size": {f"x{row['scale']:g}": row for row in bound_by_cell_size(
+            eval_reads, eval_truth.grid, budget, d_max_m=d_max_m, min_count=min_attempts,
+            models={n: sensors[n] for n in names if n in rssi_models})},
+        "detection": detection_bound(eval_reads, eval_truth, min_attempts),
+        "how": "oracle, not a model: the held-out truth's own (d, alpha) cell means (noise-free "
+               "RSSI; read frequency) on its own links, cells with >= min_attempts of them; no "
+               "function constant on those cells scores better on those links",
     }
     data = {
         "n_attempts": int(len(eval_reads)),
@@ -159,25 +164,30 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
         "d_max_m": float(d_max_m),
         "reader_noise": reader_noise_stats(eval_reads, budget, d_max_m),
     }
-    return nan_to_none({"models": models, "floor": floor, "data": data})
+    return nan_to_none({"models": models, "bound": bound_out, "data": data})
 
 
 def error_budget(heldout: dict, est: str = "anfis", true: str = "anfis_truepose") -> dict:
     """Split the learned model's held-out RSSI RMSE into its sources.
 
-    Each term is a held-out RMSE [dB] against the noise-free truth, all of them (but the
-    reader noise and the total) on the SAME links: those the floor can score (a training
-    cell with enough closing links; ``n_links``), and its increment over the term before it (``step_db``, plain difference; ``step_quadrature_db`` =
-    sqrt(b^2 - a^2) when b > a, the part that adds independently):
+    Terms, each a held-out RMSE [dB] against the noise-free truth, the matched ones on the
+    SAME links (the bound's: closing held-out links in (d, alpha) cells holding at least
+    ``min_attempts`` of them, ``n_links``):
 
     1. ``reader_noise``: reported RSSI against noise-free RSSI (noise + quantisation);
        what any comparison with measured RSSI carries on top of the terms below;
-    2. ``representation``: the floor, the training truth's (d, alpha) cell mean: what a
-       model of (d, alpha) alone cannot represent (multipath fading with position);
-    3. ``model_form``: the model trained on TRUE poses against the floor: what the
-       three-rule Takagi-Sugeno form and its training lose;
-    4. ``localisation``: the model trained on MCL poses against the true-pose model:
-       what the robot's pose error costs.
+    2. ``representation_bound``: the held-out truth's own (d, alpha) cell mean on its own
+       links (an oracle, not a model, :mod:`~.bound`): no function constant on the cells
+       does better on these links, i.e. what the cells' (d, alpha) cannot tell apart
+       (multipath fading with position); ``by_cell_size`` shows how it falls with smaller
+       cells;
+    3. ``model_form``: the model trained on TRUE poses on the same links, its excess over
+       the bound split exactly into ``between_cells_db`` (its cell means against the
+       truth's; >= 0 by construction) and ``within_cells_db2`` (signed: negative where
+       the model follows the truth inside a cell, which no cell model can);
+    4. ``localisation``: the model trained on MCL poses against the true-pose model on
+       the same links (``step_db``: a signed difference, not a bound: the two models
+       are fitted on different poses and neither bounds the other).
 
     Parameters
     ----------
@@ -194,31 +204,36 @@ def error_budget(heldout: dict, est: str = "anfis", true: str = "anfis_truepose"
         return None if x is None else x.get("rmse")
 
     m = heldout["models"]
-    noise = rmse(heldout["data"]["reader_noise"])
-    floor = rmse(heldout["floor"]["rssi_dbm"])
-    # matched: every term on the links the floor scores (cells the training truth covers)
-    t = rmse(m.get(true, {}).get("rssi_dbm_floor_links"))
-    e = rmse(m.get(est, {}).get("rssi_dbm_floor_links"))
-    n_links = (heldout["floor"]["rssi_dbm"] or {}).get("n")
-
-    def step(a, b):
-        if a is None or b is None:
-            return None, None
-        return float(b - a), float(np.sqrt(b * b - a * a)) if b > a else 0.0
-
-    out = {"reader_noise": {"rmse_db": noise, "how": "held-out reads: reported rssi_dbm - "
-                                                     "noise-free RSSI (1 dB noise, quantisation)"},
-           "representation": {"rmse_db": floor, "how": "floor: training truth's (d, alpha) cell "
-                                                       "mean on the held-out links"}}
-    for key, (a, b, how) in {
-        "model_form": (floor, t, f"{true} (trained on true poses) against the floor"),
-        "localisation": (t, e, f"{est} (trained on MCL poses) against {true}"),
-    }.items():
-        s, sq = step(a, b)
-        out[key] = {"rmse_db": b, "step_db": s, "step_quadrature_db": sq, "how": how}
-    out["total"] = {"rmse_db": rmse(m.get(est, {}).get("rssi_dbm")),
-                    "how": f"{est} held-out RSSI RMSE against the noise-free truth, all links"}
-    out["n_links"] = {"value": n_links, "how": "links of the matched terms (representation, "
-                      "model form, localisation): held-out closing links whose training cell "
-                      "holds enough closing links for a cell mean"}
+    b = heldout["bound"]
+    cells = b.get("cells") or {}
+    t_ex = m.get(true, {}).get("bound_excess") or {}
+    e = rmse(m.get(est, {}).get("rssi_dbm_bound_links"))
+    t = rmse(m.get(true, {}).get("rssi_dbm_bound_links"))
+    out = {
+        "reader_noise": {"rmse_db": rmse(heldout["data"]["reader_noise"]),
+                         "how": "held-out reads: reported rssi_dbm - noise-free RSSI (1 dB "
+                                "noise, quantisation)"},
+        "representation_bound": {
+            "rmse_db": cells.get("rmse_db"), "d_bin_m": cells.get("d_bin_m"),
+            "alpha_bin_deg": cells.get("alpha_bin_deg"), "n_cells": cells.get("n_cells"),
+            "how": "oracle bound: the held-out truth's own (d, alpha) cell mean on its own "
+                   "links; no function constant on these cells does better on them"},
+        "by_cell_size": {k: {"rmse_db": v.get("rmse_db"), "d_bin_m": v.get("d_bin_m"),
+                             "alpha_bin_deg": v.get("alpha_bin_deg"), "n_links": v.get("n_links"),
+                             f"{est}_rmse_db": v.get(f"{est}_rmse_db")}
+                         for k, v in (b.get("by_cell_size") or {}).items()},
+        "model_form": {"rmse_db": t, "between_cells_db": t_ex.get("between_cells_db"),
+                       "within_cells_db2": t_ex.get("within_cells_db2"),
+                       "how": f"{true} (trained on true poses) on the bound's links: RMSE^2 = "
+                              "bound^2 + between^2 + within (between >= 0; within signed)"},
+        "localisation": {"rmse_db": e, "step_db": None if (e is None or t is None) else
+                         float(e - t),
+                         "how": f"{est} (trained on MCL poses) against {true} on the same "
+                                "links: a signed difference, not a bound"},
+        "total": {"rmse_db": rmse(m.get(est, {}).get("rssi_dbm")),
+                  "how": f"{est} held-out RSSI RMSE against the noise-free truth, all links"},
+        "n_links": {"value": cells.get("n_links"),
+                    "how": "links of the matched terms: held-out closing links in (d, alpha) "
+                           "cells holding at least min_attempts of them"},
+    }
     return nan_to_none(out)

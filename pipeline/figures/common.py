@@ -137,9 +137,10 @@ def model_metrics(run_dir) -> dict:
     """``{model name: metrics dict}`` of the HELD-OUT scores in ``metrics.json``.
 
     Each model's dict has ``rssi_dbm`` and ``detection`` (``heldout.models``, None where the
-    model predicts no such thing) and ``fig7`` (``fig7.<model>``); the floor is included
-    under the name ``floor``. Older run directories (one ``models`` section, in-sample)
-    are read as they are.
+    model predicts no such thing) and ``fig7`` (``fig7.<model>``); the oracle bound (the
+    held-out truth's own cell means) is included under the name ``bound`` (``floor`` in
+    run directories from before it). Older run directories (one ``models`` section,
+    in-sample) are read as they are.
     """
     path = require(run_dir, "metrics.json")
     try:
@@ -151,8 +152,10 @@ def model_metrics(run_dir) -> dict:
         out = {k: dict(v) for k, v in held.get("models", {}).items()}
         for name, f7 in (m.get("fig7") or {}).items():
             out.setdefault(name, {})["fig7"] = f7
-        if isinstance(held.get("floor"), dict):
-            out["floor"] = {k: v for k, v in held["floor"].items() if isinstance(v, dict)}
+        for key in ("bound", "floor"):
+            if isinstance(held.get(key), dict):
+                out[key] = {k: v for k, v in held[key].items()
+                            if k in ("rssi_dbm", "detection") and isinstance(v, dict)}
         return out
     if isinstance(m, dict) and "evaluation" in m and isinstance(m["evaluation"], dict):
         m = m["evaluation"]

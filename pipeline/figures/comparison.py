@@ -181,7 +181,8 @@ _SCALE = {"detection": 10.0, "rho": 10.0, "fig7": 0.1}
 
 
 def fig_baselines(run_dir, out_dir=None) -> list[Path]:
-    """Baselines and the floor beside ANFIS: held-out headline metrics per model (grouped bars)."""
+    """Baselines and the oracle bound beside ANFIS: held-out headline metrics per model
+    (grouped bars)."""
     run_dir = Path(run_dir)
     models = model_metrics(run_dir)
     names = list(models)

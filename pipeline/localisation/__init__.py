@@ -14,6 +14,8 @@
   never looks at the truth (:func:`global_oracle`, the study's ``downstream.oracle``);
 * :mod:`.oracle` - windows of candidates around given centres and the (slot, candidate)
   pairs to trace for them (:func:`oracle_plan`: a local oracle around known places);
+* :mod:`.fading` - the reader's likelihood given a *local-mean* gain: Rician (Rayleigh by
+  default) fading entering the RSSI twice (:class:`FadedLikelihood`, :class:`FadingModel`);
 * :mod:`.robot_oracle` - the robot filter's oracle, a traced local-mean gain field over
   the free space (:func:`gain_field`, :class:`FieldLikelihood`);
 * :mod:`.robot` - RFID-only robot localisation, a particle filter with global
@@ -21,6 +23,7 @@
   :func:`filter_metrics`);
 """
 
+from .fading import FadedLikelihood, FadingModel
 from .global_oracle import GlobalOracle, OracleSearch, global_oracle
 from .likelihood import (
     EPS,
@@ -68,6 +71,8 @@ __all__ = [
     "ESTIMATORS",
     "Z_CLIP",
     "BoxFreeSpace",
+    "FadedLikelihood",
+    "FadingModel",
     "FieldLikelihood",
     "GainField",
     "GaussianTerms",

@@ -11,10 +11,12 @@ goes coarse to fine, and never looks at the true tag position:
    *local mean* gain (paths summed in power, patterns applied) from every slot within
    ``reach_m`` to every cell's anchor comes from the specular model (line of sight and
    reflections of order <= ``specular_order`` over the large planes, Sionna's image
-   method, no ray sampling: ~0.2 ms per link). The oracle's likelihood with its RSSI
-   spread widened by ``coarse_sigma_db`` (the fading the local mean averages out and the
-   model's error: it misses transmissions and small surfaces, p95 10 dB against the
-   full trace) gives a posterior over anchors.
+   method, no ray sampling: ~0.2 ms per link). The reader's likelihood given a local
+   mean (:class:`~.fading.FadedLikelihood`: the small-scale fading the local mean
+   averages out, Rician with ``coarse_k_factor``, Rayleigh by default, entering the RSSI
+   twice) with its RSSI spread widened by ``coarse_sigma_db`` (the model's error: it
+   misses transmissions and small surfaces, p95 10 dB against the full trace) gives a
+   posterior over anchors.
 2. **Fine**: its ``n_modes`` best anchors, at least ``mode_separation_m`` apart, and any
    ``extra_centres`` (e.g. the learned model's estimate) are traced with the study's own
    tracer (cached) from the slots that read the tag or whose coarse gain is within
@@ -41,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .fading import FadedLikelihood, FadingModel
 from .observations import Observations
 from .oracle_likelihood import OracleLikelihood
 from .tags import TagPosteriors, localise_tags
@@ -59,7 +62,9 @@ class OracleSearch:
     reach_m: float = 16.0
     """Coarse links: slots whose antenna is within this distance of an anchor [m]."""
     coarse_sigma_db: float = 3.0
-    """RSSI spread added to the reader's in the coarse pass (fading, model error) [dB]."""
+    """RSSI spread added to the reader's in the coarse pass (the model's error) [dB]."""
+    coarse_k_factor: float = 0.0
+    """Rician K of the fading about the coarse local mean (0: Rayleigh, :mod:`.fading`)."""
     n_modes: int = 5
     """Coarse modes traced per tag."""
     mode_separation_m: float = 0.5
@@ -80,7 +85,7 @@ class OracleSearch:
         for name in ("anchor_spacing_m", "reach_m", "mode_separation_m", "window_m"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"OracleSearch.{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("coarse_sigma_db", "fine_sigma_db", "margin_db"):
+        for name in ("coarse_sigma_db", "fine_sigma_db", "margin_db", "coarse_k_factor"):
             if not float(getattr(self, name)) >= 0:
                 raise ValueError(f"OracleSearch.{name} must be >= 0, got {getattr(self, name)!r}")
         if int(self.n_modes) < 1 or not 1 <= int(self.specular_order) <= 3:
@@ -162,7 +167,8 @@ def coarse_posteriors(obs: Observations, true_poses, sites, scene, oracle: Oracl
         gain[s, a] = anchored_gains_db(paths, inv[s], a_pos, a, a_pos[a], nrm[anchors][a],
                                        np.asarray(true_poses, float)[s], frequency_hz,
                                        incoherent=True, **pattern_kw)
-    coarse = widened(oracle, search.coarse_sigma_db).with_gains(gain, miss_probability)
+    coarse = FadedLikelihood(oracle, FadingModel(search.coarse_k_factor),
+                             extra_sigma_db=search.coarse_sigma_db).with_gains(gain, miss_probability)
     post = localise_tags(obs, a_pos, {"oracle_coarse": coarse})["oracle_coarse"]
     return post, anchors, member_anchor, gain, int(len(s))
 

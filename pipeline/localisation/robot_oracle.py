@@ -13,10 +13,14 @@ grid of robot poses:
 2. every grid antenna pose gets the local mean (paths summed in power) of its cell's
    paths carried to its own position and orientation
    (:func:`propagation.anchored.moved_antenna_local_mean_db`);
-3. a particle takes its nearest grid pose's gains, and the likelihood's RSSI spread and
-   link-closure width include ``fading_sigma_db`` (5.6 dB: the standard deviation of a
-   Rayleigh-faded power in dB; the particles' resolution cannot follow the
-   small-scale fading, which changes within a quarter wavelength).
+3. a particle takes its nearest grid pose's gains, and the reads are scored by the
+   reader's likelihood *given the local mean* (:class:`~.fading.FadedLikelihood`): the
+   coherent gain the reads were simulated from fades about the local mean (Rayleigh by
+   default, :mod:`.fading`), which enters the RSSI twice (the monostatic link fades both
+   ways at once): an RSSI offset of mean -5.0 dB and standard deviation 11.1 dB about
+   ``reader_rssi_dbm(local mean)``, skewed, and a read probability ``(1 - q) P(E >=
+   g_T / g_bar)`` instead of a step. The particles' resolution cannot follow the
+   small-scale fading, which changes within a quarter wavelength.
 
 So the robot oracle is the physics at the filter's resolution, not the exact gains: the
 fading it averages out is the one thing a robot filter could not use anyway.
@@ -28,14 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .fading import RAYLEIGH, FadedLikelihood, FadedTerms, FadingModel
 from .likelihood import GaussianTerms
 from .oracle_likelihood import OracleLikelihood
 
 __all__ = ["FieldLikelihood", "GainField", "gain_field"]
-
-#: Standard deviation of a Rayleigh-faded power in dB (10 log10 of an exponential
-#: variable: pi / sqrt(6) * 10 / ln 10 = 5.57 dB).
-RAYLEIGH_SIGMA_DB = 5.57
 
 
 @dataclass(frozen=True)
@@ -81,25 +82,33 @@ class FieldLikelihood:
     oracle : OracleLikelihood
         The reader's likelihood (budget, noise, misses).
     field : GainField
-        Its gains; tag columns in the order of the filter's tag map.
-    fading_sigma_db : float
-        Spread of the true gain about its local mean [dB], added in quadrature.
+        Its gains (local means); tag columns in the order of the filter's tag map.
+    fading : FadingModel or None
+        The law of the reads' coherent gain about the field's local mean (default
+        Rayleigh, :mod:`.fading`); None: the field's gains are the reads' own (no
+        small-scale fading, e.g. a free-space field), scored by the reader's Gaussian.
+    extra_sigma_db : float
+        Gaussian spread of the field's gain about the truth at the particle (the grid's
+        resolution) [dB]: widens the RSSI density (and, with ``fading=None``, the soft
+        link closure) in quadrature (>= 0).
     """
 
     def __init__(self, oracle: OracleLikelihood, field: GainField,
-                 fading_sigma_db: float = RAYLEIGH_SIGMA_DB) -> None:
+                 fading: FadingModel | None = RAYLEIGH, extra_sigma_db: float = 0.0) -> None:
         from .global_oracle import widened
 
-        if not float(fading_sigma_db) >= 0:
-            raise ValueError(f"fading_sigma_db must be >= 0, got {fading_sigma_db!r}")
-        self.oracle = widened(oracle, fading_sigma_db)
+        if not float(extra_sigma_db) >= 0:
+            raise ValueError(f"extra_sigma_db must be >= 0, got {extra_sigma_db!r}")
+        self.oracle = (widened(oracle, extra_sigma_db) if fading is None
+                       else FadedLikelihood(oracle, fading, extra_sigma_db=extra_sigma_db))
         self.field = field
 
     @property
     def n_tags(self) -> int:
         return int(self.field.gain_db.shape[-1])
 
-    def terms_for_particles(self, particles, antenna: int, tag_mask=None) -> GaussianTerms:
+    def terms_for_particles(self, particles, antenna: int,
+                            tag_mask=None) -> GaussianTerms | FadedTerms:
         """Per (particle, tag) terms (N, M') of the tags selected by ``tag_mask`` (M,)."""
         g = self.field.lookup(antenna, particles)
         if tag_mask is not None:

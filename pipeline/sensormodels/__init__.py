@@ -7,8 +7,10 @@ RFID sensor models. Each competitor here is fitted on the training tour's reads
 
 * :mod:`.joho2009` - Joho, Plagemann & Burgard (ICRA 2009): detection rate and Gaussian
   RSSI per (d, alpha) cell, one joint likelihood of a read and its RSSI.
-* :mod:`.liu2006` - Liu et al. (2006): a sector read region with constant detection
-  probabilities (and RSSI) inside and outside, fitted by maximum likelihood.
+* :mod:`.liu2006` - the project's own sector read region with two constant detection
+  probabilities, fitted by maximum likelihood; detection only. Key ``liu2006`` after the
+  "Liu et al. (2006)" the chapter cites for such a model, a paper not checked here, so
+  not a reproduction of it.
 * :mod:`.vorst2008` - Vorst & Zell (EUROS 2008): kernel-smoothed detection rates on a
   Cartesian antenna-frame grid; no RSSI (fs = 1, fs_dbm = NaN, ``predicts_rssi`` False).
 * :mod:`.ablations` - the chapter's model with FCM only (no ANFIS) and with a grid
@@ -22,6 +24,7 @@ from ._common import (
     Attempts,
     CompetitorModel,
     attempts_from_reads,
+    group_folds,
     read_model_file,
 )
 from .ablations import ABLATIONS, fit_ablation
@@ -39,6 +42,7 @@ __all__ = [
     "MODEL_CLASSES",
     "VORST2008",
     "Attempts",
+    "group_folds",
     "CompetitorModel",
     "Joho2009Model",
     "Liu2006Model",

@@ -34,6 +34,7 @@ __all__ = [
     "attempts_from_reads",
     "check_rssi_range",
     "file_kind",
+    "group_folds",
     "nearest_fill",
     "read_model_file",
 ]
@@ -99,9 +100,11 @@ def nearest_fill(table: np.ndarray, known: np.ndarray) -> np.ndarray:
 
 class Attempts:
     """Read attempts as flat arrays: ``d`` [m], ``alpha`` [rad] wrapped to (-pi, pi],
-    ``read`` (bool) and ``rssi`` [dBm] (NaN where not read or not reported)."""
+    ``read`` (bool), ``rssi`` [dBm] (NaN where not read or not reported) and, optionally,
+    ``group`` (int codes of the attempt's tag, for cross-validation folds that keep a
+    tag's correlated attempts together; None: unknown)."""
 
-    def __init__(self, d_m, alpha_rad, read, rssi_dbm=None):
+    def __init__(self, d_m, alpha_rad, read, rssi_dbm=None, group=None):
         d = np.asarray(d_m, dtype=np.float64).ravel()
         a = wrap_angle(np.asarray(alpha_rad, dtype=np.float64).ravel())
         r = np.asarray(read).ravel()
@@ -111,11 +114,16 @@ class Attempts:
             r = r.astype(bool)
         s = (np.full(d.shape, np.nan) if rssi_dbm is None
              else np.asarray(rssi_dbm, dtype=np.float64).ravel())
-        if not (d.shape == a.shape == r.shape == s.shape):
-            raise ValueError(f"d {d.shape}, alpha {a.shape}, read {r.shape}, rssi {s.shape} differ")
+        g = None
+        if group is not None:
+            g = np.unique(np.asarray(group).ravel(), return_inverse=True)[1].reshape(-1)
+        if not (d.shape == a.shape == r.shape == s.shape) or (g is not None and g.shape != d.shape):
+            raise ValueError(f"d {d.shape}, alpha {a.shape}, read {r.shape}, rssi {s.shape}"
+                             + ("" if g is None else f", group {g.shape}") + " differ")
         ok = np.isfinite(d) & np.isfinite(a) & (d >= 0)
         self.d, self.alpha, self.read = d[ok], a[ok], r[ok]
         self.rssi = np.where(self.read, s[ok], np.nan)
+        self.group = None if g is None else g[ok]
 
     def __len__(self) -> int:
         return int(self.d.size)
@@ -123,7 +131,8 @@ class Attempts:
     def within(self, d_max_m: float) -> Attempts:
         """The attempts with ``d < d_max_m``."""
         keep = self.d < float(d_max_m)
-        return Attempts(self.d[keep], self.alpha[keep], self.read[keep], self.rssi[keep])
+        return Attempts(self.d[keep], self.alpha[keep], self.read[keep], self.rssi[keep],
+                        None if self.group is None else self.group[keep])
 
     @property
     def has_rssi(self) -> np.ndarray:
@@ -131,11 +140,46 @@ class Attempts:
         return self.read & np.isfinite(self.rssi)
 
 
+def group_folds(groups, n_folds: int, rng: np.random.Generator) -> np.ndarray:
+    """Cross-validation fold (0 .. n_folds - 1) of every item, never splitting a group.
+
+    The equivalent of scikit-learn's ``GroupKFold``: groups, largest first (ties in an
+    order drawn from ``rng``), go one by one to the fold holding the fewest items so far.
+
+    Parameters
+    ----------
+    groups : array_like (n,)
+        Group label of every item (e.g. its tag).
+    n_folds : int
+        Folds (>= 2, at most the number of groups).
+    rng : numpy.random.Generator
+        Breaks ties between groups of equal size.
+
+    Returns
+    -------
+    numpy.ndarray (n,), int64
+    """
+    _, code, size = np.unique(np.asarray(groups).ravel(), return_inverse=True, return_counts=True)
+    k = int(n_folds)
+    if k < 2 or k > len(size):
+        raise ValueError(f"group_folds: need 2 <= n_folds <= {len(size)} groups, got {n_folds}")
+    order = rng.permutation(len(size))
+    order = order[np.argsort(-size[order], kind="stable")]
+    load = np.zeros(k, np.int64)
+    fold_of = np.empty(len(size), np.int64)
+    for g in order:
+        f = int(np.argmin(load))
+        fold_of[g] = f
+        load[f] += size[g]
+    return fold_of[code.reshape(-1)]
+
+
 def attempts_from_reads(reads: pd.DataFrame, d_max_m: float, pose: str = "est") -> Attempts:
     """The attempts of a ``reads.parquet`` table with ``d < d_max_m``.
 
     Geometry from ``d_<pose>_m`` / ``alpha_<pose>_rad`` (``"est"``: MCL poses, what the
     robot knows; ``"true"``: ground truth); rows with non-finite geometry are dropped.
+    The ``tag_id`` column, where present, is the attempts' ``group``.
     """
     if pose not in ("est", "true"):
         raise ValueError(f"pose must be 'est' or 'true', got {pose!r}")
@@ -143,9 +187,10 @@ def attempts_from_reads(reads: pd.DataFrame, d_max_m: float, pose: str = "est") 
         raise ValueError(f"d_max_m must be finite and > 0, got {d_max_m!r}")
     dc, ac = f"d_{pose}_m", f"alpha_{pose}_rad"
     require_columns(reads, ("read", "rssi_dbm", dc, ac), "reads")
+    group = reads["tag_id"].astype(str).to_numpy() if "tag_id" in reads.columns else None
     return Attempts(reads[dc].to_numpy(np.float64), reads[ac].to_numpy(np.float64),
                     reads["read"].to_numpy(bool),
-                    reads["rssi_dbm"].to_numpy(np.float64)).within(d_max_m)
+                    reads["rssi_dbm"].to_numpy(np.float64), group).within(d_max_m)
 
 
 class CompetitorModel:

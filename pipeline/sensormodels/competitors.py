@@ -1,7 +1,8 @@
-"""One entry point for the three paper competitors: fit them all, load any of them.
+"""One entry point for the competitors: fit them all, load any of them.
 
-``fit_competitors`` fits Joho et al. (2009), Liu et al. (2006) and Vorst & Zell (2008)
-on the training tour's read attempts within ``d_max_m`` (MCL geometry by default, what
+``fit_competitors`` fits Joho et al. (2009), Vorst & Zell (2008) and the project's own
+sector read region (key ``liu2006``: not a reproduction of the paper the chapter cites,
+:mod:`.liu2006`) on the training tour's read attempts within ``d_max_m`` (MCL geometry by default, what
 the robot knows), with the fuzzy model's RSSI range; ``load_competitor`` reads any of
 their files, dispatching on its ``"kind"``.
 """

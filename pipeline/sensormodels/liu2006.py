@@ -1,32 +1,34 @@
-"""Simplified antenna model after Liu et al. (2006): a read region with two constant rates.
+"""A sector read region with two constant detection rates: the project's own baseline,
+kept under the key ``liu2006``.
 
-Reference
----------
-Liu et al. (2006), the simplified antenna model for RFID-based robot localisation cited
-by Cicirelli, Milella & Di Paola (2011): the antenna's read region is a simple shape
-relative to the antenna, inside which a tag is detected with one constant probability
-and outside which with another (small) constant probability.
-
-Reproduced
-    A binary read region in the antenna frame with a constant detection probability
-    inside and another outside, learned from the robot's reads.
-Simplified / our choices (the paper's full text was not available to us, so the shape,
-how it is fitted and the RSSI are our choices)
-    * Shape: a circular sector in (d, alpha), ``d < range_m`` and
-      ``|wrap(alpha - boresight_rad)| < half_width_rad`` (the cone of a patch antenna).
-    * Fit: maximum likelihood. For every candidate sector on a grid (range in steps of
-      ``d_step_m`` up to d_max; half-width in steps of ``angle_step_deg`` up to 180 deg;
-      boresight in the same steps within +-``boresight_max_deg``, or fixed at 0) the
-      two probabilities are their maximum-likelihood values reads / attempts inside and
-      outside, and the sector with the highest Bernoulli log-likelihood of the training
-      attempts (within d_max) wins (ties: the first, i.e. the smallest range, then
-      half-width, then the most negative boresight).
-    * RSSI (the model has none): constant inside, the mean RSSI of the training reads
-      inside the sector; outside, the mean of the reads outside (the inside mean when
-      fewer than ``min_reads_outside`` reads fall outside), so rho = fs * fT is also
-      piecewise constant.
-    * The region and p_outside hold at every distance, beyond d_max too (the model has
-      no other notion of range).
+What it is
+    The antenna's read region is a circular sector in the antenna frame (``d <
+    range_m`` and ``|wrap(alpha - boresight_rad)| < half_width_rad``, the cone of a patch
+    antenna); a tag inside is detected with one constant probability, outside with
+    another. Detection only: it predicts no RSSI (``fs = 1``, ``fs_dbm = NaN``, so no RSSI
+    or Fig. 7 score is computed for it).
+Where the name comes from
+    Cicirelli, Milella & Di Paola (2011) cite a "Liu et al. (2006)" for a simplified
+    antenna model of this kind. Its reference could not be checked here (the chapter's
+    reference list was not available to us; Liu, Corner & Shenoy, "Ferret: RFID
+    localization for pervasive multimedia", UbiComp 2006, models a reader's coverage
+    region, but that it is the paper cited is our guess, not established). So this is
+    not a reproduction of any paper: the shape, the fit and the detection-only form are
+    the project's choices. The key ``liu2006`` stays so that run directories and tables
+    keep their names; its display name says what it is.
+Fit
+    Maximum likelihood. For every candidate sector on a grid (range in steps of
+    ``d_step_m`` up to d_max; half-width in steps of ``angle_step_deg`` up to 180 deg;
+    boresight in the same steps within +-``boresight_max_deg``, or fixed at 0) the two
+    probabilities are their maximum-likelihood values reads / attempts inside and
+    outside, and the sector with the highest Bernoulli log-likelihood of the training
+    attempts (within d_max) wins (ties: the first, i.e. the smallest range, then
+    half-width, then the most negative boresight). A parameter that ends on the edge of
+    its search grid (the range at d_max, the boresight at +-``boresight_max_deg``) is
+    named in ``at_search_bound``: the likelihood wanted more than the search allowed,
+    and the fitted value is the bound, not an optimum.
+    The region and p_outside hold at every distance, beyond d_max too (the model has no
+    other notion of range).
 """
 
 from __future__ import annotations
@@ -43,14 +45,15 @@ from ._common import Attempts, CompetitorModel, check_rssi_range
 
 __all__ = ["LIU2006", "Liu2006Model", "fit_liu2006"]
 
+#: The model's stable key (run directories, tables); see the module doc for its name.
 LIU2006 = "liu2006"
-_FIELDS = ("range_m", "half_width_rad", "boresight_rad", "p_inside", "p_outside",
-           "rssi_inside_dbm", "rssi_outside_dbm")
+_FIELDS = ("range_m", "half_width_rad", "boresight_rad", "p_inside", "p_outside")
+_LEGACY = {"rssi_inside_dbm", "rssi_outside_dbm"}  # constant RSSI of earlier files: ignored
 
 
 @dataclass(frozen=True, eq=False)
 class Liu2006Model(CompetitorModel):
-    """Sector read region with constant detection probabilities (see module doc).
+    """Sector read region with two constant detection probabilities, no RSSI (module doc).
 
     Attributes
     ----------
@@ -62,13 +65,15 @@ class Liu2006Model(CompetitorModel):
         Bearing of the sector's axis in the antenna frame [rad].
     p_inside, p_outside : float
         Detection probabilities inside / outside the sector.
-    rssi_inside_dbm, rssi_outside_dbm : float
-        Constant RSSI predictions inside / outside [dBm].
     rssi_range_dbm : (float, float)
+        Kept for the SensorLike interface (the model predicts no RSSI).
     train_log_likelihood : float
         Bernoulli log-likelihood of the training attempts at the fit (NaN if unknown).
     n_attempts : int
         Training attempts.
+    at_search_bound : tuple of str
+        Fitted parameters that sit on the edge of their search grid (``"range_m"``,
+        ``"boresight_rad"``): bounds, not optima.
     """
 
     range_m: float
@@ -76,17 +81,19 @@ class Liu2006Model(CompetitorModel):
     boresight_rad: float
     p_inside: float
     p_outside: float
-    rssi_inside_dbm: float
-    rssi_outside_dbm: float
     rssi_range_dbm: tuple = (-80.0, -30.0)
     train_log_likelihood: float = float("nan")
     n_attempts: int = 0
+    at_search_bound: tuple = ()
 
     KIND = LIU2006
-    REFERENCE = ("Liu et al. 2006, simplified antenna model for RFID-based robot localisation "
-                 "(as cited by Cicirelli, Milella & Di Paola 2011)")
-    DESCRIPTION = "sector read region, constant detection probability and RSSI inside/outside"
-    predicts_rssi = True
+    #: What to call it in tables and figures.
+    DISPLAY_NAME = "sector read region, two detection rates (project's own)"
+    REFERENCE = ("none reproduced: the project's own sector read region, after the "
+                 "'simplified antenna model' Cicirelli, Milella & Di Paola (2011) attribute to "
+                 "Liu et al. (2006), whose paper was not checked")
+    DESCRIPTION = "sector read region, constant detection probability inside / outside; no RSSI"
+    predicts_rssi = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rssi_range_dbm", check_rssi_range(self.rssi_range_dbm))
@@ -105,6 +112,10 @@ class Liu2006Model(CompetitorModel):
                 raise ValueError(f"Liu2006Model: {name} must be in [0, 1]")
         object.__setattr__(self, "train_log_likelihood", float(self.train_log_likelihood))
         object.__setattr__(self, "n_attempts", int(self.n_attempts))
+        bound = tuple(str(v) for v in self.at_search_bound)
+        if not set(bound) <= {"range_m", "boresight_rad"}:
+            raise ValueError(f"Liu2006Model: at_search_bound names unknown parameters {bound}")
+        object.__setattr__(self, "at_search_bound", bound)
 
     def inside(self, d, alpha) -> np.ndarray:
         """Whether (d [m], alpha [rad]) lies in the read region; broadcasts."""
@@ -120,24 +131,24 @@ class Liu2006Model(CompetitorModel):
     def _detection(self, d, a):
         return np.where(self._inside(d, a), self.p_inside, self.p_outside)
 
-    def _rssi_dbm(self, d, a):
-        return np.where(self._inside(d, a), self.rssi_inside_dbm, self.rssi_outside_dbm)
-
     def params_dict(self) -> dict:
         out = {k: float(getattr(self, k)) for k in _FIELDS}
         ll = self.train_log_likelihood
         out["train_log_likelihood"] = float(ll) if np.isfinite(ll) else None
         out["n_attempts"] = int(self.n_attempts)
+        out["at_search_bound"] = list(self.at_search_bound)
         return out
 
     @classmethod
     def from_params(cls, params: dict, rssi_range_dbm, where: str) -> Liu2006Model:
-        check_keys(params, set(_FIELDS) | {"train_log_likelihood", "n_attempts"}, where,
-                   required=set(_FIELDS))
+        check_keys(params, set(_FIELDS) | _LEGACY | {"train_log_likelihood", "n_attempts",
+                                                     "at_search_bound"},
+                   where, required=set(_FIELDS))
         ll = params.get("train_log_likelihood")
         return cls(**{k: float(params[k]) for k in _FIELDS}, rssi_range_dbm=rssi_range_dbm,
                    train_log_likelihood=float("nan") if ll is None else float(ll),
-                   n_attempts=int(params.get("n_attempts", 0)))
+                   n_attempts=int(params.get("n_attempts", 0)),
+                   at_search_bound=tuple(params.get("at_search_bound", ())))
 
 
 def _bernoulli_ll(k: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -148,22 +159,22 @@ def _bernoulli_ll(k: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def fit_liu2006(attempts: Attempts, rssi_range_dbm, *, d_max_m: float, d_step_m: float = 0.05,
                 angle_step_deg: float = 2.5, fit_boresight: bool = True,
-                boresight_max_deg: float = 45.0, min_reads_outside: int = 5) -> Liu2006Model:
-    """Maximum-likelihood sector and rates (see module doc).
+                boresight_max_deg: float = 45.0) -> Liu2006Model:
+    """Maximum-likelihood sector and rates (see module doc); parameters on the edge of
+    their search grid are named in the result's ``at_search_bound``.
 
     Parameters
     ----------
     attempts : Attempts
         Training attempts; those with d >= `d_max_m` are ignored.
     rssi_range_dbm : (float, float)
+        Stored for the interface only.
     d_max_m : float
         Largest distance used and largest candidate range [m].
     d_step_m, angle_step_deg : float
         Resolution of the candidate ranges [m] and angles [deg].
     fit_boresight : bool
         Search the boresight in +-`boresight_max_deg` (else fixed at 0).
-    min_reads_outside : int
-        Fewer reads outside the sector: its RSSI is the inside mean.
     """
     if not (d_step_m > 0 and angle_step_deg > 0 and d_max_m > 0):
         raise ValueError("fit_liu2006: d_max_m, d_step_m and angle_step_deg must be > 0")
@@ -193,18 +204,16 @@ def fit_liu2006(attempts: Attempts, rssi_range_dbm, *, d_max_m: float, d_step_m:
         raise ValueError("fit_liu2006: no sector splits the attempts into two non-empty groups")
     ll, b, j, l_ = best
     model = Liu2006Model(range_m=(j + 1) * d_step_m, half_width_rad=min((l_ + 1) * a_step, np.pi),
-                         boresight_rad=b, p_inside=0.0, p_outside=0.0, rssi_inside_dbm=0.0,
-                         rssi_outside_dbm=0.0, rssi_range_dbm=rssi_range_dbm)
+                         boresight_rad=b, p_inside=0.0, p_outside=0.0,
+                         rssi_range_dbm=rssi_range_dbm)
     ins = model._inside(att.d, att.alpha)
-    has = att.has_rssi
-    if not (has & ins).any():
-        raise ValueError("fit_liu2006: no read with an RSSI inside the fitted region")
-    rssi_in = float(att.rssi[has & ins].mean())
-    out_reads = has & ~ins
-    rssi_out = (float(att.rssi[out_reads].mean()) if out_reads.sum() >= int(min_reads_outside)
-                else rssi_in)
+    bound = []
+    if j == n_d - 1:  # the largest range searched: d_max
+        bound.append("range_m")
+    if n_b > 0 and abs(b) >= n_b * a_step - 1e-12:
+        bound.append("boresight_rad")
     return Liu2006Model(range_m=model.range_m, half_width_rad=model.half_width_rad,
                         boresight_rad=b, p_inside=float(att.read[ins].mean()),
-                        p_outside=float(att.read[~ins].mean()), rssi_inside_dbm=rssi_in,
-                        rssi_outside_dbm=rssi_out, rssi_range_dbm=rssi_range_dbm,
-                        train_log_likelihood=ll, n_attempts=len(att))
+                        p_outside=float(att.read[~ins].mean()), rssi_range_dbm=rssi_range_dbm,
+                        train_log_likelihood=ll, n_attempts=len(att),
+                        at_search_bound=tuple(bound))

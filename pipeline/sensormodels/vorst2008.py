@@ -27,7 +27,12 @@ histogram and a Gaussian Parzen window, as bandwidth 0 and > 0 of one estimator)
       attempts at the overall detection rate, so cells far from any data tend to it.
     * The paper tunes its estimator for the localisation error of a particle filter; we
       pick the bandwidth among the candidates by ``n_folds``-fold cross-validated
-      Bernoulli log-likelihood of the training attempts (no localisation loop here).
+      Bernoulli log-likelihood of the training attempts (no localisation loop here). The
+      folds hold whole tags (:func:`~._common.group_folds`, the attempts' ``group``): a
+      tag's attempts follow one another along the tour and are strongly correlated, so
+      folds that split a tag score each attempt against its own neighbours in time and
+      favour the least smoothing. Attempts without tag labels are taken as independent
+      (one fold per attempt at random).
     * Outside the disc d < d_max (no training data) the probability is 0, as for the
       grid-count baseline.
     * No RSSI: ``fs = 1`` (so ``rho = fT``) and ``fs_dbm = NaN``; ``predicts_rssi`` is
@@ -43,7 +48,7 @@ from scipy.ndimage import gaussian_filter
 
 from pipeline.configschema import check_keys
 
-from ._common import Attempts, CompetitorModel, check_rssi_range
+from ._common import Attempts, CompetitorModel, check_rssi_range, group_folds
 
 __all__ = ["VORST2008", "Vorst2008Model", "fit_vorst2008"]
 
@@ -72,6 +77,8 @@ class Vorst2008Model(CompetitorModel):
         The candidates and their mean held-out log-likelihood per attempt.
     n_attempts : int
         Training attempts.
+    cv_n_groups : int
+        Tags the folds were grouped by (0: attempts without tag labels, folded one by one).
     """
 
     d_max_m: float
@@ -82,6 +89,7 @@ class Vorst2008Model(CompetitorModel):
     cv_bandwidths_m: tuple = ()
     cv_log_likelihood: tuple = ()
     n_attempts: int = 0
+    cv_n_groups: int = 0
 
     KIND = VORST2008
     REFERENCE = ("Vorst & Zell, 'Semi-autonomous learning of an RFID sensor model for mobile "
@@ -106,6 +114,7 @@ class Vorst2008Model(CompetitorModel):
         object.__setattr__(self, "cv_log_likelihood",
                            tuple(float(v) for v in self.cv_log_likelihood))
         object.__setattr__(self, "n_attempts", int(self.n_attempts))
+        object.__setattr__(self, "cv_n_groups", int(self.cv_n_groups))
 
     def _detection(self, d, a):
         ix, iy = _cell(d, a, self.d_max_m, self.cell_m)
@@ -115,19 +124,20 @@ class Vorst2008Model(CompetitorModel):
         return {"d_max_m": self.d_max_m, "cell_m": self.cell_m, "table": self.table.tolist(),
                 "bandwidth_m": self.bandwidth_m, "cv_bandwidths_m": list(self.cv_bandwidths_m),
                 "cv_log_likelihood": list(self.cv_log_likelihood),
-                "n_attempts": self.n_attempts}
+                "n_attempts": self.n_attempts, "cv_n_groups": self.cv_n_groups}
 
     @classmethod
     def from_params(cls, params: dict, rssi_range_dbm, where: str) -> Vorst2008Model:
         req = {"d_max_m", "cell_m", "table", "bandwidth_m"}
-        check_keys(params, req | {"cv_bandwidths_m", "cv_log_likelihood", "n_attempts"}, where,
-                   required=req)
+        check_keys(params, req | {"cv_bandwidths_m", "cv_log_likelihood", "n_attempts",
+                                  "cv_n_groups"}, where, required=req)
         return cls(d_max_m=float(params["d_max_m"]), cell_m=float(params["cell_m"]),
                    table=np.asarray(params["table"], dtype=np.float64),
                    bandwidth_m=float(params["bandwidth_m"]), rssi_range_dbm=rssi_range_dbm,
                    cv_bandwidths_m=tuple(params.get("cv_bandwidths_m", ())),
                    cv_log_likelihood=tuple(params.get("cv_log_likelihood", ())),
-                   n_attempts=int(params.get("n_attempts", 0)))
+                   n_attempts=int(params.get("n_attempts", 0)),
+                   cv_n_groups=int(params.get("cv_n_groups", 0)))
 
 
 def _n_cells(d_max_m: float, cell_m: float) -> int:
@@ -158,11 +168,12 @@ def fit_vorst2008(attempts: Attempts, rssi_range_dbm, rng: np.random.Generator, 
     Parameters
     ----------
     attempts : Attempts
-        Training attempts; those with d >= `d_max_m` are ignored.
+        Training attempts; those with d >= `d_max_m` are ignored. Their ``group`` (tag),
+        where given, keeps each tag's attempts in one fold.
     rssi_range_dbm : (float, float)
         Stored for the interface only.
     rng : numpy.random.Generator
-        Assigns the attempts to cross-validation folds.
+        Assigns the tags (or attempts) to cross-validation folds.
     d_max_m, cell_m : float
         Grid extent and cell size [m].
     bandwidths_m : sequence of float, optional
@@ -188,7 +199,12 @@ def fit_vorst2008(attempts: Attempts, rssi_range_dbm, rng: np.random.Generator, 
     ix, iy = _cell(att.d, att.alpha, d_max_m, cell_m)
     flat = ix * n + iy
     r = att.read.astype(np.float64)
-    fold = rng.permutation(len(att)) % int(n_folds)
+    if att.group is not None:
+        n_groups = len(np.unique(att.group))
+        fold = group_folds(att.group, n_folds, rng)
+    else:  # independent attempts
+        n_groups = 0
+        fold = rng.permutation(len(att)) % int(n_folds)
 
     def counts(sel):
         a_ = np.bincount(flat[sel], minlength=n * n).reshape(n, n).astype(np.float64)
@@ -211,4 +227,4 @@ def fit_vorst2008(attempts: Attempts, rssi_range_dbm, rng: np.random.Generator, 
     return Vorst2008Model(d_max_m=d_max_m, cell_m=cell_m, table=table,
                           bandwidth_m=float(bws[best]), rssi_range_dbm=rssi_range_dbm,
                           cv_bandwidths_m=tuple(bws), cv_log_likelihood=tuple(scores),
-                          n_attempts=len(att))
+                          n_attempts=len(att), cv_n_groups=n_groups)

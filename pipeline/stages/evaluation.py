@@ -12,7 +12,33 @@ from pipeline.runstore import atomic_write_json, run_files
 from pipeline.stages.common import antenna_tilts, link_budget, load_scene, read_reads
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "field_coverage", "stage_evaluation"]
+__all__ = ["STAGE", "field_coverage", "model_fits", "stage_evaluation"]
+
+
+def model_fits(models: dict) -> dict:
+    """What each competitor is and how its fit went (``metrics.json`` ``model_fits``).
+
+    Per model: ``name`` (display name), ``reference``, ``predicts_rssi``; a model whose
+    fit searches a grid (the ``liu2006`` sector) gives ``at_search_bound`` (the fitted
+    parameters on the edge of their search, comma-separated, "" if none) and a ``note``
+    when there is one; a cross-validated one (``vorst2008``) its ``bandwidth_m`` and
+    ``cv_n_groups`` (the tags its folds were grouped by).
+    """
+    out = {}
+    for name, m in models.items():
+        d = {"name": getattr(m, "DISPLAY_NAME", name), "reference": getattr(m, "REFERENCE", ""),
+             "predicts_rssi": bool(getattr(m, "predicts_rssi", True))}
+        bound = getattr(m, "at_search_bound", None)
+        if bound is not None:
+            d["at_search_bound"] = ", ".join(bound)
+            if bound:
+                d["note"] = ("fit ended on the edge of its search grid (" + ", ".join(bound)
+                             + "): the value is the bound, not an optimum")
+        if hasattr(m, "bandwidth_m"):
+            d["bandwidth_m"] = float(m.bandwidth_m)
+            d["cv_n_groups"] = int(getattr(m, "cv_n_groups", 0))
+        out[name] = d
+    return out
 
 
 def field_coverage(cfg, scene, field_paths, eval_reads=None) -> dict | None:
@@ -100,7 +126,8 @@ def stage_evaluation(ctx) -> dict:
                              rssi_models=rssi_names,
                              detection_models=("anfis", "anfis_truepose", "grid_count", *extra))
     metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
-               "reads": {"range_margin": _range_margin(meta, eval_meta)}}
+               "reads": {"range_margin": _range_margin(meta, eval_meta)},
+               "model_fits": model_fits({n: sensors[n] for n in COMPETITORS})}
     fig7, fig7_results = {}, {}
     for name in rssi_names:
         f7 = fig7_results[name] = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
@@ -209,10 +236,11 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
-              version=12,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              version=13,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
               # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
               # 8: the Gen2 reader's miss probability at tag sites and fields;
               # 9: per-unit tables, intervals and paired comparisons; 10: detection MAE on
               # the observed sample's cells; 11: no interval for the cell MAE;
-              # 12: each model over its own units, comparisons on the shared ones
+              # 12: each model over its own units, comparisons on the shared ones;
+              # 13: model_fits; the error budget's oracle bound
               description="metrics")

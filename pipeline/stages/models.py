@@ -112,5 +112,5 @@ def stage_models(ctx) -> dict:
 
 
 STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
-              version=2,  # 2: competitors and ablations (pipeline.sensormodels)
+              version=3,  # 2: competitors and ablations (pipeline.sensormodels); 3: Vorst folds by tag
               description="FCM + ANFIS")

@@ -100,7 +100,7 @@ def _metric_columns(metrics: dict) -> dict:
             "ssm_rmse_db": ("heldout", "models", "anfis", "rssi_dbm", "rmse"),
             "tdm_rmse": ("heldout", "models", "anfis", "detection", "rmse"),
             "brier": ("heldout", "models", "anfis", "detection", "brier"),
-            "floor_rmse_db": ("heldout", "floor", "rssi_dbm", "rmse"),
+            "bound_rmse_db": ("heldout", "bound", "rssi_dbm", "rmse"),
             "rho_rmse": ("tag_sites", "anfis", "all", "rho", "rmse"),
             "fig7_median_pct": ("fig7", "anfis", "median_pct"),
             "mcl_error_median_m": ("localisation", "eval", "position_error_median_m"),

@@ -126,7 +126,7 @@ STAGE = Stage("truth", stage_truth,
               ("seed", "frequency_hz", "reader", "robot", "evaluation", "training.d_max_m",
                "training.d_bin_m", "training.alpha_bin_deg"),
               ("scene", "tour", "reads", "models", "truth_traces"),
-              version=4,  # 2: held-out grid, tag sites, eval poses; 3: the Gen2 reader's miss
+              version=5,  # 2: held-out grid, tag sites, eval poses; 3: the Gen2 reader's miss
               # probability from the tags in the field; 4: the traces in their own stage
-              # (truth_traces), the Fig. 6 truth from their gains
+              # (truth_traces), the Fig. 6 truth from their gains; 5: Gen2 empty slot >= T4
               description="propagation truth")

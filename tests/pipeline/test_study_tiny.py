@@ -193,7 +193,7 @@ def test_metrics_have_the_heldout_sections(tiny):
             "vorst2008", "fcm_only", "anfis_gridinit"} <= set(models)
     assert models["anfis"]["rssi_dbm"]["n"] > 0 and models["log_distance"]["detection"] is None
     assert models["grid_count"]["rssi_dbm"] is None
-    assert m["heldout"]["floor"]["rssi_dbm"]["n"] > 0
+    assert m["heldout"]["bound"]["rssi_dbm"]["n"] > 0
     assert m["error_budget"]["total"]["rmse_db"] == models["anfis"]["rssi_dbm"]["rmse"]
     assert m["tag_sites"]["anfis"]["all"]["n_pairs"] > 0
     # the downstream benchmark: every model localises every held-out tag (the oracle is

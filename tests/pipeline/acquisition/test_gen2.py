@@ -21,8 +21,10 @@ def test_link_timing_by_hand():
     # QueryRep = frame-sync (12.5 + 25 + 62.5 us) + 4 bits x 31.25 us = 225 us;
     # T1 = max(RTcal 62.5, 40) us; T2 = T3 = 40 us; RN16 = (10 + 16 + 1) x 16 = 432 us;
     # ACK = 100 + 18 x 31.25 = 662.5 us; EPC = (10 + 128 + 1) x 16 = 2224 us.
+    # An empty slot: the next command waits T1 + T3 = 102.5 us, but Gen2 v2.0.1 Table 6.16
+    # puts at least T4 = 2 RTcal = 125 us between reader commands: 225 + 125 us.
     t = link_timing(Gen2Config())
-    assert t.empty_s == pytest.approx((225 + 62.5 + 40) * 1e-6)
+    assert t.empty_s == pytest.approx((225 + 125) * 1e-6)
     assert t.collided_s == pytest.approx((225 + 62.5 + 432 + 40) * 1e-6)
     assert t.single_s == pytest.approx((225 + 62.5 + 432 + 40 + 662.5 + 62.5 + 2224 + 40) * 1e-6)
     # a Query adds the TRcal (64/3 / 250 kHz) and 18 more bits than a QueryRep
@@ -30,6 +32,24 @@ def test_link_timing_by_hand():
     # FM0 at 640 kHz and Tari 6.25 us is much faster
     fast = link_timing(Gen2Config(tari_s=6.25e-6, blf_hz=640e3, miller_m=1))
     assert fast.single_s < t.single_s / 4
+
+
+@pytest.mark.parametrize("tari_s, blf_hz, miller_m", [(25e-6, 250e3, 4), (6.25e-6, 640e3, 1),
+                                                     (12.5e-6, 400e3, 2), (25e-6, 120e3, 2)])
+def test_turnarounds_are_within_table_6_16(tari_s, blf_hz, miller_m):
+    """The turnarounds against Gen2 v2.0.1 Table 6.16 (RTcal = 2.5 Tari here, Tpri =
+    1 / BLF): T1 its nominal MAX(RTcal, 10 Tpri); T2 in 3.0-20.0 Tpri; T3 >= 0.0 Tpri;
+    T4 = 2.0 RTcal; no two reader commands closer than T4 (the empty slot: QueryRep and
+    the wait before the next command)."""
+    t = link_timing(Gen2Config(tari_s=tari_s, blf_hz=blf_hz, miller_m=miller_m))
+    rtcal, tpri = 2.5 * tari_s, 1 / blf_hz
+    assert t.t1_s == pytest.approx(max(rtcal, 10 * tpri))
+    assert 3.0 * tpri <= t.t2_s <= 20.0 * tpri
+    assert t.t3_s >= 0.0
+    assert t.t4_s == pytest.approx(2.0 * rtcal)
+    rep = 12.5e-6 + tari_s + rtcal + 4 * 1.25 * tari_s  # frame-sync + 4 bits
+    assert t.empty_s - rep == pytest.approx(max(t.t1_s + t.t3_s, t.t4_s))
+    assert t.empty_s - rep >= t.t4_s - 1e-15
 
 
 def test_slot_efficiency_near_one_over_e_for_many_tags():

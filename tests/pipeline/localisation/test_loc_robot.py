@@ -166,15 +166,19 @@ def test_oracle_field_filter_recovers_from_a_kidnapping():
     read, rssi = oracle.sample(free_space_gain_db(poses, TAGS).T, rng)
     obs = Observations(IDS, t, ant, poses, read, rssi, np.ones(read.shape, bool))
     # 1 dB of spread for the 0.2 m / 22.5 degree grid (no fading in free space)
-    lk = FieldLikelihood(oracle, field, fading_sigma_db=1.0)
+    lk = FieldLikelihood(oracle, field, fading=None, extra_sigma_db=1.0)
     res = run_rfid_mcl(lk, obs, (IDS, TAGS), odo, t, default_antennas(), FREE, rng,
                        config=RfidMCLConfig(n_particles=1000))
     m = filter_metrics(t, res.est_poses, true, kidnap_time_s=20.0)
     assert m["converged"] and m["recover_s"] is not None and np.isfinite(m["recover_s"])
     # after convergence the error is the grid's and the odometry's: well under 0.5 m
     assert m["median_m"] < 0.5
-    with pytest.raises(ValueError, match="fading_sigma_db"):
-        FieldLikelihood(oracle, field, fading_sigma_db=-1.0)
+    with pytest.raises(ValueError, match="extra_sigma_db"):
+        FieldLikelihood(oracle, field, extra_sigma_db=-1.0)
+    # a traced field holds local means: by default its reads are scored with their fading
+    from pipeline.localisation.fading import FadedLikelihood
+
+    assert isinstance(FieldLikelihood(oracle, field).oracle, FadedLikelihood)
 
 
 def test_median_over_filter_runs():

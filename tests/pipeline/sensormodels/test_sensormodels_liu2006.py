@@ -60,30 +60,47 @@ def test_cone_truth_gives_the_cone_and_the_likelihood_optimal_range(big_attempts
     # rates at the fitted range: binomial SE < 0.003 inside and < 0.001 outside
     assert m.p_inside == pytest.approx(pins[j], abs=0.01)
     assert m.p_outside == pytest.approx(pouts[j], abs=0.003)
-    # RSSI inside: mean of the reads' RSSI in the sector, p-weighted along d (quadrature)
-    d = synth.D_LO + (np.arange(4000) + 0.5) / 4000 * (m.range_m - synth.D_LO)
-    p = synth.p_true(d, 0.0)
-    mean = np.sum(p * synth.rssi_true(d)) / np.sum(p)
-    var = synth.SIGMA_DB ** 2 + np.sum(p * (synth.rssi_true(d) - mean) ** 2) / np.sum(p)
-    n_reads = 200_000 * w_cone * (m.range_m - synth.D_LO) / span * np.mean(p)
-    # sample mean of ~29 000 reads: 4.5 standard errors
-    assert m.rssi_inside_dbm == pytest.approx(mean, abs=4.5 * np.sqrt(var / n_reads))
-    assert m.expected_rssi_dbm(1.0, 0.0) == m.rssi_inside_dbm
-    assert m.expected_rssi_dbm(1.0, np.pi) == m.rssi_outside_dbm
+    assert m.at_search_bound == ()  # an interior optimum
     assert m.train_log_likelihood < 0 and m.n_attempts == 200_000
 
 
-def test_rssi_outside_falls_back_to_inside_mean_and_degenerate_data_raise(synth):
+def test_detection_only_and_degenerate_data_raise(synth):
+    """The sector predicts no RSSI (so no RSSI row is scored for it)."""
     d = np.array([0.5, 0.6, 0.7, 2.5, 2.6])
     a = np.zeros(5)
     read = np.array([True, True, True, False, True])
     rssi = np.array([-40.0, -42.0, -44.0, np.nan, -60.0])
-    m = fit_liu2006(Attempts(d, a, read, rssi), synth.RSSI_RANGE, d_max_m=3.0,
-                    min_reads_outside=5)
-    assert m.rssi_inside_dbm == pytest.approx(-42.0)
-    assert m.rssi_outside_dbm == m.rssi_inside_dbm  # one read outside < min_reads_outside
+    m = fit_liu2006(Attempts(d, a, read, rssi), synth.RSSI_RANGE, d_max_m=3.0)
+    assert m.predicts_rssi is False
+    assert np.all(np.isnan(m.fs_dbm([0.5, 2.0], [0.0, 1.0])))
+    np.testing.assert_array_equal(m.rho([0.5, 2.0], [0.0, 1.0]), m.fT([0.5, 2.0], [0.0, 1.0]))
+    assert "project's own" in m.DISPLAY_NAME and "not checked" in m.REFERENCE
     with pytest.raises(ValueError, match="both reads and misses"):
         fit_liu2006(Attempts(d, a, np.ones(5, bool), rssi), synth.RSSI_RANGE, d_max_m=3.0)
+
+
+def test_a_fit_on_the_search_edge_says_so(synth):
+    """A sector read at a constant rate up to the data's end: the best range is the
+    largest searched (d_max), a bound and not an optimum, and the fit says so; likewise a
+    boresight beyond the searched +-45 deg."""
+    def p(d, a):  # 0.8 inside |alpha - 60 deg| < 20 deg at every distance, 0.05 elsewhere
+        return np.where(np.abs(np.angle(np.exp(1j * (a - np.deg2rad(60))))) < np.deg2rad(20),
+                        0.8, 0.05)
+
+    m = fit_liu2006(Attempts(*synth.sample(100_000, seed=9, p=p)), synth.RSSI_RANGE, d_max_m=3.0)
+    assert m.range_m == pytest.approx(3.0)
+    assert np.rad2deg(abs(m.boresight_rad)) == pytest.approx(45.0)
+    assert m.at_search_bound == ("range_m", "boresight_rad")
+    free = fit_liu2006(Attempts(*synth.sample(100_000, seed=9, p=p)), synth.RSSI_RANGE,
+                       d_max_m=3.0, boresight_max_deg=90.0)
+    assert free.at_search_bound == ("range_m",)
+    # and the study's metrics say so (metrics.json model_fits)
+    from pipeline.stages.evaluation import model_fits
+
+    fits = model_fits({"liu2006": m})["liu2006"]
+    assert fits["at_search_bound"] == "range_m, boresight_rad" and "bound" in fits["note"]
+    assert fits["predicts_rssi"] is False
+    assert np.rad2deg(free.boresight_rad) == pytest.approx(60.0, abs=2.5 + 1e-9)
 
 
 def test_json_round_trip_and_wrong_kind(big_attempts, synth, tmp_path):
@@ -94,6 +111,7 @@ def test_json_round_trip_and_wrong_kind(big_attempts, synth, tmp_path):
     d, a = rng.uniform(0, 4, 3000), rng.uniform(-4, 4, 3000)
     for name in ("fT", "fs", "fs_dbm", "rho", "inside"):
         np.testing.assert_array_equal(getattr(back, name)(d, a), getattr(m, name)(d, a))
+    assert back.at_search_bound == m.at_search_bound
     assert back.params_dict() == m.params_dict()
     with pytest.raises(ValueError, match=r"liu\.json.*'liu2006'.*'vorst2008'"):
         Vorst2008Model.load(path)

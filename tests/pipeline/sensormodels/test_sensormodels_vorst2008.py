@@ -83,3 +83,43 @@ def test_json_round_trip_and_wrong_kind(model, tmp_path):
     assert back.cv_log_likelihood == model.cv_log_likelihood
     with pytest.raises(ValueError, match=r"vorst\.json.*'vorst2008'.*'joho2009'"):
         Joho2009Model.load(path)
+
+
+def test_group_folds_never_split_a_group():
+    """Every group lies in one fold; the folds are balanced by items (largest group first
+    to the lightest fold) and all used."""
+    from pipeline.sensormodels import group_folds
+
+    rng = np.random.default_rng(3)
+    groups = np.repeat([f"T{i:02d}" for i in range(24)], rng.integers(20, 400, 24))
+    fold = group_folds(groups, 5, np.random.default_rng(0))
+    for g in np.unique(groups):
+        assert len(np.unique(fold[groups == g])) == 1
+    sizes = np.bincount(fold, minlength=5)
+    assert np.all(sizes > 0)
+    # greedy balance: no fold exceeds the lightest by more than the largest group
+    assert sizes.max() - sizes.min() <= np.unique(groups, return_counts=True)[1].max()
+    with pytest.raises(ValueError, match="n_folds"):
+        group_folds(["a", "b"], 3, rng)
+
+
+def test_bandwidth_is_chosen_on_folds_that_keep_tags_whole(synth):
+    """Tags read many times from one place (a tour's correlated attempts: one outcome per
+    tag, repeated): folds that split a tag find its copies in training and keep the
+    histogram; folds by tag must predict each tag from its neighbours and smooth."""
+    rng = np.random.default_rng(11)
+    n_tags, reps = 600, 25
+    d = rng.uniform(0.2, 2.8, n_tags)
+    a = rng.uniform(-np.pi, np.pi, n_tags)
+    read = rng.random(n_tags) < synth.p_true(d, a)
+    tag = np.repeat(np.arange(n_tags), reps)
+    jitter = rng.normal(0.0, 0.005, (2, n_tags * reps))  # 5 mm: within one 0.1 m cell
+    att = Attempts(np.repeat(d, reps) + jitter[0], np.repeat(a, reps) + jitter[1],
+                   np.repeat(read, reps), group=tag)
+    grouped = fit_vorst2008(att, synth.RSSI_RANGE, np.random.default_rng(0), d_max_m=3.0)
+    leaky = fit_vorst2008(Attempts(att.d, att.alpha, att.read), synth.RSSI_RANGE,
+                          np.random.default_rng(0), d_max_m=3.0)
+    assert leaky.bandwidth_m == 0.0 and leaky.cv_n_groups == 0
+    assert grouped.bandwidth_m > 0.0 and grouped.cv_n_groups == n_tags
+    # scored on unseen tags the copies no longer help: a lower held-out likelihood
+    assert max(grouped.cv_log_likelihood) < max(leaky.cv_log_likelihood)
