@@ -9,7 +9,12 @@ simplifies them (Douglas-Peucker within ``tolerance_m``, topology preserved) and
 the minimum rotated rectangle the rules use; ``measure.approximate_polygon`` straightens
 the centre lines within the same tolerance.
 
-Rules, first match wins (:class:`ExtractionRules`, each threshold a field):
+Connected obstacles are first split into their thick part (an opening with a square
+``thin_wall_max_m`` wide, scipy.ndimage) and the thin lines left over, so a partition
+that joins the outer wall is an obstacle of its own. Obstacles smaller than
+``min_area_m2`` are laser noise (a person, a stray return) and
+make no geometry; the robot's map keeps them. Rules, first match wins
+(:class:`ExtractionRules`, each threshold a field):
 
 1. *outer*: the obstacle touches the outside of the building (the image border or an
    unknown region connected to it): a wall of ``outer_material`` (concrete), solid;
@@ -63,6 +68,8 @@ class ExtractionRules:
         Smallest area fraction of its minimum rotated rectangle a rack fills [1].
     rack_min_depth_m, rack_min_length_m : float
         Smallest short and long side of a rack's rectangle [m].
+    min_area_m2 : float
+        Obstacles of less area are noise: no geometry [m^2].
     """
 
     outer_material: str = "concrete"
@@ -74,6 +81,7 @@ class ExtractionRules:
     rack_min_fill: float = 0.85
     rack_min_depth_m: float = 0.35
     rack_min_length_m: float = 1.0
+    min_area_m2: float = 0.02
 
 
 @dataclass(frozen=True)
@@ -293,12 +301,21 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
     obstacle = cls == OBSTACLE
     outside = np.pad(cls == OUTSIDE, 1, constant_values=True)
     near_outside = ndimage.binary_dilation(outside, structure=np.ones((3, 3)))[1:-1, 1:-1]
-    labels = measure.label(obstacle, connectivity=2)
+    # walls meet: a partition joined to the outer wall is one connected obstacle. An
+    # opening with a square as wide as thin_wall_max_m keeps what is at least that thick
+    # (rectangles exactly) and removes thinner lines, which become obstacles of their own.
+    k = max(1, int(np.ceil(rules.thin_wall_max_m / res - 1e-9)))
+    thick = ndimage.binary_opening(obstacle, structure=np.ones((k, k), bool))
+    labels = measure.label(thick, connectivity=2)
+    thin_labels = measure.label(obstacle & ~thick, connectivity=2)
+    labels = np.where(thin_labels > 0, thin_labels + labels.max(), labels)
     out = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         if sl is None:
             continue
         mask = labels[sl] == k
+        if float(mask.sum()) * res * res < rules.min_area_m2:
+            continue
         r0, c0 = sl[0].start, sl[1].start
         poly = _polygon(mask, rosmap, r0, c0, tol)
         lines = _centre_lines(mask, rosmap, r0, c0, tol)

@@ -85,7 +85,7 @@ class MapSpec:
         Outline and centre-line simplification tolerance [m]; None: half a map cell.
     outer_material, thick_material, thin_material, pillar_material : str
         Materials of the rules (:class:`scenes.mapextract.ExtractionRules`).
-    thin_wall_max_m, pillar_max_m, rack_min_fill, rack_min_depth_m, rack_min_length_m : float
+    thin_wall_max_m, pillar_max_m, rack_min_fill, rack_min_depth_m, rack_min_length_m, min_area_m2 : float
         Rule thresholds (:class:`scenes.mapextract.ExtractionRules`).
     rack_height_m : float
         Height of a rack's uprights [m].
@@ -119,6 +119,7 @@ class MapSpec:
     rack_min_fill: float = 0.85
     rack_min_depth_m: float = 0.35
     rack_min_length_m: float = 1.0
+    min_area_m2: float = 0.02
     rack_height_m: float = 2.2
     shelf_levels_m: tuple[float, ...] = (0.3, 0.8, 1.3, 1.8)
     beam_height_m: float = 0.1
@@ -239,4 +240,4 @@ def rules_of(spec: MapSpec) -> ExtractionRules:
         thin_material=spec.thin_material, thin_wall_max_m=spec.thin_wall_max_m,
         pillar_max_m=spec.pillar_max_m, pillar_material=spec.pillar_material,
         rack_min_fill=spec.rack_min_fill, rack_min_depth_m=spec.rack_min_depth_m,
-        rack_min_length_m=spec.rack_min_length_m)
+        rack_min_length_m=spec.rack_min_length_m, min_area_m2=spec.min_area_m2)
