@@ -1,13 +1,12 @@
 """Obstacles of an occupancy-grid map: outlines, centre lines and a construction by rule.
 
 Libraries do the image work: scikit-image labels the connected obstacles
-(``measure.label``, 8-connected), traces their outlines at the cell edges
-(``measure.find_contours`` at level 0.5 on the padded mask: the contour runs half-way
-between an obstacle cell centre and a free one) and thins each obstacle to its centre
-line (``morphology.skeletonize``); shapely builds the polygons (holes included),
-simplifies them (Douglas-Peucker within ``tolerance_m``, topology preserved) and gives
-the minimum rotated rectangle the rules use; ``measure.approximate_polygon`` straightens
-the centre lines within the same tolerance.
+(``measure.label``, 8-connected) and thins each to its centre line
+(``morphology.skeletonize``); shapely traces the outlines (the union of each obstacle's
+row runs of cells: the exact outline along the cell edges, holes included), simplifies
+them (Douglas-Peucker within ``tolerance_m``, topology preserved) and gives the minimum
+rotated rectangle the rules use; ``measure.approximate_polygon`` straightens the centre
+lines within the same tolerance.
 
 Connected obstacles are first split into their thick part (an opening with a square
 ``thin_wall_max_m`` wide, scipy.ndimage) and the thin lines left over, so a partition
@@ -35,7 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import shapely
 from scipy import ndimage
-from shapely.geometry import MultiPolygon, Point, Polygon
+from shapely.geometry import Point, Polygon
 
 from scenes.rosmap import OBSTACLE, OUTSIDE, RosMap, resolve_unknown
 
@@ -138,27 +137,25 @@ class MapObstacle:
 
 
 def _polygon(mask: np.ndarray, rosmap: RosMap, r0: int, c0: int, tol: float) -> Polygon:
-    """Outline of one obstacle mask (cropped at row r0, col c0) as a simplified polygon."""
-    from skimage import measure
+    """Outline of one obstacle mask (cropped at row r0, col c0) as a simplified polygon.
 
-    padded = np.pad(mask, 1).astype(float)
-    rings = []
-    for c in measure.find_contours(padded, 0.5, fully_connected="high"):
-        if len(c) < 4:
-            continue
-        xy = rosmap.cell_centres(c[:, 0] - 1 + r0, c[:, 1] - 1 + c0)
-        ring = Polygon(xy)
-        if ring.area > 0:
-            rings.append(ring)
-    if not rings:
-        raise ValueError(f"{rosmap.path}: an obstacle at row {r0}, col {c0} has no outline")
-    rings.sort(key=lambda p: -p.area)
-    shell = rings[0]
-    holes = [r for r in rings[1:] if shell.contains(r.representative_point())]
-    poly = shapely.make_valid(Polygon(shell.exterior.coords, [h.exterior.coords for h in holes]))
-    if isinstance(poly, MultiPolygon) or not isinstance(poly, Polygon):
+    The union (shapely) of the mask's row runs, one rectangle each: the exact outline
+    along the cell edges, holes included; then Douglas-Peucker within ``tol``.
+    """
+    res = rosmap.resolution_m
+    boxes = []
+    for r in np.flatnonzero(mask.any(axis=1)):
+        d = np.diff(np.concatenate([[0], mask[r].astype(np.int8), [0]]))
+        y0 = rosmap.origin_m[1] + (r + r0) * res
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+            x0 = rosmap.origin_m[0] + (a + c0) * res
+            boxes.append(shapely.box(x0, y0, x0 + (b - a) * res, y0 + res))
+    poly = shapely.unary_union(boxes)
+    if not isinstance(poly, Polygon):  # 8-connected cells touching at a corner only
         parts = [g for g in getattr(poly, "geoms", [poly]) if isinstance(g, Polygon)]
-        poly = max(parts, key=lambda g: g.area)
+        poly = shapely.unary_union([g.buffer(res * 1e-3, join_style="mitre") for g in parts])
+        if not isinstance(poly, Polygon):
+            poly = max(poly.geoms, key=lambda g: g.area)
     return poly.simplify(tol, preserve_topology=True)
 
 
