@@ -176,6 +176,12 @@ def run(
         _fail(str(exc))
     except KeyboardInterrupt:
         _fail("interrupted before the run started", code=130)
+    try:  # a bad occupancy-grid map stops here, before the run directory is made
+        from scenes.mapscene import check_map_source
+
+        check_map_source(cfg.scene)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
     t0 = time.perf_counter()
     try:
         res = run_full_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv,
