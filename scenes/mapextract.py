@@ -96,10 +96,11 @@ class MapObstacle:
     area_m2 : float
         Area of the obstacle's cells [m^2].
     thickness_m : float
-        Mean thickness: cell area / centre-line length [m] (the short side for a blob
-        without a centre line).
+        Mean thickness [m]: the short side of a rectangular obstacle (one that fills
+        ``rack_min_fill`` of its rectangle), else cell area / centre-line length.
     centre_lines_m : numpy.ndarray
-        Straightened centre line, segments (k, 2, 2) [m].
+        Centre line, segments (k, 2, 2) [m]: a rectangular obstacle's mid-line along its
+        long side, else its straightened skeleton.
     rectangle_m : numpy.ndarray
         Corners of the minimum rotated rectangle, shape (4, 2) [m], counter-clockwise.
     fill : float
@@ -228,16 +229,26 @@ def _skeleton_paths(skel: np.ndarray) -> list[np.ndarray]:
 
 
 def _centre_lines(mask: np.ndarray, rosmap: RosMap, r0: int, c0: int, tol: float) -> np.ndarray:
-    """Centre-line segments (k, 2, 2) [m] of one obstacle: its skeleton, spurs pruned."""
+    """Centre-line segments (k, 2, 2) [m] of one obstacle: its skeleton, spurs pruned.
+
+    Spurs (branches to a free end no longer than the obstacle's half-width at their root)
+    are removed and the skeleton traced again, so the branches they split are whole; free
+    ends are then extended by the half-width there (a skeleton stops that short of the
+    obstacle's end, and a ray passing the gap would cross no surface).
+    """
     from skimage import measure, morphology
 
-    skel = morphology.skeletonize(np.pad(mask, 1))
+    padded = np.pad(mask, 1)
+    skel = morphology.skeletonize(padded)
+    half_width = ndimage.distance_transform_edt(padded)
     paths = _skeleton_paths(skel)
     if not paths:
         return np.zeros((0, 2, 2))
-    deg = ndimage.convolve(skel.astype(int), np.ones((3, 3), int), mode="constant") - 1
-    # a spur: a path ending in a free end, shorter than the obstacle's half-width at its root
-    half_width = ndimage.distance_transform_edt(np.pad(mask, 1))
+
+    def degree(img):
+        return ndimage.convolve(img.astype(int), np.ones((3, 3), int), mode="constant") - 1
+
+    deg = degree(skel)
     keep = []
     for p in paths:
         length = np.linalg.norm(np.diff(p, axis=0), axis=1).sum()
@@ -246,12 +257,33 @@ def _centre_lines(mask: np.ndarray, rosmap: RosMap, r0: int, c0: int, tol: float
         if len(paths) > 1 and sum(ends_free) == 1 and length <= half_width[int(root[0]), int(root[1])] + 1:
             continue
         keep.append(p)
+    if len(keep) < len(paths):  # trace the pruned skeleton again: whole branches
+        pruned = np.zeros_like(skel)
+        for p in keep:
+            pruned[p[:, 0].astype(int), p[:, 1].astype(int)] = True
+        skel, paths = pruned, _skeleton_paths(pruned)
+        deg = degree(skel)
     segs = []
-    for p in keep or paths:
+    for p in paths:
+        p = p.copy()
+        for end, inner in ((0, min(3, len(p) - 1)), (len(p) - 1, max(len(p) - 4, 0))):
+            q = p[end]
+            if deg[int(q[0]), int(q[1])] == 1 and len(p) > 1:
+                d = q - p[inner]
+                if np.linalg.norm(d) > 0:
+                    p[end] = q + d / np.linalg.norm(d) * (half_width[int(q[0]), int(q[1])] - 0.5)
         q = measure.approximate_polygon(p, tolerance=tol / rosmap.resolution_m)
         xy = rosmap.cell_centres(q[:, 0] - 1 + r0, q[:, 1] - 1 + c0)
         segs += [[a, b] for a, b in zip(xy[:-1], xy[1:], strict=True) if np.linalg.norm(b - a) > 1e-9]
     return np.asarray(segs, dtype=float).reshape(-1, 2, 2)
+
+
+def _mid_line(rect: np.ndarray) -> np.ndarray:
+    """The centre line (1, 2, 2) [m] of a rectangle (4, 2) along its long side."""
+    e0, e1 = rect[1] - rect[0], rect[2] - rect[1]
+    if np.linalg.norm(e0) >= np.linalg.norm(e1):
+        return np.array([[(rect[0] + rect[3]) / 2, (rect[1] + rect[2]) / 2]])
+    return np.array([[(rect[0] + rect[1]) / 2, (rect[3] + rect[2]) / 2]])
 
 
 def _classify(area: float, thickness: float, long_side: float, short_side: float, fill: float,
@@ -320,11 +352,15 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
         rect = _rectangle(poly)
         e = np.linalg.norm(np.diff(np.vstack([rect, rect[:1]]), axis=0), axis=1)
         long_side, short_side = float(max(e[0], e[1])), float(min(e[0], e[1]))
-        length = float(np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1).sum()) if len(lines) else 0.0
-        # a centre line shorter than the cells' extent (a square blob): thickness = short side
-        thickness = area / length if length > short_side else max(short_side, res)
         rect_area = max(long_side * short_side, res * res)
         fill = min(1.0, area / rect_area)
+        if fill >= rules.rack_min_fill:  # a rectangle (a straight wall): its mid-line, whole
+            lines = _mid_line(rect)
+            thickness = max(short_side, res)
+        else:
+            length = float(np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1).sum()) if len(lines) else 0.0
+            # a centre line shorter than the cells' extent (a blob): thickness = short side
+            thickness = area / length if length > short_side else max(short_side, res)
         outer = bool(np.any(near_outside[sl][mask]))
         kind, mat, cons, rule = _classify(area, thickness, long_side, short_side, fill, outer, rules)
         out.append(MapObstacle(len(out), poly, area, float(thickness), lines, rect, fill, outer,
