@@ -14,8 +14,8 @@ An inventory robot drives the aisles; the route it follows here is planned, not 
    search, shapely simplifies the joined polyline within half a grid cell.
 
 The collision map (:func:`pipeline.robot.trajectory.collision_map`: the scene's meshes
-sliced over the robot's height, racks' shelves and uprights included) is what "free"
-means. A face no pass can serve, or a pass the others cannot reach, stops the planning
+sliced over the robot's height, racks' shelves and uprights included; its largest
+enclosed free region, the building's main floor) is what "free" means. A face no pass can serve, or a pass the others cannot reach, stops the planning
 with a message naming the map and the region.
 """
 
@@ -182,6 +182,7 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
         passes in free space the first pass cannot reach (the region is named).
     """
     from pipeline.robot.trajectory import collision_map
+    from scenes import is_free as scene_is_free
 
     label = name or str(scene.source or scene.name)
     if not standoff_m > 0:
@@ -238,6 +239,12 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
                 chosen = np.stack([a, b])
                 break
         if chosen is None:
+            front = (f.start_m + f.end_m) / 2 + infl * f.normal
+            if scene_is_free(scene, [[front[0], front[1], 0.35]])[0]:
+                raise ValueError(
+                    f"{label}: unreachable region around ({front[0]:.2f}, {front[1]:.2f}) m: the "
+                    f"free space in front of the {f.describe()} is not connected to the "
+                    "building's main free space")
             raise ValueError(
                 f"{label}: unreachable region: no robot pass fits within standoff_m = {standoff_m} m "
                 f"of the {f.describe()} (robot radius {robot.radius_m:.2f} m + margin {margin_m} m)")
