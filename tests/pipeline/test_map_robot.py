@@ -89,3 +89,24 @@ def test_mcl_map_is_the_grid_as_given(aisle_scene):
     biased = draw_robot_map(sc, dataclasses.replace(loc, map_error_m=0.1), np.random.default_rng(1))
     assert np.max(np.abs(biased.error.offsets_m)) > RES
     assert not np.array_equal(biased.occupancy_map.occupied, rmap.occupied)
+
+
+def test_cli_shows_a_map_and_refuses_a_bad_one_before_writing(tmp_path):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    path = _aisles(tmp_path / "ok")
+    png = tmp_path / "top.png"
+    res = runner.invoke(app, ["scenes", "show", str(path), "--png", str(png)])
+    assert res.exit_code == 0, res.output
+    assert "tags: 288" in res.output and "route: " in res.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bad = write_map(tmp_path / "bad", building(2.0, 2.0), resolution=0)
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(bad), "--out", str(out)])
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("error: ")]
+    assert res.exit_code == 2 and len(errors) == 1
+    assert "map.yaml: key 'resolution' must be positive" in errors[0]
+    assert not out.exists()  # nothing half-written
