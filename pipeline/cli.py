@@ -112,7 +112,7 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
                 data, source, base_dir = parsed, str(p), p.parent
             else:
                 data = {"scene": str(p.resolve())}
-        elif p.suffix in (".toml", ".xml") and not p.exists():
+        elif p.suffix in (".toml", ".xml", ".yaml", ".yml") and not p.exists():
             raise ConfigError(f"{p}: no such file")
         else:
             data = {"scene": str(p.resolve()) if p.exists() else target}
@@ -177,6 +177,12 @@ def run(
         _fail(str(exc))
     except KeyboardInterrupt:
         _fail("interrupted before the run started", code=130)
+    try:  # a bad occupancy-grid map stops here, before the run directory is made
+        from scenes.mapscene import check_map_source
+
+        check_map_source(cfg.scene)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
     t0 = time.perf_counter()
     try:
         res = run_full_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv,
@@ -401,6 +407,11 @@ def scenes_show(
         _fail(f"--png {png}: is a directory; give a file name ending in .png")
     try:
         sc = scenes.load(name)
+        if sc.route_m is None and sc.rosmap is not None:  # a map: the route a study plans
+            from pipeline.robot import Robot
+            from pipeline.stages.common import map_route
+
+            sc = map_route(sc, Robot())
     except (FileNotFoundError, KeyError, ValueError) as exc:
         _fail(str(exc))
     lo, hi = sc.bounds_m

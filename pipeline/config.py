@@ -378,7 +378,7 @@ def config_from_mapping(data: dict, source: str = "<config>", base_dir: Path | N
 
 def _resolve_paths(cfg: StudyConfig, base_dir: Path) -> StudyConfig:
     scene = cfg.scene
-    if ("/" in scene or scene.endswith((".toml", ".xml"))) and not Path(scene).is_absolute():
+    if ("/" in scene or scene.endswith((".toml", ".xml", ".yaml", ".yml"))) and not Path(scene).is_absolute():
         scene = str((base_dir / scene).resolve())
     tracing = cfg.tracing
     if tracing.cache_dir and not Path(tracing.cache_dir).expanduser().is_absolute():

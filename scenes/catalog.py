@@ -22,8 +22,9 @@ def _data_dir() -> Path:
 
 
 def list_bundled() -> list[str]:
-    """Names of the bundled scenes (``scenes/data/<name>.toml``), sorted."""
-    return sorted(p.stem for p in _data_dir().glob("*.toml") if not p.name.endswith(".tags.toml"))
+    """Names of the bundled scenes (``scenes/data/<name>.toml`` and ROS maps ``<name>.yaml``), sorted."""
+    names = {p.stem for p in _data_dir().glob("*.toml") if not p.name.endswith(".tags.toml")}
+    return sorted(names | {p.stem for p in _data_dir().glob("*.yaml")})
 
 
 def bundled_path(name: str) -> Path:
@@ -35,6 +36,8 @@ def bundled_path(name: str) -> Path:
         If there is no such bundled scene (the known names are listed).
     """
     path = _data_dir() / f"{name}.toml"
+    if not path.is_file():
+        path = _data_dir() / f"{name}.yaml"
     if not path.is_file():
         raise ValueError(f"unknown bundled scene {name!r}; bundled scenes: {', '.join(list_bundled())}")
     return path
@@ -49,6 +52,15 @@ def build(spec: SceneSpec) -> Scene:
     """
     if spec.corridor is not None:
         return build_corridor(spec)
+    if spec.map is not None:
+        from scenes.mapscene import build_map_scene
+
+        scene = build_map_scene(spec.map, name=spec.name, base_dir=spec.base_dir, tags=spec.tags,
+                                tag_layout=spec.tag_layout, route_m=spec.route_m,
+                                source=spec.source or spec.name,
+                                material_overrides=overrides_metadata(spec).get("material_overrides"))
+        scene.metadata["spec"] = spec_to_dict(spec)
+        return scene
     base = Path(spec.base_dir)
     route = spec.route_m
     src = spec.mesh if spec.mesh is not None else spec.mitsuba
@@ -72,7 +84,8 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
     ----------
     name_or_path : str or Path
         ``"corridor_lab"`` (see :func:`list_bundled`), ``*.toml`` spec, ``*.xml`` Mitsuba
-        scene, or a mesh file (``.ply``, ``.obj``, ``.glb`` ...; pass ``material=`` or
+        scene, ``*.yaml`` ROS map_server map (:mod:`scenes.mapscene`; ``kwargs`` go to
+        :class:`scenes.mapspec.MapSpec`), or a mesh file (``.ply``, ``.obj``, ``.glb`` ...; pass ``material=`` or
         ``material_map=``).
     **kwargs
         Passed to :func:`scenes.importers.import_mesh` or
@@ -90,16 +103,25 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
     suffix = path.suffix.lower()
     looks_like_path = bool(suffix) or len(path.parts) > 1
     if not looks_like_path:
-        return build(load_spec(bundled_path(text)))
+        path = bundled_path(text)
+        if path.suffix == ".yaml":
+            from scenes.mapscene import load_map
+
+            return load_map(path, **kwargs)
+        return build(load_spec(path))
     if not path.is_file():
         raise FileNotFoundError(f"scene file {text!r} does not exist")
     if suffix == ".toml":
         return build(load_spec(path))
     if suffix == ".xml":
         return load_mitsuba_xml(path, **kwargs)
+    if suffix in (".yaml", ".yml"):
+        from scenes.mapscene import load_map
+
+        return load_map(path, **kwargs)
     if suffix in MESH_SUFFIXES:
         return import_mesh(path, **kwargs)
-    raise ValueError(f"{text}: unsupported scene file type {suffix!r} (.toml, .xml, "
+    raise ValueError(f"{text}: unsupported scene file type {suffix!r} (.toml, .xml, .yaml, "
                      f"{', '.join(MESH_SUFFIXES)})")
 
 

@@ -110,6 +110,9 @@ class Scene:
         every face with its material's library thickness (a closed box counts twice).
         Generated scenes set it; imports only when asked (``radio_geometry=``).
         Geometric queries (collision, laser, tags) always use ``meshes``.
+    rosmap : scenes.rosmap.RosMap or None
+        The occupancy-grid map the scene was extracted from (:mod:`scenes.mapscene`):
+        the robot localises in it as it is; ``None`` for every other scene.
     """
 
     name: str
@@ -120,6 +123,7 @@ class Scene:
     route_m: np.ndarray | None = None
     free_space_m: np.ndarray | None = None
     radio_surfaces: tuple[RadioSurface, ...] | None = None
+    rosmap: object | None = None
 
     @property
     def materials(self) -> list[str]:
@@ -142,7 +146,7 @@ class Scene:
 
         Covers the solid meshes, the radio surfaces (materials, thicknesses, triangles;
         nothing is added when they are ``None``, so imported scenes keep their hash), the
-        tags and ``metadata["material_overrides"]``.
+        tags, ``metadata["material_overrides"]`` and the map of a map scene.
         """
         h = hashlib.sha256()
         for name in self.materials:
@@ -156,6 +160,8 @@ class Scene:
         h.update(json.dumps(self.metadata.get("material_overrides", {}), sort_keys=True).encode())
         if self.radio_surfaces is not None:
             hash_radio_surfaces(h, self.radio_surfaces)
+        if self.rosmap is not None:
+            h.update(self.rosmap.digest().encode())
         return h.hexdigest()
 
     def export_mitsuba(self, directory: str | Path, frequency_hz: float) -> Path:

@@ -327,8 +327,9 @@ class SceneSpec:
         Scene name.
     description : str
         Free text.
-    corridor, mesh, mitsuba : CorridorSpec, MeshSpec, MitsubaSpec or None
-        Exactly one is set: where the geometry comes from.
+    corridor, mesh, mitsuba, map : CorridorSpec, MeshSpec, MitsubaSpec, MapSpec or None
+        Exactly one is set: where the geometry comes from (``map``: a ROS occupancy-grid
+        map, :class:`scenes.mapspec.MapSpec`, TOML ``[map]``).
     segments : tuple of SegmentSpec
         Free-space rectangles of a generated corridor (empty: straight corridor).
     doors, panels, boxes, cabinets, tags : tuple
@@ -338,6 +339,8 @@ class SceneSpec:
     material_overrides : dict of str to MaterialOverride
         Per-material replacement properties (TOML ``[material_overrides.<name>]``);
         stored in ``Scene.metadata["material_overrides"]`` and used by the export.
+    tag_layout : scenes.mapspec.TagLayoutSpec or None
+        TOML ``[tags]``: tags laid out on a map scene's shelves or read from a CSV.
     base_dir : str
         Folder relative paths resolve against (the TOML's folder); not written to TOML.
     source : str
@@ -357,6 +360,8 @@ class SceneSpec:
     tags: tuple[TagSpec, ...] = ()
     route_m: tuple[tuple[float, float], ...] | None = None
     material_overrides: dict[str, MaterialOverride] = field(default_factory=dict)
+    map: typing.Any = None
+    tag_layout: typing.Any = None
     base_dir: str = "."
     source: str = ""
 

@@ -57,8 +57,8 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
     """Build a :class:`SceneSpec` from the parsed TOML mapping (see :func:`load_spec`)."""
     if not isinstance(data, dict):
         raise SpecError(f"{source}: expected a table at top level")
-    top_known = {"name", "description", "route_m", "material_overrides", *_SOURCE_TABLES,
-                 *_ITEM_TABLES}
+    top_known = {"name", "description", "route_m", "material_overrides", "map", "tags",
+                 *_SOURCE_TABLES, *_ITEM_TABLES}
     unknown = sorted(set(data) - top_known)
     if unknown:
         raise SpecError(
@@ -87,10 +87,20 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
     for table, cls in _SOURCE_TABLES.items():
         if table in data:
             kwargs[table] = parse_item(cls, data[table], f"{source}: [{table}]")
-    sources = [t for t in _SOURCE_TABLES if t in kwargs]
+    if "map" in data:
+        from scenes.mapspec import parse_map_table
+
+        kwargs["map"] = parse_map_table(data["map"], f"{source}: [map]")
+    if "tags" in data:
+        if "map" not in data:
+            raise SpecError(f"{source}: [tags] needs a [map] (tag layouts on shelves)")
+        from scenes.mapspec import parse_tags_table
+
+        kwargs["tag_layout"] = parse_tags_table(data["tags"], f"{source}: [tags]")
+    sources = [t for t in (*_SOURCE_TABLES, "map") if t in kwargs]
     if len(sources) != 1:
         raise SpecError(
-            f"{source}: exactly one of [corridor], [mesh], [mitsuba] is needed, got "
+            f"{source}: exactly one of [corridor], [mesh], [mitsuba], [map] is needed, got "
             f"{sources or 'none'}"
         )
     for table, (attr, cls) in _ITEM_TABLES.items():
@@ -176,6 +186,10 @@ def spec_to_dict(spec: SceneSpec) -> dict:
         value = getattr(spec, table)
         if value is not None:
             out[table] = clean(value)
+    if spec.map is not None:
+        out["map"] = clean(spec.map)
+    if spec.tag_layout is not None:
+        out["tags"] = clean(spec.tag_layout)
     for table, (attr, _) in _ITEM_TABLES.items():
         items = getattr(spec, attr)
         if items:

@@ -7,6 +7,7 @@ record, in a map of the building whose walls are off by a few centimetres
 (:mod:`pipeline.robot.robotmap`) (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005).
 """
 
+from pipeline.robot.coverage import CoverageRoute, TagFace, plan_coverage_route, tag_faces
 from pipeline.robot.kinematics import (
     AntennaMount,
     Robot,
@@ -52,6 +53,10 @@ from pipeline.robot.trajectory import (
 )
 
 __all__ = [
+    "CoverageRoute",
+    "TagFace",
+    "plan_coverage_route",
+    "tag_faces",
     "AntennaMount",
     "DriveProfile",
     "LaserScanner",

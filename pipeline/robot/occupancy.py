@@ -221,13 +221,44 @@ class OccupancyMap:
                 raise ValueError(f"OccupancyMap: {name!r} has no enclosed free space")
             seeds = np.array([int(np.argmax(sizes)) + 1])
         free = np.isin(labels, seeds)
-        occupied = ~free
+        logger.debug("OccupancyMap %s: %s cells, %.1f%% free", name, shape, 100 * free.mean())
+        return cls.from_grid(free, origin, resolution_m, seg, z_range)
+
+    @classmethod
+    def from_grid(
+        cls,
+        free: np.ndarray,
+        origin_m: np.ndarray,
+        resolution_m: float,
+        segments: np.ndarray,
+        z_range: tuple[float, float] = (0.0, 0.0),
+    ) -> OccupancyMap:
+        """Build the map from a grid of free cells and the obstacle outlines it was drawn with.
+
+        Used directly for a map given as a grid (a ROS map, :mod:`scenes.rosmap`).
+
+        Parameters
+        ----------
+        free : numpy.ndarray
+            (ny, nx) bool, True where the robot may be.
+        origin_m : numpy.ndarray
+            World (x, y) of the grid's lower-left corner (2,) [m].
+        resolution_m : float
+            Cell size [m].
+        segments : numpy.ndarray
+            Obstacle outline segments (k, 2, 2) [m]; those facing free space make the
+            likelihood field.
+        z_range : tuple[float, float]
+            Heights the outlines stand for [m] (recorded only).
+        """
+        free = np.asarray(free, dtype=bool)
+        origin = np.asarray(origin_m, dtype=float)
+        seg = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
         distance = ndimage.distance_transform_edt(free) * resolution_m
         faces = _free_facing(seg, free, origin, resolution_m)
-        boundary = _segment_distance_field(faces, origin, resolution_m, shape)
-        logger.debug("OccupancyMap %s: %s cells, %.1f%% free", name, shape, 100 * free.mean())
+        boundary = _segment_distance_field(faces, origin, resolution_m, free.shape)
         z0, z1 = (float(v) for v in z_range)
-        return cls(origin, float(resolution_m), occupied, distance, boundary, (z0, z1))
+        return cls(origin, float(resolution_m), ~free, distance, boundary, (z0, z1))
 
     @property
     def shape(self) -> tuple[int, int]:

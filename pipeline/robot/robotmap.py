@@ -34,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from pipeline.robot.occupancy import OccupancyMap, slice_heights
 from scenes import floor_plan_segments
@@ -44,6 +45,7 @@ __all__ = [
     "displace_wall_lines",
     "draw_map_error",
     "draw_robot_map",
+    "plan_segments",
     "robot_map",
     "wall_lines",
 ]
@@ -315,6 +317,54 @@ def _scene_centre(scene) -> np.ndarray:
     return 0.5 * (b[0, :2] + b[1, :2])
 
 
+def plan_segments(scene, height_m: float) -> np.ndarray:
+    """The floor plan the robot's map is drawn from, segments (k, 2, 2) [m].
+
+    The cut of every mesh at the laser height (as the laser map's cut); for a scene
+    extracted from an occupancy-grid map (``scene.rosmap``, :mod:`scenes.rosmap`) the
+    outline of the map's obstacle cells instead: the robot's map is the map as given,
+    with its imperfections, not the geometry extracted from it.
+    """
+    rm = getattr(scene, "rosmap", None)
+    if rm is None:
+        return floor_plan_segments(scene, slice_heights((height_m, height_m), 1)[0])
+    from scenes.rosmap import OBSTACLE, boundary_segments, resolve_unknown
+
+    return boundary_segments(resolve_unknown(rm.cell_class) == OBSTACLE, rm.origin_m, rm.resolution_m)
+
+
+def _grid_map(scene, error: MapError) -> OccupancyMap:
+    """The robot's map of a scene from an occupancy-grid map, on that map's own grid.
+
+    Free: the map's free cells (enclosed unknown ones resolved as in
+    :func:`scenes.rosmap.resolve_unknown`) 4-connected to the route; with a map error,
+    the displaced outlines rasterised on the same grid (:meth:`OccupancyMap.from_segments`).
+    """
+    from scenes.rosmap import FREE, resolve_unknown
+
+    rm = scene.rosmap
+    h = float(error.height_m)
+    if not error.is_zero:
+        return OccupancyMap.from_segments(error.displaced_lines_m, rm.origin_m, rm.shape,
+                                          rm.resolution_m, route_m=scene.route_m, z_range=(h, h),
+                                          name=f"{scene.name} (robot map)")
+    free = resolve_unknown(rm.cell_class) == FREE
+    lab, n = ndimage.label(free)
+    if scene.route_m is not None and len(scene.route_m):
+        occ = OccupancyMap.from_grid(free, rm.origin_m, rm.resolution_m, np.zeros((0, 2, 2)))
+        row, col, inside = occ.cell_index(np.asarray(scene.route_m, dtype=float))
+        seeds = np.unique(lab[row[inside], col[inside]])
+        seeds = seeds[seeds > 0]
+        if not len(seeds):
+            raise ValueError(f"{rm.path}: no point of the route of {scene.name!r} lies in the "
+                             "map's free space")
+    else:
+        sizes = ndimage.sum_labels(free, lab, np.arange(1, n + 1))
+        seeds = np.array([int(np.argmax(sizes)) + 1])
+    return OccupancyMap.from_grid(np.isin(lab, seeds), rm.origin_m, rm.resolution_m,
+                                  plan_segments(scene, h), (h, h))
+
+
 def draw_map_error(
     scene,
     height_m: float,
@@ -349,7 +399,7 @@ def draw_map_error(
         )
     rng_off, rng_scale = rng.spawn(2)
     h = float(height_m)
-    cut = floor_plan_segments(scene, slice_heights((h, h), 1)[0])  # as the laser map's cut
+    cut = plan_segments(scene, h)
     lines, normals = wall_lines(cut)
     offsets = (map_error_m * rng_off.standard_normal(len(lines)) if map_error_m > 0
                else np.zeros(len(lines)))
@@ -368,7 +418,8 @@ def robot_map(
     """Rasterise the displaced floor plan into the grid and likelihood field MCL uses.
 
     Same grid as the true laser map (:meth:`OccupancyMap.scene_grid`); free space is
-    what the scene's route reaches. A zero ``error`` gives the true laser map exactly
+    what the scene's route reaches. A scene from an occupancy-grid map (``scene.rosmap``)
+    gets that map as given, on its own grid and resolution (``resolution_m`` unused). A zero ``error`` gives the true laser map exactly
     (``OccupancyMap.from_scene`` at the laser height), before the noise.
 
     Parameters
@@ -390,7 +441,9 @@ def robot_map(
     OccupancyMap
     """
     h = float(error.height_m)
-    if error.is_zero:
+    if getattr(scene, "rosmap", None) is not None:  # the map as given, on its own grid
+        occ = _grid_map(scene, error)
+    elif error.is_zero:
         occ = OccupancyMap.from_scene(scene, resolution_m, (h, h), n_slices=1)
     else:
         origin, shape = OccupancyMap.scene_grid(scene, resolution_m)

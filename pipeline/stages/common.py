@@ -29,6 +29,7 @@ __all__ = [
     "link_budget",
     "load_scene",
     "manifest_info",
+    "map_route",
     "preferred_backend",
     "read_reads",
     "read_track",
@@ -96,7 +97,7 @@ def study_scene(cfg: StudyConfig):
     from scenes.scene import TagSet
     from scenes.tagsites import draw_tags, tag_sites
 
-    sc = scenes.load(cfg.scene)
+    sc = map_route(scenes.load(cfg.scene), build_robot(cfg))
     ev = cfg.evaluation
     train = sc.tags
     sites = tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
@@ -114,6 +115,24 @@ def study_scene(cfg: StudyConfig):
                   np.vstack([train.normals, held.normals]))
     split = np.array(["train"] * len(train) + ["eval"] * len(held))
     return dataclasses.replace(sc, tags=tags), split
+
+
+def map_route(scene, robot):
+    """``scene`` with a planned coverage route when it is a map scene without a route.
+
+    A scene from an occupancy-grid map (``scene.rosmap``) without ``route_m`` gets
+    :func:`pipeline.robot.plan_coverage_route` past its tags, within the map's
+    ``route_standoff_m`` (``[map]``, default 1 m); every other scene is returned as is.
+    """
+    import dataclasses
+
+    if scene.route_m is not None or getattr(scene, "rosmap", None) is None:
+        return scene
+    from pipeline.robot import plan_coverage_route
+
+    standoff = float(scene.metadata.get("map", {}).get("route_standoff_m", 1.0))
+    plan = plan_coverage_route(scene, robot, standoff)
+    return dataclasses.replace(scene, route_m=plan.route_m)
 
 
 def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:

@@ -1,0 +1,327 @@
+"""A coverage route: through the free space, past every tag-bearing face within a standoff.
+
+An inventory robot drives the aisles; the route it follows here is planned, not drawn:
+
+1. tags are grouped into *faces* (:func:`tag_faces`): tags sharing a horizontal normal
+   and a plane, split where neighbours along the face are more than ``gap_m`` apart;
+2. each face gets a *pass*: the face's span moved along its normal by an offset as close
+   as it can be to ``min(standoff, half the free depth in front)`` (the aisle's middle in a
+   narrow aisle: one pass then serves both sides), with every point of it in the free
+   space inflated by the robot's turning radius plus a margin; a pass already within the
+   standoff of every tag of a face covers it too (no second pass);
+3. the passes are chained greedily (nearest free end next) by shortest paths on the
+   8-connected grid of inflated free cells: scipy.sparse.csgraph's Dijkstra does the graph
+   search, shapely simplifies the joined polyline within half a grid cell.
+
+The collision map (:func:`pipeline.robot.trajectory.collision_map`: the scene's meshes
+sliced over the robot's height, racks' shelves and uprights included; its largest
+enclosed free region, the building's main floor) is what "free" means. A face no pass can serve, or a pass the others cannot reach, stops the planning
+with a message naming the map and the region.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+__all__ = ["CoverageRoute", "TagFace", "plan_coverage_route", "route_clearance_m", "tag_faces"]
+
+
+@dataclass(frozen=True)
+class TagFace:
+    """Tags on one planar vertical face.
+
+    Attributes
+    ----------
+    start_m, end_m : numpy.ndarray
+        Ends (2,) [m] of the tags' span along the face (their horizontal positions).
+    normal : numpy.ndarray
+        Unit horizontal normal (2,) into free space.
+    tag_index : numpy.ndarray
+        Indices (k,) int of the face's tags in the tag arrays given to :func:`tag_faces`.
+    """
+
+    start_m: np.ndarray
+    end_m: np.ndarray
+    normal: np.ndarray
+    tag_index: np.ndarray
+
+    def describe(self) -> str:
+        """``"face (x0, y0)-(x1, y1) m facing (nx, ny)"``."""
+        a, b, n = self.start_m, self.end_m, self.normal
+        return (f"tag face ({a[0]:.2f}, {a[1]:.2f})-({b[0]:.2f}, {b[1]:.2f}) m facing "
+                f"({n[0]:.2f}, {n[1]:.2f}), {len(self.tag_index)} tags")
+
+
+@dataclass(frozen=True)
+class CoverageRoute:
+    """A planned coverage route.
+
+    Attributes
+    ----------
+    route_m : numpy.ndarray
+        Polyline (n, 2) [m] the robot follows.
+    passes_m : numpy.ndarray
+        Pass segments (p, 2, 2) [m], in driving order.
+    faces : tuple of TagFace
+        The tag faces.
+    face_pass : numpy.ndarray
+        (n_faces,) int: the pass that covers each face.
+    standoff_m : float
+        Every tag lies within this of the route (horizontal distance) [m].
+    inflation_m : float
+        Clearance every route point keeps from obstacles (robot radius + margin) [m].
+    """
+
+    route_m: np.ndarray
+    passes_m: np.ndarray
+    faces: tuple[TagFace, ...]
+    face_pass: np.ndarray
+    standoff_m: float
+    inflation_m: float
+
+    @property
+    def length_m(self) -> float:
+        """Length of the route [m]."""
+        return float(np.linalg.norm(np.diff(self.route_m, axis=0), axis=1).sum())
+
+
+def tag_faces(positions_m, normals, gap_m: float = 1.0, plane_tol_m: float = 0.02) -> list[TagFace]:
+    """Group tags into planar faces (see the module docstring).
+
+    Parameters
+    ----------
+    positions_m : array_like
+        Tag centres (n, 3) [m].
+    normals : array_like
+        Unit normals (n, 3); tags with a mostly vertical normal (floor, ceiling) are left out.
+    gap_m : float
+        Neighbours along a face farther apart than this start a new face [m].
+    plane_tol_m : float
+        Tags whose planes differ by less than this share a face [m].
+
+    Returns
+    -------
+    list of TagFace
+    """
+    p = np.asarray(positions_m, dtype=float).reshape(-1, 3)
+    n = np.asarray(normals, dtype=float).reshape(-1, 3)
+    nh = n[:, :2]
+    norm = np.linalg.norm(nh, axis=1)
+    ok = norm > 0.5
+    nh = np.where(ok[:, None], nh / np.where(norm > 0, norm, 1.0)[:, None], 0.0)
+    key_dir = np.round(np.degrees(np.arctan2(nh[:, 1], nh[:, 0]))).astype(int)
+    faces = []
+    for d in np.unique(key_dir[ok]):
+        idx = np.flatnonzero(ok & (key_dir == d))
+        nrm = nh[idx].mean(axis=0)
+        nrm /= np.linalg.norm(nrm)
+        tan = np.array([-nrm[1], nrm[0]])
+        off = p[idx, :2] @ nrm
+        order = np.argsort(off, kind="stable")
+        planes = np.split(idx[order], np.flatnonzero(np.diff(off[order]) > plane_tol_m) + 1)
+        for plane in planes:
+            s = p[plane, :2] @ tan
+            o = np.argsort(s, kind="stable")
+            for run in np.split(plane[o], np.flatnonzero(np.diff(s[o]) > gap_m) + 1):
+                c = float(np.mean(p[run, :2] @ nrm))
+                ss = p[run, :2] @ tan
+                faces.append(TagFace(c * nrm + ss.min() * tan, c * nrm + ss.max() * tan, nrm,
+                                     np.sort(run)))
+    return faces
+
+
+def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (n,) of points (n, 2) to the segment a-b [m]."""
+    e = b - a
+    t = np.clip(((points - a) @ e) / max(float(e @ e), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(points - (a + t[:, None] * e), axis=1)
+
+
+def route_clearance_m(cmap, route_m, step_m: float = 0.05) -> np.ndarray:
+    """Clearance [m] of the collision map along a polyline sampled every ``step_m``."""
+    from pipeline.robot.occupancy import _densify
+
+    return cmap.clearance_m(_densify(np.asarray(route_m, dtype=float), step_m))
+
+
+def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: float = 0.25,
+                        resolution_m: float = 0.1, gap_m: float = 1.0,
+                        name: str | None = None) -> CoverageRoute:
+    """Plan a coverage route past every tag face of ``scene`` (see the module docstring).
+
+    Parameters
+    ----------
+    scene : scenes.Scene
+        Its tags (positions, normals) define the faces; its meshes the free space.
+    robot : pipeline.robot.Robot
+        Its turning radius (``radius_m``) inflates the obstacles.
+    standoff_m : float
+        Largest horizontal distance from every tag to the route [m].
+    margin_m : float
+        Clearance kept beyond the robot's radius [m] (room for the tour's lanes and the
+        smoothing of corners).
+    resolution_m : float
+        Cell size of the planning grid [m].
+    gap_m : float
+        Face splitting distance (:func:`tag_faces`) [m].
+    name : str, optional
+        The map's name in messages (default the scene's source).
+
+    Returns
+    -------
+    CoverageRoute
+
+    Raises
+    ------
+    ValueError
+        No tags; a face no pass within ``standoff_m`` fits in front of (the face is named);
+        passes in free space the first pass cannot reach (the region is named).
+    """
+    from pipeline.robot.trajectory import collision_map
+    from scenes import is_free as scene_is_free
+
+    label = name or str(scene.source or scene.name)
+    if not standoff_m > 0:
+        raise ValueError(f"{label}: route standoff_m must be positive, got {standoff_m!r}")
+    if len(scene.tags) == 0:
+        raise ValueError(f"{label}: no tags to plan a coverage route past (give [tags] or a route)")
+    faces = tag_faces(scene.tags.positions_m, scene.tags.normals, gap_m)
+    cmap = collision_map(scene, robot, route_m=np.zeros((0, 2)))
+    infl = float(robot.radius_m + margin_m)
+    if infl > standoff_m:
+        raise ValueError(f"{label}: route standoff_m {standoff_m} m is below the robot's radius "
+                         f"plus margin ({infl:.2f} m): no pass can be that close to a face")
+    # planning grid over the collision map
+    (x0, y0), (ny0, nx0) = cmap.origin_m, cmap.shape
+    nx = int(np.floor(nx0 * cmap.resolution_m / resolution_m))
+    ny = int(np.floor(ny0 * cmap.resolution_m / resolution_m))
+    gx = x0 + (np.arange(nx) + 0.5) * resolution_m
+    gy = y0 + (np.arange(ny) + 0.5) * resolution_m
+    cx, cy = np.meshgrid(gx, gy)
+    ok = cmap.clearance_m(np.stack([cx, cy], -1)) >= infl  # (ny, nx)
+
+    def cell(p):
+        col = np.clip(np.floor((p[..., 0] - x0) / resolution_m).astype(int), 0, nx - 1)
+        row = np.clip(np.floor((p[..., 1] - y0) / resolution_m).astype(int), 0, ny - 1)
+        return row, col
+
+    def line_ok(a, b):
+        k = max(2, int(np.ceil(np.linalg.norm(b - a) / (resolution_m / 2))) + 1)
+        pts = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)
+        return bool(np.all(cmap.clearance_m(pts) >= infl))
+
+    passes: list[np.ndarray] = []
+    face_pass = np.full(len(faces), -1)
+    xy = scene.tags.positions_m[:, :2]
+    order = np.argsort([-np.linalg.norm(f.end_m - f.start_m) for f in faces], kind="stable")
+    for fi in order:
+        f = faces[fi]
+        for pi, (a, b) in enumerate(passes):
+            if np.all(_segment_distance(xy[f.tag_index], a, b) <= standoff_m + 1e-9):
+                face_pass[fi] = pi
+                break
+        if face_pass[fi] >= 0:
+            continue
+        mid = (f.start_m + f.end_m) / 2
+        ray = mid + np.arange(1, 400)[:, None] * (cmap.resolution_m / 2) * f.normal
+        hit = np.flatnonzero(cmap.is_occupied(ray))
+        depth = (hit[0] + 1) * cmap.resolution_m / 2 if len(hit) else np.inf
+        target = min(standoff_m, depth / 2)
+        offsets = np.arange(infl, standoff_m + 1e-9, resolution_m / 2)
+        chosen = None
+        for d in offsets[np.argsort(np.abs(offsets - target), kind="stable")]:
+            a, b = f.start_m + d * f.normal, f.end_m + d * f.normal
+            if line_ok(a, b):
+                chosen = np.stack([a, b])
+                break
+        if chosen is None:
+            front = (f.start_m + f.end_m) / 2 + infl * f.normal
+            if scene_is_free(scene, [[front[0], front[1], 0.35]])[0]:
+                raise ValueError(
+                    f"{label}: unreachable region around ({front[0]:.2f}, {front[1]:.2f}) m: the "
+                    f"free space in front of the {f.describe()} is not connected to the "
+                    "building's main free space")
+            raise ValueError(
+                f"{label}: unreachable region: no robot pass fits within standoff_m = {standoff_m} m "
+                f"of the {f.describe()} (robot radius {robot.radius_m:.2f} m + margin {margin_m} m)")
+        passes.append(chosen)
+        face_pass[fi] = len(passes) - 1
+
+    # 8-connected graph of inflated free cells
+    idx = -np.ones((ny, nx), dtype=np.int64)
+    idx[ok] = np.arange(int(ok.sum()))
+    rows, cols, w = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = idx[max(0, -dr):ny - max(0, dr), max(0, -dc):nx - max(0, dc)]  # cell (r, c)
+        b = idx[max(0, dr):ny + min(0, dr), max(0, dc):nx + min(0, dc)]  # cell (r + dr, c + dc)
+        m = (a >= 0) & (b >= 0)
+        rows.append(a[m])
+        cols.append(b[m])
+        w.append(np.full(int(m.sum()), resolution_m * np.hypot(dr, dc)))
+    n_nodes = int(ok.sum())
+    graph = sparse.coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))),
+                              shape=(n_nodes, n_nodes)).tocsr()
+    _, comp = connected_components(graph, directed=False)
+    ends = np.array(passes).reshape(-1, 2)
+    er, ec = cell(ends)
+    end_node = idx[er, ec]
+    if np.any(end_node < 0):
+        k = int(np.flatnonzero(end_node < 0)[0])
+        raise ValueError(f"{label}: pass end ({ends[k][0]:.2f}, {ends[k][1]:.2f}) m lies off the "
+                         "planning grid's free cells")
+    home = comp[end_node[0]]
+    far = np.flatnonzero(comp[end_node] != home)
+    if len(far):
+        p = ends[far[0]]
+        fi = int(np.flatnonzero(face_pass == far[0] // 2)[0])
+        raise ValueError(f"{label}: unreachable region around ({p[0]:.2f}, {p[1]:.2f}) m: the "
+                         f"{faces[fi].describe()} cannot be reached from the first aisle in the "
+                         f"free space inflated by {infl:.2f} m")
+
+    centres = np.stack([cx[ok], cy[ok]], 1)
+    todo = set(range(len(passes)))
+    # start at the first pass (the longest face's), at its first end
+    route = [passes[0][0], passes[0][1]]
+    driven = [passes[0]]
+    driven_order = [0]
+    todo.discard(0)
+    node = end_node[1]
+    while todo:
+        dist, pred = dijkstra(graph, directed=False, indices=int(node), return_predecessors=True)
+        cand = sorted((dist[end_node[2 * p + e]], p, e) for p in todo for e in (0, 1))
+        _, cur_pass, cur_end = cand[0]
+        target = int(end_node[2 * cur_pass + cur_end])
+        path = []
+        while target != node and target >= 0:
+            path.append(target)
+            target = pred[target]
+        route += [centres[i] for i in path[::-1]]
+        seg = passes[cur_pass] if cur_end == 0 else passes[cur_pass][::-1]
+        route += [seg[0], seg[1]]
+        driven.append(seg)
+        driven_order.append(cur_pass)
+        todo.discard(cur_pass)
+        node = end_node[2 * cur_pass + (1 - cur_end)]
+    route_m = _simplify(np.array(route), resolution_m / 2)
+    clear = route_clearance_m(cmap, route_m)
+    if np.any(clear < robot.radius_m):
+        raise ValueError(f"{label}: the planned route leaves the free space (clearance "
+                         f"{clear.min():.3f} m < robot radius {robot.radius_m:.3f} m)")
+    rank = np.empty(len(passes), dtype=int)
+    rank[driven_order] = np.arange(len(passes))
+    return CoverageRoute(route_m, np.array(driven), tuple(faces), rank[face_pass], float(standoff_m), infl)
+
+
+def _simplify(route: np.ndarray, tol_m: float) -> np.ndarray:
+    """Polyline without repeated points, simplified within ``tol_m`` (shapely)."""
+    from shapely.geometry import LineString
+
+    keep = np.r_[True, np.linalg.norm(np.diff(route, axis=0), axis=1) > 1e-9]
+    route = route[keep]
+    if len(route) < 3:
+        return route
+    return np.asarray(LineString(route).simplify(tol_m, preserve_topology=False).coords, dtype=float)

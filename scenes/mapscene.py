@@ -1,0 +1,367 @@
+"""A scene from a ROS occupancy-grid map: extracted obstacles as solids and radio surfaces.
+
+The map (:mod:`scenes.rosmap`) gives the obstacles and their constructions
+(:mod:`scenes.mapextract`); here they become the two geometries of a
+:class:`~scenes.scene.Scene`, following the one-surface-per-physical-layer rule of the
+generated corridors (:mod:`scenes.corridor_radio`):
+
+- walls: the outline extruded to ``height_m`` is the solid (collision, laser, tags;
+  triangulated by shapely's constrained Delaunay, extruded by trimesh); the ray tracer
+  sees the wall's *centre line* (the map does not say which face is inside, and a wall
+  between two rooms has two): ``"solid"`` one surface there carrying the wall's mean
+  thickness, ``"stud"``/``"double"`` one leaf of the material's library thickness on each
+  face (the centre line offset by half the thickness), ``"single"`` one leaf on the
+  centre line;
+- pillars: the extruded outline, traced as a closed shell whose faces each carry half
+  the pillar's short side (a ray through it crosses two faces: the whole width);
+- racks (the minimum rotated rectangle of the obstacle): per shelf level a board (one
+  horizontal metal surface) with a front and a back beam (``beam_height_m`` high,
+  vertical metal surfaces, the solids tags sit on), and square uprights at both ends and
+  at most ``bay_length_m`` apart (closed metal shells): not a solid block, so rays pass
+  between the shelves;
+- floor and ceiling: one slab each over the building's bounding rectangle.
+
+Free space (``Scene.free_space_m``) is every cell not outside the building, as boxes
+(runs of cells merged row by row, rows with equal runs merged). The map itself travels
+with the scene (``Scene.rosmap``): the robot localises in it as it is
+(:func:`pipeline.robot.robotmap.draw_robot_map`).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import shapely
+import trimesh
+
+from scenes.geometry import box_mesh, merge_meshes
+from scenes.mapextract import MapObstacle, apply_override, extract_obstacles
+from scenes.mapspec import MapSpec, TagLayoutSpec, rules_of
+from scenes.materials import UnknownMaterialError, get_material, resolve_material_name
+from scenes.radio import RadioSurface
+from scenes.rosmap import OUTSIDE, RosMap, read_map, resolve_unknown
+from scenes.scene import Scene, TagSet
+from scenes.spec import SpecError, TagSpec
+from scenes.tags import make_tags, validate_tags
+
+__all__ = ["build_map_scene", "check_map_source", "load_map", "rack_frames", "shelf_tags"]
+
+
+def _extrude(poly, z0: float, z1: float) -> trimesh.Trimesh:
+    """Closed prism over a shapely polygon (holes kept) from z0 to z1."""
+    tris = shapely.constrained_delaunay_triangles(poly)
+    pts = np.array([np.asarray(t.exterior.coords)[:3] for t in tris.geoms if t.area > 1e-12])
+    verts, inv = np.unique(pts.reshape(-1, 2).round(9), axis=0, return_inverse=True)
+    mesh = trimesh.creation.extrude_triangulation(verts, inv.reshape(-1, 3), z1 - z0)
+    mesh.apply_translation([0.0, 0.0, z0])
+    return trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
+
+
+def _vertical_quad(a, b, z0: float, z1: float) -> trimesh.Trimesh:
+    """A vertical rectangle over the segment a -> b, normal to its left."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    v = np.array([[*a, z0], [*b, z0], [*b, z1], [*a, z1]])
+    return trimesh.Trimesh(v, np.array([[0, 2, 1], [0, 3, 2]]), process=False)
+
+
+def _wall_surfaces(o: MapObstacle, height_m: float) -> list[RadioSurface]:
+    out = []
+    t = round(max(o.thickness_m, 1e-3), 3)
+    lib = get_material(o.material).thickness_m
+    for a, b in o.centre_lines_m:
+        d = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-d[1], d[0]])
+        if o.construction == "solid":
+            out.append(RadioSurface(o.material, t, _vertical_quad(a, b, 0.0, height_m), "wall"))
+        elif o.construction == "single":
+            out.append(RadioSurface(o.material, lib, _vertical_quad(a, b, 0.0, height_m), "leaf"))
+        else:  # stud, double: a leaf on each face
+            for s in (-1.0, 1.0):
+                off = s * t / 2 * n
+                q = _vertical_quad(a + off, b + off, 0.0, height_m) if s > 0 else \
+                    _vertical_quad(b + off, a + off, 0.0, height_m)
+                out.append(RadioSurface(o.material, lib, q, "leaf"))
+    return out
+
+
+def rack_frames(o: MapObstacle) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """A rack's frame: centre (2,), long axis u (2,), depth axis v (2,), length and depth [m]."""
+    r = o.rectangle_m
+    e0, e1 = r[1] - r[0], r[2] - r[1]
+    long_e, short_e = (e0, e1) if np.linalg.norm(e0) >= np.linalg.norm(e1) else (e1, e0)
+    u = long_e / np.linalg.norm(long_e)
+    if u[0] < -1e-9 or (abs(u[0]) <= 1e-9 and u[1] < 0):
+        u = -u
+    v = np.array([-u[1], u[0]])
+    return r.mean(axis=0), u, v, float(np.linalg.norm(long_e)), float(np.linalg.norm(short_e))
+
+
+def _rack(o: MapObstacle, spec: MapSpec) -> tuple[list, list[RadioSurface]]:
+    """Solids and radio surfaces of one shelving rack."""
+    c, u, v, length, depth = rack_frames(o)
+    yaw = float(np.arctan2(u[1], u[0]))
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    metal = "metal"
+    t_metal = get_material(metal).thickness_m
+
+    def box(centre_local, size, z0, z1):
+        cw = c + rot @ np.asarray(centre_local, float)
+        half = np.array([size[0] / 2, size[1] / 2])
+        return box_mesh([cw[0] - half[0], cw[1] - half[1], z0], [cw[0] + half[0], cw[1] + half[1], z1], yaw)
+
+    solids, radio = [], []
+    bh = spec.beam_height_m
+    corners = [c + s * length / 2 * u + w * depth / 2 * v for s, w in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    for z in spec.shelf_levels_m:
+        solids.append(box((0.0, 0.0), (length, depth), z, z + bh))
+        top = np.array([[*p, z + bh] for p in corners])
+        radio.append(RadioSurface(metal, t_metal, trimesh.Trimesh(top, [[0, 1, 2], [0, 2, 3]],
+                                                                  process=False), "shelf"))
+        for w in (-1.0, 1.0):  # front and back beams: vertical faces on the long sides
+            a = c - length / 2 * u + w * depth / 2 * v
+            b = c + length / 2 * u + w * depth / 2 * v
+            q = _vertical_quad(b, a, z, z + bh) if w < 0 else _vertical_quad(a, b, z, z + bh)
+            radio.append(RadioSurface(metal, t_metal, q, "shelf"))
+    n_bays = max(1, int(np.ceil(length / spec.bay_length_m - 1e-9)))
+    pw = min(spec.post_width_m, depth / 2, length / 2)
+    for s in np.linspace(-length / 2 + pw / 2, length / 2 - pw / 2, n_bays + 1):
+        for w in (-depth / 2 + pw / 2, depth / 2 - pw / 2):
+            post = box((s, w), (pw, pw), 0.0, spec.rack_height_m)
+            solids.append(post)
+            radio.append(RadioSurface(metal, t_metal, post, "shell"))
+    return solids, radio
+
+
+def _free_boxes(cls: np.ndarray, rosmap: RosMap, height_m: float) -> np.ndarray:
+    """Boxes (k, 2, 3) [m] covering every cell that is not outside the building."""
+    inside = cls != OUTSIDE
+    rects, active = [], {}
+    for r in range(inside.shape[0] + 1):
+        runs = set()
+        if r < inside.shape[0]:
+            d = np.diff(np.concatenate([[0], inside[r].astype(np.int8), [0]]))
+            runs = set(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+        for run in list(active):
+            if run not in runs:
+                rects.append((active.pop(run), r, *run))
+        for run in runs:
+            active.setdefault(run, r)
+    res, o = rosmap.resolution_m, rosmap.origin_m
+    return np.array([[[o[0] + c0 * res, o[1] + r0 * res, 0.0], [o[0] + c1 * res, o[1] + r1 * res, height_m]]
+                     for r0, r1, c0, c1 in sorted(rects)], dtype=float).reshape(-1, 2, 3)
+
+
+def shelf_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, spec: MapSpec,
+               layout: TagLayoutSpec, where: str) -> list[TagSpec]:
+    """Tags on the front beams of every rack face that looks onto free space.
+
+    A face looks onto free space when the map cell 0.3 m in front of its middle is free.
+    Tags run along the face from ``margin_m`` to the other end, ``spacing_m`` apart
+    (centred), at ``heights_m`` (default: the middle of every beam). Ids
+    ``R<rack>-<side><level>-<k>`` (side A: +v, B: -v of :func:`rack_frames`).
+    """
+    bh = spec.beam_height_m
+    heights = layout.heights_m or tuple(z + bh / 2 for z in spec.shelf_levels_m)
+    for h in heights:
+        if not any(z - 1e-9 <= h <= z + bh + 1e-9 for z in spec.shelf_levels_m):
+            raise SpecError(f"{where}: [tags] key 'heights_m': {h} m is on no front beam (beams at "
+                            f"{list(spec.shelf_levels_m)} m, {bh} m high)")
+    out = []
+    for k, o in enumerate(x for x in obstacles if x.kind == "rack"):
+        c, u, v, length, depth = rack_frames(o)
+        usable = length - 2 * layout.margin_m
+        n = max(1, int(np.floor(usable / layout.spacing_m)) + 1) if usable > 0 else 1
+        s = (np.arange(n) - (n - 1) / 2) * layout.spacing_m
+        for side, w in (("A", 1.0), ("B", -1.0)):
+            probe = c + w * (depth / 2 + 0.3) * v
+            col, row = np.floor((probe - rosmap.origin_m) / rosmap.resolution_m).astype(int)
+            inside = 0 <= row < cls.shape[0] and 0 <= col < cls.shape[1]
+            if not inside or cls[row, col] != 0:
+                continue
+            for j, h in enumerate(heights):
+                for i, si in enumerate(s):
+                    p = c + si * u + w * depth / 2 * v
+                    out.append(TagSpec(f"R{k + 1:02d}-{side}{j + 1}-{i + 1:03d}", (float(p[0]), float(p[1]), float(h)),
+                                       (float(w * v[0]), float(w * v[1]), 0.0), layout.offset_m))
+    return out
+
+
+def csv_tags(path: Path, offset_m: float, where: str) -> list[TagSpec]:
+    """Tags from a CSV with header ``id, x_m, y_m, z_m, nx, ny, nz``."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{where}: [tags] key 'csv': file {str(path)!r} does not exist")
+    need = ["id", "x_m", "y_m", "z_m", "nx", "ny", "nz"]
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        cols = [c.strip() for c in reader.fieldnames or []]
+        if cols != need:
+            raise SpecError(f"{path}: header must be {','.join(need)}, got {','.join(cols)}")
+        out = []
+        for i, row in enumerate(reader, start=2):
+            try:
+                vals = [float(row[k]) for k in need[1:]]
+            except (TypeError, ValueError):
+                raise SpecError(f"{path}: line {i}: x_m..nz must be numbers, got {row}") from None
+            out.append(TagSpec(row["id"].strip(), tuple(vals[:3]), tuple(vals[3:]), offset_m))
+    return out
+
+
+def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | Path = ".",
+                    tags=(), tag_layout: TagLayoutSpec | None = None, route_m=None,
+                    source: str = "", material_overrides: dict | None = None) -> Scene:
+    """Build the scene of a ROS map (see the module docstring).
+
+    Parameters
+    ----------
+    spec : MapSpec
+        The ``[map]`` table (``path`` relative to ``base_dir``).
+    name : str, optional
+        Scene name (default: the YAML's stem).
+    base_dir : str or Path
+        Folder ``spec.path`` and a tag CSV resolve against.
+    tags : sequence of TagSpec or dict
+        Extra tags (``[[tag]]`` items).
+    tag_layout : TagLayoutSpec, optional
+        ``[tags]``; default ``layout = "shelves"``.
+    route_m : array_like (k, 2), optional
+        A waypoint list; None: the pipeline plans a coverage route
+        (:func:`pipeline.robot.coverage.plan_coverage_route`).
+    source : str
+        The file the spec came from (for messages).
+    material_overrides : dict, optional
+        ``Scene.metadata["material_overrides"]`` (a scene TOML's ``[material_overrides]``).
+
+    Returns
+    -------
+    Scene
+        With ``rosmap`` set and ``metadata["map"]`` describing every obstacle.
+
+    Raises
+    ------
+    scenes.rosmap.RosMapError, SpecError, ValueError
+        A bad map, a bad override (one that matches nothing), tags off every surface.
+    """
+    base = Path(base_dir)
+    yaml_path = Path(spec.path) if Path(spec.path).is_absolute() else base / spec.path
+    where = source or str(yaml_path)
+    rosmap = read_map(yaml_path)
+    for key in ("outer_material", "thick_material", "thin_material", "pillar_material",
+                "floor_material", "ceiling_material"):
+        try:
+            resolve_material_name(getattr(spec, key))
+        except UnknownMaterialError as exc:
+            raise UnknownMaterialError(f"{where}: [map] key {key!r}: {exc}") from None
+    obstacles = extract_obstacles(rosmap, spec.tolerance_m, rules_of(spec))
+    for i, ov in enumerate(spec.override):
+        label = f"{where}: [[map.override]] #{i + 1}" + (f" (id {ov.id!r})" if ov.id else "")
+        obstacles = apply_override(obstacles, label, point_m=ov.point_m, polygon_m=ov.polygon_m,
+                                   kind=ov.kind, material=ov.material, construction=ov.construction,
+                                   snap_m=rosmap.resolution_m)
+    obstacles = [o if o.kind != "wall" or o.construction else
+                 _with_construction(o) for o in obstacles]
+    cls = resolve_unknown(rosmap.cell_class)
+    H = spec.height_m
+    parts: dict[str, list] = {}
+    radio: list[RadioSurface] = []
+    for o in obstacles:
+        if o.kind == "rack":
+            solids, surf = _rack(o, spec)
+            parts.setdefault("metal", []).extend(solids)
+            radio += surf
+            continue
+        prism = _extrude(o.polygon, 0.0, H)
+        parts.setdefault(resolve_material_name(o.material), []).append(prism)
+        if o.kind == "pillar":
+            radio.append(RadioSurface(o.material, max(o.rectangle_sides_m[1] / 2, 1e-3), prism, "shell"))
+        else:
+            radio += _wall_surfaces(o, H)
+    inside = np.argwhere(cls != OUTSIDE)
+    lo = rosmap.origin_m + inside.min(axis=0)[::-1] * rosmap.resolution_m
+    hi = rosmap.origin_m + (inside.max(axis=0)[::-1] + 1) * rosmap.resolution_m
+    rect = [(lo[0], lo[1], hi[0], hi[1])]
+    floor_mat, ceil_mat = resolve_material_name(spec.floor_material), resolve_material_name(spec.ceiling_material)
+    parts.setdefault(floor_mat, []).append(box_mesh([lo[0], lo[1], -spec.floor_thickness_m], [hi[0], hi[1], 0.0]))
+    parts.setdefault(ceil_mat, []).append(box_mesh([lo[0], lo[1], H], [hi[0], hi[1], H + spec.ceiling_thickness_m]))
+    from scenes.corridor_radio import slab_surface
+
+    radio += [slab_surface(rect, 0.0, True, floor_mat, spec.floor_thickness_m, "floor"),
+              slab_surface(rect, H, False, ceil_mat, spec.ceiling_thickness_m, "ceiling")]
+    meshes = {mat: merge_meshes(ms) for mat, ms in sorted(parts.items())}
+    summary = [{"index": o.index, "kind": o.kind, "material": o.material,
+                "construction": o.construction, "rule": o.rule,
+                "centroid_m": [round(float(v), 4) for v in o.polygon.centroid.coords[0]],
+                "area_m2": round(o.area_m2, 4), "thickness_m": round(o.thickness_m, 4)}
+               for o in obstacles]
+    metadata = {"generator": "scenes.mapscene.build_map_scene",
+                "map": {"yaml": str(yaml_path), "image": rosmap.image_path, "digest": rosmap.digest(),
+                        "resolution_m": rosmap.resolution_m, "mode": rosmap.mode,
+                        "route_standoff_m": spec.route_standoff_m, "obstacles": summary}}
+    if material_overrides:
+        metadata["material_overrides"] = material_overrides
+    route = None if route_m is None else np.asarray(route_m, dtype=float).reshape(-1, 2)
+    scene = Scene(name=name or yaml_path.stem, meshes=meshes,
+                  tags=TagSet(np.zeros(0, dtype=str), np.zeros((0, 3)), np.zeros((0, 3))),
+                  source=where, metadata=metadata, route_m=route,
+                  free_space_m=_free_boxes(cls, rosmap, H), radio_surfaces=tuple(radio), rosmap=rosmap)
+    layout = TagLayoutSpec() if tag_layout is None else tag_layout
+    specs = list(tags)
+    if layout.layout == "shelves":
+        specs += shelf_tags(obstacles, cls, rosmap, spec, layout, where)
+    elif layout.layout == "csv":
+        p = Path(layout.csv) if Path(layout.csv).is_absolute() else base / layout.csv
+        specs += csv_tags(p, layout.offset_m, where)
+    scene.tags = make_tags(scene, specs, f"{where}: tag")
+    validate_tags(scene)
+    return scene
+
+
+def _with_construction(o: MapObstacle) -> MapObstacle:
+    from dataclasses import replace
+
+    from scenes.radio import default_construction
+
+    return replace(o, construction=default_construction(o.material))
+
+
+def load_map(path: str | Path, **kwargs) -> Scene:
+    """``scenes.load("site.yaml")``: the scene of a map_server YAML with default rules.
+
+    ``kwargs`` go to :class:`MapSpec` (``height_m=4.0``, ``rack_height_m=...``).
+    """
+    from scenes.mapspec import parse_map_table
+
+    p = Path(path)
+    spec = parse_map_table({"path": str(p.resolve()), **kwargs}, f"{p}: [map]")
+    return build_map_scene(spec, name=p.stem, source=str(p))
+
+
+def check_map_source(name_or_path: str | Path) -> None:
+    """Read the map behind a scene reference, if there is one: a cheap check before a run.
+
+    ``name_or_path`` as for :func:`scenes.load`; a ``.yaml`` map, a scene TOML with
+    ``[map]`` or a bundled map scene has its TOML (if any) and its map read, so a bad map
+    stops with its one-line error before anything is written. Other scenes pass.
+
+    Raises
+    ------
+    scenes.rosmap.RosMapError, SpecError, FileNotFoundError
+    """
+    from scenes.catalog import bundled_path
+    from scenes.spec_toml import load_spec
+
+    text = str(name_or_path)
+    p = Path(text)
+    if not p.suffix and len(p.parts) == 1:
+        try:
+            p = bundled_path(text)
+        except ValueError:
+            return
+    if p.suffix.lower() in (".yaml", ".yml"):
+        read_map(p)
+    elif p.suffix.lower() == ".toml" and p.is_file():
+        spec = load_spec(p)
+        if spec.map is not None:
+            base = Path(spec.base_dir)
+            read_map(Path(spec.map.path) if Path(spec.map.path).is_absolute() else base / spec.map.path)

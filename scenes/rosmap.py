@@ -1,0 +1,336 @@
+"""ROS ``map_server`` occupancy-grid maps: the YAML + PGM/PNG pair a SLAM robot saves.
+
+The YAML keys are those of ROS ``map_server`` (ROS 1 ``map_server/src/image_loader.cpp``,
+ROS 2 ``nav2_map_server``): ``image`` (path relative to the YAML), ``resolution``
+[m/cell], ``origin`` [x_m, y_m, yaw_rad] of the lower-left pixel, ``negate`` (0/1),
+``occupied_thresh``, ``free_thresh`` and ``mode`` (``trinary``, ``scale``, ``raw``).
+PyYAML reads the YAML, Pillow the image (8-bit grey, grey + alpha, RGB, RGBA, palette
+or bilevel; colour is averaged over the channels as map_server does).
+
+Occupancy values follow map_server exactly: with the pixel value x (0..255, after
+``negate`` flips it), ``p = (255 - x) / 255``; ``trinary``: 100 where
+``p > occupied_thresh``, 0 where ``p < free_thresh``, -1 otherwise; ``scale``: the same
+ends, ``1 + 98 (p - free_thresh) / (occupied_thresh - free_thresh)`` in between, -1 where
+the alpha channel is not opaque; ``raw``: x itself (values above 100 are unknown, -1).
+
+For geometry the three classes are the same in every mode (:attr:`RosMap.cell_class`):
+an obstacle above ``occupied_thresh``, free below ``free_thresh``, unknown between or
+where the value is unknown. Unknown cells are then resolved (:func:`resolve_unknown`):
+unknown regions connected to the image border are the *outside* of the building (no
+geometry, not walkable), enclosed unknown regions that touch free space are free
+(unexplored corners of a room), enclosed unknown regions surrounded by obstacles only
+are part of the obstacle (the inside of a thick wall or a rack the laser never saw).
+
+Row 0 of :attr:`RosMap.occupancy` is the *lowest* y (the image's last row), so cell
+(row, col) covers ``x in origin_x + [col, col + 1) res``, ``y in origin_y + [row, row + 1) res``.
+A rotated map (``origin`` yaw other than 0) is refused: the robot's grid is axis-aligned.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = [
+    "MAP_KEYS",
+    "OBSTACLE",
+    "FREE",
+    "UNKNOWN",
+    "OUTSIDE",
+    "RosMap",
+    "RosMapError",
+    "boundary_segments",
+    "read_map",
+    "resolve_unknown",
+]
+
+#: YAML keys of a map_server map (every other key is refused by name).
+MAP_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode")
+_MODES = ("trinary", "scale", "raw")
+#: Cell classes of :attr:`RosMap.cell_class` and :func:`resolve_unknown`.
+OBSTACLE, FREE, UNKNOWN, OUTSIDE = 1, 0, -1, -2
+
+
+class RosMapError(ValueError):
+    """A map YAML or image that cannot be a map; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class RosMap:
+    """An occupancy-grid map as map_server publishes it.
+
+    Attributes
+    ----------
+    path : str
+        The YAML file.
+    image_path : str
+        The image file.
+    resolution_m : float
+        Cell size [m], > 0.
+    origin_m : numpy.ndarray
+        World (x, y) of the lower-left corner of the lower-left cell, shape (2,) [m].
+    negate : bool
+        Whether white means occupied.
+    occupied_thresh, free_thresh : float
+        Probability thresholds, ``0 <= free_thresh < occupied_thresh <= 1``.
+    mode : str
+        ``"trinary"``, ``"scale"`` or ``"raw"``.
+    occupancy : numpy.ndarray
+        Occupancy values as map_server publishes them, shape (ny, nx), int8: 0..100, -1
+        unknown; row 0 at the lowest y.
+    cell_class : numpy.ndarray
+        Shape (ny, nx), int8: :data:`OBSTACLE` (1), :data:`FREE` (0), :data:`UNKNOWN` (-1).
+    """
+
+    path: str
+    image_path: str
+    resolution_m: float
+    origin_m: np.ndarray
+    negate: bool
+    occupied_thresh: float
+    free_thresh: float
+    mode: str
+    occupancy: np.ndarray
+    cell_class: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Grid shape (ny, nx)."""
+        return self.occupancy.shape
+
+    @property
+    def extent_m(self) -> np.ndarray:
+        """[[x_min, y_min], [x_max, y_max]] of the whole grid, shape (2, 2) [m]."""
+        ny, nx = self.shape
+        return np.stack([self.origin_m, self.origin_m + self.resolution_m * np.array([nx, ny])])
+
+    def cell_centres(self, rows, cols) -> np.ndarray:
+        """World (x, y) of cell centres, shape (..., 2) [m], for integer rows and cols."""
+        r = np.asarray(rows, dtype=float)
+        c = np.asarray(cols, dtype=float)
+        return self.origin_m + self.resolution_m * np.stack([c + 0.5, r + 0.5], axis=-1)
+
+    def digest(self) -> str:
+        """SHA-256 of the grid, resolution and origin (enters the scene's content hash)."""
+        h = hashlib.sha256(b"rosmap-v1")
+        h.update(np.ascontiguousarray(self.cell_class).tobytes())
+        h.update(np.asarray([self.resolution_m, *self.origin_m], dtype=np.float64).tobytes())
+        h.update(str(self.shape).encode())
+        return h.hexdigest()
+
+
+def _number(data: dict, key: str, where: str, default=None) -> float:
+    value = data.get(key, default)
+    if value is None:
+        raise RosMapError(f"{where}: missing required key {key!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise RosMapError(f"{where}: key {key!r} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _pixels(image_path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Channel-averaged pixel values (ny, nx) float64 in 0..255 and alpha (or None)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(image_path) as im:
+            im.load()
+            mode = im.mode
+            if mode == "P":
+                im = im.convert("RGBA")
+                mode = "RGBA"
+            elif mode == "1":
+                im = im.convert("L")
+                mode = "L"
+            if mode not in ("L", "LA", "RGB", "RGBA"):
+                raise RosMapError(f"{where}: key 'image': {image_path} has pixel mode {im.mode!r}; "
+                                  "a map image is 8-bit grey, grey + alpha, RGB or RGBA")
+            arr = np.asarray(im, dtype=np.float64)
+    except (UnidentifiedImageError, OSError) as exc:
+        raise RosMapError(f"{where}: key 'image': cannot read {image_path} as an image "
+                          f"({type(exc).__name__}: {exc})") from None
+    if arr.ndim == 2:
+        return arr, None
+    alpha = arr[..., -1] if mode in ("LA", "RGBA") else None
+    colour = arr[..., :-1] if alpha is not None else arr
+    return colour.mean(axis=-1), alpha
+
+
+def read_map(path: str | Path) -> RosMap:
+    """Read a map_server YAML and its image.
+
+    Parameters
+    ----------
+    path : str or Path
+        The YAML file; ``image`` is relative to its folder (or absolute).
+
+    Returns
+    -------
+    RosMap
+
+    Raises
+    ------
+    RosMapError
+        One line naming the file and the key: a missing or unknown key, a value of the
+        wrong type, ``resolution <= 0``, thresholds outside ``0 <= free < occupied <= 1``,
+        an unknown ``mode``, a rotated ``origin``, a missing or unreadable image, an
+        empty image, a map without a single free or obstacle cell.
+    FileNotFoundError
+        The YAML does not exist.
+    """
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"map file {str(path)!r} does not exist")
+    where = str(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RosMapError(f"{where}: invalid YAML: {first}") from None
+    if not isinstance(data, dict):
+        raise RosMapError(f"{where}: expected a mapping of map_server keys, got {data!r}")
+    unknown = sorted(str(k) for k in set(data) - set(MAP_KEYS))
+    if unknown:
+        raise RosMapError(f"{where}: unknown key {unknown[0]!r}; known keys: {', '.join(MAP_KEYS)}")
+    image = data.get("image")
+    if not isinstance(image, str) or not image:
+        raise RosMapError(f"{where}: key 'image' must be the image file name, got {image!r}")
+    res = _number(data, "resolution", where)
+    if not res > 0:
+        raise RosMapError(f"{where}: key 'resolution' must be positive [m/cell], got {res!r}")
+    origin = data.get("origin")
+    if (not isinstance(origin, list) or len(origin) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                       for v in origin)):
+        raise RosMapError(f"{where}: key 'origin' must be [x_m, y_m, yaw_rad], got {origin!r}")
+    if abs(origin[2]) > 1e-9:
+        raise RosMapError(f"{where}: key 'origin': yaw {origin[2]!r} rad is not supported (the "
+                          "robot's grid is axis-aligned); rotate the image instead")
+    negate = data.get("negate", 0)
+    if negate not in (0, 1) or isinstance(negate, float):
+        raise RosMapError(f"{where}: key 'negate' must be 0 or 1, got {negate!r}")
+    occ_t = _number(data, "occupied_thresh", where, 0.65)
+    free_t = _number(data, "free_thresh", where, 0.196)
+    if not 0.0 <= free_t < occ_t <= 1.0:
+        raise RosMapError(f"{where}: keys 'free_thresh' ({free_t}) and 'occupied_thresh' ({occ_t}) "
+                          "must satisfy 0 <= free_thresh < occupied_thresh <= 1")
+    mode = data.get("mode", "trinary")
+    if mode not in _MODES:
+        raise RosMapError(f"{where}: key 'mode' must be one of {', '.join(_MODES)}, got {mode!r}")
+    image_path = Path(image) if Path(image).is_absolute() else path.parent / image
+    if not image_path.is_file():
+        raise RosMapError(f"{where}: key 'image': image file {str(image_path)!r} does not exist")
+    x, alpha = _pixels(image_path, where)
+    if x.size == 0:
+        raise RosMapError(f"{where}: key 'image': {image_path} has no pixels")
+    if negate:
+        x = 255.0 - x
+    x = np.flipud(x)  # image row 0 is the top (largest y); grid row 0 the lowest y
+    alpha = None if alpha is None else np.flipud(alpha)
+    p = (255.0 - x) / 255.0
+    occ_cell, free_cell = p > occ_t, p < free_t
+    if mode == "raw":
+        raw = np.round(x).astype(int)
+        occupancy = np.where(raw <= 100, raw, -1)
+        known = occupancy >= 0
+        occ_cell = known & (occupancy >= 100.0 * occ_t)
+        free_cell = known & (occupancy <= 100.0 * free_t)
+    else:
+        occupancy = np.where(occ_cell, 100, np.where(free_cell, 0, -1))
+        if mode == "scale":
+            between = ~occ_cell & ~free_cell
+            scaled = np.round(1 + 98 * (p - free_t) / (occ_t - free_t)).astype(int)
+            occupancy = np.where(between, scaled, occupancy)
+            if alpha is not None:  # map_server: a transparent pixel is unknown in scale mode
+                see_through = alpha < 255
+                occupancy = np.where(see_through, -1, occupancy)
+                occ_cell &= ~see_through
+                free_cell &= ~see_through
+    cls = np.full(x.shape, UNKNOWN, dtype=np.int8)
+    cls[occ_cell] = OBSTACLE
+    cls[free_cell] = FREE
+    if not np.any(cls == FREE):
+        raise RosMapError(f"{where}: key 'image': {image_path} has no free cell (p < free_thresh "
+                          f"= {free_t}); is 'negate' ({negate}) right?")
+    return RosMap(str(path), str(image_path), res, np.asarray(origin[:2], dtype=float),
+                  bool(negate), occ_t, free_t, str(mode), occupancy.astype(np.int8), cls)
+
+
+def resolve_unknown(cell_class: np.ndarray) -> np.ndarray:
+    """Cell classes with every unknown cell decided (see the module docstring).
+
+    Parameters
+    ----------
+    cell_class : numpy.ndarray
+        Shape (ny, nx), int8, :data:`OBSTACLE` / :data:`FREE` / :data:`UNKNOWN`.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (ny, nx), int8: :data:`OBSTACLE`, :data:`FREE` or :data:`OUTSIDE`. Unknown
+        regions (8-connected) touching the image border become :data:`OUTSIDE`, enclosed
+        ones touching a free cell :data:`FREE`, the rest :data:`OBSTACLE`.
+    """
+    cls = np.asarray(cell_class, dtype=np.int8).copy()
+    unknown = cls == UNKNOWN
+    if not unknown.any():
+        return cls
+    labels, n = ndimage.label(unknown, structure=np.ones((3, 3)))
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    near_free = np.unique(labels[ndimage.binary_dilation(cls == FREE) & unknown])
+    kind = np.full(n + 1, OBSTACLE, dtype=np.int8)
+    kind[near_free] = FREE
+    kind[border] = OUTSIDE  # the border wins: a free room open to the image edge is not outside
+    out = np.where(unknown, kind[labels], cls)
+    return out.astype(np.int8)
+
+
+def boundary_segments(mask: np.ndarray, origin_m, resolution_m: float) -> np.ndarray:
+    """Cell edges between ``mask`` cells and the others, merged into straight runs.
+
+    The exact outline of a raster region (what a map draws), for the robot's likelihood
+    field; edges on the grid border count when the mask cell is on it.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray
+        Shape (ny, nx), bool.
+    origin_m : array_like
+        World (x, y) of the grid's lower-left corner, shape (2,) [m].
+    resolution_m : float
+        Cell size [m].
+
+    Returns
+    -------
+    numpy.ndarray
+        Segments (k, 2, 2) [m], each a maximal run of collinear edges.
+    """
+    m = np.pad(np.asarray(mask, dtype=bool), 1)
+    o = np.asarray(origin_m, dtype=float)
+    res = float(resolution_m)
+    out = []
+    # horizontal edges: between rows r-1 and r (padded indices), y = origin + (r - 1) res
+    diff = m[1:, 1:-1] != m[:-1, 1:-1]  # (ny + 1, nx): edge below padded row r = index + 1
+    for r in np.flatnonzero(diff.any(axis=1)):
+        runs = _runs(diff[r])
+        y = o[1] + r * res
+        out += [[[o[0] + a * res, y], [o[0] + b * res, y]] for a, b in runs]
+    diff = m[1:-1, 1:] != m[1:-1, :-1]  # (ny, nx + 1)
+    for c in np.flatnonzero(diff.any(axis=0)):
+        runs = _runs(diff[:, c])
+        x = o[0] + c * res
+        out += [[[x, o[1] + a * res], [x, o[1] + b * res]] for a, b in runs]
+    return np.asarray(out, dtype=float).reshape(-1, 2, 2)
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the True runs of a 1-D bool array."""
+    d = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))

@@ -1,0 +1,79 @@
+"""Top view of a map scene: the ROS map, the extracted outlines, the traced centre lines,
+the tags and the planned coverage route, in one picture.
+
+    python scripts/draw_map_overlay.py warehouse_small docs/fig_warehouse_map.png
+    python scripts/draw_map_overlay.py site.yaml top.png
+
+Grey pixels are the map as the robot has it (black occupied, light free, mid-grey unknown);
+coloured outlines the obstacles by kind (walls by material), thick coloured lines the
+surfaces the ray tracer sees at wall centre lines, dots the tags, the dashed line the route.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import scenes  # noqa: E402
+from pipeline.robot import Robot  # noqa: E402
+from pipeline.stages.common import map_route  # noqa: E402
+from scenes.mapextract import extract_obstacles  # noqa: E402
+from scenes.mapspec import parse_map_table, rules_of  # noqa: E402
+
+COLOURS = {"concrete": "tab:gray", "brick": "tab:red", "plasterboard": "tab:olive", "metal": "tab:blue",
+           "glass": "tab:cyan", "wood": "tab:brown"}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scene")
+    ap.add_argument("out", type=Path)
+    args = ap.parse_args(argv)
+    sc = map_route(scenes.load(args.scene), Robot())
+    rm = sc.rosmap
+    if rm is None:
+        raise SystemExit(f"{args.scene}: not a map scene")
+    spec = sc.metadata.get("spec", {}).get("map")
+    rules = rules_of(parse_map_table(spec, "map")) if spec else None
+    shown = {0: 0.93, 1: 0.1, -1: 0.6}
+    img = np.vectorize(shown.get)(rm.cell_class)
+    (x0, y0), (x1, y1) = rm.extent_m
+    fig, ax = plt.subplots(figsize=(7, 7 * (y1 - y0) / (x1 - x0) + 0.6))
+    ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap="gray", vmin=0, vmax=1,
+              interpolation="nearest")
+    kinds = {o["index"]: o for o in sc.metadata["map"]["obstacles"]}
+    for o in extract_obstacles(rm, None, rules):
+        k = kinds.get(o.index, {"material": o.material})
+        x, y = o.polygon.exterior.xy
+        ax.plot(x, y, color=COLOURS.get(k["material"], "k"), lw=0.8)
+    for s in sc.radio_surfaces:
+        if s.kind in ("wall", "leaf"):
+            v = s.mesh.vertices
+            ax.plot(v[:2, 0], v[:2, 1], color=COLOURS.get(s.material, "k"), lw=2.0, alpha=0.8)
+    t = sc.tags.positions_m
+    ax.plot(t[:, 0], t[:, 1], ".", color="tab:orange", ms=3, label=f"{len(t)} tags")
+    r = sc.route_m
+    length = float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
+    ax.plot(r[:, 0], r[:, 1], "--", color="tab:green", lw=1.2, label=f"route {length:.0f} m")
+    for mat, c in COLOURS.items():
+        if mat in sc.materials:
+            ax.plot([], [], color=c, lw=2, label=mat)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal")
+    ax.set_title(f"{sc.name}: map, extracted walls and racks, tags, route")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=8, frameon=False)
+    fig.tight_layout()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.out, dpi=130)
+    print(args.out)
+
+
+if __name__ == "__main__":
+    main()

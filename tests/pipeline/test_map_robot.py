@@ -1,0 +1,112 @@
+"""The robot in a building from a ROS map: the planned coverage route, and MCL's map being the
+occupancy grid as given while collision and the laser use the extracted geometry."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import scenes
+from pipeline.robot import (
+    LocalisationConfig,
+    Robot,
+    collision_map,
+    draw_robot_map,
+    plan_coverage_route,
+)
+from pipeline.robot.coverage import _segment_distance, route_clearance_m
+from pipeline.stages.common import map_route
+from scenes.rosmap import FREE, resolve_unknown
+from tests.scenes.maphelpers import FREE as WHITE
+from tests.scenes.maphelpers import OCC, RES, building, paint, write_map
+
+
+def _aisles(tmp_path, name="aisles", closed=False):
+    """Inside x in [0.75, 12.75], y in [0.75, 10.75]; three 0.8 m racks, 2.5 m aisles."""
+    g = building(width_m=12.0, length_m=10.0, wall_m=0.25, pad_m=0.5)
+    for x0 in (2.5, 5.8) if closed else (2.5, 5.8, 9.1):
+        paint(g, x0, 3.0, x0 + 0.8, 9.0, OCC)
+    paint(g, 6.0, 1.2, 6.05, 1.25, OCC)  # one noise cell (a stray laser return)
+    if closed:  # a room around a third rack, no door: the robot fits in, but cannot get in
+        paint(g, 8.4, 2.0, 12.6, 10.3, OCC)
+        paint(g, 8.6, 2.2, 12.4, 10.1, WHITE)
+        paint(g, 10.1, 3.0, 10.9, 9.0, OCC)
+    return write_map(tmp_path, g, name=name)
+
+
+@pytest.fixture(scope="module")
+def aisle_scene(tmp_path_factory):
+    return scenes.load(_aisles(tmp_path_factory.mktemp("aisles")))
+
+
+def test_route_passes_every_tag_face_within_the_standoff(aisle_scene):
+    robot = Robot()
+    plan = plan_coverage_route(aisle_scene, robot, standoff_m=1.3)
+    xy = aisle_scene.tags.positions_m[:, :2]
+    route = plan.route_m
+    # horizontal distance of each tag to the route polyline
+    d = np.min([_segment_distance(xy, a, b) for a, b in zip(route[:-1], route[1:], strict=True)], axis=0)
+    assert len(xy) == 3 * 2 * 4 * 12 and np.all(d <= 1.3 + 1e-9)
+    # every face of every rack has a pass: 6 faces, 4 aisles (3 between + 2 side - shared)
+    assert len(plan.faces) == 6 and np.all(plan.face_pass >= 0)
+    assert 4 <= len(plan.passes_m) <= 6
+    # it never leaves the inflated free space: every point along it (5 cm apart) keeps the
+    # robot's radius plus the margin from every obstacle, less one collision-map cell (the
+    # clearance lookup is accurate to a cell) and half a planning cell (the simplification)
+    cmap = collision_map(aisle_scene, robot, route_m=np.zeros((0, 2)))
+    clear = route_clearance_m(cmap, route)
+    assert clear.min() >= plan.inflation_m - cmap.resolution_m - 0.05
+    assert plan.inflation_m == pytest.approx(robot.radius_m + 0.25)
+
+
+def test_unreachable_aisle_names_the_map_and_region(tmp_path):
+    sc = scenes.load(_aisles(tmp_path, closed=True))
+    with pytest.raises(ValueError, match=r"aisles\.yaml: unreachable region around \(.* is not "
+                                         r"connected to the building's main free space") as err:
+        plan_coverage_route(sc, Robot(), standoff_m=1.3)
+    assert "\n" not in str(err.value) and "aisles.yaml" in str(err.value)
+
+
+def test_standoff_too_small_for_the_robot(aisle_scene):
+    with pytest.raises(ValueError, match=r"standoff_m 0.3 m is below the robot's radius"):
+        plan_coverage_route(aisle_scene, Robot(), standoff_m=0.3)
+
+
+def test_mcl_map_is_the_grid_as_given(aisle_scene):
+    sc = map_route(aisle_scene, Robot())
+    assert sc.route_m is not None and len(sc.route_m) > 2
+    loc = LocalisationConfig(map_error_m=0.0, map_scale_error=0.0, map_noise_m=0.0)
+    rmap = draw_robot_map(sc, loc, np.random.default_rng(1)).occupancy_map
+    rm = sc.rosmap
+    # the robot's map is the map's own grid: its free cells exactly (resolved unknowns included)
+    assert rmap.resolution_m == rm.resolution_m and rmap.shape == rm.shape
+    assert np.array_equal(~rmap.occupied, resolve_unknown(rm.cell_class) == FREE)
+    # the noise cell at (6.025, 1.225) is in the robot's map but makes no geometry
+    noise = np.array([[6.025, 1.225]])
+    assert rmap.is_occupied(noise)[0]
+    assert scenes.is_free(sc, [[6.025, 1.225, 0.35]])[0]
+    # with a map error the map's walls move (the biased-map option applies on top)
+    biased = draw_robot_map(sc, dataclasses.replace(loc, map_error_m=0.1), np.random.default_rng(1))
+    assert np.max(np.abs(biased.error.offsets_m)) > RES
+    assert not np.array_equal(biased.occupancy_map.occupied, rmap.occupied)
+
+
+def test_cli_shows_a_map_and_refuses_a_bad_one_before_writing(tmp_path):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    path = _aisles(tmp_path / "ok")
+    png = tmp_path / "top.png"
+    res = runner.invoke(app, ["scenes", "show", str(path), "--png", str(png)])
+    assert res.exit_code == 0, res.output
+    assert "tags: 288" in res.output and "route: " in res.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bad = write_map(tmp_path / "bad", building(2.0, 2.0), resolution=0)
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(bad), "--out", str(out)])
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("error: ")]
+    assert res.exit_code == 2 and len(errors) == 1
+    assert "map.yaml: key 'resolution' must be positive" in errors[0]
+    assert not out.exists()  # nothing half-written

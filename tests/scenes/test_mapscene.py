@@ -1,0 +1,140 @@
+"""Scenes from ROS maps: constructions by rule and by override, radio surfaces (one per
+physical layer, racks as shelves and uprights), shelf and CSV tags, the scene TOML's [map]."""
+
+import numpy as np
+import pytest
+
+import scenes
+from scenes.mapextract import extract_obstacles
+from scenes.rosmap import read_map
+from scenes.spec import SpecError
+from tests.scenes.maphelpers import OCC, RES, building, paint, write_map
+
+PAD, WALL = 0.5, 0.25  # the building's inside starts at 0.75 m
+
+# inside x in [0.75, 12.75], y in [0.75, 8.75]
+PARTITION = (0.75, 6.0, 4.0, 6.1)  # 0.1 m thin, joined to the outer wall
+RACK = (5.0, 2.0, 10.0, 2.8)  # 0.8 m deep, free-standing
+PILLAR = (11.5, 7.5, 11.9, 7.9)
+THICK = (6.0, 7.0, 9.0, 7.3)  # 0.3 m, free-standing
+
+
+def _map(tmp_path, name="site"):
+    g = building(width_m=12.0, length_m=8.0, wall_m=WALL, pad_m=PAD)
+    for r in (PARTITION, RACK, PILLAR, THICK):
+        paint(g, *r, OCC)
+    return write_map(tmp_path, g, name=name)
+
+
+def _by_centre(obstacles, x, y):
+    from shapely.geometry import Point
+
+    return min(obstacles, key=lambda o: o.polygon.distance(Point(x, y)))
+
+
+def test_rules_assign_the_expected_constructions(tmp_path):
+    obs = extract_obstacles(read_map(_map(tmp_path)))
+    assert len(obs) == 5
+    got = {name: (o.kind, o.material, o.construction, o.rule) for name, o in (
+        ("outer", _by_centre(obs, 0.6, 4.0)), ("partition", _by_centre(obs, 2.0, 6.05)),
+        ("rack", _by_centre(obs, 7.5, 2.4)), ("pillar", _by_centre(obs, 11.7, 7.7)),
+        ("thick", _by_centre(obs, 7.5, 7.15)))}
+    assert got == {
+        "outer": ("wall", "concrete", "solid", "outer"),
+        "partition": ("wall", "plasterboard", "stud", "partition"),
+        "rack": ("rack", "metal", None, "rack"),
+        "pillar": ("pillar", "concrete", None, "pillar"),
+        "thick": ("wall", "brick", "solid", "thick wall"),
+    }
+    thick = _by_centre(obs, 7.5, 7.15)
+    # mean thickness = area / centre-line length: within one cell of the drawn 0.3 m
+    assert thick.thickness_m == pytest.approx(0.3, abs=RES)
+    # the rack's rectangle is snapped to the map's axes, its sides on the cells' edges
+    rack = _by_centre(obs, 7.5, 2.4)
+    assert rack.rectangle_sides_m == pytest.approx((5.0, 0.8), abs=RES)
+
+
+def test_radio_surfaces_one_per_layer(tmp_path):
+    sc = scenes.load(_map(tmp_path))
+    surf = sc.radio_surfaces
+    brick = [s for s in surf if s.material == "brick"]
+    # a solid wall: one surface on its centre line, carrying its thickness (within a cell)
+    assert len(brick) == 1 and brick[0].kind == "wall"
+    assert brick[0].thickness_m == pytest.approx(0.3, abs=RES)
+    assert np.allclose(brick[0].mesh.vertices[:, 1], 7.15, atol=RES)
+    # a stud partition: two plasterboard leaves of the library thickness, one per face
+    leaves = [s for s in surf if s.material == "plasterboard"]
+    assert len(leaves) == 2 and {s.thickness_m for s in leaves} == {0.0125}
+    ys = sorted(float(s.mesh.vertices[:, 1].mean()) for s in leaves)
+    assert ys[1] - ys[0] == pytest.approx(0.1, abs=RES)
+    # the rack: per level a metal board and two beams, and uprights; not a block
+    metal = [s for s in surf if s.material == "metal"]
+    boards = [s for s in metal if s.kind == "shelf" and np.ptp(s.mesh.vertices[:, 2]) == 0]
+    assert sorted(float(s.mesh.vertices[0, 2]) for s in boards) == pytest.approx([0.4, 0.9, 1.4, 1.9])
+    assert sum(s.kind == "shell" for s in metal) == 2 * (int(np.ceil(5.0 / 1.35)) + 1)
+    between = np.array([[7.5, 2.4, 0.6], [7.5, 2.4, 1.1]])  # inside the footprint, between shelves
+    assert np.all(scenes.is_free(sc, between))
+    assert not np.any(scenes.is_free(sc, [[7.5, 2.4, 0.35], [7.5, 2.4, 0.85]]))  # in the boards
+    # floor and ceiling one surface each; free space is the building's inside only
+    assert sum(s.kind == "floor" for s in surf) == 1 and sum(s.kind == "ceiling" for s in surf) == 1
+    assert scenes.is_free(sc, [[2.0, 2.0, 1.0]])[0] and not scenes.is_free(sc, [[0.2, 0.2, 1.0]])[0]
+
+
+def test_shelf_tags_on_the_fronts(tmp_path):
+    sc = scenes.load(_map(tmp_path))
+    tags = sc.tags
+    # both long faces of the one rack look onto free space; 4 beams; (5 - 2 x 0.2) / 0.5 + 1 = 10
+    assert len(tags) == 2 * 4 * 10
+    y = tags.positions_m[:, 1]
+    assert set(np.round(y, 3)) == {1.995, 2.805}  # 5 mm in front of the faces y = 2.0, 2.8
+    assert np.all(np.sign(tags.normals[:, 1]) == np.where(y > 2.4, 1, -1))
+    assert set(np.round(tags.positions_m[:, 2], 3)) == {0.35, 0.85, 1.35, 1.85}  # mid-beam
+    x = np.sort(np.unique(np.round(tags.positions_m[:, 0], 6)))
+    assert np.allclose(np.diff(x), 0.5) and x[0] >= 5.0 + 0.2 - 1e-9 and x[-1] <= 10.0 - 0.2 + 1e-9
+    assert set(scenes.solid_material_at(sc, tags.positions_m - 0.01 * tags.normals)) == {"metal"}
+
+
+def test_toml_overrides_and_tag_layouts(tmp_path):
+    _map(tmp_path)
+    (tmp_path / "tags.csv").write_text("id,x_m,y_m,z_m,nx,ny,nz\nW1,2.0,0.75,1.0,0,1,0\n")
+    (tmp_path / "site.toml").write_text(
+        'name = "site"\n'
+        '[map]\npath = "site.yaml"\nheight_m = 3.5\n'
+        '[[map.override]]\npoint_m = [2.0, 6.05]\nmaterial = "glass"\nconstruction = "double"\n'
+        '[[map.override]]\npolygon_m = [[5.5, 6.5], [9.5, 6.5], [9.5, 7.8], [5.5, 7.8]]\nmaterial = "concrete"\n'
+        '[tags]\nlayout = "csv"\ncsv = "tags.csv"\n')
+    sc = scenes.load(tmp_path / "site.toml")
+    glass = [s for s in sc.radio_surfaces if s.material == "glass"]
+    assert len(glass) == 2 and all(s.kind == "leaf" for s in glass)  # double glazing: two panes
+    assert not any(s.material == "brick" for s in sc.radio_surfaces)
+    rules = {o["rule"] for o in sc.metadata["map"]["obstacles"]}
+    assert "override" in rules
+    assert sc.tags.ids.tolist() == ["W1"]
+    assert sc.bounds_m[1, 2] == pytest.approx(3.5 + 0.05)
+
+
+@pytest.mark.parametrize("table, message", [
+    ('[map]\npath = "site.yaml"\nwall_height_m = 3.0\n', r"\[map\]: unknown key 'wall_height_m'"),
+    ('[map]\npath = "site.yaml"\n[[map.override]]\npoint_m = [0.1, 0.1]\nmaterial = "brick"\n',
+     r"\[\[map.override\]\] #1: point_m \[0.1, 0.1\] matches no obstacle"),
+    ('[map]\npath = "site.yaml"\n[[map.override]]\npoint_m = [2.0, 6.05]\nkind = "pillar"\n'
+     'construction = "stud"\n', r"'construction' applies to walls only"),
+    ('[map]\npath = "site.yaml"\n[tags]\nheights_m = [0.6]\n', r"\[tags\] key 'heights_m': 0.6 m is on no front beam"),
+    ('[map]\npath = "site.yaml"\n[tags]\nlayout = "aisles"\n', r"\[tags\]: key 'layout' must be one of"),
+])
+def test_bad_map_tables_name_the_key(tmp_path, table, message):
+    _map(tmp_path)
+    (tmp_path / "bad.toml").write_text(table)
+    with pytest.raises((SpecError, ValueError), match=message) as err:
+        scenes.load(tmp_path / "bad.toml")
+    assert "\n" not in str(err.value) and "bad.toml" in str(err.value)
+
+
+def test_bundled_warehouse_loads():
+    sc = scenes.load("warehouse_small")
+    assert "warehouse_small" in scenes.list_bundled()
+    kinds = [o["kind"] for o in sc.metadata["map"]["obstacles"]]
+    assert kinds.count("rack") == 4 and kinds.count("pillar") == 2
+    assert len(sc.tags) == 4 * 2 * 2 * 12  # racks x faces x heights x tags per 12 m front
+    raw = scenes.load(scenes.bundled_path("warehouse_small").with_suffix(".yaml"))
+    assert len(raw.tags) == 4 * 2 * 4 * 24  # the map alone: every beam, 0.5 m apart
