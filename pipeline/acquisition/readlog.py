@@ -147,11 +147,14 @@ class ReadLog:
     metadata : dict
         JSON-able description: reader config, antenna names, tag ids, scene hash,
         trace settings, counts of traced pairs.
+    n_sources_traced : int
+        Antenna positions traced afresh (not written: the files do not depend on the cache).
     """
 
     reads: pd.DataFrame
     poses: pd.DataFrame
     metadata: dict = field(default_factory=dict)
+    n_sources_traced: int = 0
 
     def __post_init__(self) -> None:
         _check_columns(self.reads, READ_COLUMNS, "ReadLog.reads")

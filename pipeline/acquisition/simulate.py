@@ -207,7 +207,6 @@ def simulate_reads(
         "n_pairs": int(n * m),
         "n_pairs_in_range": int(mask.sum()),
         "n_pairs_traced": int(links.n_traced),
-        "n_sources_traced": int(links.n_traced_sources),  # fresh antenna positions (0: all cached)
         "max_range_m": float(budget.max_range_m(margin_db=reader.range_margin_db)),
         "range_margin_db": float(reader.range_margin_db),
         "max_excess_over_free_space_db": excess_db,
@@ -227,7 +226,8 @@ def simulate_reads(
         links.n_traced_sources,
         int(reads["read"].sum()),
     )
-    return ReadLog(reads=reads, poses=_poses_frame(trk), metadata=meta)
+    return ReadLog(reads=reads, poses=_poses_frame(trk), metadata=meta,
+                   n_sources_traced=int(links.n_traced_sources))
 
 
 def _check_eirp(reader: ReaderConfig, budget, plan) -> None:

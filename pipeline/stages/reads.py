@@ -49,7 +49,7 @@ def stage_reads(ctx) -> dict:
         readlog.write(ctx.staging_dir, prefix=prefix)
         info[name] = {"n_attempts": readlog.n_attempts, "n_reads": readlog.n_reads,
                       "n_pairs_traced": readlog.metadata.get("n_pairs_traced"),
-                      "n_sources_traced": readlog.metadata.get("n_sources_traced")}
+                      "n_sources_traced": readlog.n_sources_traced}
     return info
 
 
