@@ -21,6 +21,7 @@ def _spec(tmp_path: Path, tilts: list[float]):
     p.write_text(
         f'base = "{ROOT / "configs" / "tiny.toml"}"\n'
         "replicates = 2\n"
+        "pareto = [\"read_rate\", \"rssi_rmse_db\"]\n"
         "[grid]\n"
         f"tilt_deg = {tilts}\n"
         "[study.tracing]\n"
