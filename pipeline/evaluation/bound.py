@@ -222,10 +222,12 @@ def bound_by_cell_size(reads: pd.DataFrame, grid: CellGrid, budget, *, d_max_m: 
         b = cell_mean_bound(reads, g, budget, d_max_m=d_max_m, min_count=min_count)
         row = {"scale": float(s), **b.to_dict()}
         for name, m in (models or {}).items():
+            if not b.n_links:  # no cell holds min_count links: nothing to score (a fuzzy
+                row[f"{name}_rmse_db"] = float("nan")  # model refuses an empty input)
+                continue
             sel = reads.loc[b.rows]
             pred = np.asarray(m.fs_dbm(sel["d_true_m"].to_numpy(np.float64),
                                        sel["alpha_true_rad"].to_numpy(np.float64)), np.float64)
-            row[f"{name}_rmse_db"] = (float(np.sqrt(np.mean((pred - b.truth_dbm) ** 2)))
-                                      if b.n_links else float("nan"))
+            row[f"{name}_rmse_db"] = float(np.sqrt(np.mean((pred - b.truth_dbm) ** 2)))
         out.append(row)
     return out

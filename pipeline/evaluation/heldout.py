@@ -140,7 +140,7 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
                          if scored else None),
             # the same model on exactly the bound's links (matched comparison)
             "rssi_dbm_bound_links": (rssi_vs_truth(on_bound, s, budget, d_max_m=d_max_m).to_dict()
-                                     if scored else None),
+                                     if scored and bound.n_links else None),
             "bound_excess": excess,
             "detection": (detection_vs_truth(eval_reads, s, eval_truth,
                                              min_attempts=min_attempts).to_dict()

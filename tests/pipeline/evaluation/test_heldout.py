@@ -138,3 +138,21 @@ def test_heldout_scores_and_budget_use_the_bound():
     assert b["total"]["rmse_db"] == out["models"]["anfis"]["rssi_dbm"]["rmse"]
     assert b["n_links"]["value"] == len(held)
     assert b["reader_noise"]["rmse_db"] is None  # no reads with an RSSI here
+
+
+def test_a_cell_size_without_full_cells_scores_no_model():
+    """Few links in fine cells: no cell reaches min_count, and the models are not asked
+    to predict on no links (a fuzzy model refuses an empty input: the default study's
+    replicate 2 stopped there)."""
+
+    class Refuses(ConstantSensor):
+        def fs_dbm(self, d, a):
+            if len(np.atleast_1d(d)) == 0:
+                raise ValueError("X is empty")
+            return super().fs_dbm(d, a)
+
+    rng = np.random.default_rng(2)
+    held = _reads(rng, 40, _table(rng))
+    rows = bound_by_cell_size(held, GRID, LinkBudget(), d_max_m=3.0, min_count=5,
+                              scales=(0.25,), models={"c": Refuses(-50.0, 0.5)})
+    assert rows[0]["n_links"] == 0 and np.isnan(rows[0]["c_rmse_db"])
