@@ -2,7 +2,7 @@
 
     python scripts/make_warehouse_map.py                      # writes scenes/data/warehouse_small.*
     python scripts/make_warehouse_map.py --out /tmp/wh --name warehouse_large \
-        --width-m 30 --length-m 50 --racks 9 --rack-length-m 40
+        --width-m 30 --length-m 50 --racks 8 --rack-length-m 40
 
 The building (default 15 m x 20 m inside) has a 0.25 m outer wall, a row of shelving
 racks (0.8 m deep, 12 m long, 2.5 m aisles between them: three aisles between four
