@@ -272,6 +272,13 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     ends = np.array(passes).reshape(-1, 2)
     er, ec = cell(ends)
     end_node = idx[er, ec]
+    for k in np.flatnonzero(end_node < 0):  # a pass end whose cell centre lacks clearance:
+        r0, c0 = er[k], ec[k]  # the nearest planning cell within two cells that has it
+        win = idx[max(r0 - 2, 0):r0 + 3, max(c0 - 2, 0):c0 + 3]
+        rr, cc = np.nonzero(win >= 0)
+        if len(rr):
+            j = int(np.argmin((rr + max(r0 - 2, 0) - r0) ** 2 + (cc + max(c0 - 2, 0) - c0) ** 2))
+            end_node[k] = win[rr[j], cc[j]]
     if np.any(end_node < 0):
         k = int(np.flatnonzero(end_node < 0)[0])
         raise ValueError(f"{label}: pass end ({ends[k][0]:.2f}, {ends[k][1]:.2f}) m lies off the "
