@@ -407,13 +407,17 @@ def scenes_show(
         _fail(f"--png {png}: is a directory; give a file name ending in .png")
     try:
         sc = scenes.load(name)
-        if sc.route_m is None and sc.rosmap is not None:  # a map: the route a study plans
-            from pipeline.robot import Robot
-            from pipeline.stages.common import map_route
-
-            sc = map_route(sc, Robot())
     except (FileNotFoundError, KeyError, ValueError) as exc:
         _fail(str(exc))
+    route_note = ""
+    if sc.route_m is None and sc.rosmap is not None:  # a map: the route a study would plan
+        from pipeline.robot import Robot
+        from pipeline.stages.common import map_route
+
+        try:
+            sc = map_route(sc, Robot())
+        except ValueError as exc:  # shown, not fatal: the map itself is fine to look at
+            route_note = f"  route: none planned ({exc})"
     lo, hi = sc.bounds_m
     typer.echo(f"scene {sc.name} ({sc.source})")
     typer.echo(f"  bounds: x {lo[0]:.2f}..{hi[0]:.2f} m, y {lo[1]:.2f}..{hi[1]:.2f} m, "
@@ -422,6 +426,8 @@ def scenes_show(
     typer.echo(f"  tags: {len(sc.tags)}")
     if sc.route_m is not None:
         typer.echo(f"  route: {len(sc.route_m)} points")
+    elif route_note:
+        typer.echo(route_note)
     typer.echo(f"  content hash: {sc.content_hash()[:16]}")
     if png is not None:
         from pipeline.stages import draw_scene_top_view

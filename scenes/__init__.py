@@ -2,7 +2,8 @@
 
 Public entry points::
 
-    scenes.load("corridor_lab")          # bundled name, scene TOML, Mitsuba XML or mesh file
+    scenes.load("corridor_lab")          # bundled name, scene TOML, Mitsuba XML, mesh file
+    scenes.load("site.yaml")             # a ROS map_server map (scenes.rosmap, scenes.mapscene)
     scenes.list_bundled()
     scenes.corridor(length_m=25, width_m=2.4, height_m=3.0, doors=[...], tags=[...])
     scenes.load_spec(path) / scenes.build(spec) / scenes.save_spec(spec, path)
@@ -27,6 +28,9 @@ from scenes.geometry import (
     solid_material_at,
 )
 from scenes.importers import import_mesh, load_mitsuba_xml, read_sidecar
+from scenes.mapextract import ExtractionRules, MapObstacle, extract_obstacles
+from scenes.mapscene import build_map_scene, load_map
+from scenes.mapspec import MapOverride, MapSpec, TagLayoutSpec
 from scenes.materials import (
     ITU_NAME_MAP,
     MATERIALS,
@@ -38,6 +42,7 @@ from scenes.materials import (
     resolve_material_name,
 )
 from scenes.radio import CONSTRUCTIONS, RadioGroup, RadioSurface, radio_groups, tracing_surfaces
+from scenes.rosmap import RosMap, RosMapError, read_map
 from scenes.scene import Scene, TagSet
 from scenes.spec import (
     BoxSpec,
@@ -57,6 +62,17 @@ from scenes.spec_toml import load_spec, save_spec, spec_from_dict, spec_to_dict
 from scenes.tags import make_tags, validate_tags
 
 __all__ = [
+    "ExtractionRules",
+    "MapObstacle",
+    "MapOverride",
+    "MapSpec",
+    "RosMap",
+    "RosMapError",
+    "TagLayoutSpec",
+    "build_map_scene",
+    "extract_obstacles",
+    "load_map",
+    "read_map",
     "CONSTRUCTIONS",
     "ITU_NAME_MAP",
     "MATERIALS",

@@ -36,6 +36,7 @@ import shapely
 from scipy import ndimage
 from shapely.geometry import Point, Polygon
 
+from scenes.radio import default_construction
 from scenes.rosmap import OBSTACLE, OUTSIDE, RosMap, resolve_unknown
 
 __all__ = ["KINDS", "ExtractionRules", "MapObstacle", "extract_obstacles", "apply_override"]
@@ -374,6 +375,9 @@ def apply_override(obstacles: list[MapObstacle], where: str, *, point_m=None, po
     """Obstacles with one override applied: by a point inside (or within ``snap_m`` of) an
     obstacle, or to every obstacle whose representative point lies in a polygon.
 
+    A wall given a new material without a construction gets that material's default
+    (plasterboard ``"stud"``, else ``"solid"``); a new kind ``"rack"`` is metal.
+
     Raises
     ------
     ValueError
@@ -396,8 +400,13 @@ def apply_override(obstacles: list[MapObstacle], where: str, *, point_m=None, po
         o = out[i]
         new_kind = kind or o.kind
         new_mat = material or ({"rack": "metal"}.get(new_kind, o.material) if kind else o.material)
-        new_cons = construction if construction is not None else (
-            o.construction if new_kind == "wall" and o.kind == "wall" else
-            ("solid" if new_kind == "wall" else None))
+        if new_kind != "wall":
+            new_cons = None
+        elif construction is not None:
+            new_cons = construction
+        elif material is None and o.kind == "wall":
+            new_cons = o.construction
+        else:  # a new material (or a new wall): that material's default construction
+            new_cons = default_construction(new_mat)
         out[i] = replace(o, kind=new_kind, material=new_mat, construction=new_cons, rule="override")
     return out

@@ -1,7 +1,8 @@
 """Draw the bundled example warehouse as a ROS map_server map (YAML + PGM).
 
     python scripts/make_warehouse_map.py                      # writes scenes/data/warehouse_small.*
-    python scripts/make_warehouse_map.py --out /tmp/wh --width-m 30 --length-m 50 --racks 8
+    python scripts/make_warehouse_map.py --out /tmp/wh --name warehouse_large \
+        --width-m 30 --length-m 50 --racks 8 --rack-length-m 40
 
 The building (default 15 m x 20 m inside) has a 0.25 m outer wall, a row of shelving
 racks (0.8 m deep, 12 m long, 2.5 m aisles between them: three aisles between four
@@ -25,7 +26,8 @@ WALL_M = 0.25
 PAD_M = 0.5  # unknown margin around the building
 
 
-def draw(width_m: float, length_m: float, n_racks: int, rng: np.random.Generator) -> np.ndarray:
+def draw(width_m: float, length_m: float, n_racks: int, rng: np.random.Generator,
+         rack_length_m: float = 12.0) -> np.ndarray:
     """The map image (rows top-down, as written), uint8."""
     nx = int(round((width_m + 2 * (WALL_M + PAD_M)) / RES_M))
     ny = int(round((length_m + 2 * (WALL_M + PAD_M)) / RES_M))
@@ -39,7 +41,7 @@ def draw(width_m: float, length_m: float, n_racks: int, rng: np.random.Generator
 
     rect(-WALL_M, -WALL_M, width_m + WALL_M, length_m + WALL_M, 0)
     rect(0.0, 0.0, width_m, length_m, 254)
-    depth, aisle, rack_len = 0.8, 2.5, 12.0
+    depth, aisle, rack_len = 0.8, 2.5, rack_length_m
     x = (width_m - n_racks * depth - (n_racks - 1) * aisle) / 2
     y0 = 4.0
     for _ in range(n_racks):
@@ -69,9 +71,11 @@ def main(argv=None) -> None:
     ap.add_argument("--width-m", type=float, default=15.0)
     ap.add_argument("--length-m", type=float, default=20.0)
     ap.add_argument("--racks", type=int, default=4)
+    ap.add_argument("--rack-length-m", type=float, default=12.0)
     ap.add_argument("--seed", type=int, default=34)
     args = ap.parse_args(argv)
-    img = draw(args.width_m, args.length_m, args.racks, np.random.default_rng(args.seed))
+    img = draw(args.width_m, args.length_m, args.racks, np.random.default_rng(args.seed),
+               args.rack_length_m)
     args.out.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(args.out / f"{args.name}.pgm")
     origin = -(WALL_M + PAD_M)

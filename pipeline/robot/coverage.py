@@ -228,7 +228,9 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
             continue
         mid = (f.start_m + f.end_m) / 2
         ray = mid + np.arange(1, 400)[:, None] * (cmap.resolution_m / 2) * f.normal
-        hit = np.flatnonzero(cmap.is_occupied(ray))
+        occ = cmap.is_occupied(ray)
+        first_free = int(np.argmax(~occ))  # the face's own cells (rasterised) come first
+        hit = np.flatnonzero(occ[first_free:]) + first_free
         depth = (hit[0] + 1) * cmap.resolution_m / 2 if len(hit) else np.inf
         target = min(standoff_m, depth / 2)
         offsets = np.arange(infl, standoff_m + 1e-9, resolution_m / 2)
@@ -240,7 +242,8 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
                 break
         if chosen is None:
             front = (f.start_m + f.end_m) / 2 + infl * f.normal
-            if scene_is_free(scene, [[front[0], front[1], 0.35]])[0]:
+            # free in the scene but not in the collision map's main region: cut off from it
+            if scene_is_free(scene, [[front[0], front[1], 0.35]])[0] and cmap.is_occupied(front[None])[0]:
                 raise ValueError(
                     f"{label}: unreachable region around ({front[0]:.2f}, {front[1]:.2f}) m: the "
                     f"free space in front of the {f.describe()} is not connected to the "
@@ -269,6 +272,13 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     ends = np.array(passes).reshape(-1, 2)
     er, ec = cell(ends)
     end_node = idx[er, ec]
+    for k in np.flatnonzero(end_node < 0):  # a pass end whose cell centre lacks clearance:
+        r0, c0 = er[k], ec[k]  # the nearest planning cell within two cells that has it
+        win = idx[max(r0 - 2, 0):r0 + 3, max(c0 - 2, 0):c0 + 3]
+        rr, cc = np.nonzero(win >= 0)
+        if len(rr):
+            j = int(np.argmin((rr + max(r0 - 2, 0) - r0) ** 2 + (cc + max(c0 - 2, 0) - c0) ** 2))
+            end_node[k] = win[rr[j], cc[j]]
     if np.any(end_node < 0):
         k = int(np.flatnonzero(end_node < 0)[0])
         raise ValueError(f"{label}: pass end ({ends[k][0]:.2f}, {ends[k][1]:.2f}) m lies off the "

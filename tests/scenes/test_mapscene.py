@@ -138,3 +138,28 @@ def test_bundled_warehouse_loads():
     assert len(sc.tags) == 4 * 2 * 2 * 12  # racks x faces x heights x tags per 12 m front
     raw = scenes.load(scenes.bundled_path("warehouse_small").with_suffix(".yaml"))
     assert len(raw.tags) == 4 * 2 * 4 * 24  # the map alone: every beam, 0.5 m apart
+
+
+def test_a_waypoint_list_is_kept(tmp_path):
+    from pipeline.robot import Robot
+    from pipeline.stages.common import map_route
+
+    _map(tmp_path)
+    (tmp_path / "route.toml").write_text(
+        'route_m = [[1.5, 1.5], [11.5, 1.5], [11.5, 5.0]]\n[map]\npath = "site.yaml"\n')
+    sc = scenes.load(tmp_path / "route.toml")
+    assert sc.route_m.tolist() == [[1.5, 1.5], [11.5, 1.5], [11.5, 5.0]]
+    assert map_route(sc, Robot()) is sc  # no planning over a given route
+
+
+def test_override_material_takes_its_default_construction(tmp_path):
+    from scenes.mapextract import apply_override
+
+    obs = extract_obstacles(read_map(_map(tmp_path)))
+    out = apply_override(obs, "t", point_m=(2.0, 6.05), material="brick", snap_m=RES)
+    part = _by_centre(out, 2.0, 6.05)
+    assert (part.kind, part.material, part.construction, part.rule) == ("wall", "brick", "solid", "override")
+    out = apply_override(obs, "t", point_m=(7.5, 7.15), material="plasterboard", snap_m=RES)
+    assert _by_centre(out, 7.5, 7.15).construction == "stud"
+    out = apply_override(obs, "t", point_m=(7.5, 2.4), kind="wall", snap_m=RES)
+    assert (_by_centre(out, 7.5, 2.4).material, _by_centre(out, 7.5, 2.4).construction) == ("metal", "solid")

@@ -103,6 +103,10 @@ def test_cli_shows_a_map_and_refuses_a_bad_one_before_writing(tmp_path):
     assert res.exit_code == 0, res.output
     assert "tags: 288" in res.output and "route: " in res.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bare = write_map(tmp_path / "bare", building(4.0, 3.0))  # no racks: no tags, no route
+    res = runner.invoke(app, ["scenes", "show", str(bare)])
+    assert res.exit_code == 0, res.output
+    assert "tags: 0" in res.output and "route: none planned" in res.output and "no tags" in res.output
     bad = write_map(tmp_path / "bad", building(2.0, 2.0), resolution=0)
     out = tmp_path / "run"
     res = runner.invoke(app, ["run", str(bad), "--out", str(out)])
