@@ -49,7 +49,10 @@ __all__ = [
     "config_from_mapping",
     "config_to_dict",
     "config_to_toml",
+    "base_config",
     "load_config",
+    "merge_tables",
+    "read_toml",
     "reference_config_toml",
     "is_config_key",
     "replace_path",
@@ -386,6 +389,50 @@ def _resolve_paths(cfg: StudyConfig, base_dir: Path) -> StudyConfig:
     return dataclasses.replace(cfg, scene=scene, tracing=tracing)
 
 
+def read_toml(path: str | Path, what: str = "config") -> dict:
+    """Parse a TOML file; :class:`ConfigError` naming the file (``cannot read <what>
+    file`` or ``invalid TOML``) when it cannot be read or parsed."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read {what} file: {exc.strerror}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+
+
+def merge_tables(a: dict, b: dict) -> dict:
+    """``a`` with ``b``'s keys laid over it, nested tables merged key by key."""
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = merge_tables(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def base_config(data: dict, source: str, base_dir: Path) -> StudyConfig:
+    """The study a sweep or placement file starts from: its ``base`` study TOML (relative
+    to ``base_dir``; ``""`` or absent: the defaults) with its ``[study]`` table laid over.
+
+    Raises
+    ------
+    ConfigError
+        ``base`` not a string, ``study`` not a table, or either invalid (file and key named).
+    """
+    base_ref = data.get("base", "")
+    if not isinstance(base_ref, str):
+        raise ConfigError(f"{source}: base: expected a path string, got {base_ref!r}")
+    base = load_config(Path(base_dir) / base_ref) if base_ref else StudyConfig()
+    overrides = data.get("study", {})
+    if not isinstance(overrides, dict):
+        raise ConfigError(f"{source}: study must be a table of study keys")
+    if not overrides:
+        return base
+    return config_from_mapping(merge_tables(config_to_dict(base), overrides),
+                               source=f"{source} [study]", base_dir=base_dir)
+
+
 def load_config(path: str | Path) -> StudyConfig:
     """Read a study TOML file.
 
@@ -396,15 +443,7 @@ def load_config(path: str | Path) -> StudyConfig:
         the wrong type or range; the message names the file and the key.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config file: {exc.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
-    return config_from_mapping(data, source=str(path), base_dir=path.parent)
+    return config_from_mapping(read_toml(path, "config"), source=str(path), base_dir=path.parent)
 
 
 def config_to_dict(cfg: StudyConfig) -> dict:

@@ -35,7 +35,6 @@ import logging
 import multiprocessing
 import os
 import re
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,9 +42,10 @@ from pathlib import Path
 from pipeline.config import (
     ConfigError,
     StudyConfig,
+    base_config,
     config_from_mapping,
     config_to_dict,
-    load_config,
+    read_toml,
     replace_path,
 )
 from pipeline.configschema import from_dict
@@ -240,34 +240,15 @@ def load_sweep(path: str | Path) -> SweepPlan:
         Naming the file and the offending key or parameter.
     """
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read sweep file: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    data = read_toml(path, "sweep")
     unknown = [k for k in data if k not in _SWEEP_KEYS]
     if unknown:
         raise ConfigError(f"{path}: unknown key(s) {unknown}; a sweep file has {', '.join(_SWEEP_KEYS)}")
-    base_ref = data.get("base", "")
-    if not isinstance(base_ref, str):
-        raise ConfigError(f"{path}: base: expected a path string, got {base_ref!r}")
-    base = load_config(path.parent / base_ref) if base_ref else StudyConfig()
-    overrides = data.get("study", {})
-    if overrides:
-        merged = _deep_merge(config_to_dict(base), overrides)
-        base = config_from_mapping(merged, source=f"{path} [study]", base_dir=path.parent)
+    base = base_config(data, str(path), path.parent)
     params = data.get("parameters", {})
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: parameters must be a table")
     return expand_sweep(base, params, mode=data.get("mode", "grid"), source=str(path))
-
-
-def _deep_merge(a: dict, b: dict) -> dict:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def run_point(config: dict, run_dir: str, command: str = "sweep") -> dict:

@@ -31,7 +31,6 @@ The statistics (:data:`INVENTORY_METRICS`), each over (tag, pass) rows pooled pe
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -39,7 +38,6 @@ import pandas as pd
 __all__ = [
     "INVENTORY_COLUMNS",
     "INVENTORY_METRICS",
-    "InventoryMetric",
     "inventory_statistic",
     "link_closed",
     "tour_tag_table",
@@ -50,28 +48,8 @@ INVENTORY_COLUMNS = ("unit", "pass", "z_m", "n_attempts", "n_in_range", "n_reads
                      "n_cycles_closed")
 
 
-@dataclass(frozen=True)
-class InventoryMetric:
-    """One inventory statistic.
-
-    Attributes
-    ----------
-    key : str
-    label : str
-        What it is, for tables.
-    lower_is_better : bool
-    """
-
-    key: str
-    label: str
-    lower_is_better: bool = False
-
-
-INVENTORY_METRICS: tuple[InventoryMetric, ...] = (
-    InventoryMetric("read_rate", "read rate (reads / in-range attempts)"),
-    InventoryMetric("completeness", "tags read >= k times per pass (share)"),
-    InventoryMetric("surface_coverage", "route share along which a tag's link closes"),
-)
+#: The statistics :func:`inventory_statistic` computes.
+INVENTORY_METRICS = ("read_rate", "completeness", "surface_coverage")
 
 
 def link_closed(gain_db, budget) -> np.ndarray:
@@ -191,7 +169,7 @@ def inventory_statistic(key: str, rows: pd.DataFrame, codes: np.ndarray, n_units
         num, den = sums(rows["n_cycles_closed"]), sums(rows["n_cycles"])
     else:
         raise KeyError(f"unknown inventory metric {key!r}; known: "
-                       f"{', '.join(m.key for m in INVENTORY_METRICS)}")
+                       f"{', '.join(INVENTORY_METRICS)}")
 
     def stat(w):
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -20,6 +20,7 @@ from pipeline.config import AntennaMountConfig, ConfigError, StudyConfig
 
 __all__ = [
     "Candidate",
+    "candidate_from_trial",
     "candidate_from_values",
     "candidates_of",
     "check_candidate",
@@ -201,3 +202,15 @@ def check_ranges(spec, ranges: dict) -> None:
                 f"(x {box['x_m']}, y {box['y_m']}, z from {box['z_m'][0]} m; body "
                 f"{body.length_m} x {body.width_m} m, top at {body.body_height_m} m): raise the "
                 "lowest height above the body top or move the mount outside the footprint")
+
+
+def candidate_from_trial(spec, values: dict) -> Candidate:
+    """The optimiser's candidate for ``values`` (rounded to 1 mm / 0.1 deg: a mount is
+    built to that precision, and equal rounded values share one run directory)."""
+    from .spec import MOUNT_FIELDS
+
+    vals = {k: round(float(v), 3 if k.endswith("_m") else 1) for k, v in values.items()
+            if k in MOUNT_FIELDS}
+    c = candidate_from_values(spec, vals, origin="optimiser", prefix="opt_")
+    check_candidate(c, spec, what="optimiser trial")
+    return c

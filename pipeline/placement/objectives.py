@@ -55,7 +55,7 @@ from pipeline.evaluation.intervals import (
     unit_interval,
     verdict,
 )
-from pipeline.evaluation.inventory import inventory_statistic, tour_tag_table
+from pipeline.evaluation.inventory import inventory_statistic
 from pipeline.evaluation.units import UnitTables
 
 __all__ = [
@@ -149,24 +149,18 @@ def load_candidate_data(run_dirs: dict, budget) -> CandidateData:
         A file is missing or unreadable (the message names it); a track without
         ``pass_index`` (a run directory from before it was written: rerun it).
     """
-    from pipeline.runstore import inside
+    from pipeline.stages.summary import tour_tags
 
     inv, tabs = [], {}
     for k, run in run_dirs.items():
         run = Path(run)
         try:
-            reads = pd.read_parquet(inside(run, "reads.parquet"),
-                                    columns=["time_s", "cycle", "tag_id", "read", "in_range",
-                                             "gain_db"])
-            tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "z_m"])
-            with np.load(inside(run, "tour/train_track.npz")) as z:
-                if "pass_index" not in z.files:
-                    raise ValueError(f"{run}/tour/train_track.npz has no pass_index (written "
-                                     "by an older version): rerun the study")
-                t_s, passes = z["t_s"], z["pass_index"]
+            rows = tour_tags(run, budget)
         except (OSError, KeyError) as exc:
             raise ValueError(f"{run}: cannot read the tour's files ({exc})") from None
-        rows = tour_tag_table(reads, t_s, passes, tags, budget)
+        if rows is None:
+            raise ValueError(f"{run}/tour/train_track.npz has no pass_index (written by an "
+                             "older version): rerun the study")
         rows["unit"] = f"r{k}/" + rows["unit"].astype(str)
         inv.append(rows)
         ut = UnitTables.load(run)

@@ -79,9 +79,9 @@ def optimise(spec, runner, out) -> list:
     from pipeline.runstore import inside, regular_file
     from pipeline.stages.common import link_budget
 
-    from .candidates import Candidate
+    from .candidates import Candidate, candidate_from_trial
     from .objectives import OBJECTIVES, load_candidate_data, objective_estimate
-    from .runner import candidate_dir, candidate_from_trial
+    from .runner import candidate_dir
     from .spec import MOUNT_FIELDS
 
     s = spec.settings

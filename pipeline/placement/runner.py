@@ -34,15 +34,14 @@ from pathlib import Path
 from pipeline.config import ConfigError, config_to_dict, replace_path
 from pipeline.runstore import atomic_write_json
 
-from .candidates import Candidate, candidate_from_values, candidates_of, check_candidate
-from .spec import MOUNT_FIELDS, PlacementSpec
+from .candidates import Candidate, candidates_of
+from .spec import PlacementSpec
 
 __all__ = ["PlacementResult", "ProgressEvent", "candidate_dir", "run_placement"]
 
 log = logging.getLogger(__name__)
 
 MARKER = "placement.json"
-LOCK = ".placement.lock"
 
 
 @dataclass
@@ -96,13 +95,17 @@ class PlacementResult:
     files: list = field(default_factory=list)
 
 
-def _prepare_dir(out: Path, spec: PlacementSpec) -> None:
+def _prepare_dir(out: Path) -> None:
     from pipeline.runstore import UnsafePathError, regular_file
 
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
+    from pipeline.runstore import HOUSEKEEPING
+
     marker = out / MARKER
-    if out.is_dir() and any(out.iterdir()) and not regular_file(marker):
+    # the lock files alone (a first run stopped before its marker) are not someone's files
+    theirs = out.is_dir() and any(p.name not in HOUSEKEEPING for p in out.iterdir())
+    if theirs and not regular_file(marker):
         raise ConfigError(f"--out {out}: a non-empty directory that is not a placement study "
                           f"(no {MARKER}); choose a new or empty directory")
     for sub in ("candidates", "placement"):
@@ -223,24 +226,14 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
     pipeline.runstore.RunDirLocked
         Another process runs a placement study in it.
     """
-    from filelock import FileLock, Timeout
-
-    from pipeline.runstore import RunDirLocked, UnsafePathError, regular_file
+    from pipeline.runstore import RunStore
 
     from .summary import write_outputs
 
     out = Path(out_dir).resolve()
-    _prepare_dir(out, spec)
-    lock_path = out / LOCK
-    if os.path.lexists(lock_path) and not regular_file(lock_path):
-        raise UnsafePathError(f"{lock_path} is not a regular file: it cannot serve as the lock")
-    lock = FileLock(str(lock_path), timeout=0)
-    try:
-        lock.acquire()
-    except Timeout:
-        raise RunDirLocked(f"{out} is in use by another placement study; wait for it or use "
-                           "another --out") from None
-    try:
+    _prepare_dir(out)
+    # the run directories' own lock: one writer, the holder named to a second one
+    with RunStore(out).lock(command="rfidstudy placement"):
         cands = candidates_of(spec)
         runner = _Runner(spec, out, workers or spec.settings.workers or None, scheduler, client,
                          progress)
@@ -256,8 +249,6 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                     cands.append(t)
             _write_marker(out, spec, cands)
         return write_outputs(spec, out, cands, runner.done)
-    finally:
-        lock.release()
 
 
 def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> None:
@@ -268,21 +259,3 @@ def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> Non
         "candidates": [{"name": c.name, "origin": c.origin, "values": c.values,
                         "antennas": [a.__dict__ for a in c.antennas]} for c in cands],
     })
-
-
-def candidate_from_trial(spec: PlacementSpec, values: dict) -> Candidate:
-    """The optimiser's candidate for ``values`` (rounded to 1 mm / 0.1 deg: a mount is
-    built to that precision, and equal rounded values share one run directory)."""
-    vals = {k: round(float(v), 3 if k.endswith("_m") else 1) for k, v in values.items()
-            if k in MOUNT_FIELDS}
-    c = candidate_from_values(spec, vals, origin="optimiser", prefix="opt_")
-    check_candidate(c, spec, what="optimiser trial")
-    return c
-
-
-def read_marker(out: Path) -> dict:
-    """The placement directory's ``placement.json``."""
-    from pipeline.runstore import read_run_json
-
-    return read_run_json(out / MARKER)
-

@@ -54,19 +54,13 @@ envelope, no mount inside the robot's body, contradictory constraints).
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.config import (
-    AntennaMountConfig,
-    ConfigError,
-    StudyConfig,
-    config_from_mapping,
-    config_to_dict,
-    load_config,
-)
+from pipeline.config import AntennaMountConfig, ConfigError, StudyConfig, base_config, read_toml
 from pipeline.configschema import check_bounds, from_dict, option, section
+
+from .objectives import OBJECTIVES
 
 __all__ = [
     "MOUNT_FIELDS",
@@ -84,15 +78,15 @@ __all__ = [
 ]
 
 #: Objectives a placement can rank by or constrain (pipeline.placement.objectives).
-OBJECTIVE_KEYS = ("read_rate", "completeness", "surface_coverage",
-                  "tag_localisation_median_m", "rssi_rmse_db", "robot_median_m")
+OBJECTIVE_KEYS = tuple(OBJECTIVES)
 
 #: Mount fields a grid or a range may vary (``*_right_*``: the right antenna's own value).
 MOUNT_FIELDS = ("x_m", "y_m", "z_m", "yaw_deg", "tilt_deg", "z_right_m", "tilt_right_deg",
                 "yaw_right_deg", "y_right_m", "count")
 
 #: Objectives only the downstream stage computes (refused with [downstream] off).
-DOWNSTREAM_OBJECTIVES = ("tag_localisation_median_m", "robot_median_m")
+DOWNSTREAM_OBJECTIVES = tuple(k for k, o in OBJECTIVES.items()
+                              if o.table in ("tag_errors", "robot_steps"))
 
 
 @section
@@ -245,18 +239,7 @@ def placement_from_mapping(data: dict, source: str = "<placement>",
         contradictory constraints, a primary objective that is also impossible.
     """
     base_dir = Path(".") if base_dir is None else base_dir
-    base_ref = data.get("base", "")
-    if not isinstance(base_ref, str):
-        raise _fail(source, f"base: expected a path string, got {base_ref!r}")
-    base = load_config(base_dir / base_ref) if base_ref else StudyConfig()
-    overrides = data.get("study", {})
-    if not isinstance(overrides, dict):
-        raise _fail(source, "study must be a table of study keys")
-    if overrides:
-        from pipeline.sweep import _deep_merge
-
-        base = config_from_mapping(_deep_merge(config_to_dict(base), overrides),
-                                   source=f"{source} [study]", base_dir=base_dir)
+    base = base_config(data, source, base_dir)
     rest = {k: v for k, v in data.items() if k not in _TOP}
     settings = from_dict(PlacementSettings, rest, source=source)
     check_bounds(settings)
@@ -268,12 +251,7 @@ def placement_from_mapping(data: dict, source: str = "<placement>",
 def load_placement(path: str | Path) -> PlacementSpec:
     """Read, type-check and validate a placement TOML (see the module docstring)."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read placement file: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    data = read_toml(path, "placement")
     return placement_from_mapping(data, source=str(path), base_dir=path.parent)
 
 

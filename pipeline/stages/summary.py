@@ -6,7 +6,7 @@ from pathlib import Path
 
 from pipeline.runstore import run_files
 
-__all__ = ["corridor_coverage", "inventory_summary", "run_summary"]
+__all__ = ["corridor_coverage", "inventory_summary", "run_summary", "tour_tags"]
 
 
 def run_summary(run_dir: str | Path) -> dict:
@@ -51,31 +51,47 @@ def run_summary(run_dir: str | Path) -> dict:
     return row
 
 
-def inventory_summary(run_dir: str | Path, min_reads: int = 3) -> dict:
-    """``completeness`` (share of (tag, pass) read >= ``min_reads`` times) and
-    ``surface_coverage`` (route share along which each tag's link closes) of the run's
-    training tour (:mod:`pipeline.evaluation.inventory`); empty for a run directory
-    whose track predates ``pass_index``."""
-    import tomllib
-
+def tour_tags(run_dir: str | Path, budget=None):
+    """The training tour's counts per (tag, pass) of a finished run directory
+    (:func:`pipeline.evaluation.inventory.tour_tag_table` on its ``reads.parquet``,
+    ``tour/train_track.npz`` and ``scene/tags.parquet``, every file read through
+    :func:`pipeline.runstore.inside`); ``budget`` defaults to the run's own
+    ``config.toml``. None for a run whose track predates ``pass_index``."""
     import numpy as np
     import pandas as pd
 
-    from pipeline.config import config_from_mapping
-    from pipeline.evaluation.inventory import inventory_statistic, tour_tag_table
+    from pipeline.evaluation.inventory import tour_tag_table
     from pipeline.runstore import inside
 
     run = Path(run_dir)
     with np.load(inside(run, "tour/train_track.npz")) as z:
         if "pass_index" not in z.files:
-            return {}
+            return None
         t_s, passes = z["t_s"], z["pass_index"]
-    cfg = config_from_mapping(tomllib.loads(inside(run, "config.toml").read_text()),
-                              source=str(run / "config.toml"))
+    if budget is None:
+        from pipeline.config import config_from_mapping, read_toml
+
+        path = inside(run, "config.toml")
+        cfg = config_from_mapping(read_toml(path), source=str(path))
+        budget = cfg.reader.link_budget(cfg.frequency_hz)
     reads = pd.read_parquet(inside(run, "reads.parquet"),
                             columns=["time_s", "cycle", "tag_id", "read", "in_range", "gain_db"])
     tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "z_m"])
-    rows = tour_tag_table(reads, t_s, passes, tags, cfg.reader.link_budget(cfg.frequency_hz))
+    return tour_tag_table(reads, t_s, passes, tags, budget)
+
+
+def inventory_summary(run_dir: str | Path, min_reads: int = 3) -> dict:
+    """``completeness`` (share of (tag, pass) read >= ``min_reads`` times) and
+    ``surface_coverage`` (route share along which each tag's link closes) of the run's
+    training tour (:mod:`pipeline.evaluation.inventory`); empty for a run directory
+    whose track predates ``pass_index``."""
+    import numpy as np
+
+    from pipeline.evaluation.inventory import inventory_statistic
+
+    rows = tour_tags(run_dir)
+    if rows is None:
+        return {}
     units, codes = np.unique(rows["unit"].to_numpy(), return_inverse=True)
     w = np.ones(len(units))
     return {k: float(inventory_statistic(k, rows, codes, len(units), min_reads=min_reads)(w))
