@@ -4,6 +4,8 @@
 
     rfidstudy run [CONFIG.toml | SCENE] --out runs/x   # the whole study, cached and resumable
     rfidstudy figures RUN_DIR                          # redraw figures + report from saved files
+    rfidstudy figures RUN_DIR --format pdf --dpi 300 --only baselines   # figures for a paper
+    rfidstudy compare RUN_A RUN_B ... --out DIR        # headline numbers of several runs side by side
     rfidstudy report RUN_DIR                           # rewrite report.html only
     rfidstudy sweep SWEEP.toml --out sweeps/x [--scheduler tcp://host:8786] [--workers N]
     rfidstudy placement PLACEMENT.toml --out runs/placement [--workers N | --scheduler ADDR]
@@ -224,23 +226,67 @@ def _existing_run_dir(run_dir: Path, command: str):
     return RunStore(run_dir)
 
 
+def _csv_option(value: str | None) -> list[str] | None:
+    return None if value is None else [v.strip() for v in value.split(",") if v.strip()]
+
+
 @app.command()
 def figures(
     run_dir: Annotated[Path, typer.Argument(help="A run directory.")],
+    format_: Annotated[str | None, typer.Option(
+        "--format", help="Comma-separated formats: png, pdf, svg (default png,pdf).")] = None,
+    dpi: Annotated[int | None, typer.Option(
+        help="Resolution of PNG and rasterised parts [dpi] (default 120).")] = None,
+    only: Annotated[str | None, typer.Option(
+        help="Comma-separated figure names (default all; `--list` names them).")] = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Where to write. Default: RUN/figures (and report.html is "
+        "rewritten) without --format/--dpi/--only, RUN/paper_figures with them.")] = None,
+    list_: Annotated[bool, typer.Option("--list", help="List the figure names and exit.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also print INFO and DEBUG log lines (stages, traces, materials).")] = False,
 ):
-    """Redraw every figure from a run directory's files alone, then rewrite report.html."""
+    """Redraw figures from a run directory's files alone (no ray tracer needed).
+
+    Without options every figure is redrawn into RUN/figures and report.html is rewritten.
+    For a paper: `rfidstudy figures RUN --format pdf,png --dpi 300 --only baselines,downstream`
+    writes into RUN/paper_figures (or --out DIR); PDFs embed TrueType (Type 42) fonts.
+    """
     _setup_logging(verbose)
+    from pipeline.figures import FIGURES, FigureOutput, draw_all
     from pipeline.report import write_report
     from pipeline.runstore import RunDirError
-    from pipeline.stages import draw_figures
 
+    if list_:
+        for name, fn in FIGURES.items():
+            doc = (fn.__doc__ or "").strip().splitlines()[0] if fn.__doc__ else ""
+            typer.echo(f"{name:28s} {doc}")
+        return
+    custom = format_ is not None or dpi is not None or only is not None
+    try:
+        output = FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
+                              **({"dpi": dpi} if dpi is not None else {}))
+    except ValueError as exc:
+        _fail(str(exc))
+    names = _csv_option(only)
+    if names is not None:
+        unknown = [n for n in names if n not in FIGURES]
+        if unknown or not names:
+            _fail(f"--only: unknown figure(s) {unknown}; known: {', '.join(FIGURES)}")
     store = _existing_run_dir(run_dir, "figures")
+    try:
+        # a link planted at RUN/paper_figures is refused, not followed (runstore.inside)
+        target = out if out is not None else store.path("paper_figures" if custom else "figures")
+    except RunDirError as exc:
+        _fail(str(exc))
+    study_figures = target.resolve() == (run_dir / "figures").resolve()
+    if study_figures and custom:
+        _fail("--format, --dpi and --only do not write into the study's own figures/ (its "
+              "stage record hashes them): leave out --out, or give another directory")
     t0 = time.perf_counter()
     try:
         with store.lock("rfidstudy figures"):
-            paths = draw_figures(run_dir, store.path("figures"))
-            report = write_report(run_dir)
+            paths = draw_all(run_dir, out_dir=target, names=names, output=output)
+            report = write_report(run_dir) if study_figures else None
     except RunDirError as exc:
         _fail(str(exc))
     except (FileNotFoundError, ValueError, KeyError) as exc:
@@ -248,9 +294,45 @@ def figures(
     except OSError as exc:
         if exc.errno not in _WRITE_ERRNOS:
             raise
-        _fail_os(exc, str(run_dir))
-    typer.echo(f"{len(paths)} figure files in {run_dir / 'figures'}; report {report} "
+        _fail_os(exc, str(target))
+    tail = f"; report {report}" if report is not None else ""
+    typer.echo(f"{len(paths)} figure files in {target}{tail} "
                f"({time.perf_counter() - t0:.1f} s)")
+
+
+@app.command()
+def compare(
+    run_dirs: Annotated[list[Path], typer.Argument(help="Run directories (single or replicated studies).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Where compare.csv and the figure go.")] = Path("runs/compare"),
+    format_: Annotated[str | None, typer.Option(
+        "--format", help="Comma-separated formats: png, pdf, svg (default png,pdf).")] = None,
+    dpi: Annotated[int | None, typer.Option(help="Resolution of PNG [dpi] (default 120).")] = None,
+):
+    """Draw the headline numbers of several runs side by side, each with its 95 % interval."""
+    from pipeline.figures import FigureOutput, figure_output
+    from pipeline.figures.headline import compare_runs
+    from pipeline.runstore import RunDirError, is_run_dir
+
+    for d in run_dirs:
+        if not d.is_dir() or not is_run_dir(d):
+            _fail(f"{d}: not a run directory of rfidstudy")
+        if out.resolve() == d.resolve() or d.resolve() in out.resolve().parents:
+            _fail(f"--out {out} is inside the run directory {d}: compare writes outside the runs "
+                  "it reads")
+    try:
+        output = FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
+                              **({"dpi": dpi} if dpi is not None else {}))
+        with figure_output(output):
+            paths = compare_runs(run_dirs, out)
+    except RunDirError as exc:
+        _fail(str(exc))
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc), code=1)
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        _fail_os(exc, str(out))
+    typer.echo(f"{len(run_dirs)} runs compared: {', '.join(str(p) for p in paths)}")
 
 
 @app.command()

@@ -11,10 +11,11 @@ evaluated from the saved models, errors come from :mod:`pipeline.evaluation`.
 for both its files (:func:`pipeline.figures.common.save_figure`).
 """
 
-from .common import DPI, MissingInput
-from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
+from .common import DPI, STYLE, FigureOutput, MissingInput, figure_output
+from .comparison import fig_fig7_error, fig_rho_vs_truth
 from .downstream import fig_downstream
 from .drawall import FIGURES, draw_all
+from .headline import fig_baselines
 from .scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
 from .sites import fig_site_errors
 from .surfaces import (
@@ -27,8 +28,11 @@ from .surfaces import (
 __all__ = [
     "DPI",
     "FIGURES",
+    "STYLE",
+    "FigureOutput",
     "MissingInput",
     "draw_all",
+    "figure_output",
     "fig_baselines",
     "fig_downstream",
     "fig_fields",

@@ -2,12 +2,19 @@
 
 Figures use :class:`matplotlib.figure.Figure` directly (no pyplot, no global
 state, Agg canvas), and are written as ``figures/<name>.png`` (120 dpi) and
-``figures/<name>.pdf`` via a temporary name and :func:`os.replace`.
+``figures/<name>.pdf`` via a temporary name and :func:`os.replace`. The formats and the
+resolution are a :class:`FigureOutput`, chosen for a block of code with
+:func:`figure_output` (``rfidstudy figures RUN --format pdf --dpi 300``); every figure is
+drawn in the project's one :data:`STYLE`, and PDF and PS files embed TrueType (Type 42)
+fonts, never Type 3, which journals' checkers reject.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib as mpl
@@ -19,6 +26,10 @@ from scenes.fileio import atomic_output
 
 __all__ = [
     "DPI",
+    "FORMATS",
+    "STYLE",
+    "FigureOutput",
+    "figure_output",
     "MissingInput",
     "find_first",
     "load_sensor",
@@ -30,6 +41,76 @@ __all__ = [
 
 #: Resolution of the PNG figures (for the HTML report).
 DPI = 120
+
+#: File formats a figure can be written in.
+FORMATS = ("png", "pdf", "svg")
+
+#: The one style of every figure (matplotlib rc keys). TrueType (Type 42) fonts in PDF and
+#: PS: Type 3 fonts, matplotlib's default, are rejected by many journals' checkers; SVG
+#: keeps text as text.
+STYLE = {
+    "pdf.fonttype": 42,
+    "ps.fonttype": 42,
+    "svg.fonttype": "none",
+    "font.size": 9.0,
+    "axes.titlesize": 10.0,
+    "axes.labelsize": 9.0,
+    "xtick.labelsize": 8.0,
+    "ytick.labelsize": 8.0,
+    "legend.fontsize": 8.0,
+    "legend.frameon": False,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "axes.grid": True,
+    "grid.linewidth": 0.5,
+    "grid.alpha": 0.35,
+    "lines.linewidth": 1.2,
+    "image.cmap": "viridis",
+}
+
+
+@dataclass(frozen=True)
+class FigureOutput:
+    """How figures are written."""
+
+    formats: tuple[str, ...] = ("png", "pdf")
+    """File formats, each one of :data:`FORMATS`, in the order written."""
+    dpi: int = DPI
+    """Resolution of raster output (PNG; rasterised parts of PDF and SVG) [dots per inch]."""
+
+    def __post_init__(self):
+        fmts = tuple(self.formats)
+        object.__setattr__(self, "formats", fmts)
+        bad = [f for f in fmts if f not in FORMATS]
+        if not fmts or bad or len(set(fmts)) != len(fmts):
+            raise ValueError(f"figure formats must be distinct, from {list(FORMATS)}; got "
+                             f"{list(fmts)}")
+        # below 50 dpi text is unreadable; above 1200 a figure is hundreds of MB
+        if isinstance(self.dpi, bool) or not isinstance(self.dpi, int) \
+                or not 50 <= self.dpi <= 1200:
+            raise ValueError(f"figure dpi must be an integer in [50, 1200], got {self.dpi!r}")
+
+
+# the default FigureOutput is frozen: immutable, safe as a ContextVar default
+_OUTPUT: contextvars.ContextVar[FigureOutput] = contextvars.ContextVar(
+    "figure_output", default=FigureOutput())  # noqa: B039  # noqa: B039 (frozen dataclass: immutable)
+
+
+@contextlib.contextmanager
+def figure_output(output: FigureOutput | None = None):
+    """Within the block, figures are written as `output` says and drawn in :data:`STYLE`.
+
+    A context variable rather than a parameter of every figure function: the figure
+    functions keep their ``f(run_dir, out_dir=None)`` form, and the setting ends with the
+    block (processes forked inside it, as :func:`~pipeline.figures.draw_all` forks, inherit
+    it).
+    """
+    token = _OUTPUT.set(output or FigureOutput())
+    try:
+        with mpl.rc_context(STYLE):
+            yield _OUTPUT.get()
+    finally:
+        _OUTPUT.reset(token)
 
 
 class MissingInput(FileNotFoundError):
@@ -75,7 +156,8 @@ def new_figure(width_in: float = 6.4, height_in: float = 4.8) -> Figure:
 
 
 def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
-    """Write ``out_dir/name.png`` (DPI) and ``out_dir/name.pdf`` atomically; returns both paths.
+    """Write ``out_dir/name.<format>`` for each format of the current :class:`FigureOutput`
+    (default PNG at :data:`DPI` and PDF) atomically; returns the paths.
 
     The figure's constrained layout is solved once, at the PNG's resolution, before
     either file is drawn; the figure then has no layout engine, so neither ``savefig``
@@ -83,26 +165,29 @@ def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
     an engine). The layout depends on sizes in inches and points only, so the PDF's
     axes sit where the PNG's do.
     """
-    _solve_layout(fig)
+    output = _OUTPUT.get()
+    _solve_layout(fig, output.dpi)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
-    for ext in ("png", "pdf"):
-        path = out_dir / f"{name}.{ext}"
-        with atomic_output(path) as tmp:
-            fig.savefig(tmp, format=ext, dpi=DPI)
-        paths.append(path)
+    # the font types are read when a file is written: Type 42 even outside figure_output
+    with mpl.rc_context({k: STYLE[k] for k in ("pdf.fonttype", "ps.fonttype", "svg.fonttype")}):
+        for ext in output.formats:
+            path = out_dir / f"{name}.{ext}"
+            with atomic_output(path) as tmp:
+                fig.savefig(tmp, format=ext, dpi=output.dpi)
+            paths.append(path)
     return paths
 
 
-def _solve_layout(fig: Figure) -> None:
-    """Run the figure's layout engine once at :data:`DPI`, then remove the engine."""
+def _solve_layout(fig: Figure, dpi_out: int = DPI) -> None:
+    """Run the figure's layout engine once at `dpi_out`, then remove the engine."""
     engine = fig.get_layout_engine()
     if engine is None:
         return
     dpi = fig.dpi
     try:
-        fig.set_dpi(DPI)
+        fig.set_dpi(dpi_out)
         engine.execute(fig)
     finally:
         fig.set_dpi(dpi)

@@ -1,4 +1,4 @@
-"""Comparison figures: chapter Fig. 6 (rho), Fig. 7 (percentage error), baselines beside ANFIS.
+"""Comparison figures: chapter Fig. 6 (rho) and Fig. 7 (percentage error).
 
 Inputs (run directory):
 
@@ -9,9 +9,9 @@ Inputs (run directory):
   if absent, computed with :func:`pipeline.evaluation.fig7_errors` from
   ``eval_reads.parquet``, ``eval_poses.parquet``, ``scene/tags.parquet`` (or
   ``truth/tags.parquet``), ``models/sensor.json`` and the antenna tilts of
-  ``config.toml`` (``[[robot.antennas]] tilt_deg``; 0 without the file);
-- baselines: ``metrics.json`` (:meth:`pipeline.evaluation.StudyMetrics.to_dict`,
-  top level or under "evaluation").
+  ``config.toml`` (``[[robot.antennas]] tilt_deg``; 0 without the file).
+
+The models side by side with their intervals: :mod:`pipeline.figures.headline`.
 """
 
 from __future__ import annotations
@@ -24,15 +24,13 @@ import pandas as pd
 from pipeline.runstore import run_files
 
 from .common import (
-    finite_or_nan,
     load_sensor,
-    model_metrics,
     new_figure,
     require,
     save_figure,
 )
 
-__all__ = ["fig_baselines", "fig_fig7_error", "fig_rho_vs_truth"]
+__all__ = ["fig_fig7_error", "fig_rho_vs_truth"]
 
 _MAX_POSES = 4
 
@@ -167,40 +165,3 @@ def fig_fig7_error(run_dir, out_dir=None) -> list[Path]:
     ax.set_title(f"Fig. 7: RSSI model error along the evaluation path (in-domain median "
                  f"{med:.1f} %)")
     return save_figure(fig, out_dir or run_dir / "figures", "fig7_error")
-
-
-# (label, section, key, sub-key or None)
-_BARS = (
-    ("RSSI MAE [dB]", "rssi_dbm", "mae", None),
-    ("RSSI |bias| [dB]", "rssi_dbm", "bias", None),
-    ("detection MAE [-] x10", "detection", "mae", None),
-    ("Brier [-] x10", "detection", "brier", None),
-    ("Fig. 7 median [%] /10", "fig7", "median_pct", None),
-)
-_SCALE = {"detection": 10.0, "rho": 10.0, "fig7": 0.1}
-
-
-def fig_baselines(run_dir, out_dir=None) -> list[Path]:
-    """Baselines and the oracle bound beside ANFIS: held-out headline metrics per model
-    (grouped bars)."""
-    run_dir = Path(run_dir)
-    models = model_metrics(run_dir)
-    names = list(models)
-    fig = new_figure(9.0, 4.0)
-    ax = fig.subplots()
-    width = 0.8 / max(len(names), 1)
-    x = np.arange(len(_BARS))
-    for i, name in enumerate(names):
-        vals = []
-        for _, sec, key, sub in _BARS:
-            s = (models[name] or {}).get(sec) or {}
-            v = s.get(key)
-            v = v.get(sub) if isinstance(v, dict) and sub else v
-            v = abs(finite_or_nan(v)) * _SCALE.get(sec, 1.0)
-            vals.append(v)
-        ax.bar(x + (i - (len(names) - 1) / 2) * width, vals, width, label=name)
-    ax.set_xticks(x, [b[0] for b in _BARS], rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("metric value (scaled as labelled)")
-    ax.legend(fontsize=8)
-    ax.set_title("Held-out scores against the ray-traced truth (lower is better)")
-    return save_figure(fig, out_dir or run_dir / "figures", "baselines")

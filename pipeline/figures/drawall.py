@@ -7,9 +7,10 @@ from pathlib import Path
 
 from pipeline.parallel import map_forked
 
-from .common import MissingInput
-from .comparison import fig_baselines, fig_fig7_error, fig_rho_vs_truth
+from .common import FigureOutput, MissingInput, figure_output
+from .comparison import fig_fig7_error, fig_rho_vs_truth
 from .downstream import fig_downstream
+from .headline import fig_baselines
 from .scene import fig_fields, fig_mcl_error, fig_scene_top_view
 from .sites import fig_site_errors
 from .surfaces import (
@@ -48,7 +49,8 @@ def _draw_one(name: str, run_dir: Path, out_dir: Path) -> tuple[list[Path], str 
         return [], str(exc)
 
 
-def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> list[Path]:
+def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
+             output: FigureOutput | None = None) -> list[Path]:
     """Draw every figure (or those in `names`) from the run directory's files.
 
     Parameters
@@ -64,6 +66,8 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> l
         :func:`pipeline.parallel.map_forked`; every figure is independent and its bytes
         do not depend on where it is drawn). Default: one per CPU, or 1 (draw in this
         process) where forking is not safe.
+    output : FigureOutput, optional
+        Formats and resolution (default PNG at 120 dpi and PDF, for the report).
 
     Returns
     -------
@@ -80,7 +84,9 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None) -> l
     unknown = sorted(set(names) - set(FIGURES))
     if unknown:
         raise ValueError(f"unknown figure(s) {unknown}; known {sorted(FIGURES)}")
-    results = map_forked(lambda i: _draw_one(names[i], run_dir, out_dir), len(names), workers)
+    with figure_output(output):
+        results = map_forked(lambda i: _draw_one(names[i], run_dir, out_dir), len(names),
+                             workers)
     written: list[Path] = []
     for name, (paths, missing) in zip(names, results, strict=True):
         if missing is not None:
