@@ -14,10 +14,12 @@ setup:
 demo: setup
 	.venv/bin/rfidstudy run --out $(OUT)
 
-test: setup
+test:
+	@bash scripts/setup.sh --test
 	.venv/bin/python -m pytest $(PYTEST_ARGS)
 
-test-all: setup
+test-all:
+	@bash scripts/setup.sh --test
 	.venv/bin/python -m pytest -m "not gpu" -n 2 --dist loadscope --durations=15
 
 bench: setup

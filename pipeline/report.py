@@ -2,9 +2,13 @@
 
 Reads ``config.toml``, ``manifest.json``, ``metrics.json`` and ``figures/*.png``
 (images embedded as base64, so the HTML file can be mailed on its own) and writes
-``report.html`` atomically. Metrics tables are laid out from the JSON's nesting:
-a mapping of mappings of numbers becomes one table (rows = outer keys), so new
-metrics show up without changes here.
+``report.html`` atomically. The answer comes first: the headline figure, the held-out
+table with 95 % intervals and verdicts, findings generated from the numbers
+(:mod:`pipeline.findings`) and their caveats; then sections in pipeline order, each with
+its tables and captioned figures (:mod:`pipeline.figures.captions`); the rankings, every
+other number of ``metrics.json`` (laid out from the JSON's nesting, so new metrics show
+up without changes here), the config and the manifest are collapsed (``<details>``).
+Missing values show as '–', shares as percentages.
 """
 
 from __future__ import annotations
@@ -15,10 +19,12 @@ import html
 import json
 import logging
 import os
+import re
 import tomllib
 from pathlib import Path
 
 from pipeline.evaluation.headline import METRICS
+from pipeline.figures.captions import CAPTIONS, SECTIONS
 from pipeline.runstore import (
     UnsafePathError,
     atomic_write_text,
@@ -27,22 +33,28 @@ from pipeline.runstore import (
     run_files,
 )
 
-__all__ = ["figure_captions", "headline_html", "intervals_html", "metrics_tables",
+__all__ = ["budget_html", "downstream_html", "figure_captions", "headline_html", "heldout_html",
+           "intervals_html", "mcl_html", "metrics_tables", "sites_html",
            "model_comparison_tables", "write_pooled_report", "write_report"]
 
 log = logging.getLogger(__name__)
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
-padding:0 1em;color:#222}
-h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
-table{border-collapse:collapse;margin:.6em 0 1.2em;font-size:.9em}
-th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right}th{background:#f3f3f3}
-td:first-child,th:first-child{text-align:left}
-figure{margin:1.2em 0;text-align:center}figure img{max-width:100%;border:1px solid #eee}
-figcaption{font-size:.9em;color:#444;margin-top:.4em;text-align:left}
+padding:0 1em;color:#222;line-height:1.45}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+h3{font-size:1.05em;margin-bottom:.3em}
+.tw{max-width:100%;overflow-x:auto}
+table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em;max-width:100%}
+th,td{border:1px solid #ccc;padding:.2em .5em;text-align:right;overflow-wrap:anywhere}
+th{background:#f3f3f3;font-weight:600}td:first-child,th:first-child{text-align:left}
+table.headline td{white-space:nowrap}table.headline td:first-child{white-space:normal}
+.ci{color:#666;font-size:.9em}.up{color:#1a7f37}.down{color:#c62828}
+figure{margin:1.4em 0;text-align:center}figure img{max-width:100%;height:auto;border:1px solid #eee}
+figcaption{font-size:.9em;color:#333;margin-top:.4em;text-align:left}
+details{margin:.8em 0}summary{cursor:pointer;font-weight:600}
 pre{background:#f7f7f7;padding:.8em;overflow:auto;font-size:.8em;max-height:30em}
-.muted{color:#777;font-size:.85em}
+.muted{color:#666;font-size:.9em}
 """
 
 
@@ -57,14 +69,28 @@ def _load_json(path: Path) -> dict | None:
     return data
 
 
-def _fmt(v) -> str:
-    if isinstance(v, bool) or v is None:
-        return html.escape(str(v))
+_SHARE = re.compile(r"(share|fraction|within_\d|within \d|converged_share|recovered_share)",
+                    re.IGNORECASE)
+
+
+def _is_share(col: str) -> bool:
+    """A column of shares in [0, 1] (shown as percentages): named so, and without a unit."""
+    return bool(_SHARE.search(col)) and "[" not in col
+
+
+def _fmt(v, col: str = "") -> str:
+    """A table cell: '–' for a missing value, shares as percentages, 4 significant digits."""
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
     if isinstance(v, int):
         return f"{v:d}"
     if isinstance(v, float):
         if v != v:
             return "–"
+        if _is_share(col) and 0.0 <= v <= 1.0:
+            return f"{100 * v:.1f} %"
         return f"{v:.4g}"
     return html.escape(str(v))
 
@@ -176,17 +202,25 @@ _HEADLINE_COLS = (
 
 
 def headline_html(metrics: dict) -> list[str]:
-    """The held-out headline, error budget, MCL bias and tag-site tables as HTML parts.
+    """The held-out headline, error budget, MCL bias, downstream and tag-site tables as HTML
+    parts (each also alone: :func:`heldout_html`, :func:`budget_html`, :func:`mcl_html`,
+    :func:`downstream_html`, :func:`sites_html`).
 
     Parameters
     ----------
     metrics : dict
         ``metrics.json`` with a ``heldout`` section (see ``pipeline.stages.evaluation``).
     """
+    return [*heldout_html(metrics), *budget_html(metrics), *mcl_html(metrics),
+            *downstream_html(metrics), *sites_html(metrics)]
+
+
+def heldout_html(metrics: dict) -> list[str]:
+    """The held-out table: every model's point scores against the truth, and the bound."""
     held = metrics["heldout"]
     fig7 = metrics.get("fig7") or {}
     data = held.get("data") or {}
-    out = ["<h3>Held-out scores (the headline)</h3>",
+    out = ["<h3>Held-out scores in detail</h3>",
            f"<p>Every number is on data no model saw: the evaluation tour (its own MCL run in "
            f"the same map) reading the held-out tag layout ({_fmt(data.get('n_tags'))} tags, "
            f"{_fmt(data.get('n_attempts'))} attempts), against the noise-free ray-traced truth; "
@@ -213,14 +247,32 @@ def headline_html(metrics: dict) -> list[str]:
         rows.append(row)
     out.append(_table_html("held-out: model against the ray-traced truth",
                            ["model"] + [c[0] for c in _HEADLINE_COLS], rows))
+    return out
+
+
+_BUDGET_ORDER = ("representation_bound", "model_form", "localisation", "reader_noise", "total",
+                 "n_links")
+
+
+def budget_html(metrics: dict) -> list[str]:
+    """The error budget of the held-out RSSI error (terms in the budget's order; a term
+    with no number at all is left out) and the bound against the cell size."""
+    out = []
     budget = metrics.get("error_budget")
     if isinstance(budget, dict):
         cols = ("rmse_db", "between_cells_db", "within_cells_db2", "step_db", "how")
+        terms = [k for k, v in budget.items() if isinstance(v, dict) and k != "by_cell_size"]
+        terms = sorted(terms, key=lambda k: _BUDGET_ORDER.index(k) if k in _BUDGET_ORDER
+                       else len(_BUDGET_ORDER))  # stable: unknown terms keep their order
+        rows = [[k, *[budget[k].get(c) for c in cols]] for k in terms
+                if any(budget[k].get(c) is not None for c in cols[:-1])]
+        n = (budget.get("n_links") or {}).get("value") if isinstance(budget.get("n_links"),
+                                                                     dict) else None
         out.append(_table_html(
-            "error budget of the held-out RSSI error",
+            "error budget of the held-out RSSI error"
+            + (f" (matched terms on {n} links)" if n is not None else ""),
             ["term", "RMSE [dB]", "between cells [dB]", "within cells [dB²]", "step [dB]", "how"],
-            [[k, *[v.get(c) for c in cols]] for k, v in budget.items()
-             if isinstance(v, dict) and k != "by_cell_size"]))
+            rows))
         by_size = budget.get("by_cell_size")
         if isinstance(by_size, dict) and by_size:
             cols = [c for v in by_size.values() for c in v]
@@ -228,30 +280,46 @@ def headline_html(metrics: dict) -> list[str]:
             out.append(_table_html("the bound against the cell size (smaller cells: a lower "
                                    "bound, down to 0 at one link per cell)", ["cells", *cols],
                                    [[k, *[v.get(c) for c in cols]] for k, v in by_size.items()]))
+    return out
+
+
+def mcl_html(metrics: dict) -> list[str]:
+    """MCL pose error and bias per tour, one row per tour (transposed: a column per tour,
+    so the many statistics fit the page)."""
     loc = metrics.get("localisation")
-    if isinstance(loc, dict) and loc:
-        cols = []
-        for v in loc.values():
-            if isinstance(v, dict):
-                cols += [c for c, x in v.items() if _is_scalar(x) and c not in cols]
-        out.append(_table_html("MCL pose error and bias (biased map)", ["tour"] + cols,
-                               [[k] + [v.get(c) for c in cols] for k, v in loc.items()
-                                if isinstance(v, dict)]))
+    if not isinstance(loc, dict) or not loc:
+        return []
+    tours = [k for k, v in loc.items() if isinstance(v, dict)]
+    stats: list[str] = []
+    for k in tours:
+        stats += [c for c, x in loc[k].items() if _is_scalar(x) and c not in stats]
+    return [_table_html("MCL pose error and bias (biased map)", ["statistic", *tours],
+                        [[c, *[loc[k].get(c) for k in tours]] for c in stats])]
+
+
+def downstream_html(metrics: dict) -> list[str]:
+    """The downstream tables: held-out tags and the RFID-only robot filter per model."""
+    out = []
     for key, title, cols in (
-            ("tag_localisation", "downstream: held-out tags localised from the evaluation tour's "
+            ("tag_localisation", "held-out tags localised from the evaluation tour's "
              "reads (MAP over candidate sites; 3-D error)",
              ("median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "horizontal_median_m",
               "n_tags")),
-            ("robot_localisation", "downstream: RFID-only robot localisation (unknown start, "
+            ("robot_localisation", "RFID-only robot localisation (unknown start, "
              "kidnapped halfway; medians over every step of every filter run, before and "
-             "from the kidnapping; the range of the per-run medians; runs that converged "
-             "and recovered)", ("median_m", "median_before_kidnap_m", "median_after_kidnap_m",
-                                "median_m_min", "median_m_max", "p90_m", "converged_runs",
-                                "recovered_runs", "converge_s", "recover_s", "n_runs"))):
+             "from the kidnapping; runs that converged and recovered)",
+             ("median_m", "median_before_kidnap_m", "median_after_kidnap_m", "p90_m",
+              "converged_runs", "recovered_runs", "n_runs"))):
         sec = metrics.get(key)
         if isinstance(sec, dict) and sec:
             out.append(_table_html(title, ["model", *cols],
                                    [[n, *[(v or {}).get(c) for c in cols]] for n, v in sec.items()]))
+    return out
+
+
+def sites_html(metrics: dict) -> list[str]:
+    """Truth where tags are: the model's rho against the truth at clear and obstructed sites."""
+    out = []
     sites = metrics.get("tag_sites")
     if isinstance(sites, dict) and sites:
         rows = []
@@ -284,18 +352,13 @@ def _flatten(d: dict, prefix: str = "") -> dict:
 
 
 def figure_captions(run_dir: Path) -> dict[str, str]:
-    """Captions by figure stem: ``figures/captions.json`` if present, else pipeline.figures'."""
+    """Captions by figure stem: ``figures/captions.json`` if present, else
+    :data:`pipeline.figures.captions.CAPTIONS`."""
     p = run_dir / "figures" / "captions.json"
     caps = _load_json(p) if p.exists() else None
     if isinstance(caps, dict):
         return {str(k): str(v) for k, v in caps.items()}
-    try:
-        from pipeline import figures
-
-        caps = getattr(figures, "CAPTIONS", None)
-        return dict(caps) if isinstance(caps, dict) else {}
-    except ImportError:
-        return {}
+    return dict(CAPTIONS)
 
 
 def _interval_text(iv: dict | None, digits: int = 3) -> str:
@@ -378,9 +441,91 @@ def write_pooled_report(metrics: dict, out: str | Path) -> Path:
 
 
 def _table_html(title: str, cols: list[str], rows: list[list]) -> str:
-    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in cols)
-    body = "".join("<tr>" + "".join(f"<td>{_fmt(c)}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<h3>{html.escape(title)}</h3><table><tr>{head}</tr>{body}</table>"
+    # headers break at underscores (long keys would otherwise widen the table off the page)
+    head = "".join(f"<th>{html.escape(str(c)).replace('_', '_<wbr>')}</th>" for c in cols)
+    body = "".join("<tr>" + "".join(f"<td>{_fmt(c, str(col))}</td>"
+                                    for c, col in zip(r, cols, strict=False)) + "</tr>"
+                   for r in rows)
+    return (f"<h3>{html.escape(title)}</h3><div class='tw'><table><tr>{head}</tr>{body}"
+            "</table></div>")
+
+
+def _figure_files(run: Path) -> dict[str, Path]:
+    """The run's PNG figures by name (regular files only: a link could embed any file of
+    the reader's)."""
+    try:
+        return {p.stem: p for p in run_files(run, "figures", "*.png")}
+    except UnsafePathError as exc:
+        log.warning("report: %s; no figure embedded", exc)
+        return {}
+
+
+def _figure_html(png: Path, run: Path, embed: bool, captions: dict[str, str]) -> str:
+    if embed:
+        src = "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
+    else:
+        src = png.relative_to(run).as_posix()
+    cap = captions.get(png.stem, png.stem.replace("_", " "))
+    return (f"<figure id='fig-{html.escape(png.stem)}'><img src='{src}' "
+            f"alt='{html.escape(png.stem)}'><figcaption>{html.escape(cap)} "
+            f"<span class='muted'>(figures/{html.escape(png.stem)}.png)</span></figcaption>"
+            "</figure>")
+
+
+def _summary_html(run: Path, body: dict) -> list[str]:
+    """The held-out headline table with intervals and verdicts, the findings, the caveats."""
+    from pipeline.figures.headline import (
+        HEADLINE_METRICS,
+        MODEL_LABELS,
+        headline_table,
+        model_label,
+    )
+    from pipeline.findings import findings
+
+    out = []
+    try:
+        table = headline_table(run)
+    except (FileNotFoundError, ValueError):
+        table = None
+    if table is not None and len(table):
+        specs = [m for m in HEADLINE_METRICS if (table["metric"] == m.key).any()]
+        seen = list(dict.fromkeys(table["model"]))
+        order = [n for n in MODEL_LABELS if n in seen] + [n for n in seen if n not in MODEL_LABELS]
+        cells = {(r.metric, r.model): r for r in table.itertuples()}
+        rows = []
+        for name in order:
+            row = [model_label(name)]
+            for m in specs:
+                r = cells.get((m.key, name))
+                row.append(_interval_cell(r, m.digits))
+            rows.append(row)
+        head = "".join(f"<th>{html.escape(m.label)}</th>" for m in specs)
+        body_rows = "".join("<tr><td>" + html.escape(r[0]) + "</td>" + "".join(
+            f"<td>{c}</td>" for c in r[1:]) + "</tr>" for r in rows)
+        out.append("<h3>Held-out scores with 95 % intervals</h3>"
+                   "<div class='tw'><table class='headline'><tr><th>model</th>" + head + "</tr>"
+                   + body_rows + "</table></div><p class='muted'>Each cell: estimate [95 % "
+                   "interval]; ▲ / ▼: better / worse than the chapter's ANFIS on the same units "
+                   "(the paired interval of the difference excludes 0); no mark: not "
+                   "distinguishable; '–': the model predicts no such quantity.</p>")
+    found, caveats = findings(body)
+    if found:
+        out.append("<h3>Findings</h3><ul>" + "".join(f"<li>{html.escape(f)}</li>" for f in found)
+                   + "</ul>")
+    if caveats:
+        out.append("<h3>Caveats</h3><ul class='muted'>"
+                   + "".join(f"<li>{html.escape(c)}</li>" for c in caveats) + "</ul>")
+    return out
+
+
+def _interval_cell(r, digits: int) -> str:
+    if r is None or r.estimate != r.estimate:
+        return "–"
+    txt = f"{r.estimate:.{digits}f}"
+    if r.low == r.low and r.high == r.high:
+        txt += f" <span class='ci'>[{r.low:.{digits}f}, {r.high:.{digits}f}]</span>"
+    mark = {"better": " <span class='up'>▲</span>", "worse": " <span class='down'>▼</span>"}
+    return txt + mark.get(r.verdict, "")
 
 
 def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None = None) -> Path:
@@ -422,7 +567,8 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ValueError(f"{cfg_path}: not a valid TOML file: {exc}") from None
     parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>",
         f"<title>rfidstudy report: {html.escape(str(cfg.get('scene', run.name)))}</title>",
         f"<style>{_CSS}</style></head><body>",
         f"<h1>RFID sensor-model study: {html.escape(str(cfg.get('scene', '?')))}</h1>",
@@ -433,17 +579,56 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         f"<p class='muted'>Run directory <code>{html.escape(str(run.resolve()))}</code>; "
         f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}.</p>",
     ]
-    # summary
-    parts.append("<h2>Run summary</h2>")
+    pngs = _figure_files(run)
+    captions = figure_captions(run)
+    body = (metrics or {}).get("evaluation", metrics or {})
+    held_out = isinstance(body.get("heldout"), dict)
+    # 1. the answer: headline figure, held-out table with intervals, findings, caveats
+    parts.append("<h2>Summary</h2>")
+    if metrics is None:
+        parts.append("<p>metrics.json is missing (evaluation did not run).</p>")
+    if "baselines" in pngs:
+        parts.append(_figure_html(pngs.pop("baselines"), run, embed, captions))
+    if metrics is not None:
+        parts.extend(_summary_html(run, body))
+    # 2. sections in pipeline order, each with its tables and figures
+    sections = {title: [n for n in names if n in pngs] for title, names in SECTIONS}
+    for title, names in sections.items():
+        tables = []
+        if held_out and title == "Scene and tour":
+            tables = mcl_html(body)
+        elif held_out and title == "Model against the ray-traced truth":
+            tables = [*heldout_html(body), *budget_html(body), *sites_html(body)]
+        elif held_out and title == "Downstream localisation":
+            tables = downstream_html(body)
+        if not names and not tables:
+            continue
+        parts.append(f"<h2>{html.escape(title)}</h2>")
+        parts.extend(tables)
+        parts.extend(_figure_html(pngs.pop(n), run, embed, captions) for n in names)
+    if pngs:
+        parts.append("<h2>Other figures</h2>")
+        parts.extend(_figure_html(png, run, embed, captions) for png in pngs.values())
+    if held_out:
+        ranks = intervals_html(body)
+        if ranks:
+            parts.append("<h2>Rankings with 95 % intervals</h2>")
+            parts.append("<details><summary>every headline metric: each model's estimate, "
+                         "its difference to ANFIS and the verdict</summary>")
+            parts.extend(ranks[1:])  # the section title is the summary line's
+            parts.append("</details>")
+    parts.extend(_methods_html(run, cfg))
+    # 3. the run and every remaining number, collapsed
+    parts.append("<h2>The run</h2>")
     summary = [
         ["scene", cfg.get("scene")],
         ["seed", manifest.get("seed", cfg.get("seed"))],
-        ["frequency_hz", cfg.get("frequency_hz")],
+        ["frequency [Hz]", cfg.get("frequency_hz")],
         # The report stage runs last, after every other stage succeeded, while the
         # manifest still says "running": only a recorded failure makes it incomplete.
         ["status", "failed" if manifest.get("failure") else "complete"],
-        ["elapsed_s", manifest.get("elapsed_s")],
-        ["peak_rss_mib", manifest.get("peak_rss_mib")],
+        ["elapsed [s]", manifest.get("elapsed_s")],
+        ["peak memory [MiB]", manifest.get("peak_rss_mib")],
     ]
     backend = manifest.get("backend") or {}
     if isinstance(backend, dict) and backend:
@@ -452,64 +637,45 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     stages = manifest.get("stages") or {}
     if stages:
         rows = [[n, s.get("status"), s.get("elapsed_s"), s.get("peak_rss_mib")] for n, s in stages.items()]
-        parts.append(_table_html("stages", ["stage", "status", "elapsed_s", "peak_rss_mib"], rows))
-    parts.extend(_methods_html(run, cfg))
-    # metrics
-    parts.append("<h2>Metrics</h2>")
-    if metrics is None:
-        parts.append("<p>metrics.json is missing (evaluation did not run).</p>")
-    else:
-        body = metrics.get("evaluation", metrics)
+        parts.append(_table_html("stages", ["stage", "status", "elapsed [s]", "peak memory [MiB]"],
+                                 rows))
+    if metrics is not None:
         rest = dict(body)
-        if isinstance(body.get("heldout"), dict):
-            parts.extend(headline_html(body))
-            parts.extend(intervals_html(body))
-            for key in ("heldout", "fig7", "error_budget", "localisation", "tag_sites",
-                        "tag_localisation", "robot_localisation", "intervals", "comparisons"):
+        for key in ("heldout", "fig7", "error_budget", "localisation", "tag_sites",
+                    "tag_localisation", "robot_localisation", "intervals", "comparisons"):
+            if held_out:
                 rest.pop(key, None)
-            if isinstance(rest.get("in_sample"), dict):
-                parts.append("<h3>In-sample (training tour, training tags)</h3><p class='muted'>"
-                             "Scored on the reads the models were fitted on: optimistic, kept for "
-                             "comparison with the held-out table above.</p>")
-        if isinstance(body.get("models"), dict):
-            parts.append("<p>ANFIS (trained on MCL poses) against the baselines, and against the "
-                         "same models trained on true poses (the localisation-error split).</p>")
+        raw = []
+        if isinstance(rest.get("models"), dict):
+            raw.append("<p>ANFIS (trained on MCL poses) against the baselines, and against the "
+                       "same models trained on true poses (the localisation-error split).</p>")
             for title, cols, rows in model_comparison_tables(rest.pop("models")):
-                parts.append(_table_html(title, cols, rows))
+                raw.append(_table_html(title, cols, rows))
         split = rest.pop("localisation_split", None)
         if isinstance(split, dict) and isinstance(split.get("difference"), dict):
             # evaluate_all writes the differences flat: {"rssi_dbm.mae": x, ...}
             rows = [[k, v] for k, v in sorted(_flatten(split["difference"]).items())]
-            parts.append("<p>Each value is the metric of the model trained on MCL poses minus "
-                         "that of the model trained on true poses: the share of the error that "
-                         "localisation adds.</p>")
-            parts.append(_table_html("MCL-pose minus true-pose model", ["metric", "difference"],
-                                     rows))
+            raw.append("<p>Each value is the metric of the model trained on MCL poses minus "
+                       "that of the model trained on true poses: the share of the error that "
+                       "localisation adds.</p>")
+            raw.append(_table_html("MCL-pose minus true-pose model", ["metric", "difference"],
+                                   rows))
+        if isinstance(rest.get("in_sample"), dict):
+            raw.append("<p class='muted'>In-sample (training tour, training tags): scored on "
+                       "the reads the models were fitted on: optimistic, kept for comparison "
+                       "with the held-out numbers.</p>")
         for title, cols, rows in metrics_tables(rest):
-            parts.append(_table_html(title, cols, rows))
-    # figures
-    parts.append("<h2>Figures</h2>")
-    captions = figure_captions(run)
-    try:  # regular files only: a link could embed any file of the reader's
-        pngs = run_files(run, "figures", "*.png")
-    except UnsafePathError as exc:
-        log.warning("report: %s; no figure embedded", exc)
-        pngs = []
-    if not pngs:
-        parts.append("<p>No figures in figures/.</p>")
-    for png in pngs:
-        if embed:
-            src = "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
-        else:
-            src = png.relative_to(run).as_posix()
-        cap = captions.get(png.stem, png.stem.replace("_", " "))
-        parts.append(f"<figure><img src='{src}' alt='{html.escape(png.stem)}'>"
-                     f"<figcaption><b>{html.escape(png.stem)}</b>: {html.escape(cap)}</figcaption></figure>")
-    # config & manifest
-    parts.append("<h2>Configuration (resolved)</h2>")
-    parts.append(f"<pre>{html.escape(cfg_text or '(config.toml missing)')}</pre>")
-    parts.append("<h2>Manifest</h2>")
-    parts.append(f"<pre>{html.escape(json.dumps(manifest, indent=2, sort_keys=True))}</pre>")
+            raw.append(_table_html(title, cols, rows))
+        if raw:
+            parts.append("<details><summary>every other number in metrics.json (in-sample "
+                         "scores, Fig. 6 view, coverage, model fits)</summary>")
+            parts.extend(raw)
+            parts.append("</details>")
+    parts.append("<details><summary>configuration (resolved)</summary>")
+    parts.append(f"<pre>{html.escape(cfg_text or '(config.toml missing)')}</pre></details>")
+    parts.append("<details><summary>manifest</summary>")
+    parts.append(f"<pre>{html.escape(json.dumps(manifest, indent=2, sort_keys=True))}</pre>"
+                 "</details>")
     parts.append("</body></html>\n")
     out = run / "report.html" if out is None else Path(out)
     atomic_write_text(out, "\n".join(parts))

@@ -2,10 +2,14 @@
 # Set up everything the project needs on a fresh Debian machine:
 #  1. a libLLVM that Dr.Jit's CPU backend can use (Debian 12's LLVM 15 crashes Dr.Jit 1.5;
 #     libllvm19 works), installed with apt-get when none >= 16 is present;
-#  2. a virtual environment in .venv/ with the project installed (editable) and its test extras.
+#  2. a virtual environment in .venv/ with the project installed (editable) and its test extras;
+#  3. with --test (`make test`): headless Chromium and its driver from Debian, with which the
+#     test suite checks report.html in a real browser.
 # Idempotent: a second run only re-installs when pyproject.toml changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+WITH_TEST_TOOLS=0
+[ "${1:-}" = "--test" ] && WITH_TEST_TOOLS=1
 
 have_llvm() {
   for d in /usr/lib/x86_64-linux-gnu /usr/lib/aarch64-linux-gnu /usr/lib64 /usr/lib /usr/local/lib; do
@@ -45,5 +49,13 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt
   # constraints.txt pins the ray tracer to the versions the project was tested with
   .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e ".[test]"
   touch "$stamp"
+fi
+if [ "$WITH_TEST_TOOLS" -eq 1 ] && { ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; }; then
+  echo "setup: installing Debian's chromium and chromium-driver (the report's browser test)"
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
+    chromium chromium-driver >/dev/null
 fi
 echo "setup: ready (.venv)"
