@@ -9,7 +9,9 @@
 - :func:`final_paths_in_logs`: log lines naming a file in the staging area name its
   final place instead;
 - :func:`write_manifest`: the run's ``manifest.json`` (status, timings, files), with
-  :func:`peak_rss_mib` and :func:`utc_now`.
+  :func:`peak_rss_mib` and :func:`utc_now`;
+- :func:`run_log`: every log line of the run at INFO and above (both processes) in the run
+  directory's ``run.log``, whatever the console shows.
 """
 
 from __future__ import annotations
@@ -34,8 +36,17 @@ from pipeline.runstore import (
     regular_file,
 )
 
-__all__ = ["config_changes", "describe_previous_run", "final_paths_in_logs", "peak_rss_mib",
-           "reproducible_outputs", "utc_now", "write_manifest"]
+__all__ = ["RUN_LOG", "config_changes", "describe_previous_run", "final_paths_in_logs",
+           "is_file_handler", "log_to_file", "peak_rss_mib", "reproducible_outputs", "run_log", "utc_now",
+           "write_manifest"]
+
+#: The run directory's log file: every INFO, WARNING and ERROR line of the run.
+RUN_LOG = "run.log"
+
+#: The loggers of the project (their records go to run.log at INFO and above).
+PROJECT_LOGGERS = ("pipeline", "scenes", "propagation", "fuzzymodel")
+
+_LOG_FORMAT = "%(asctime)s %(levelname)s %(processName)s %(name)s: %(message)s"
 
 log = logging.getLogger("pipeline.study")
 
@@ -85,6 +96,62 @@ def final_paths_in_logs(staged: Path, root: Path):
     finally:
         for h in handlers:
             h.removeFilter(filt)
+
+
+class _RunLogHandler(logging.StreamHandler):
+    """The handler writing run.log (told apart from console handlers)."""
+
+
+def is_file_handler(h: logging.Handler) -> bool:
+    """Whether a handler writes a file (run.log, a user's FileHandler), not a console."""
+    return isinstance(h, (_RunLogHandler, logging.FileHandler))
+
+
+@contextlib.contextmanager
+def log_to_file(path: Path, mode: str = "a"):
+    """Within the block, the project's log records at INFO and above are also written to
+    `path` (the console's handlers keep their own levels: INFO lines reach the console
+    only with ``-v``)."""
+    # never through a link (a run directory from someone else may hold one named run.log)
+    flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | (
+        os.O_TRUNC if mode == "w" else os.O_APPEND)
+    stream = os.fdopen(os.open(path, flags, 0o644), "w", encoding="utf-8", buffering=1)
+    handler = _RunLogHandler(stream)
+    handler.setLevel(logging.INFO)
+    handler.setFormatter(logging.Formatter(_LOG_FORMAT))
+    root = logging.getLogger()
+    lowered = {}
+    for name in PROJECT_LOGGERS:
+        lg = logging.getLogger(name)
+        if lg.getEffectiveLevel() > logging.INFO:
+            lowered[name] = lg.level
+            lg.setLevel(logging.INFO)
+    # records now reach the root at INFO: a console handler without a level of its own
+    # would print them, so each gets the level the console had
+    quiet = [(h, h.level) for h in root.handlers
+             if h.level == logging.NOTSET and not is_file_handler(h)]
+    console_level = min([lv for lv in lowered.values() if lv] or [logging.WARNING])
+    for h, _ in quiet:
+        if lowered:
+            h.setLevel(console_level)
+    root.addHandler(handler)
+    try:
+        yield handler
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+        stream.close()
+        for h, lv in quiet:
+            h.setLevel(lv)
+        for name, lv in lowered.items():
+            logging.getLogger(name).setLevel(lv)
+
+
+@contextlib.contextmanager
+def run_log(store: RunStore):
+    """``run.log`` of this run (written afresh: it holds this run's lines only)."""
+    with log_to_file(store.path(RUN_LOG), mode="w") as handler:
+        yield handler
 
 
 def _flatten(obj, prefix: str = "") -> dict:
@@ -163,7 +230,7 @@ def utc_now() -> str:
 
 def _manifest_files(store: RunStore, result) -> list[str]:
     """Files of this run: config.toml, every stage's outputs and records (not the manifest)."""
-    files = {"config.toml"} if store.path("config.toml").is_file() else set()
+    files = {name for name in ("config.toml", RUN_LOG) if store.path(name).is_file()}
     for name, rec in result.records.items():
         files.update(rec.outputs)
         files.add(f"{RECORD_DIR}/{name}.json")

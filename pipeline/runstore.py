@@ -95,7 +95,7 @@ FOREIGN_MARK = ".rfidstudy.foreign"
 HOUSEKEEPING = frozenset({LOCK_FILE, LOCK_OWNER, FOREIGN_MARK})
 #: Files the tool writes at a run directory's top level outside any stage record: in a
 #: foreign directory (``force_dir``) a user's file under one of these names stops the run.
-OWN_TOP_LEVEL = ("config.toml", MANIFEST)
+OWN_TOP_LEVEL = ("config.toml", MANIFEST, "run.log")
 
 #: errno values of a run directory that cannot be written (read-only mount, permissions,
 #: full disk, a file where a folder should be).

@@ -92,7 +92,15 @@ def side_by_side_allowed() -> bool:
 
 
 def _log_levels() -> dict[str, int]:
-    return {name: logging.getLogger(name).level for name in _LOGGERS}
+    """The loggers' levels, and under ``"console"`` the lowest level a console handler of
+    this process shows (the side process's stderr shows what the console shows here; its
+    INFO lines go to run.log only, unless -v)."""
+    from pipeline.runlog import is_file_handler
+
+    levels = {name: logging.getLogger(name).level for name in _LOGGERS}
+    shown = [h.level for h in logging.getLogger().handlers if not is_file_handler(h)]
+    levels["console"] = min(shown) if shown else logging.WARNING
+    return levels
 
 
 def _end_with_parent() -> None:
@@ -118,12 +126,20 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
     _end_with_parent()
     if hasattr(os, "nice"):
         os.nice(SIDE_NICENESS)
-    from pipeline.runlog import final_paths_in_logs, peak_rss_mib, reproducible_outputs
+    from pipeline.runlog import (
+        RUN_LOG,
+        final_paths_in_logs,
+        log_to_file,
+        peak_rss_mib,
+        reproducible_outputs,
+    )
     from pipeline.runstore import RunStore
     from pipeline.study import StageContext
 
+    levels = dict(levels)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(f"%(levelname)s [{stage}] %(message)s"))
+    handler.setLevel(levels.pop("console", logging.WARNING))
     logging.getLogger().addHandler(handler)
     for name, level in levels.items():
         logging.getLogger(name).setLevel(level)
@@ -132,7 +148,8 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
     ctx = StageContext(config, store, stage, Path(staged), None, {})
     t0 = time.perf_counter()
     try:
-        with reproducible_outputs(), final_paths_in_logs(Path(staged), store.root):
+        with reproducible_outputs(), final_paths_in_logs(Path(staged), store.root), \
+                log_to_file(store.path(RUN_LOG)):  # appended beside the runner's lines
             info = func(ctx) or {}
         msg = ("ok", info, time.perf_counter() - t0, peak_rss_mib())
     except BaseException as exc:  # noqa: BLE001 - everything goes back to the runner

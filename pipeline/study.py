@@ -53,6 +53,7 @@ from pipeline.runlog import (
     final_paths_in_logs,
     peak_rss_mib,
     reproducible_outputs,
+    run_log,
     utc_now,
     write_manifest,
 )
@@ -303,7 +304,13 @@ def _progress_bars(enabled: bool):
         TimeRemainingColumn,
     )
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+    from rich.table import Column
+
+    # fixed widths: at 80 columns every bar, count and time stays visible (a long stage
+    # description is cut with an ellipsis, never wrapped)
+    with Progress(TextColumn("{task.description}", table_column=Column(
+                      width=32, no_wrap=True, overflow="ellipsis")),
+                  BarColumn(bar_width=14), MofNCompleteColumn(table_column=Column(width=11)),
                   TimeElapsedColumn(), TimeRemainingColumn(), transient=False) as prog:
         yield prog
 
@@ -387,7 +394,8 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
         raise ValueError(f"unknown stage(s) {unknown} in force; stages are {sorted(known)}")
     store = open_run_dir(run_dir, force_dir=force_dir)
     try:
-        with store.lock(" ".join(command_line if command_line is not None else sys.argv)):
+        with store.lock(" ".join(command_line if command_line is not None else sys.argv)), \
+                run_log(store):
             return _run_locked(store, config, stages, progress, force, command_line,
                                manifest_extra, checks)
     except OSError as exc:  # the lock itself could not be taken (read-only, full)
