@@ -205,12 +205,17 @@ def run(
         if exc.errno not in _WRITE_ERRNOS:
             raise
         _fail_os(exc, str(out))
+    import textwrap
+
     typer.echo(f"run directory: {res.run_dir}")
     if res.previous:
         typer.echo(f"resumed: {res.previous}")
-    typer.echo(f"stages run: {', '.join(res.ran) or 'none'}; cached: {', '.join(res.cached) or 'none'}")
+    typer.echo(textwrap.fill(f"stages run: {', '.join(res.ran) or 'none'}; cached: "
+                             f"{', '.join(res.cached) or 'none'}", width=80,
+                             subsequent_indent="  "))
     typer.echo(f"elapsed {time.perf_counter() - t0:.1f} s, peak memory {res.peak_rss_mib:.0f} MiB")
     typer.echo(f"report: {res.run_dir / 'report.html'}")
+    typer.echo(f"log:    {res.run_dir / 'run.log'}")
 
 
 def _existing_run_dir(run_dir: Path, command: str):

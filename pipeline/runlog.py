@@ -113,8 +113,10 @@ def log_to_file(path: Path, mode: str = "a"):
     `path` (the console's handlers keep their own levels: INFO lines reach the console
     only with ``-v``)."""
     # never through a link (a run directory from someone else may hold one named run.log)
-    flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | (
-        os.O_TRUNC if mode == "w" else os.O_APPEND)
+    # O_APPEND in both processes: each line lands whole at the end, neither overwrites
+    # the other's
+    flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0) | (
+        os.O_TRUNC if mode == "w" else 0)
     stream = os.fdopen(os.open(path, flags, 0o644), "w", encoding="utf-8", buffering=1)
     handler = _RunLogHandler(stream)
     handler.setLevel(logging.INFO)

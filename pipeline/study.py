@@ -303,7 +303,6 @@ def _progress_bars(enabled: bool):
         TimeElapsedColumn,
         TimeRemainingColumn,
     )
-
     from rich.table import Column
 
     # fixed widths: at 80 columns every bar, count and time stays visible (a long stage

@@ -221,3 +221,32 @@ def test_scenes_show_empty_or_garbage_ply(tmp_path, content):
     spec.write_text('name = "room"\n[mesh]\npath = "room.ply"\nmaterial = "concrete"\n')
     line = _one_line_error(runner.invoke(app, ["scenes", "show", str(spec)]), 2)
     assert str(ply) in line
+
+
+def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study, tmp_path):
+    # the real command in its own process, as a user runs it (cached traces: no tracing)
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    env = dict(os.environ, COLUMNS="80")
+    proc = subprocess.run(
+        [sys.executable, "-m", "pipeline", "run", "configs/tiny.toml", "--out", str(out),
+         "--set", f"tracing.cache_dir='{tiny_study.base / 'cache'}'"],
+        cwd=Path(__file__).resolve().parents[2], env=env, capture_output=True, text=True,
+        timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    console = (proc.stdout + proc.stderr).splitlines()
+    assert not [ln for ln in console if "INFO" in ln], console  # INFO only with -v
+    warnings = [ln for ln in console if "WARNING" in ln]
+    assert len(warnings) == len(set(warnings)), warnings  # each warning once
+    # 80 columns, but for lines that print a path (the test's own tmp path is long)
+    rows = [ln for ln in console if str(tmp_path) not in ln]
+    assert max(len(ln) for ln in rows) <= 80, max(rows, key=len)
+    log_lines = (out / "run.log").read_text().splitlines()
+    # every line of both processes, whole: the runner's stage lines and the report's
+    assert any("INFO" in ln and "stage report: running" in ln for ln in log_lines)
+    assert all(ln[:4].isdigit() for ln in log_lines), log_lines[:5]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert "run.log" in manifest["files"]
