@@ -386,7 +386,24 @@ def sweep(
         help="Local worker processes (default: min(points, 2)).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also print INFO and DEBUG log lines (stages, traces, materials).")] = False,
 ):
-    """Run a what-if grid (antenna height/yaw/tilt/count, power, tag sensitivity, scene)."""
+    """Run a what-if grid (antenna height/yaw/tilt/count, power, tag sensitivity, scene).
+
+    \b
+    The sweep file (configs/sweep_example.toml):
+      base = "tiny.toml"    # study TOML beside it ("": default)
+      mode = "grid"         # every combination; "zip": side by side
+      \\[parameters]          # each a list of values
+      antenna_height_m = [0.5, 0.9]
+      tx_power_dbm = [24.0, 27.15]
+      \\[study]               # overrides of base for every point
+      seed = 11
+    \b
+    Parameters: antenna_height_m, antenna_yaw_deg, antenna_tilt_deg,
+    antenna_count, tx_power_dbm, tag_sensitivity_dbm, scene, seed,
+    replicates, or any dotted study key. Each point prints its time and
+    the time left; the end prints the points, best read rate first. A
+    ranked answer with intervals: `rfidstudy placement`.
+    """
     _setup_logging(verbose)
     from pipeline.sweep import load_sweep, run_sweep
 
@@ -395,16 +412,39 @@ def sweep(
     except ConfigError as exc:
         _fail(str(exc))
     typer.echo(f"{len(plan.configs)} runs: {', '.join(plan.names)}")
+    t0 = time.perf_counter()
+    n_done = 0
 
     def done(i, row):
-        typer.echo(f"  [{i + 1}/{len(plan.configs)}] {plan.names[i]}: {row.get('status')} "
-                   f"{row.get('error') or ''}")
+        nonlocal n_done
+        n_done += 1
+        left = len(plan.configs) - n_done
+        # the points run side by side: the wall time per finished point so far, times the
+        # points left, is the estimate (it ignores that the last points may overlap)
+        eta = (time.perf_counter() - t0) / n_done * left
+        took = row.get("elapsed_s")
+        took = _duration(took) if isinstance(took, float) and took == took else "?"
+        typer.echo(f"  [{n_done}/{len(plan.configs)}] {plan.names[i]}: {row.get('status')}"
+                   f" in {took}" + (f" ({row.get('error')})" if row.get("error") else "")
+                   + (f"; about {_duration(eta)} left" if left else ""))
 
     res = run_sweep(plan, out, scheduler=scheduler, workers=workers, on_done=done)
-    typer.echo(res.summary.to_string(index=False, max_colwidth=40))
+    typer.echo(_sweep_table(res.summary, list(plan.parameters)))
     typer.echo(f"summary: {res.out_dir / 'summary.csv'}")
     if (res.summary["status"] != "complete").any():
         raise typer.Exit(1)
+
+
+def _sweep_table(summary, params: list[str], width: int = 80) -> str:
+    """The sweep's points as a short table, best read rate first (the full table is in
+    summary.csv): parameters, status and the inventory numbers, cut to `width` columns."""
+    cols = [c for c in [*params, "status", "read_rate", "completeness", "surface_coverage",
+                        "ssm_rmse_db"] if c in summary.columns]
+    t = summary[cols].copy()
+    if "read_rate" in t.columns:
+        t = t.sort_values("read_rate", ascending=False, na_position="last")
+    text = t.to_string(index=False, max_colwidth=20, float_format=lambda v: f"{v:.3g}")
+    return "\n".join(ln[:width] for ln in text.splitlines())
 
 
 def _duration(s: float | None) -> str:

@@ -98,3 +98,21 @@ def test_seed_and_replicates_are_ordinary_parameters():
         expand_sweep(StudyConfig(), {"seed": [1.5]})
     with pytest.raises(ConfigError, match="replicates"):
         expand_sweep(StudyConfig(), {"replicates": [0]})
+
+
+def test_sweep_console_table_is_short_and_ranked():
+    import pandas as pd
+
+    from pipeline.cli import _sweep_table
+
+    summary = pd.DataFrame({
+        "name": ["a", "b", "c"], "tx_power_dbm": [24.0, 27.15, 30.0],
+        "status": ["complete", "complete", "failed"], "read_rate": [0.41, 0.83, float("nan")],
+        "completeness": [0.5, 0.9, float("nan")], "a_long_column_nobody_reads": [1, 2, 3],
+        "note": ["x" * 200] * 3})
+    text = _sweep_table(summary, ["tx_power_dbm"])
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= 80
+    assert "a_long_column_nobody_reads" not in text and "note" not in text
+    # best read rate first, the failed point last
+    assert lines[1].split()[0] == "27.15" and "failed" in lines[-1]
