@@ -24,9 +24,11 @@ test-all:
 
 bench: setup
 	.venv/bin/python -m pip install -q --disable-pip-version-check -e ".[bench]"
-	.venv/bin/python bench/trace.py
-	.venv/bin/python bench/acquire.py
-	.venv/bin/python bench/anfis.py
+	# each records its output in docs/benchmarks.md (bench/record.py)
+	.venv/bin/python bench/record.py trace
+	.venv/bin/python bench/record.py acquire
+	.venv/bin/python bench/record.py anfis
+	.venv/bin/python bench/record.py gen2
 
 lint: setup
 	.venv/bin/ruff check scenes propagation fuzzymodel pipeline tests bench

@@ -1,7 +1,8 @@
-"""Write the README's headline tables from a run directory's metrics.json.
+"""Write the headline tables of the README and of docs/results.md from a run's metrics.json.
 
-    python scripts/readme_tables.py runs/replicated            # print the tables
-    python scripts/readme_tables.py runs/replicated --write README.md
+    python scripts/readme_tables.py runs/replicated            # print the full tables
+    python scripts/readme_tables.py runs/replicated --write docs/results.md
+    python scripts/readme_tables.py runs/replicated --compact --write README.md
 
 With ``--write`` the text between ``<!-- headline-tables:begin -->`` and
 ``<!-- headline-tables:end -->`` in the file is replaced; nothing else is touched.
@@ -84,13 +85,22 @@ def units_line(metrics: dict) -> str:
             f"and {robot.get('n_units', '?')} {robot.get('unit', 'filter run')} units.")
 
 
-def render(metrics: dict, source: str) -> str:
+COMPACT = (("heldout.rssi_mae_db", "RSSI MAE [dB]", 2), ("heldout.detection_brier", "Brier", 3),
+           ("fig7.median_pct", "Fig. 7 median [%]", 1),
+           ("tag_localisation.median_m", "tag median [m]", 2),
+           ("robot_localisation.median_m", "robot median [m]", 2))
+
+
+def render(metrics: dict, source: str, compact: bool = False) -> str:
+    tables = [table(metrics, COMPACT)] if compact else [table(metrics, HELDOUT), "",
+                                                        table(metrics, DOWNSTREAM)]
+    how = "--compact --write README.md" if compact else "--write docs/results.md"
     return "\n".join([
         BEGIN,
-        f"<!-- written by scripts/readme_tables.py from {source}/metrics.json; do not edit -->",
+        f"<!-- written by scripts/readme_tables.py from a run of configs/replicated.toml "
+        f"(`python scripts/readme_tables.py RUN {how}`); do not edit -->",
         units_line(metrics), "",
-        table(metrics, HELDOUT), "",
-        table(metrics, DOWNSTREAM), "",
+        *tables, "",
         "Each cell: estimate [95 % interval]; ▲ / ▼: better / worse than the chapter's ANFIS "
         "on the same units (the 95 % interval of the difference excludes 0); no mark: not "
         "distinguishable at 95 %. '–': the model predicts no such quantity.",
@@ -100,13 +110,15 @@ def render(metrics: dict, source: str) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run_dir", type=Path)
-    ap.add_argument("--write", type=Path, help="README to update between the markers")
+    ap.add_argument("--write", type=Path, help="file to update between the markers")
+    ap.add_argument("--compact", action="store_true",
+                    help="one short table (the README's) instead of the two full ones")
     args = ap.parse_args(argv)
     metrics = json.loads((args.run_dir / "metrics.json").read_text())
     if "intervals" not in metrics:
         print(f"{args.run_dir}/metrics.json has no intervals: rerun the study", file=sys.stderr)
         return 2
-    text = render(metrics, args.run_dir.as_posix())
+    text = render(metrics, args.run_dir.as_posix(), compact=args.compact)
     if not args.write:
         print(text)
         return 0
