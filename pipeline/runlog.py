@@ -98,6 +98,24 @@ def final_paths_in_logs(staged: Path, root: Path):
             h.removeFilter(filt)
 
 
+class _OnceEach(logging.Filter):
+    """Passes each distinct WARNING (or worse) message once: the console of a run shows a
+    repeated warning once (run.log keeps every occurrence)."""
+
+    def __init__(self):
+        super().__init__()
+        self.seen: set[tuple[int, str]] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        key = (record.levelno, record.getMessage())
+        if key in self.seen:
+            return False
+        self.seen.add(key)
+        return True
+
+
 class _RunLogHandler(logging.StreamHandler):
     """The handler writing run.log (told apart from console handlers)."""
 
@@ -136,10 +154,17 @@ def log_to_file(path: Path, mode: str = "a"):
     for h, _ in quiet:
         if lowered:
             h.setLevel(console_level)
+    # one filter per console handler: a shared one would let only the first handler see
+    # each message
+    consoles = [(h, _OnceEach()) for h in root.handlers if not is_file_handler(h)]
+    for h, once in consoles:
+        h.addFilter(once)
     root.addHandler(handler)
     try:
         yield handler
     finally:
+        for h, once in consoles:
+            h.removeFilter(once)
         root.removeHandler(handler)
         handler.close()
         stream.close()

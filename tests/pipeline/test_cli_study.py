@@ -250,3 +250,29 @@ def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study, tmp_
     assert all(ln[:4].isdigit() for ln in log_lines), log_lines[:5]
     manifest = json.loads((out / "manifest.json").read_text())
     assert "run.log" in manifest["files"]
+
+
+def test_a_repeated_warning_reaches_the_console_once_and_run_log_every_time(tmp_path):
+    import io
+    import logging
+
+    from pipeline.runlog import log_to_file
+
+    console = io.StringIO()
+    handler = logging.StreamHandler(console)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    log = logging.getLogger("pipeline.test_once")
+    try:
+        with log_to_file(tmp_path / "run.log", mode="w"):
+            for _ in range(3):
+                log.warning("material X extrapolated below its range")
+            log.info("an info line")
+        log.warning("material X extrapolated below its range")  # a new run: shown again
+    finally:
+        root.removeHandler(handler)
+    shown = console.getvalue().splitlines()
+    assert shown.count("material X extrapolated below its range") == 2, shown
+    assert "an info line" not in shown
+    logged = (tmp_path / "run.log").read_text()
+    assert logged.count("extrapolated") == 3 and "an info line" in logged
