@@ -405,10 +405,13 @@ def sweep(
     ranked answer with intervals: `rfidstudy placement`.
     """
     _setup_logging(verbose)
-    from pipeline.sweep import load_sweep, run_sweep
+    from pipeline.sweep import check_sweep_dir, load_sweep, run_sweep
 
+    if workers is not None and workers < 1:
+        _fail(f"--workers {workers}: at least 1")
     try:
         plan = load_sweep(sweep_file)
+        check_sweep_dir(out)
     except ConfigError as exc:
         _fail(str(exc))
     typer.echo(f"{len(plan.configs)} runs: {', '.join(plan.names)}")
@@ -428,7 +431,14 @@ def sweep(
                    f" in {took}" + (f" ({row.get('error')})" if row.get("error") else "")
                    + (f"; about {_duration(eta)} left" if left else ""))
 
-    res = run_sweep(plan, out, scheduler=scheduler, workers=workers, on_done=done)
+    try:
+        res = run_sweep(plan, out, scheduler=scheduler, workers=workers, on_done=done)
+    except KeyboardInterrupt:
+        typer.echo(f"interrupted after {n_done} of {len(plan.configs)} points; rerun the same "
+                   "command to resume (finished points are not run again)", err=True)
+        raise typer.Exit(130) from None
+    except ConfigError as exc:
+        _fail(str(exc))
     typer.echo(_sweep_table(res.summary, list(plan.parameters)))
     typer.echo(f"summary: {res.out_dir / 'summary.csv'}")
     if (res.summary["status"] != "complete").any():

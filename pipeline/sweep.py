@@ -225,6 +225,10 @@ def expand_sweep(base: StudyConfig, parameters: dict, mode: str = "grid",
                 cfg = apply_parameter(cfg, k, v)
             except ConfigError as exc:
                 raise ConfigError(f"{source}: point {i} ({point}): {exc}") from None
+        try:  # every point checked as its run will read it, before any point runs
+            from_dict(StudyConfig, config_to_dict(cfg), source=f"{source}: point {i}")
+        except ConfigError as exc:
+            raise ConfigError(f"{exc} ({point})") from None
         plan.points.append(point)
         plan.configs.append(cfg)
         plan.names.append(f"{i:03d}_{_slug(point)}")
@@ -305,6 +309,28 @@ class SweepResult:
     files: list[Path] = field(default_factory=list)
 
 
+#: Files a sweep writes at the top of its directory.
+SWEEP_FILES = ("summary.parquet", "summary.csv", "sweep.json")
+
+
+def check_sweep_dir(out_dir: str | Path) -> Path:
+    """The resolved sweep directory, or a ConfigError naming why it cannot be one: a
+    file, or a non-empty directory that is not a sweep directory of this tool (a user's
+    ``summary.csv`` there would be overwritten)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out_dir}: a file, not a directory")
+    out = out.resolve()
+    if out.is_dir():
+        entries = sorted(p.name for p in out.iterdir())
+        ours = (out / "sweep.json").is_file() or (out / "runs").is_dir()
+        if entries and not ours:
+            shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+            raise ConfigError(f"--out {out_dir} is not empty ({shown}) and is not a sweep "
+                              "directory of rfidstudy: choose another directory")
+    return out
+
+
 def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = None,
               workers: int | None = None, client=None,
               on_done: Callable[[int, dict], None] | None = None) -> SweepResult:
@@ -327,7 +353,7 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     """
     import pandas as pd
 
-    out = Path(out_dir).resolve()
+    out = check_sweep_dir(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]

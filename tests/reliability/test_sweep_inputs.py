@@ -1,0 +1,53 @@
+"""Bad sweep inputs stop before any point runs, in one line naming what is wrong."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from pipeline.config import ConfigError
+from pipeline.sweep import check_sweep_dir, load_sweep
+
+ROOT = Path(__file__).resolve().parents[2]
+runner = CliRunner()
+EXAMPLE = str(ROOT / "configs" / "sweep_example.toml")
+
+
+@pytest.mark.parametrize("n", ["0", "-3"])
+def test_workers_below_one_is_one_line(tmp_path, n):
+    res = runner.invoke(app, ["sweep", EXAMPLE, "--workers", n, "--out", str(tmp_path / "s")])
+    assert res.exit_code == 2 and f"--workers {n}" in res.output
+    assert not (tmp_path / "s").exists()  # nothing ran
+
+
+def test_out_is_a_file_is_one_line(tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    res = runner.invoke(app, ["sweep", EXAMPLE, "--out", str(f)])
+    assert res.exit_code == 2 and "a file, not a directory" in res.output
+    assert f.read_text() == "x"
+
+
+def test_a_users_directory_is_refused_and_left_alone(tmp_path):
+    d = tmp_path / "mine"
+    d.mkdir()
+    (d / "summary.csv").write_text("my numbers\n")
+    res = runner.invoke(app, ["sweep", EXAMPLE, "--out", str(d)])
+    assert res.exit_code == 2 and "not a sweep directory" in res.output
+    assert (d / "summary.csv").read_text() == "my numbers\n"
+    assert sorted(p.name for p in d.iterdir()) == ["summary.csv"]
+    check_sweep_dir(tmp_path / "new")  # a missing or empty directory is fine
+
+
+def test_a_nan_point_stops_the_sweep_before_any_point_runs(tmp_path):
+    (tmp_path / "tiny.toml").write_text((ROOT / "configs" / "tiny.toml").read_text())
+    sw = tmp_path / "nan.toml"
+    sw.write_text('base = "tiny.toml"\n[parameters]\ntx_power_dbm = [27.0, nan]\n')
+    with pytest.raises(ConfigError, match=r"point 1.*tx_power_dbm.*finite"):
+        load_sweep(sw)
+    res = runner.invoke(app, ["sweep", str(sw), "--out", str(tmp_path / "s")])
+    assert res.exit_code == 2 and "point 1" in res.output
+    assert not (tmp_path / "s").exists()
