@@ -155,6 +155,12 @@ class ReaderConfig:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if self.inventory not in INVENTORY_MODES:
             raise ConfigError(f"inventory must be 'fixed' or 'gen2', got {self.inventory!r}")
+        from scenes.materials import MATERIALS
+
+        unknown = [m for m in self.detuning_materials if m not in MATERIALS]
+        if unknown:
+            raise ConfigError(f"detuning_materials: unknown material(s) {unknown}; the library "
+                              f"has {', '.join(sorted(MATERIALS))}")
         if self.inventory == "gen2" and self.antenna_mode == "round_robin":
             self.gen2.dwell_s(1.0 / self.read_rate_hz)  # a dwell that cannot fit: named error
 

@@ -192,3 +192,12 @@ def test_deterministic_tracing_asks_for_the_cpu(backend, deterministic, want):
     cfg = replace_path(replace_path(StudyConfig(), "tracing.backend", backend),
                        "tracing.deterministic", deterministic)
     assert preferred_backend(cfg.tracing) == want
+
+
+def test_unknown_detuning_material_is_named():
+    from pipeline.config import ConfigError, config_from_mapping
+
+    with pytest.raises(ConfigError, match="unobtainium"):
+        config_from_mapping({"reader": {"detuning_materials": ["unobtainium"]}})
+    cfg = config_from_mapping({"reader": {"detuning_materials": ["metal", "glass"]}})
+    assert cfg.reader.detuning_materials == ("metal", "glass")
