@@ -194,7 +194,7 @@ def test_ctrl_c_names_the_stage_and_the_manifest_says_interrupted(tmp_path, capl
     assert isinstance(ei.value, KeyboardInterrupt) and ei.value.stage == "b"
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["status"] == "interrupted" and man["stage"] == "b"
-    assert man["files"] == ["a/value.json", "config.toml", "stages/a.json"]
+    assert man["files"] == ["a/value.json", "config.toml", "run.log", "stages/a.json"]
     assert not (tmp_path / ".staging" / "b").exists() and not (tmp_path / "b.json").exists()
     with caplog.at_level(logging.INFO):
         r = _run(cfg, tmp_path)
