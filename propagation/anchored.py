@@ -139,11 +139,10 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
 
 
 def trace_anchor_paths(scene, positions_m, anchors_m, need, *, frequency_hz: float, cache_dir=None,
-                       **trace_kw):
+                       options=None):
     """The study tracer's paths (:func:`propagation.pathsolve.trace_paths`, cached) from
-    distinct antenna positions to anchors; ``trace_kw`` as :func:`~propagation.trace_links`
-    (solver options only: ``max_depth``, ``samples_per_src``, ``seed``, ``refraction``,
-    ``lattice_spacing_m``, ``completion_order``, ``memory_budget_bytes``)."""
+    distinct antenna positions to anchors; ``options`` a :class:`propagation.TraceOptions`
+    (default the library's; its patterns are not used here)."""
     from propagation.pathsolve import trace_paths
     from propagation.sionna_scene import check_antenna_positions
 
@@ -151,8 +150,8 @@ def trace_anchor_paths(scene, positions_m, anchors_m, need, *, frequency_hz: flo
     active = np.asarray(need, bool).any(axis=1)
     if active.any():
         check_antenna_positions(scene, pos[active])
-    return trace_paths(scene, pos, anchors_m, need, frequency_hz=frequency_hz, cache_dir=cache_dir,
-                       **trace_kw).paths
+    return trace_paths(scene, pos, anchors_m, need, options, frequency_hz=frequency_hz,
+                       cache_dir=cache_dir).paths
 
 
 def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, target_normals, poses,
