@@ -261,7 +261,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         if len(own_rows):
             # in memory of its own, as the shared rows' and the completion's buffers: one
             # image-method and one field kernel serve all three
-            own = cand.gather(own_rows)
+            own = cand.take(own_rows)
             if not any(len(nb) for nb in neighbours):
                 # nothing to share: the candidates go before their copy is solved (lone
                 # positions' chunks are sized for one buffer, not two)
@@ -272,7 +272,7 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         # 2. the chains valid at a neighbour, solved again at each position
         rows, dest = shared_rows(src, chain, valid & ~los_row, neighbours)
         if len(rows):
-            buf = solve_paths(rt_scene, cand.gather(rows, sources=dest), pos_mi, tgt_mi, n, m)
+            buf = solve_paths(rt_scene, cand.take(rows, sources=dest), pos_mi, tgt_mi, n, m)
             collect_paths(buf, out)
     clear_devices(rt_scene)
     return to_source_paths(out, pos, tgt)

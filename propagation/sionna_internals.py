@@ -312,7 +312,7 @@ def solve_paths(rt_scene, buf, src_mi, tgt_mi, n: int, m: int, *, validity: bool
     rt_scene : sionna.rt.Scene
         The loaded scene, its arrays single isotropic ``VH`` antennas.
     buf : PathsBuffer
-        Candidates from :meth:`Candidates.gather` or :func:`specular_chain_buffer`.
+        Candidates from :meth:`Candidates.take` or :func:`specular_chain_buffer`.
     src_mi, tgt_mi : mitsuba.Point3f
         The ``n`` source and ``m`` target positions [m] the buffer's indices refer to.
     validity : bool
@@ -397,7 +397,7 @@ class Candidates:
             self.keys = np.zeros((0, 0), np.int64)
             self.valid = np.zeros(0, bool)
 
-    def gather(self, rows, sources=None):
+    def take(self, rows, sources=None):
         """The candidates ``rows`` as a buffer of their own for :func:`solve_paths`.
 
         Parameters
@@ -415,7 +415,7 @@ class Candidates:
         import mitsuba as mi
 
         if self._buf is None:
-            raise RuntimeError("Candidates.gather after release()")
+            raise RuntimeError("Candidates.take after release()")
         buf = self._buf.gather(jit_array(mi.UInt, rows, np.uint32))
         if sources is not None:
             buf._src_indices = jit_array(mi.UInt, sources, np.uint32)
