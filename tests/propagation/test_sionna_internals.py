@@ -47,10 +47,10 @@ def _candidates(generator, rts, src, tgt, samples: int = 2000, depth: int = 3, s
 def test_opaque_count_gives_sionnas_candidates(corridor_scene):
     # the rewritten loop is Sionna's but for the count's type: on one Dr.Jit thread (bit-
     # reproducible) every candidate, its source, target, validity and chain, is Sionna's
-    from propagation.sionna_internals import candidate_generator
     from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
     from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
+    from propagation.sionna_internals import candidate_generator
     from propagation.sionna_scene import load_sionna_scene
 
     if ensure_variant() == CUDA_VARIANT:
@@ -73,9 +73,9 @@ def test_opaque_count_gives_sionnas_candidates(corridor_scene):
 def test_one_shooting_kernel_for_any_target_count(corridor_scene):
     # Sionna's loop compiles its shooting kernel per target count (the count is a literal);
     # ours runs the same kernel for 5, 9 and 14 targets
-    from propagation.sionna_internals import candidate_generator
     from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
+    from propagation.sionna_internals import candidate_generator
     from propagation.sionna_scene import load_sionna_scene
 
     rts = load_sionna_scene(corridor_scene, 865e6)
