@@ -144,7 +144,7 @@ class TracingConfig:
     samples_per_src: int = option(
         _TRACE.samples_per_src, "Rays shot per antenna position traced alone (method 'direct': every "
         "one; 'shared': one without a neighbour; convergence check: bench/trace.py).", max=5_000_000)
-    memory_budget_mb: float = option(2048.0, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
+    memory_budget_mb: float = option(_TRACE.memory_budget_bytes / 2**20, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
     method: TraceMethod = option(
         _TRACE.method,
         "Tracer: 'shared' (fast: positions within share_radius_m share the chains their rays "

@@ -327,9 +327,9 @@ def triangle_planes(rt_scene, normal_step: float = 1e-4, offset_step_m: float = 
 
 
 def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes: Planes | None = None,
-                      *, need=None, min_order: int = 1, los: bool = False,
+                      *, need=None, los: bool = False,
                       buffer_depth: int | None = None) -> list[SourcePaths]:
-    """Every specular-reflection path of order ``min_order..max_order`` over the large planes.
+    """Every specular-reflection path of order 1..``max_order`` over the large planes.
 
     Parameters
     ----------
@@ -346,8 +346,6 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         Reflecting planes; default :func:`large_planes` of ``rt_scene`` (1 m^2 and up).
     need : array_like of bool, optional
         (n, m): the tags each position needs; default all.
-    min_order : int
-        Lowest number of reflections enumerated (1 by default).
     los : bool
         Also return the line-of-sight paths (Sionna's own visibility test).
     buffer_depth : int, optional
@@ -372,14 +370,14 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
     need = np.ones((n, m), bool) if need is None else np.asarray(need, bool)
     if need.shape != (n, m):
         raise ValueError(f"need must have shape ({n}, {m}), got {need.shape}")
-    if int(min_order) < 1 or int(max_order) < int(min_order):
-        raise ValueError(f"need 1 <= min_order <= max_order, got {min_order}, {max_order}")
+    if int(max_order) < 1:
+        raise ValueError(f"need max_order >= 1, got {max_order}")
     depth = int(max_order) if buffer_depth is None else int(buffer_depth)
     if depth < int(max_order):
         raise ValueError(f"buffer_depth ({buffer_depth}) must be >= max_order ({max_order})")
     planes = large_planes(rt_scene) if planes is None else planes
     link_src, link_tgt = np.nonzero(need)
-    li, ch = candidate_chains(planes, src, tgt, link_src, link_tgt, int(min_order), int(max_order))
+    li, ch = candidate_chains(planes, src, tgt, link_src, link_tgt, 1, int(max_order))
 
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene

@@ -124,7 +124,9 @@ class TraceOptions:
         path that crosses a wall, cabinet or box (faster; not the physics).
     memory_budget_bytes : int or None
         Peak memory per solver call, bytes; sources are chunked to fit
-        (:func:`bytes_per_source`). None: a quarter of the available RAM.
+        (:func:`bytes_per_source`), and the chunks decide which positions share chains
+        and which rays a lone position draws, so the study's 2 GiB is the default. None:
+        a quarter of the available RAM.
     """
 
     method: TraceMethod = "shared"
@@ -138,7 +140,7 @@ class TraceOptions:
     reader_polarization: str = "V"
     seed: int = 42
     refraction: bool = True
-    memory_budget_bytes: int | None = None
+    memory_budget_bytes: int | None = 2 * 1024**3
 
     def __post_init__(self):
         if self.method not in METHODS:

@@ -5,6 +5,7 @@ import pytest
 
 from propagation import TraceOptions, two_ray_gain_db
 from propagation.completion import PlaneLookup, complete_specular, large_planes, merge_paths
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
 from propagation.pathsolve import _trace_chunk
 from propagation.sionna_scene import load_sionna_scene
@@ -13,7 +14,7 @@ from scenes import material
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 
 F = 865e6
-C0 = 299_792_458.0
+C0 = SPEED_OF_LIGHT
 
 
 def _gain_db(sp: SourcePaths) -> np.ndarray:

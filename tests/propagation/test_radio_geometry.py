@@ -14,6 +14,7 @@ from propagation import (
     slab_transmission_db,
     trace_links,
 )
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import settings_key
 
 # the material library warns (by design) that P.2040 fits are extrapolated below 1 GHz
@@ -34,7 +35,7 @@ def test_slab_closed_form():
                - slab_transmission_db(eps, sigma, 0.12, F, 0.7, "TE")) > 0.5
     # a vanishing slab transmits everything; a lossless half-wave slab too (Fabry-Perot)
     assert slab_transmission_db(eps, sigma, 1e-9, F) == pytest.approx(0.0, abs=1e-6)
-    lam = 299_792_458.0 / F
+    lam = SPEED_OF_LIGHT / F
     assert slab_transmission_db(4.0, 0.0, lam / 4, F) == pytest.approx(0.0, abs=1e-9)  # n d = lambda/2
     # energy: |R|^2 + |T|^2 = 1 without loss, < 1 with it
     r, t = slab_coefficients(0.3, 4.0, 0.0, 0.1, F)

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from propagation import TraceOptions, trace_links, two_ray_gain_db
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathsolve import _trace_chunk
 from propagation.shared import chain_ids, shared_rows, sharing_neighbours, trace_shared
 from propagation.sionna_paths import path_copies
@@ -15,7 +16,7 @@ from tests.helpers.scenes import make_corridor
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 
 F = 865e6
-C0 = 299_792_458.0
+C0 = SPEED_OF_LIGHT
 
 
 def test_chain_ids_name_equal_rows_alike():

@@ -138,7 +138,7 @@ def test_corridor_lab_path_loss_exponent_local_mean():
     import scenes
 
     lab = scenes.load("corridor_lab")
-    lam = 299_792_458.0 / F
+    lam = C0 / F
     ant = np.array([1.0, 1.2, 0.7])
     pose = np.array([[*ant, 0.0]])
     rng = np.random.default_rng(0)

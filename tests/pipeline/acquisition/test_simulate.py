@@ -15,6 +15,7 @@ from pipeline.acquisition import (
 )
 from pipeline.robot.kinematics import Robot, antenna_poses
 from propagation import antenna_frame_angles
+from propagation.constants import SPEED_OF_LIGHT
 
 # Low ray count and depth: these tests check bookkeeping, not path convergence.
 TRACE = {"max_depth": 2, "samples_per_src": 2000}
@@ -186,7 +187,7 @@ def test_channels_phase_and_doppler_columns(scene, track, tmp_path):
     # 0.4 m/s antenna: |f_D| <= 2 v / lambda = 2.3 Hz for every path (the direction
     # derivative of each path's phase is bounded by the wavenumber)
     assert np.isfinite(dop[rd]).all() and np.isnan(dop[~rd]).all()
-    assert np.abs(dop[rd]).max() <= 2 * 0.4 * 867.5e6 / 299_792_458.0 * 1.001
+    assert np.abs(dop[rd]).max() <= 2 * 0.4 * 867.5e6 / SPEED_OF_LIGHT * 1.001
     np.testing.assert_array_equal(r["seen_count"].to_numpy(), rd.astype(int))  # fixed inventory
     assert len(log.metadata["phase_offsets_rad"]) == 2 and len(log.metadata["phase_offsets_rad"][0]) == 4
     assert len(log.metadata["tag_population"]["sensitivity_offset_db"]) == 3
