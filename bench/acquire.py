@@ -28,6 +28,7 @@ from pipeline.robot import (
     run_mcl,
     simulate_odometry,
 )
+from propagation import TraceOptions
 from scenes import floor_plan_segments
 
 
@@ -143,7 +144,7 @@ def bench_reads_traced(scene, robot, tour, seconds=4.0, rays=10_000, depth=3):
         full.t_s[keep], full.true_poses[keep], full.est_poses[keep], full.odom_poses[keep]
     )
     reader = ReaderConfig(read_rate_hz=10.0)  # paper_scale's rate
-    trace = {"max_depth": depth, "samples_per_src": rays}
+    trace = TraceOptions(method="direct", max_depth=depth, samples_per_src=rays)
     rows = []
     with tempfile.TemporaryDirectory() as cache:
         for label in ("cold trace cache", "warm trace cache"):

@@ -22,6 +22,7 @@ import scenes
 from pipeline.acquisition import ReaderConfig, simulate_reads, ssm_samples, tdm_samples
 from pipeline.robot import Robot
 from pipeline.robot.trajectory import TourConfig, guided_tour
+from propagation import TraceOptions
 
 TARGET_SSM = 12_395  # Cicirelli, Milella & Di Paola (2011): SSM training samples
 
@@ -38,7 +39,7 @@ def measure(scene, passes, reader, rays, depth, cache_dir, seed=0, speed=0.3, ou
         tour,
         reader,
         np.random.default_rng(seed),
-        trace={"max_depth": depth, "samples_per_src": rays},
+        trace=TraceOptions(method="direct", max_depth=depth, samples_per_src=rays),
         cache_dir=cache_dir,
     )
     dt = time.perf_counter() - t0

@@ -71,7 +71,7 @@ def main() -> None:
         q = miss_probability_at_poses(eval_reads, true_obs.slot_poses, cfg.reader, link_budget(cfg),
                                       extra_tags=0, n_antennas=len(cfg.robot.antennas))
     opts = trace_options(cfg)
-    pattern_kw = {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+    pattern_kw = {k: getattr(opts, k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
     d_read = train_reads.loc[train_reads["read"].to_numpy(bool), "d_true_m"].to_numpy(float)
     dn = cfg.downstream
     search = OracleSearch(window_m=dn.oracle_window_m,
@@ -84,12 +84,12 @@ def main() -> None:
     t_coarse = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = global_oracle(obs, true_obs.slot_poses, cand, sc, oracle, search=search,
-                        frequency_hz=cfg.frequency_hz, trace_kw=opts, pattern_kw=pattern_kw,
+                        frequency_hz=cfg.frequency_hz, trace=opts, pattern_kw=pattern_kw,
                         cache_dir=cache, miss_probability=q)
     t_search = time.perf_counter() - t0
     t0 = time.perf_counter()
     again = global_oracle(obs, true_obs.slot_poses, cand, sc, oracle, search=search,
-                          frequency_hz=cfg.frequency_hz, trace_kw=opts, pattern_kw=pattern_kw,
+                          frequency_hz=cfg.frequency_hz, trace=opts, pattern_kw=pattern_kw,
                           cache_dir=cache, miss_probability=q)
     t_warm = time.perf_counter() - t0
     assert np.array_equal(again.posteriors.map_m, res.posteriors.map_m), "cached rerun differs"
@@ -101,7 +101,7 @@ def main() -> None:
     try:
         t0 = time.perf_counter()
         per_link = global_oracle(obs, true_obs.slot_poses, cand, sc, oracle, search=search,
-                                 frequency_hz=cfg.frequency_hz, trace_kw=opts, pattern_kw=pattern_kw,
+                                 frequency_hz=cfg.frequency_hz, trace=opts, pattern_kw=pattern_kw,
                                  cache_dir=cache, miss_probability=q)
         t_per_link = time.perf_counter() - t0
     finally:

@@ -57,12 +57,15 @@ def main(argv=None) -> None:
     channel = np.asarray(ETSI_HZ)[np.arange(len(poses)) % len(ETSI_HZ)]
     print(f"scene {scene.name}: {len(tags)} tags x {len(poses)} antenna poses, depth {depth}, "
           f"{spp} rays/source, carrier {CARRIER_HZ / 1e6:g} MHz")
-    opts = dict(tag_normals=normals, max_depth=depth, samples_per_src=spp)
+    # direct tracing (Sionna's PathSolver alone): the channel sums, not the tracer, are measured
+    opts = dict(options=P.TraceOptions(method="direct", max_depth=depth, samples_per_src=spp),
+                tag_normals=normals)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         # warm-up (kernel compilation at this depth, both channel paths) on its own cache
         for grad in (False, True):
-            P.trace_links(scene, poses[:2], tags[:2], max_depth=depth, samples_per_src=1000,
+            P.trace_links(scene, poses[:2], tags[:2],
+                          P.TraceOptions(method="direct", max_depth=depth, samples_per_src=1000),
                           channel_hz=channel[:2], channel_gradient=grad, cache_dir=tmp / f"warm{grad}")
 
         def timed(**kw):

@@ -5,8 +5,8 @@ Prints, from one run on this machine:
 1. the whole default study from an empty propagation cache (``rfidstudy run`` in a
    subprocess, a fresh temporary cache and run directory), once per tracing setting
    (default: chains shared between positions within 1 m, 3,000 rays each; direct: every
-   antenna position shoots 30,000 rays alone, the default before sharing; pooled, with
-   ``--lattice``: rays shot from a lattice), with its wall time, the stages' times and
+   antenna position shoots 30,000 rays alone with Sionna's PathSolver, ``tracing.method =
+   "direct"``, no completion), with its wall time, the stages' times and
    the peak memory of its stages;
 2. the *naive* tracing of the same links with bare Sionna RT (the tours, the truth's tag
    sites and free-space view; not the RSSI field maps, which are radio maps, nor the
@@ -20,7 +20,7 @@ Prints, from one run on this machine:
    tracing options, completion included, per setting): p50 /
    p95 |delta gain| over readable links (either seed >= the budget's minimum readable
    gain), p95 over weak links (within 30 dB below it) and the flipped read decisions;
-   pooled against direct (same seed) as its extrapolation error.
+   the default against direct (same seed).
 
 Where a CUDA device is usable, a GPU section follows with the same measurements on it
 (``--backend cuda``; ``--backend llvm`` for the CPU section alone). Every study and naive
@@ -32,7 +32,7 @@ as Sionna's API documents (positions as lists of numbers) and as the study place
 
 Takes about 20 minutes on 2 cores. Usage::
 
-    .venv/bin/python bench/study_trace.py [--lattice 0.25] [--skip-study] [--skip-noise]
+    .venv/bin/python bench/study_trace.py [--skip-study] [--skip-noise]
         [--config configs/paper_scale.toml] [--naive arrays]
 """
 
@@ -55,15 +55,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 #: Tracing settings compared: label -> config overrides (``--set``).
-DIRECT = {"tracing.share_radius_m": 0.0}
+DIRECT = {"tracing.method": "direct"}
 
 
-def settings(lattice_m: float | None, direct: bool = True) -> dict:
+def settings(direct: bool = True) -> dict:
     out = {"default (shared 1 m, 3e3 rays)": {}}
     if direct:
-        out["direct (3e4 rays)"] = DIRECT
-    if lattice_m:
-        out[f"pooled {lattice_m:g} m"] = {**DIRECT, "tracing.lattice_spacing_m": lattice_m}
+        out["direct (3e4 rays, PathSolver alone)"] = DIRECT
     return out
 
 
@@ -126,13 +124,8 @@ def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "a
 
     from propagation.sionna_scene import load_sionna_scene
 
-    rt_scene = load_sionna_scene(scene, 865e6)
-    ours = vars(rt_scene).pop("_endpoints", None) if placement == "api" else None  # Sionna's own
-    try:
-        return _naive_calls(rt_scene, groups, max_depth, samples, placement)
-    finally:
-        if ours is not None:
-            rt_scene._endpoints = ours
+    rt_scene = load_sionna_scene(scene, 865e6, public_api=placement == "api")
+    return _naive_calls(rt_scene, groups, max_depth, samples, placement)
 
 
 def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str) -> dict:
@@ -213,9 +206,9 @@ def seed_noise(scene, run: Path, overrides: dict, config: Path | None) -> tuple[
     for seed in (1, 2):
         with tempfile.TemporaryDirectory() as cd:
             t0 = time.perf_counter()
-            opts = trace_options(cfg)
-            links = P.trace_links(scene, poses, tpos, tag_normals=nrm, seed=seed, cache_dir=cd,
-                                  frequency_hz=cfg.frequency_hz, **opts)
+            opts = trace_options(cfg).replace(seed=seed)
+            links = P.trace_links(scene, poses, tpos, opts, tag_normals=nrm, cache_dir=cd,
+                                  frequency_hz=cfg.frequency_hz)
             secs.append(time.perf_counter() - t0)
         gains[seed] = links.gain_db
     return gains, np.asarray(secs), len(poses) * len(tpos)
@@ -235,7 +228,6 @@ def noise_row(a: np.ndarray, b: np.ndarray, threshold_db: float) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--lattice", type=float, default=None, help="also a pooled study at this lattice spacing [m]")
     ap.add_argument("--skip-study", action="store_true", help="reuse --run instead of running studies")
     ap.add_argument("--run", type=Path, default=None, help="a finished default run (with --skip-study)")
     ap.add_argument("--skip-noise", action="store_true")
@@ -288,7 +280,7 @@ def main() -> None:
     backend = {"tracing.backend": args.backend}
     tmp = Path(tempfile.mkdtemp(prefix="study_trace_"))
     studies = {}
-    runs = settings(args.lattice, direct=not args.skip_direct)
+    runs = settings(direct=not args.skip_direct)
     what = "default study" if args.config is None else f"study {args.config.name}"
     if not args.skip_study:
         for label, overrides in runs.items():
@@ -330,7 +322,7 @@ def main() -> None:
             gains[label] = g
             print(f"  {label}, seed 1 vs 2 ({secs.mean():.0f} s per trace, {n / secs.mean():.0f} links/s): "
                   f"{noise_row(g[1], g[2], thr)}", flush=True)
-        ref = gains.get("direct (3e4 rays)")
+        ref = gains.get("direct (3e4 rays, PathSolver alone)")
         for label, g in gains.items() if ref is not None else ():
             if g is not ref:
                 print(f"  {label} vs direct, seed 1: {noise_row(g[1], ref[1], thr)}")

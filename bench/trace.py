@@ -1,6 +1,6 @@
 """Benchmark of propagation.trace_links / rssi_field on corridor_lab, with the convergence check.
 
-Prints, from one run: links/s of trace_links at the defaults, field cells/s of rssi_field,
+Prints, from one run: links/s of trace_links (``method="direct"``) at the default ray budget, field cells/s of rssi_field,
 peak memory (ru_maxrss: Dr.Jit allocates outside Python, tracemalloc would not see it),
 the overhead of trace_links over a bare Sionna PathSolver call doing the same work, and the
 convergence table (rays per source and depth vs error percentiles against a reference).
@@ -43,6 +43,10 @@ def main() -> None:
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
+
+    # the convergence check and the overhead are those of Sionna's PathSolver alone (the
+    # public-API tracer); the study's shared tracer is measured by bench/study_trace.py
+    DIRECT = P.TraceOptions(method="direct")  # noqa: N806 - a constant of this run
     from propagation.tracing import DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC
 
     print("backend:", P.select_variant(), P.backend_info())
@@ -54,13 +58,14 @@ def main() -> None:
     print(f"scene {scene.name}: {len(tags)} tags, {n_src} antenna positions, bounds {scene.bounds_m.round(2).tolist()}")
 
     # warm-up (JIT compilation of the kernels) so that timings below are steady-state
-    P.trace_links(scene, poses[:2], tags[:2], max_depth=1, samples_per_src=1000)
+    P.trace_links(scene, poses[:2], tags[:2], DIRECT.replace(max_depth=1, samples_per_src=1000))
 
     # --- convergence check ------------------------------------------------------------
     ref_depth, ref_spp = (6, 1_000_000) if args.full else (6, 300_000)
     t0 = time.perf_counter()
-    ref = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=ref_depth,
-                        samples_per_src=ref_spp, memory_budget_bytes=6 * 1024**3)
+    ref = P.trace_links(scene, poses, tags, DIRECT.replace(max_depth=ref_depth, samples_per_src=ref_spp,
+                                                           memory_budget_bytes=6 * 1024**3),
+                        tag_normals=normals)
     t_ref = time.perf_counter() - t0
     print(f"\nreference: depth {ref_depth}, {ref_spp:.0e} rays/source, {t_ref:.1f} s, "
           f"mean paths/link {ref.n_paths.mean():.0f}, maxrss {_maxrss_gb():.2f} GB")
@@ -83,23 +88,26 @@ def main() -> None:
     print(f"{'depth/rays':>15} {'time_s':>7} {'links/s':>8} {'p50_dB':>7} {'p95_dB':>7} {'p99_dB':>7} "
           f"{'rel_p50':>7} {'rel_p95':>7} {'rel_max':>7} {'flips':>5}")
     t0 = time.perf_counter()
-    ref7 = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=ref_depth,
-                         samples_per_src=ref_spp, memory_budget_bytes=6 * 1024**3, seed=7)
+    ref7 = P.trace_links(scene, poses, tags, DIRECT.replace(max_depth=ref_depth, samples_per_src=ref_spp,
+                                                            memory_budget_bytes=6 * 1024**3, seed=7),
+                         tag_normals=normals)
     row("ref, seed 7", ref7, time.perf_counter() - t0)
     depths = (3, 4, 5, 6)
     spps = (10_000, 30_000, 100_000)
     for depth in depths:
         for spp in spps:
             t0 = time.perf_counter()
-            ls = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=depth, samples_per_src=spp)
+            ls = P.trace_links(scene, poses, tags, DIRECT.replace(max_depth=depth, samples_per_src=spp),
+                               tag_normals=normals)
             dt = time.perf_counter() - t0
             row(f"{depth} / {spp:.0e}", ls, dt)
     # refraction off (paths through walls dropped): every ray then reflects, so more
     # specular paths are found per ray -- it is slower, not faster, and not the same gains
     for depth, spp in ((DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC), (6, ref_spp)):
         t0 = time.perf_counter()
-        ls = P.trace_links(scene, poses, tags, tag_normals=normals, max_depth=depth, samples_per_src=spp,
-                           refraction=False, memory_budget_bytes=6 * 1024**3)
+        ls = P.trace_links(scene, poses, tags, DIRECT.replace(max_depth=depth, samples_per_src=spp,
+                                                              refraction=False, memory_budget_bytes=6 * 1024**3),
+                           tag_normals=normals)
         row(f"{depth}/{spp:.0e} no-refr", ls, time.perf_counter() - t0)
 
     # --- throughput and overhead at the defaults -------------------------------------------
@@ -108,9 +116,9 @@ def main() -> None:
     from propagation.sionna_scene import load_sionna_scene
 
     t0 = time.perf_counter()
-    ls = P.trace_links(scene, poses, tags, tag_normals=normals)
+    ls = P.trace_links(scene, poses, tags, DIRECT, tag_normals=normals)
     t_ours = time.perf_counter() - t0
-    s = load_sionna_scene(scene, 865e6)
+    s = load_sionna_scene(scene, 865e6, public_api=True)
     s.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
     s.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="VH")
     for k, p in enumerate(poses):
@@ -132,7 +140,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     more = np.concatenate([tags] + [tags + normals * rng.uniform(0.05, 0.3, (len(tags), 1)) for _ in range(3)])
     t0 = time.perf_counter()
-    P.trace_links(scene, poses, more)
+    P.trace_links(scene, poses, more, DIRECT)
     t_more = time.perf_counter() - t0
     print(f"receivers per call: {len(tags)} -> {len(more)} receivers, {t_ours:.2f} s -> {t_more:.2f} s "
           f"(cost ratio {t_more / t_ours:.2f} for {len(more) / len(tags):.0f}x receivers)")
@@ -140,11 +148,11 @@ def main() -> None:
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        P.trace_links(scene, poses, tags, tag_normals=normals, cache_dir=tmp)
+        P.trace_links(scene, poses, tags, DIRECT, tag_normals=normals, cache_dir=tmp)
         rot = poses.copy()
         rot[:, 3] += 0.5
         t0 = time.perf_counter()
-        hit = P.trace_links(scene, rot, tags, tag_normals=normals, cache_dir=tmp)
+        hit = P.trace_links(scene, rot, tags, DIRECT, tag_normals=normals, cache_dir=tmp)
         t_hit = time.perf_counter() - t0
     print(f"cache hit with new orientations: {hit.gain.size} links in {t_hit:.3f} s "
           f"({hit.gain.size / t_hit:.0f} links/s, solver calls {hit.n_solver_calls})")
@@ -154,15 +162,15 @@ def main() -> None:
     many = route_poses(scene, args.cache_positions)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        cold = P.trace_links(scene, many, tags, tag_normals=normals, cache_dir=tmp)
+        cold = P.trace_links(scene, many, tags, DIRECT, tag_normals=normals, cache_dir=tmp)
         t_cold = time.perf_counter() - t0
         t0 = time.perf_counter()
-        warm = P.trace_links(scene, many, tags, tag_normals=normals, cache_dir=tmp)
+        warm = P.trace_links(scene, many, tags, DIRECT, tag_normals=normals, cache_dir=tmp)
         t_warm = time.perf_counter() - t0
         sub = next(p for p in Path(tmp).iterdir() if p.is_dir())
         assert sub.name == settings_key(scene.content_hash(), {k: cold.settings[k] for k in (
             "frequency_hz", "max_depth", "samples_per_src", "seed", "los", "specular_reflection",
-            "refraction", "diffuse_reflection", "diffraction")})
+            "refraction", "diffuse_reflection", "diffraction", "direct_algorithm")})
         uniq = np.unique(many[:, :3], axis=0)
         t0 = time.perf_counter()
         loaded = PathCache(sub).load(uniq)

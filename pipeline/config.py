@@ -31,7 +31,11 @@ from pipeline.robot.kinematics import default_antennas
 from pipeline.robot.simulate import LocalisationConfig
 from pipeline.robot.trajectory import TourConfig
 from propagation.linkbudget import LinkBudget
-from propagation.tracing import DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC
+from propagation.tracing import METHODS, TraceMethod, TraceOptions
+
+#: The library's tracing defaults: the [tracing] section's defaults are these, so the
+#: study and ``propagation.trace_links`` trace the same truth.
+_TRACE = TraceOptions()
 
 __all__ = [
     "AntennaMountConfig",
@@ -120,8 +124,8 @@ class RobotConfig:
 class TracingConfig:
     """Ray tracing with Sionna RT (propagation package)."""
 
-    reader_pattern: str = option("tr38901", "Reader antenna pattern (Sionna name; 8 dBi patch-like).")
-    tag_pattern: str = option("hw_dipole", "Tag antenna pattern (Sionna name; half-wave dipole).")
+    reader_pattern: str = option(_TRACE.reader_pattern, "Reader antenna pattern (Sionna name; 8 dBi patch-like).")
+    tag_pattern: str = option(_TRACE.tag_pattern, "Tag antenna pattern (Sionna name; half-wave dipole).")
     backend: str = option("auto", "Dr.Jit variant: 'auto' (CUDA if usable, else LLVM), 'cuda' or 'llvm'.")
     deterministic: bool = option(
         False,
@@ -135,33 +139,38 @@ class TracingConfig:
         "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
     )
     max_depth: int = option(
-        DEFAULT_MAX_DEPTH,
+        _TRACE.max_depth,
         "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5).", max=10)
     samples_per_src: int = option(
-        DEFAULT_SAMPLES_PER_SRC, "Rays shot per antenna position (convergence check: bench/trace.py).", max=5_000_000)
-    memory_budget_mb: float = option(2048.0, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
-    lattice_spacing_m: float = option(
-        0.0,
-        "Shoot rays from a lattice of this spacing and solve every antenna position exactly "
-        "from the candidate chains of its nearest lattice points (propagation.pooled) [m]; "
-        "0 = shoot from every position. 0.25 halves the seed-to-seed noise (docs/physics.md).",
+        _TRACE.samples_per_src, "Rays shot per antenna position traced alone (method 'direct': every "
+        "one; 'shared': one without a neighbour; convergence check: bench/trace.py).", max=5_000_000)
+    memory_budget_mb: float = option(_TRACE.memory_budget_bytes / 2**20, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
+    method: TraceMethod = option(
+        _TRACE.method,
+        "Tracer: 'shared' (fast: positions within share_radius_m share the chains their rays "
+        "found, plus the image-method completion; uses Sionna internals of the tested versions "
+        "only, propagation.sionna_internals) or 'direct' (Sionna's public PathSolver alone, "
+        "every position shoots samples_per_src rays: the reference, and the way to run on an "
+        "untested Sionna version).",
     )
     share_radius_m: float = option(
-        1.0,
-        "Antenna positions of one tracing call within this distance share the chains their "
-        "rays found: each shoots shared_samples_per_src rays and is also solved, by Sionna's "
-        "image method at its exact position, for every chain valid at a neighbour "
-        "(propagation.shared) [m]; 0 = off (every position shoots samples_per_src rays "
-        "alone). A position without a neighbour shoots samples_per_src rays.",
+        _TRACE.share_radius_m,
+        "method 'shared': antenna positions of one tracing call within this distance share "
+        "the chains their rays found: each shoots shared_samples_per_src rays and is also "
+        "solved, by Sionna's image method at its exact position, for every chain valid at a "
+        "neighbour (propagation.shared) [m], in (0, 5]. A position without a neighbour shoots "
+        "samples_per_src rays.",
     )
     shared_samples_per_src: int = option(
-        3000, "Rays shot per antenna position that shares chains with neighbours (share_radius_m > 0).", max=5_000_000)
+        _TRACE.shared_samples_per_src,
+        "method 'shared': rays shot per antenna position that shares chains with neighbours.",
+        max=5_000_000)
     completion_order: int = option(
-        3,
-        "Also solve every specular reflection path of up to this order (0 = off, 1-3) over the "
-        "scene's large planes with the image method: the paths the ray sampling misses "
-        "(propagation.completion; at 3 the truth's seed-to-seed p95 on readable links falls "
-        "from 1.5 to 1.1 dB for ~10-25 % more tracing time, docs/physics.md).",
+        _TRACE.completion_order,
+        "method 'shared': also solve every specular reflection path of up to this order (0 = "
+        "off, 1-3) over the scene's large planes with the image method: the paths the ray "
+        "sampling misses (propagation.completion; at 3 the truth's seed-to-seed p95 on readable "
+        "links falls from 1.5 to 1.1 dB for ~10-25 % more tracing time, docs/physics.md).",
     )
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
@@ -184,15 +193,11 @@ class TracingConfig:
                   "field_samples_per_tx")
         if self.completion_order not in (0, 1, 2, 3):
             raise ConfigError(f"completion_order must be 0 (off), 1, 2 or 3, got {self.completion_order!r}")
-        if not (np.isfinite(self.share_radius_m) and 0.0 <= self.share_radius_m <= 5.0):
-            raise ConfigError(f"share_radius_m must be 0 (off) or a radius in (0, 5] m, got {self.share_radius_m!r}")
-        if self.share_radius_m > 0 and self.lattice_spacing_m > 0:
-            raise ConfigError("share_radius_m and lattice_spacing_m exclude each other (pooled positions "
-                              "do not shoot their own rays): set one of them to 0")
+        if self.method not in METHODS:
+            raise ConfigError(f"method must be one of {', '.join(map(repr, METHODS))}, got {self.method!r}")
+        if not (np.isfinite(self.share_radius_m) and 0.0 < self.share_radius_m <= 5.0):
+            raise ConfigError(f"share_radius_m must be a radius in (0, 5] m, got {self.share_radius_m!r}")
         _positive(self, "shared_samples_per_src")
-        if not (np.isfinite(self.lattice_spacing_m) and 0.0 <= self.lattice_spacing_m <= 1.0):
-            raise ConfigError("lattice_spacing_m must be 0 (off) or a spacing in (0, 1] m, "
-                              f"got {self.lattice_spacing_m!r}")
 
 
 @section

@@ -119,6 +119,8 @@ def _type_name(tp: Any) -> str:
     if origin in (list, tuple):
         args = [a for a in typing.get_args(tp) if a is not Ellipsis]
         return f"list of {_type_name(args[0])}" if args else "list"
+    if origin is typing.Literal:
+        return " | ".join(repr(a) for a in typing.get_args(tp))
     if tp is type(None):
         return "None"
     if dataclasses.is_dataclass(tp):

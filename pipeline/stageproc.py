@@ -42,6 +42,7 @@ from pipeline.parallel import (
     limit_blas_threads,
     usable_cpus,
 )
+from pipeline.stagedef import StageContext, StageError, record_or_reason, stage_inputs_hash
 
 __all__ = ["Side", "StageProcess", "StageProcessError", "finish_side", "side_by_side_allowed", "start_side"]
 
@@ -134,7 +135,6 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
         reproducible_outputs,
     )
     from pipeline.runstore import RunStore
-    from pipeline.study import StageContext
 
     levels = dict(levels)
     handler = logging.StreamHandler(sys.stderr)
@@ -267,8 +267,6 @@ def start_side(st, config, store, digests, force, prog) -> Side | None:
     is done) and must run."""
     if st is None or not st.own_process or st.always or any(u not in digests for u in st.upstream):
         return None
-    from pipeline.study import _inputs_hash, _record_or_reason
-
     if not side_by_side_allowed():
         return None
     try:  # it travels to the new interpreter by reference
@@ -276,8 +274,8 @@ def start_side(st, config, store, digests, force, prog) -> Side | None:
     except Exception as exc:  # noqa: BLE001 - any reason means: run it in order, here
         log.debug("stage %s runs in this process: %s", st.name, exc)
         return None
-    inputs_hash = _inputs_hash(st, config, digests)
-    rec, reason = _record_or_reason(st, store, force, inputs_hash)
+    inputs_hash = stage_inputs_hash(st, config, digests)
+    rec, reason = record_or_reason(st, store, force, inputs_hash)
     if rec is not None:
         return None
     staged = store.staging(st.name)
@@ -298,7 +296,6 @@ def finish_side(side: Side, store, result, prog, failed):
     """Wait for the stage's process and commit its outputs (its ``StageRecord``); a failure
     there is the stage's failure, given to ``failed(failure)`` for the manifest first."""
     from pipeline.runlog import utc_now
-    from pipeline.study import StageError
 
     st = side.stage
     try:

@@ -28,22 +28,29 @@ from propagation.patterns import (
     antenna_frame_angles,
     pattern_gain_db,
 )
+from propagation.sionna_internals import TESTED_VERSIONS, SionnaVersionError
 from propagation.tracing import (
     DEFAULT_MAX_DEPTH,
     DEFAULT_SAMPLES_PER_SRC,
+    METHODS,
     LinkSet,
+    TraceOptions,
     trace_links,
 )
 
 __all__ = [
     "DEFAULT_MAX_DEPTH",
     "DEFAULT_SAMPLES_PER_SRC",
+    "METHODS",
+    "TESTED_VERSIONS",
     "AntennaFrameAngles",
     "BackendError",
     "CacheWarning",
     "LinkBudget",
     "LinkSet",
     "RssiField",
+    "SionnaVersionError",
+    "TraceOptions",
     "antenna_frame_angles",
     "backend_info",
     "db_to_linear",

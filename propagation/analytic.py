@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from propagation.constants import EPSILON_0, SPEED_OF_LIGHT
+
 __all__ = [
     "EPSILON_0",
     "SPEED_OF_LIGHT",
@@ -21,11 +23,6 @@ __all__ = [
     "two_ray_gain_db",
     "wavelength_m",
 ]
-
-#: Speed of light in vacuum, m/s.
-SPEED_OF_LIGHT = 299_792_458.0
-#: Vacuum permittivity, F/m.
-EPSILON_0 = 8.8541878128e-12
 
 
 def db_to_linear(value_db):

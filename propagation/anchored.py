@@ -32,13 +32,13 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.patterns import dipole_rotation, pattern_field_world, pose_rotation
 from propagation.tracing import tag_dipole_axes
 
 __all__ = ["anchor_groups", "anchored_gains_db", "moved_antenna_local_mean_db", "specular_model_paths",
            "trace_anchor_paths", "window_gains_db"]
 
-_SPEED_OF_LIGHT = 299_792_458.0
 _LINKS_PER_BATCH = 50_000  # ~20 paths per link: ~1 M paths of temporaries per batch
 #: Links per call of the per-anchor-link evaluation (patterns, transfer matrices): every
 #: distinct (position, anchor) link of a call is held with all its paths at once
@@ -139,11 +139,10 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
 
 
 def trace_anchor_paths(scene, positions_m, anchors_m, need, *, frequency_hz: float, cache_dir=None,
-                       **trace_kw):
+                       options=None):
     """The study tracer's paths (:func:`propagation.pathsolve.trace_paths`, cached) from
-    distinct antenna positions to anchors; ``trace_kw`` as :func:`~propagation.trace_links`
-    (solver options only: ``max_depth``, ``samples_per_src``, ``seed``, ``refraction``,
-    ``lattice_spacing_m``, ``completion_order``, ``memory_budget_bytes``)."""
+    distinct antenna positions to anchors; ``options`` a :class:`propagation.TraceOptions`
+    (default the library's; its patterns are not used here)."""
     from propagation.pathsolve import trace_paths
     from propagation.sionna_scene import check_antenna_positions
 
@@ -151,8 +150,8 @@ def trace_anchor_paths(scene, positions_m, anchors_m, need, *, frequency_hz: flo
     active = np.asarray(need, bool).any(axis=1)
     if active.any():
         check_antenna_positions(scene, pos[active])
-    return trace_paths(scene, pos, anchors_m, need, frequency_hz=frequency_hz, cache_dir=cache_dir,
-                       **trace_kw).paths
+    return trace_paths(scene, pos, anchors_m, need, options, frequency_hz=frequency_hz,
+                       cache_dir=cache_dir).paths
 
 
 def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, target_normals, poses,
@@ -232,10 +231,10 @@ def anchored_gains_db(paths, pos_index, anchors_m, anchor_index, targets_m, targ
                                gathered["k_tx"])
     g_rx = pattern_field_world(tag_pattern, "V", dipole_rotation(axes[rep]), gathered["k_rx"])
     weight = np.einsum("pr,prt,pt->p", np.conj(g_rx), gathered["transfer"], c_tx)
-    length = gathered["tau"] * _SPEED_OF_LIGHT
+    length = gathered["tau"] * SPEED_OF_LIGHT
     image = anchors[anchor_index[rep]] + gathered["k_rx"] * length[:, None]
     offset = np.concatenate([[0], np.cumsum(count)])
-    k0 = 2.0 * np.pi * float(frequency_hz) / _SPEED_OF_LIGHT
+    k0 = 2.0 * np.pi * float(frequency_hz) / SPEED_OF_LIGHT
     power = np.zeros(n)
     for lo in range(0, n, _LINKS_PER_BATCH):
         sel = np.arange(lo, min(n, lo + _LINKS_PER_BATCH))
@@ -307,11 +306,11 @@ def window_gains_db(paths, pos_index, poses, anchor_m, targets_m, target_normal,
     c_tx = pattern_field_world(reader_pattern, reader_polarization, pose_rotation(pose6[link]), g["k_tx"])
     g_rx = pattern_field_world(tag_pattern, "V", dipole_rotation(np.repeat(axis, len(row), axis=0)),
                                g["k_rx"])
-    length = g["tau"] * _SPEED_OF_LIGHT
+    length = g["tau"] * SPEED_OF_LIGHT
     scaled = np.einsum("pr,prt,pt->p", np.conj(g_rx), g["transfer"], c_tx) * length  # weight * l
     w_re, w_im = (x.astype(np.float32)[:, None] for x in (scaled.real, scaled.imag))
     l2 = length**2 * np.sum(g["k_rx"] ** 2, axis=1)
-    k0 = 2.0 * np.pi * float(frequency_hz) / _SPEED_OF_LIGHT
+    k0 = 2.0 * np.pi * float(frequency_hz) / SPEED_OF_LIGHT
     reached = np.flatnonzero(count > 0)
     # each reached pose sums its paths: a sparse (poses x paths) matrix of ones
     segments = sparse.csr_matrix((np.ones(len(row), np.float32), (np.repeat(np.arange(len(reached)),
@@ -385,7 +384,7 @@ def moved_antenna_local_mean_db(paths, pos_index, tags_m, tag_index, tag_normals
     u_of, count, gathered, rep = _distinct_link_paths(paths, key, pos_index, tags[tag_index])
     g_rx = pattern_field_world(tag_pattern, "V", r_tag[tag_index[rep]], gathered["k_rx"])
     tag_side = np.einsum("pr,prt->pt", np.conj(g_rx), gathered["transfer"])  # (P, 2)
-    length = gathered["tau"] * _SPEED_OF_LIGHT
+    length = gathered["tau"] * SPEED_OF_LIGHT
     source = np.stack([paths[i].source_m for i in range(len(paths))])
     image = source[pos_index[rep]] + gathered["k_tx"] * length[:, None]
     offset = np.concatenate([[0], np.cumsum(count)])

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.patterns import dipole_rotation, pattern_field_world, pose_rotation
 
 __all__ = ["LinkChannels", "link_channels"]
 
-_SPEED_OF_LIGHT = 299_792_458.0
 _PATHS_PER_BATCH = 500_000  # pattern re-application batch (~200 MB of temporaries)
 
 
@@ -143,7 +143,7 @@ def link_channels(src_paths, pos_index, tag_index, poses, tags, frequency_hz, re
         h_all[links] = h_re + 1j * h_im
         if gradient:
             # d/dp exp(-j 2 pi f l / c) with dl/dp = -k_tx
-            damp = (2j * np.pi * f_path / _SPEED_OF_LIGHT * amp)[:, None] * k_tx[pidx]
+            damp = (2j * np.pi * f_path / SPEED_OF_LIGHT * amp)[:, None] * k_tx[pidx]
             for ax in range(3):
                 dh_all[links, ax] = (np.bincount(link, weights=damp[:, ax].real, minlength=len(links))
                                      + 1j * np.bincount(link, weights=damp[:, ax].imag,
@@ -151,6 +151,6 @@ def link_channels(src_paths, pos_index, tag_index, poses, tags, frequency_hz, re
         src_of_link = np.concatenate([np.full(len(sel), i) for i, sel in enumerate(batch)])
         src_pos = np.stack([sp.source_m for sp in srcs])[src_of_link]
         d = np.linalg.norm(tags[tag_index[links]] - src_pos, axis=1)[link]
-        is_los = np.abs(tau[pidx] * _SPEED_OF_LIGHT - d) < 1e-3 + 1e-6 * d
+        is_los = np.abs(tau[pidx] * SPEED_OF_LIGHT - d) < 1e-3 + 1e-6 * d
         los[links] = np.bincount(link, weights=is_los, minlength=len(links)) > 0
     return LinkChannels(h=h_all, dh_dpos=dh_all, n_paths=counts, los=los)

@@ -15,8 +15,8 @@ over large planes (with refraction off, 2 % of the second order). Over large pla
    pairs that cannot be paths even on the unbounded planes (each backtracked segment must
    cross its plane, each reflection point must lie in the plane's bounding box:
    :mod:`propagation.chain_pretest`), and gives the rest to Sionna's own ``ImageMethod``
-   (exact triangles, occlusion, float32) and ``FieldCalculator`` (materials), exactly as
-   :mod:`propagation.pooled` does.
+   (exact triangles, occlusion, float32) and ``FieldCalculator`` (materials), reached
+   through :mod:`propagation.sionna_internals`.
 3. :func:`merge_paths` adds the completion to a ``PathSolver`` trace without counting a
    path twice.
 
@@ -34,21 +34,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from propagation.chain_pretest import BOX_SLACK_M, candidate_chains
-from propagation.jitarrays import jit_array
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
-from propagation.sionna_paths import (
-    collect_paths,
-    opaque_buffer,
-    path_copies,
-    points,
-    solve_fields,
-    to_source_paths,
-)
+from propagation.sionna_paths import path_copies, points, to_source_paths
 
 __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup",
            "triangle_planes"]
 
-_SPEED_OF_LIGHT = 299_792_458.0
 #: Candidate chains per call of Sionna's image method and field calculator: they hold
 #: ~330 B of Dr.Jit temporaries per candidate in buffers of depth 2-3 (measured on
 #: corridor_lab: 7.0 M order-2 candidates peaked at 2.3 GB, 2.9 M order-3 ones at
@@ -260,13 +252,12 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
     lying off its plane (a triangle coplanar with a large plane but grouped elsewhere,
     as may happen in an imported mesh, stays unlabelled and its chains are traced).
     """
-    import drjit as dr
-    import mitsuba as mi
+    from propagation.sionna_internals import shape_pointers
 
     shapes = list(rt_scene.mi_scene.shapes())
     if not shapes:
         return PlaneLookup(np.zeros(0, np.uint32), np.zeros(1, np.int64), np.zeros(0, np.int64))
-    ptr = np.asarray(dr.reinterpret_array(mi.UInt, mi.ShapePtr(shapes)).numpy(), np.int64)
+    ptr = shape_pointers(rt_scene.mi_scene)
     labels = []
     for s in shapes:
         if not hasattr(s, "faces_buffer") or s.face_count() == 0:
@@ -305,13 +296,12 @@ def triangle_planes(rt_scene, normal_step: float = 1e-4, offset_step_m: float = 
     planes share an id only when they agree to these steps, far below what Sionna's image
     test (1 cm between images) tells apart. Degenerate triangles get ids of their own.
     """
-    import drjit as dr
-    import mitsuba as mi
+    from propagation.sionna_internals import shape_pointers
 
     shapes = list(rt_scene.mi_scene.shapes())
     if not shapes:
         return PlaneLookup(np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64))
-    ptr = np.asarray(dr.reinterpret_array(mi.UInt, mi.ShapePtr(shapes)).numpy(), np.int64)
+    ptr = shape_pointers(rt_scene.mi_scene)
     tris = []
     for s in shapes:
         if not hasattr(s, "faces_buffer") or s.face_count() == 0:
@@ -337,9 +327,9 @@ def triangle_planes(rt_scene, normal_step: float = 1e-4, offset_step_m: float = 
 
 
 def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes: Planes | None = None,
-                      *, need=None, min_order: int = 1, los: bool = False,
+                      *, need=None, los: bool = False,
                       buffer_depth: int | None = None) -> list[SourcePaths]:
-    """Every specular-reflection path of order ``min_order..max_order`` over the large planes.
+    """Every specular-reflection path of order 1..``max_order`` over the large planes.
 
     Parameters
     ----------
@@ -356,8 +346,6 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         Reflecting planes; default :func:`large_planes` of ``rt_scene`` (1 m^2 and up).
     need : array_like of bool, optional
         (n, m): the tags each position needs; default all.
-    min_order : int
-        Lowest number of reflections enumerated (1 by default).
     los : bool
         Also return the line-of-sight paths (Sionna's own visibility test).
     buffer_depth : int, optional
@@ -370,14 +358,10 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
     -------
     list of SourcePaths
         Per position, its valid paths (unrotated iso ``VH`` transfer matrices, delays,
-        directions as in :mod:`propagation.pooled`) to every tag it needs, in target
+        directions as in :mod:`propagation.sionna_paths`) to every tag it needs, in target
         order. Reflections are found on any triangle coplanar with a large plane.
     """
-    import drjit as dr
-    import mitsuba as mi
-    from sionna.rt.path_solvers.field_calculator import FieldCalculator
-    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
-
+    from propagation.sionna_internals import line_of_sight_candidates, shape_pointers
     from propagation.sionna_scene import clear_devices, place_devices
 
     src = np.asarray(sources_m, float).reshape(-1, 3)
@@ -386,22 +370,21 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
     need = np.ones((n, m), bool) if need is None else np.asarray(need, bool)
     if need.shape != (n, m):
         raise ValueError(f"need must have shape ({n}, {m}), got {need.shape}")
-    if int(min_order) < 1 or int(max_order) < int(min_order):
-        raise ValueError(f"need 1 <= min_order <= max_order, got {min_order}, {max_order}")
+    if int(max_order) < 1:
+        raise ValueError(f"need max_order >= 1, got {max_order}")
     depth = int(max_order) if buffer_depth is None else int(buffer_depth)
     if depth < int(max_order):
         raise ValueError(f"buffer_depth ({buffer_depth}) must be >= max_order ({max_order})")
     planes = large_planes(rt_scene) if planes is None else planes
     link_src, link_tgt = np.nonzero(need)
-    li, ch = candidate_chains(planes, src, tgt, link_src, link_tgt, int(min_order), int(max_order))
+    li, ch = candidate_chains(planes, src, tgt, link_src, link_tgt, 1, int(max_order))
 
     place_devices(rt_scene)
     mi_scene = rt_scene.mi_scene
     src_mi, tgt_mi = points(src), points(tgt)
     out = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
     if len(li):
-        shapes = list(mi_scene.shapes())
-        ptr = np.asarray(dr.reinterpret_array(mi.UInt, mi.ShapePtr(shapes)).numpy(), np.uint32)
+        ptr = shape_pointers(mi_scene).astype(np.uint32)
         for c0 in range(0, len(li), _CANDIDATES_PER_CALL):  # bounded Dr.Jit temporaries
             blk = slice(c0, c0 + _CANDIDATES_PER_CALL)
             # no interaction (-1) after the chain, up to the buffer's depth (per block:
@@ -415,21 +398,11 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         for s0 in range(0, n, per):  # groups of sources, every target
             grp = src[s0:s0 + per]
             g_mi = points(grp)
-            cand = SBCandidateGenerator()(mi_scene, g_mi, tgt_mi, samples_per_src=1, max_num_paths_per_src=m,
-                                          max_depth=0, los=True, specular_reflection=False,
-                                          diffuse_reflection=False, refraction=False, diffraction=False,
-                                          edge_diffraction=False, seed=0)
-            cand.schedule()
-            dr.eval()
-            cand.shrink()
-            if cand.buffer_size:
-                solve_fields(cand, rt_scene, g_mi, tgt_mi, len(grp), m, FieldCalculator)
-                part = {k: [] for k in out}
-                collect_paths(cand, part)
-                part["src"] = [x + s0 for x in part["src"]]
-                for k in out:
-                    out[k].extend(part[k])
-            del cand
+            part = {k: [] for k in out}
+            line_of_sight_candidates(rt_scene, g_mi, tgt_mi, len(grp), m, part)
+            part["src"] = [x + s0 for x in part["src"]]
+            for k in out:
+                out[k].extend(part[k])
     clear_devices(rt_scene)
     return to_source_paths(out, src, tgt, need)
 
@@ -437,38 +410,18 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
 def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi, n, m, out) -> None:
     """Sionna's image method and field calculator on candidate chains ``ch`` (c, depth;
     -1 pads) of links (``link_src``, ``link_tgt``); valid paths appended to ``out``."""
-    import mitsuba as mi
-    from sionna.rt.constants import INVALID_PRIMITIVE, INVALID_SHAPE, InteractionType
-    from sionna.rt.path_solvers.field_calculator import FieldCalculator
-    from sionna.rt.path_solvers.image_method import ImageMethod
-    from sionna.rt.path_solvers.paths_buffer import PathsBuffer
+    from propagation.sionna_internals import collect_paths, solve_paths, specular_chain_buffer
 
-    depth = ch.shape[1]
     on = ch >= 0
     p = np.where(on, ch, 0)
-    types = np.where(on, np.uint32(InteractionType.SPECULAR), np.uint32(InteractionType.NONE))
-    buf = PathsBuffer(len(ch), depth, False)
-    # The buffer as the candidate generator leaves it: interaction types, shape pointers
-    # (as UInt), primitives, and a point on each reflecting plane (the image method
-    # reflects through the triangle's normal at this point), all not yet valid.
-    u32, f32 = np.uint32, np.float32
-    buf._interaction_types = jit_array(mi.TensorXu, types, u32)  # noqa: SLF001
-    buf._shapes = jit_array(mi.TensorXu, np.where(on, ptr[planes.shape[p]], INVALID_SHAPE), u32)  # noqa: SLF001
-    buf._primitives = jit_array(  # noqa: SLF001
-        mi.TensorXu, np.where(on, planes.primitive[p], INVALID_PRIMITIVE), u32)
     # per axis, in float32 (Sionna's precision) before the gather: a third of the memory
     # traffic of gathering (c, depth, 3) float64 points, the same values
+    f32 = np.float32
     point32_m = planes.point_m.astype(f32)
-    buf._vertices_x, buf._vertices_y, buf._vertices_z = (  # noqa: SLF001
-        jit_array(mi.TensorXf, np.where(on, point32_m[:, i][p], f32(0.0)), f32) for i in range(3))
-    buf._probs = jit_array(mi.TensorXf, on, f32)  # noqa: SLF001 - sampling probability 1
-    buf._src_indices = jit_array(mi.UInt, link_src, u32)  # noqa: SLF001
-    buf._tgt_indices = jit_array(mi.UInt, link_tgt, u32)  # noqa: SLF001
-    buf._paths_counter = mi.UInt(len(ch))  # noqa: SLF001 - read by shrink() only, never in a kernel
-    opaque_buffer(buf)
-    buf = ImageMethod()(rt_scene.mi_scene, buf, False, True, src_mi, tgt_mi)
-    solve_fields(buf, rt_scene, src_mi, tgt_mi, n, m, FieldCalculator)
-    collect_paths(buf, out)
+    buf = specular_chain_buffer(on, ptr[planes.shape[p]], planes.primitive[p],
+                                tuple(np.where(on, point32_m[:, i][p], f32(0.0)) for i in range(3)),
+                                link_src, link_tgt)
+    collect_paths(solve_paths(rt_scene, buf, src_mi, tgt_mi, n, m), out)
 
 
 def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
@@ -517,7 +470,7 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
     tr = np.concatenate([a.transfer, b.transfer]).reshape(-1, 2, 2)
     order = np.lexsort((from_b, tau, tag))
     tag, from_b, tau, k_tx, k_rx, tr = tag[order], from_b[order], tau[order], k_tx[order], k_rx[order], tr[order]
-    drop = path_copies(np.zeros(len(tau), np.int64), tag, tau * _SPEED_OF_LIGHT, k_tx, k_rx, tr,
+    drop = path_copies(np.zeros(len(tau), np.int64), tag, tau * SPEED_OF_LIGHT, k_tx, k_rx, tr,
                    droppable=from_b, length_tol_m=length_tol_m, direction_tol=direction_tol,
                    transfer_rtol=None)
     keep = ~drop

@@ -284,7 +284,9 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     import mitsuba as mi
     import sionna.rt as rt
 
-    rt_scene = load_sionna_scene(scene, frequency_hz)
+    # Sionna's scene as loaded: a radio map has one transmitter, nothing to gain from the
+    # fast tracer's endpoint builder (propagation.sionna_internals)
+    rt_scene = load_sionna_scene(scene, frequency_hz, public_api=True)
     rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern=reader_pattern,
                                        polarization=reader_polarization)
     rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")

@@ -1,18 +1,30 @@
-"""Paths from antenna positions to tags: from the cache, Sionna's PathSolver, shared or pooled.
+"""Paths from antenna positions to tags: from the cache, or traced by the method named.
 
 The tracing half of :func:`propagation.trace_links`: every antenna *position* is traced
 once with unrotated isotropic dual-polarised (``VH``) antennas at both ends, and per
 path the 2x2 polarimetric transfer matrix, the delay and the departure / arrival
 directions are kept (:class:`propagation.pathcache.SourcePaths`, cached on disk).
 Patterns are applied afterwards (:mod:`propagation.channels`).
+
+Two tracers, chosen by :attr:`TraceOptions.method`:
+
+- ``"shared"`` (the default, the study's truth): positions of a call within
+  ``share_radius_m`` share the chains their rays found (:mod:`propagation.shared`), and
+  every specular chain over the large planes up to ``completion_order`` is enumerated
+  (:mod:`propagation.completion`). It reaches into Sionna's path-solver stages through
+  :mod:`propagation.sionna_internals`, whose version guard refuses untested versions.
+- ``"direct"``: Sionna's documented ``PathSolver`` on the scene as loaded, nothing
+  else: the public-API reference the fast tracer is tested against, and the way to run
+  on a Sionna version the fast tracer was not tested with.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -25,13 +37,13 @@ from propagation.completion import (
     triangle_planes,
 )
 from propagation.pathcache import PathCache, SourcePaths, settings_key
-from propagation.patterns import unit_vec_from_theta_phi
-from propagation.pooled import POOL_RADIUS_FACTOR, pooling_plan, trace_pooled
+from propagation.patterns import PATTERNS, POLARIZATIONS, unit_vec_from_theta_phi
 from propagation.shared import sharing_neighbours, trace_shared
 from propagation.sionna_paths import to_source_paths
 from propagation.sionna_scene import load_sionna_scene
 
-__all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "PathSet", "bytes_per_source", "trace_paths"]
+__all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "METHODS", "PathSet", "TraceMethod", "TraceOptions",
+           "bytes_per_source", "padded_target_count", "trace_paths"]
 
 logger = logging.getLogger(__name__)
 
@@ -49,16 +61,109 @@ _MAX_SOURCES_PER_CALL = 128
 #: Planes of at least this area are completed by the image method (completion_order):
 #: walls, floor, ceiling and large furniture faces; 16 planes on corridor_lab.
 COMPLETION_MIN_AREA_M2 = 1.0
-#: Versions of the completion and pooling algorithms, part of the cache key: a change
-#: that changes their paths must bump them so no cache serves the old results.
+#: Versions of the tracing algorithms, part of the cache key: a change that changes
+#: their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
-POOLING_ALGORITHM = 2  # 2: lone positions shoot their own rays; copies found by tolerance
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
 SHARING_ALGORITHM = 6  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
 # 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed);
 # 6: no padding receivers (propagation.shooting): they shared the shooting's per-source table of
 # specular chains with the tags, so a rare collision could drop a tag's chain
+
+
+#: The tracers :func:`trace_paths` can run (:attr:`TraceOptions.method`).
+TraceMethod = Literal["shared", "direct"]
+METHODS: tuple[str, ...] = get_args(TraceMethod)
+
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """How :func:`propagation.trace_links` traces: the tracer, its ray budget and the
+    antennas. The defaults are the study's (``[tracing]`` of ``pipeline.config``), so a
+    library call gives the study's truth.
+
+    Attributes
+    ----------
+    method : {"shared", "direct"}
+        ``"shared"``: the fast tracer (chains shared between neighbouring positions,
+        :mod:`propagation.shared`, plus the image-method completion); it uses Sionna
+        internals (:mod:`propagation.sionna_internals`) and refuses untested Sionna
+        versions. ``"direct"``: Sionna's public ``PathSolver`` alone, every position
+        shooting ``samples_per_src`` rays (the reference; ``share_radius_m``,
+        ``shared_samples_per_src`` and ``completion_order`` do not apply).
+    max_depth : int
+        Maximum interactions per path (Sionna ``max_depth``). Convergence check in
+        ``bench/trace.py``.
+    samples_per_src : int
+        Rays per antenna position traced alone: every position of ``"direct"``, a
+        position of ``"shared"`` with no neighbour within ``share_radius_m``. Too few
+        rays miss paths silently.
+    shared_samples_per_src : int
+        Rays per position that shares chains with a neighbour (``"shared"``).
+    share_radius_m : float
+        Positions of one solver call within this distance share chains (``"shared"``),
+        metres, > 0. A position is given every chain that was a valid path at a
+        neighbour, solved again by Sionna's image method at its exact position (no path
+        is moved); docs/physics.md, "Sharing chains between positions".
+    completion_order : int
+        0-3: also every specular reflection path of up to this order over the scene's
+        large planes (>= 1 m^2), solved by Sionna's image method
+        (:mod:`propagation.completion`) and merged without double counting
+        (``"shared"``). The shoot-and-bounce samples reflection or refraction at each
+        hit by their Fresnel weights, so chains of weak reflections are rarely shot.
+    reader_pattern, tag_pattern : str
+        Pattern names (:data:`propagation.patterns.PATTERNS`), applied after tracing.
+    reader_polarization : {"V", "H", "RHCP", "LHCP"}
+        Reader polarisation. With a circular reader the 3 dB circular-to-linear
+        mismatch is inside the gain, so set ``LinkBudget.polarization_loss_db = 0``.
+    seed : int
+        Sionna's sampling seed.
+    refraction : bool
+        Trace transmission through surfaces (Sionna ``refraction``). False drops every
+        path that crosses a wall, cabinet or box (faster; not the physics).
+    memory_budget_bytes : int or None
+        Peak memory per solver call, bytes; sources are chunked to fit
+        (:func:`bytes_per_source`), and the chunks decide which positions share chains
+        and which rays a lone position draws, so the study's 2 GiB is the default. None:
+        a quarter of the available RAM.
+    """
+
+    method: TraceMethod = "shared"
+    max_depth: int = DEFAULT_MAX_DEPTH
+    samples_per_src: int = DEFAULT_SAMPLES_PER_SRC
+    shared_samples_per_src: int = 3000
+    share_radius_m: float = 1.0
+    completion_order: int = 3
+    reader_pattern: str = "tr38901"
+    tag_pattern: str = "hw_dipole"
+    reader_polarization: str = "V"
+    seed: int = 42
+    refraction: bool = True
+    memory_budget_bytes: int | None = 2 * 1024**3
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {self.method!r}")
+        if int(self.max_depth) < 0 or int(self.samples_per_src) < 1 or int(self.shared_samples_per_src) < 1:
+            raise ValueError("need max_depth >= 0, samples_per_src >= 1 and shared_samples_per_src >= 1, "
+                             f"got {self.max_depth}, {self.samples_per_src}, {self.shared_samples_per_src}")
+        if not (np.isfinite(self.share_radius_m) and self.share_radius_m > 0):
+            raise ValueError(f"share_radius_m must be positive, got {self.share_radius_m!r}")
+        if int(self.completion_order) not in (0, 1, 2, 3):
+            raise ValueError(f"completion_order must be 0 (off) to 3, got {self.completion_order!r}")
+        for name in (self.reader_pattern, self.tag_pattern):
+            if name not in PATTERNS:
+                raise ValueError(f"unknown antenna pattern {name!r}; known: {', '.join(PATTERNS)}")
+        if self.reader_polarization not in POLARIZATIONS:
+            raise ValueError(f"unknown reader_polarization {self.reader_polarization!r}; "
+                             f"known: {', '.join(POLARIZATIONS)}")
+        if self.memory_budget_bytes is not None and int(self.memory_budget_bytes) < 1:
+            raise ValueError(f"memory_budget_bytes must be positive, got {self.memory_budget_bytes!r}")
+
+    def replace(self, **changes) -> TraceOptions:
+        """A copy with ``changes`` (validated again)."""
+        return TraceOptions(**{**asdict(self), **changes})
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -90,10 +195,9 @@ def padded_target_count(n_targets: int) -> int:
     Sionna's shooting kernel loops over the targets with their count as a literal, so
     every new count compiles it anew (~1 s on 2 cores). Counts up to 32 are kept; larger
     ones are rounded up to a quarter octave (at most 25 % more receivers, whose paths are
-    dropped): four kernels per doubling. Tracing with sharing (``share_radius_m`` > 0, a
-    study's default) and its lone positions use
-    :func:`propagation.shooting.candidate_generator` instead, one kernel for every count,
-    and pad nothing.
+    dropped): four kernels per doubling. The shared tracer and its lone positions use
+    :func:`propagation.sionna_internals.candidate_generator` instead, one kernel for every
+    count, and pad nothing.
     """
     n = int(n_targets)
     if n <= 32:
@@ -114,7 +218,8 @@ def _padding_point(rt_scene) -> np.ndarray:
 
 
 def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed, refraction=True):
-    """One PathSolver call; returns a SourcePaths per source (all receivers)."""
+    """One ``PathSolver`` call (Sionna's documented API only); returns a SourcePaths per
+    source (all receivers)."""
     import sionna.rt as rt
 
     from propagation.sionna_scene import clear_devices, place_devices
@@ -188,7 +293,7 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
             out[i] = sp
     # a position with no neighbour: what PathSolver does, without its Paths object (whose
     # per-call kernels cost ~0.3 s), its copies removed; no padding receivers: the shooting
-    # kernel takes any target count (propagation.shooting)
+    # kernel takes any target count (propagation.sionna_internals.candidate_generator)
     alone = np.flatnonzero(lone)
     for c0 in range(0, len(alone), lone_per_call):
         grp = alone[c0:c0 + lone_per_call]
@@ -216,8 +321,8 @@ class PathSet:
     trace_s : float
         Wall time spent in Sionna, s.
     settings : dict
-        Solver settings, memory budget, sources per call, lattice spacing and the number
-        of points rays were shot from (``n_shooting_points``).
+        Solver settings (the cache key's), the ``method``, memory budget, sources per call
+        and the number of positions rays were shot from (``n_shooting_points``).
     """
 
     positions_m: np.ndarray
@@ -228,16 +333,12 @@ class PathSet:
     settings: dict
 
 
-def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz: float = 865e6,
-                max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
-                cache_dir=None, memory_budget_bytes=None, progress=None, seed: int = 42,
-                refraction: bool = True, lattice_spacing_m: float | None = None,
-                completion_order: int = 0, share_radius_m: float | None = None,
-                shared_samples_per_src: int | None = None) -> PathSet:
-    """Paths from antenna positions to tags: from the cache, traced alone, shared or pooled.
+def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOptions | None = None, *,
+                frequency_hz: float = 865e6, cache_dir=None, progress=None) -> PathSet:
+    """Paths from antenna positions to tags: from the cache, or traced by ``options.method``.
 
-    The tracing half of :func:`trace_links` (same parameters); the positions must be
-    distinct and already checked (:func:`propagation.sionna_scene.check_antenna_positions`).
+    The tracing half of :func:`propagation.trace_links`; the positions must be distinct
+    and already checked (:func:`propagation.sionna_scene.check_antenna_positions`).
 
     Parameters
     ----------
@@ -247,11 +348,30 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         Tag positions (m, 3), metres.
     need : array_like of bool, optional
         (k, m): the tags each position needs; default all.
+    options : TraceOptions, optional
+        Tracer and ray budget; default ``TraceOptions()`` (the study's).
+    frequency_hz : float
+        Carrier frequency [Hz]; materials are evaluated there.
+    cache_dir : str or Path, optional
+        Folder of the on-disk path cache (:mod:`propagation.pathcache`).
+    progress : callable, optional
+        ``progress(done, total)`` in antenna positions traced, called after each chunk.
 
     Returns
     -------
     PathSet
+
+    Raises
+    ------
+    propagation.sionna_internals.SionnaVersionError
+        ``method="shared"`` with anything to trace on an untested Sionna / Mitsuba /
+        Dr.Jit version (cached paths are served whatever the version).
     """
+    opt = TraceOptions() if options is None else options
+    if not isinstance(opt, TraceOptions):
+        raise TypeError(f"options must be a TraceOptions, got {type(opt).__name__}")
+    shared = opt.method == "shared"
+    max_depth, samples_per_src, seed = int(opt.max_depth), int(opt.samples_per_src), int(opt.seed)
     uniq = np.asarray(positions_m, dtype=float).reshape(-1, 3)
     tags = np.asarray(tag_positions_m, dtype=float).reshape(-1, 3)
     m = len(tags)
@@ -260,39 +380,22 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         raise ValueError(f"need must have shape ({len(uniq)}, {m}), got {need.shape}")
     if not (np.isfinite(frequency_hz) and frequency_hz > 0):
         raise ValueError(f"frequency_hz must be positive, got {frequency_hz!r}")
-    if int(max_depth) < 0 or int(samples_per_src) < 1:
-        raise ValueError(f"need max_depth >= 0 and samples_per_src >= 1, got {max_depth}, {samples_per_src}")
-    settings = {"frequency_hz": float(frequency_hz), "max_depth": int(max_depth),
-                "samples_per_src": int(samples_per_src), "seed": int(seed),
-                "los": True, "specular_reflection": True, "refraction": bool(refraction),
+    # the settings key the cache files are named by: unchanged from the tracers' earlier
+    # keyword interface, so caches made before stay valid
+    settings = {"frequency_hz": float(frequency_hz), "max_depth": max_depth,
+                "samples_per_src": samples_per_src, "seed": seed,
+                "los": True, "specular_reflection": True, "refraction": bool(opt.refraction),
                 "diffuse_reflection": False, "diffraction": False}
-    if lattice_spacing_m is not None:
-        if not (np.isfinite(lattice_spacing_m) and lattice_spacing_m > 0):
-            raise ValueError(f"lattice_spacing_m must be positive, got {lattice_spacing_m!r}")
-        settings["lattice_spacing_m"] = float(lattice_spacing_m)
-        settings["pool_radius_m"] = POOL_RADIUS_FACTOR * float(lattice_spacing_m)
-    if share_radius_m is not None:
-        if not (np.isfinite(share_radius_m) and share_radius_m > 0):
-            raise ValueError(f"share_radius_m must be positive, got {share_radius_m!r}")
-        if lattice_spacing_m is not None:
-            raise ValueError("share_radius_m and lattice_spacing_m exclude each other: "
-                             "pooled positions do not shoot their own rays")
-        shared_samples_per_src = int(samples_per_src if shared_samples_per_src is None else shared_samples_per_src)
-        if shared_samples_per_src < 1:
-            raise ValueError(f"shared_samples_per_src must be >= 1, got {shared_samples_per_src!r}")
-        settings["share_radius_m"] = float(share_radius_m)
-        settings["shared_samples_per_src"] = shared_samples_per_src
+    completion_order = min(int(opt.completion_order), max_depth) if shared else 0  # no path beyond max_depth
+    if shared:
+        settings["share_radius_m"] = float(opt.share_radius_m)
+        settings["shared_samples_per_src"] = int(opt.shared_samples_per_src)
         settings["sharing_algorithm"] = SHARING_ALGORITHM
-    if int(completion_order) < 0 or int(completion_order) > 3:
-        raise ValueError(f"completion_order must be 0 (off) to 3, got {completion_order!r}")
-    completion_order = min(int(completion_order), int(max_depth))  # no path beyond max_depth
     if completion_order > 0:  # absent at 0: the cache keys of earlier traces stay valid
         settings["completion_order"] = completion_order
         settings["completion_min_area_m2"] = COMPLETION_MIN_AREA_M2
         settings["completion_algorithm"] = COMPLETION_ALGORITHM
-    if lattice_spacing_m is not None:
-        settings["pooling_algorithm"] = POOLING_ALGORITHM
-    elif share_radius_m is None:
+    if not shared:
         settings["direct_algorithm"] = DIRECT_ALGORITHM
 
     cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
@@ -306,58 +409,42 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
         missing.append(want[sp.index_of(tags[want]) < 0] if len(want) else want)
     todo = [u for u in range(len(uniq)) if len(missing[u])]
 
-    budget = int(memory_budget_bytes) if memory_budget_bytes else _default_budget()
+    budget = int(opt.memory_budget_bytes) if opt.memory_budget_bytes else _default_budget()
     per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
     lone_per_chunk = per_chunk
-    if share_radius_m is not None:  # chunks of positions that share: fewer rays each, but
-        # the candidate buffer is held twice (candidates and their solved copy)
+    if shared:  # chunks of positions that share: fewer rays each, but the candidate
+        # buffer is held twice (candidates and their solved copy)
         per_chunk = max(1, min(_MAX_SOURCES_PER_CALL,
-                               budget // (2 * bytes_per_source(shared_samples_per_src, max_depth))))
-    n_calls, t_trace, n_shot = 0, 0.0, 0
+                               budget // (2 * bytes_per_source(int(opt.shared_samples_per_src), max_depth))))
+    n_calls, t_trace = 0, 0.0
     if todo:
         ensure_variant()
-        rt_scene = load_sionna_scene(scene, frequency_hz)
-        if lattice_spacing_m is not None:
-            plan = pooling_plan(scene, uniq[todo], float(lattice_spacing_m), per_chunk)
-            chunks = [[todo[i] for i in c.positions] for c in plan]
-        else:
-            plan = None
-            chunks = [todo[c0:c0 + per_chunk] for c0 in range(0, len(todo), per_chunk)]
-        n_shot = 0
+        if shared:
+            from propagation.sionna_internals import check_versions
+
+            check_versions()  # before any work: one line naming the versions and the way out
+        rt_scene = load_sionna_scene(scene, frequency_hz, public_api=not shared)
+        chunks = [todo[c0:c0 + per_chunk] for c0 in range(0, len(todo), per_chunk)]
         planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2) if completion_order else None
         # shared positions leave the chains the completion enumerates to it
-        to_completion = ((plane_lookup(rt_scene, planes), int(completion_order))
-                if completion_order and share_radius_m is not None else None)
-        plane_ids = triangle_planes(rt_scene) if share_radius_m is not None else None
+        to_completion = (plane_lookup(rt_scene, planes), completion_order) if completion_order else None
+        plane_ids = triangle_planes(rt_scene) if shared else None
         for c, chunk in enumerate(chunks):
             rec = np.unique(np.concatenate([missing[u] for u in chunk]))
             t0 = time.perf_counter()
-            if plan is None and share_radius_m is not None:
-                fresh = _trace_sharing(rt_scene, uniq[chunk], tags[rec], share_radius_m,
-                                       shared_samples_per_src, samples_per_src, lone_per_chunk,
-                                       max_depth, seed, refraction, to_completion, plane_ids)
-                n_shot += len(chunk)
-            elif plan is None:
-                fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
-                                     refraction)
-                n_shot += len(chunk)
+            if shared:
+                fresh = _trace_sharing(rt_scene, uniq[chunk], tags[rec], float(opt.share_radius_m),
+                                       int(opt.shared_samples_per_src), samples_per_src, lone_per_chunk,
+                                       max_depth, seed, bool(opt.refraction), to_completion, plane_ids)
             else:
-                want = np.zeros((len(chunk), len(rec)), bool)
-                for r, u in enumerate(chunk):
-                    want[r, np.searchsorted(rec, missing[u])] = True
-                fresh = trace_pooled(rt_scene, plan[c].shoot_m, uniq[chunk], plan[c].neighbours,
-                                     tags[rec], want, max_depth, samples_per_src, seed, refraction)
-                n_shot += len(plan[c].shoot_m)
+                fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
+                                     bool(opt.refraction))
             if completion_order:
-                # complete every link the chunk traced (and caches): a direct chunk traces
-                # each position against the union of the chunk's tags, pooled only the
-                # position's own; the cache must never hold an uncompleted link
-                done = None if plan is None else want
-                # in buffers of the sharing tracer's depth: its image-method kernels
-                # (direct and pooled tracing solve theirs in Sionna's own buffers)
-                depth = int(max_depth) if plan is None and share_radius_m is not None else None
+                # complete every link the chunk traced (and caches), each position against
+                # the union of the chunk's tags: the cache must never hold an uncompleted
+                # link; in buffers of the tracer's depth (its image-method kernels)
                 extra = complete_specular(rt_scene, uniq[chunk], tags[rec], completion_order,
-                                          planes, need=done, buffer_depth=depth)
+                                          planes, buffer_depth=max_depth)
                 fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
             t_trace += time.perf_counter() - t0
             n_calls += 1
@@ -368,15 +455,15 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz:
             done = sum(len(x) for x in chunks[:c + 1])
             if progress is not None:
                 progress(done, len(todo))
-            logger.info("traced %d/%d antenna positions (%d tags, %d shooting points) in %.1f s",
-                        done, len(todo), len(rec), n_shot, t_trace)
+            logger.info("traced %d/%d antenna positions (%d tags) in %.1f s",
+                        done, len(todo), len(rec), t_trace)
     elif progress is not None:
         progress(0, 0)
     return PathSet(
         positions_m=uniq, paths=src_paths, n_traced_sources=len(todo), n_solver_calls=n_calls,
         trace_s=t_trace,
-        settings={**settings, "memory_budget_bytes": budget, "sources_per_call": per_chunk,
-                  "lattice_spacing_m": None if lattice_spacing_m is None else float(lattice_spacing_m),
-                  "n_shooting_points": int(n_shot), "completion_order": int(completion_order),
+        settings={**settings, "method": opt.method, "memory_budget_bytes": budget,
+                  "sources_per_call": per_chunk, "n_shooting_points": len(todo),
+                  "completion_order": completion_order,
                   "cache_dir": str(cache_dir) if cache_dir else None},
     )

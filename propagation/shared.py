@@ -30,8 +30,8 @@ tests' small corridor); on ``corridor_lab`` at 3,000 rays and 1 m its p95 distan
 3e5-ray reference is that of direct tracing at 30,000 rays (1.21 dB; 57 flipped read
 decisions against 49-51) and it is steadier between seeds, at half the time.
 
-Uses the internals of the pinned sionna-rt 2.2.0 (``SBCandidateGenerator``,
-``ImageMethod``, ``FieldCalculator``, ``PathsBuffer``), as :mod:`propagation.pooled` does.
+Sionna's stages are reached through :mod:`propagation.sionna_internals` (its version
+guard refuses untested versions).
 """
 
 from __future__ import annotations
@@ -39,16 +39,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from propagation.jitarrays import jit_array
 from propagation.pathcache import SourcePaths
-from propagation.sionna_paths import (
-    candidate_keys,
-    collect_paths,
-    opaque_buffer,
-    points,
-    solve_fields,
-    to_source_paths,
-)
+from propagation.sionna_paths import points, to_source_paths
 
 __all__ = ["chain_ids", "shared_rows", "sharing_neighbours", "trace_shared"]
 
@@ -225,12 +217,9 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         Per position its paths to every target, sorted by length,
         copies removed.
     """
-    import drjit as dr
-    import mitsuba as mi
-    from sionna.rt.path_solvers.field_calculator import FieldCalculator
-    from sionna.rt.path_solvers.image_method import ImageMethod
+    from sionna.rt.constants import InteractionType
 
-    from propagation.shooting import candidate_generator
+    from propagation.sionna_internals import collect_paths, shoot_candidates, solve_paths
     from propagation.sionna_scene import clear_devices, place_devices
 
     pos = np.asarray(positions_m, float).reshape(-1, 3)
@@ -239,30 +228,20 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     if len(neighbours) != n:
         raise ValueError(f"need one neighbour list per position: {len(neighbours)} for {n}")
     place_devices(rt_scene)
-    mi_scene = rt_scene.mi_scene
     pos_mi, tgt_mi = points(pos), points(tgt)
     out = {"src": [], "tgt": [], "a": [], "tau": [], "k_tx": [], "k_rx": []}
 
     # 1. what PathSolver does: own rays (and LOS), image method and fields at each position
     # (Sionna's candidate generator, its shooting kernel compiled once for any target count)
-    cand = candidate_generator()(mi_scene, pos_mi, tgt_mi, samples_per_src=int(samples_per_src),
-                                  max_num_paths_per_src=int(samples_per_src) * (int(max_depth) + 1),
-                                  max_depth=int(max_depth), los=True, specular_reflection=True,
-                                  diffuse_reflection=False, refraction=bool(refraction),
-                                  diffraction=False, edge_diffraction=False, seed=int(seed))
-    cand.schedule()
-    dr.eval()
-    cand.shrink()
-    cand.detach_geometry()
-    n_rows = cand.buffer_size
+    cand = shoot_candidates(rt_scene.mi_scene, pos_mi, tgt_mi, samples_per_src=samples_per_src,
+                            max_depth=max_depth, refraction=refraction, seed=seed)
+    n_rows = cand.n_rows
     if n_rows:
-        src = cand.source_indices.numpy().astype(np.int64)
-        keys = candidate_keys(cand)
+        src = cand.source
+        keys = cand.keys
         d = keys.shape[1] // 3
         named = keys
         if plane_ids is not None:
-            from sionna.rt.constants import InteractionType
-
             types = keys[:, :d]
             on = plane_ids.planes_of(keys[:, d:2 * d], keys[:, 2 * d:])
             none = types == int(InteractionType.NONE)
@@ -271,8 +250,8 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
             named = np.concatenate([types, np.where(none, -1, on),
                                     np.where(unknown, keys[:, d:2 * d], -1),
                                     np.where(unknown, keys[:, 2 * d:], -1)], axis=1)
-        chain = _chain_ids(named, cand.target_indices.numpy().astype(np.int64))
-        los_row = cand.valid.numpy().astype(bool)  # final already: line of sight
+        chain = _chain_ids(named, cand.target)
+        los_row = cand.valid  # final already: line of sight
         solve = np.ones(n_rows, bool)
         if completion is not None:
             lookup, order = completion
@@ -281,27 +260,19 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
         valid = np.zeros(n_rows, bool)
         if len(own_rows):
             # in memory of its own, as the shared rows' and the completion's buffers: one
-            # image-method and one field kernel serve all three (opaque_buffer)
-            own = cand.gather(jit_array(mi.UInt, own_rows, np.uint32))
-            opaque_buffer(own)
+            # image-method and one field kernel serve all three
+            own = cand.take(own_rows)
             if not any(len(nb) for nb in neighbours):
                 # nothing to share: the candidates go before their copy is solved (lone
                 # positions' chunks are sized for one buffer, not two)
-                del cand
-            own = ImageMethod()(mi_scene, own, False, True, pos_mi, tgt_mi)
-            solve_fields(own, rt_scene, pos_mi, tgt_mi, n, m, FieldCalculator, discard=False)
-            valid[own_rows] = own.valid.numpy().astype(bool)
-            own.discard_invalid()
+                cand.release()
+            own, valid[own_rows] = solve_paths(rt_scene, own, pos_mi, tgt_mi, n, m, validity=True)
             collect_paths(own, out)
             del own
         # 2. the chains valid at a neighbour, solved again at each position
         rows, dest = shared_rows(src, chain, valid & ~los_row, neighbours)
         if len(rows):
-            buf = cand.gather(jit_array(mi.UInt, rows, np.uint32))
-            buf._src_indices = jit_array(mi.UInt, dest, np.uint32)  # noqa: SLF001 - re-targeted
-            opaque_buffer(buf)
-            buf = ImageMethod()(mi_scene, buf, False, True, pos_mi, tgt_mi)
-            solve_fields(buf, rt_scene, pos_mi, tgt_mi, n, m, FieldCalculator)
+            buf = solve_paths(rt_scene, cand.take(rows, sources=dest), pos_mi, tgt_mi, n, m)
             collect_paths(buf, out)
     clear_devices(rt_scene)
     return to_source_paths(out, pos, tgt)

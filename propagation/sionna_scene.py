@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import tempfile
-import types
 
 import numpy as np
 
@@ -30,11 +29,11 @@ logger = logging.getLogger(__name__)
 
 # Loaded Sionna scenes, keyed by (content hash, frequency); the temporary export
 # directory lives as long as the scene. Filled on first use, never at import.
-_SCENES: dict[tuple[str, float], tuple[object, tempfile.TemporaryDirectory]] = {}
+_SCENES: dict[tuple[str, float, bool], tuple[object, tempfile.TemporaryDirectory]] = {}
 _MAX_CACHED_SCENES = 2
 
 
-def load_sionna_scene(scene, frequency_hz: float):
+def load_sionna_scene(scene, frequency_hz: float, *, public_api: bool = False):
     """A Sionna RT scene for ``scene`` at ``frequency_hz`` (exported once, then reused).
 
     The scene's traced surfaces (``scene.radio_surfaces``, or its solid meshes when
@@ -44,6 +43,17 @@ def load_sionna_scene(scene, frequency_hz: float):
     :meth:`scenes.Scene.content_hash`, which covers the radio surfaces. Transmitters and
     receivers left from an earlier call are removed.
 
+    Parameters
+    ----------
+    scene : scenes.Scene
+    frequency_hz : float
+        Carrier frequency [Hz]; materials are evaluated there.
+    public_api : bool
+        False (the fast tracer's scenes): the scene builds its endpoint arrays with
+        :func:`propagation.sionna_internals.use_endpoints_at_once` (fewer kernels; guarded
+        by the tested versions). True: Sionna's scene as it is loaded, for the public-API
+        tracer (``method="direct"``).
+
     Raises
     ------
     scenes.UnknownMaterialError
@@ -52,7 +62,7 @@ def load_sionna_scene(scene, frequency_hz: float):
     ensure_variant()
     import sionna.rt as rt
 
-    key = (scene.content_hash(), float(frequency_hz))
+    key = (scene.content_hash(), float(frequency_hz), bool(public_api))
     if key not in _SCENES:
         while len(_SCENES) >= _MAX_CACHED_SCENES:
             _, (_, tmp) = _SCENES.popitem()
@@ -60,55 +70,17 @@ def load_sionna_scene(scene, frequency_hz: float):
         tmp = tempfile.TemporaryDirectory(prefix="rfidstudy-scene-")
         xml = scene.export_mitsuba(tmp.name, frequency_hz)
         rt_scene = rt.load_scene(str(xml), merge_shapes=False)
-        # the scene's own method compiles a kernel per device (literal index): see below
-        rt_scene._endpoints = types.MethodType(_endpoints_at_once, rt_scene)
+        if not public_api:
+            # Sionna's own method compiles a kernel per device (a literal index)
+            from propagation.sionna_internals import use_endpoints_at_once
+
+            use_endpoints_at_once(rt_scene)
         rt_scene.frequency = float(frequency_hz)
         _SCENES[key] = (rt_scene, tmp)
         logger.debug("loaded Sionna scene %s at %.6g Hz", scene.name, frequency_hz)
     rt_scene = _SCENES[key][0]
     clear_devices(rt_scene)
     return rt_scene
-
-
-def _endpoints_at_once(rt_scene, radio_devices, array, synthetic_array: bool,
-                       return_velocities: bool):
-    """``sionna.rt.Scene._endpoints`` for single-antenna arrays, built in one go.
-
-    Sionna's own method scatters each device's position into the endpoint arrays with
-    the device index as a literal, so Dr.Jit compiles a small kernel per device index
-    (and per position, where positions are literals: :func:`device_point`). Here the
-    devices' values are read into NumPy and uploaded as whole arrays, the same values in
-    the same order. Arrays of several antennas go to Sionna's method.
-    """
-    import drjit as dr
-    import mitsuba as mi
-
-    devices = list(radio_devices)
-    if (not devices or array is None or array.array_size != 1
-            or any(dr.grad_enabled(d.position, d.orientation, d.velocity) for d in devices)):
-        # several antennas, or gradients to keep (NumPy would drop them): Sionna's method
-        return type(rt_scene)._endpoints(rt_scene, devices, array, synthetic_array,
-                                         return_velocities)
-
-    def column(attr: str) -> np.ndarray:
-        return np.array([np.asarray(getattr(d, attr), dtype=np.float32).reshape(3)
-                         for d in devices], dtype=np.float32)
-
-    pos, ori = column("position"), column("orientation")
-    positions, orientations = jit_points(mi.Point3f, pos), jit_points(mi.Point3f, ori)
-    rel_ant_positions = None
-    # a one-element array: the rotated element offset of every device at once (Sionna's
-    # rotate broadcasts the element over the orientations)
-    offset = array.rotate(rt_scene.wavelength, orientations)
-    if synthetic_array:
-        rel_ant_positions = mi.Point3f(offset)  # a conversion: rotate returns another array type
-    else:
-        positions = offset + positions
-    velocities = None
-    if return_velocities:
-        vel = column("velocity")
-        velocities = jit_points(mi.Vector3f, vel)
-    return positions, orientations, rel_ant_positions, velocities
 
 
 def clear_devices(rt_scene) -> None:

@@ -23,14 +23,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from propagation.channels import link_channels
-from propagation.pathsolve import DEFAULT_MAX_DEPTH, DEFAULT_SAMPLES_PER_SRC, trace_paths
-from propagation.patterns import PATTERNS, POLARIZATIONS, as_pose6
+from propagation.pathsolve import (
+    DEFAULT_MAX_DEPTH,
+    DEFAULT_SAMPLES_PER_SRC,
+    METHODS,
+    TraceMethod,
+    TraceOptions,
+    trace_paths,
+)
+from propagation.patterns import as_pose6
 from propagation.sionna_scene import check_antenna_positions
 
 __all__ = [
     "DEFAULT_MAX_DEPTH",
     "DEFAULT_SAMPLES_PER_SRC",
+    "METHODS",
     "LinkSet",
+    "TraceMethod",
+    "TraceOptions",
     "tag_dipole_axes",
     "trace_links",
 ]
@@ -159,14 +169,9 @@ def _validate(antenna_poses, tag_positions, pairs):
     return poses, tags, pairs
 
 
-def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6,
-                max_depth: int = DEFAULT_MAX_DEPTH, samples_per_src: int = DEFAULT_SAMPLES_PER_SRC,
-                reader_pattern: str = "tr38901", tag_pattern: str = "hw_dipole",
-                tag_normals=None, pairs=None, cache_dir=None, memory_budget_bytes=None,
-                progress=None, reader_polarization: str = "V", seed: int = 42,
-                refraction: bool = True, lattice_spacing_m: float | None = None,
-                channel_hz=None, channel_gradient: bool = False, completion_order: int = 0,
-                share_radius_m: float | None = None, shared_samples_per_src: int | None = None) -> LinkSet:
+def trace_links(scene, antenna_poses, tag_positions, options: TraceOptions | None = None, *,
+                frequency_hz: float = 865e6, tag_normals=None, pairs=None, channel_hz=None,
+                channel_gradient: bool = False, cache_dir=None, progress=None) -> LinkSet:
     """Ray-trace the one-way channel gain between antenna poses and tags.
 
     Parameters
@@ -180,13 +185,12 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         the local +x axis, positive pitch tilts it up (see :mod:`propagation.patterns`).
     tag_positions : array_like
         (m, 3) tag positions [m].
+    options : TraceOptions, optional
+        The tracer (``method``), its ray budget, the antenna patterns and polarisation,
+        the seed. Default ``TraceOptions()``: the study's tracer and settings, so a
+        library call gives the study's truth.
     frequency_hz : float
         Carrier frequency [Hz]; materials are evaluated there.
-    max_depth, samples_per_src : int
-        Sionna ``PathSolver`` depth and rays per antenna position. Too few rays miss paths
-        silently; the defaults come from the convergence check in ``bench/trace.py``.
-    reader_pattern, tag_pattern : str
-        Pattern names (``"tr38901"``, ``"hw_dipole"``, ``"dipole"``, ``"iso"``).
     tag_normals : array_like, optional
         (m, 3) tag surface normals; the tag dipole lies in the tag plane along the
         projection of world z (:func:`tag_dipole_axes`). None: vertical dipoles.
@@ -194,63 +198,18 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         (n, m) mask of links to compute; others get gain 0, gain_db -inf, traced False.
         Each antenna position is traced against the union of tags any of its poses
         needs, and sources are batched, so a few unrequested links are traced and cached.
-    cache_dir : str or Path, optional
-        Folder of the on-disk path cache (:mod:`propagation.pathcache`); a second call
-        with the same scene, positions, frequency and solver settings traces nothing, even
-        with other orientations, patterns or polarisation.
-    memory_budget_bytes : int, optional
-        Peak memory allowed per ``PathSolver`` call; sources are chunked so that
-        ``n_sources * bytes_per_source(samples_per_src, max_depth)`` stays below it.
-        Default: a quarter of the available RAM.
-    progress : callable, optional
-        ``progress(done, total)`` in antenna positions traced, called after each chunk.
-    reader_polarization : {"V", "H", "RHCP", "LHCP"}
-        Reader antenna polarisation. With a circular reader the 3 dB circular-to-linear
-        mismatch is inside the gain, so set ``LinkBudget.polarization_loss_db = 0``.
-    seed : int
-        Sionna sampling seed.
-    refraction : bool
-        Trace transmission through surfaces (Sionna ``refraction``). True (default) is the
-        physics; False drops every path that crosses a wall, cabinet or box (faster, see
-        ``bench/trace.py``; links inside one corridor change little).
-    lattice_spacing_m : float, optional
-        Shoot rays from a cubic lattice of this spacing instead of from every antenna
-        position, and solve the exact paths at every position from the candidate chains
-        found at the lattice points within ``1.2 * lattice_spacing_m`` of it (pooled,
-        :mod:`propagation.pooled`): fewer positions to shoot from on a tour that passes
-        the same places twice, and a chain one point's sampling missed is recovered from
-        a neighbour's. Measured on ``corridor_lab`` (docs/physics.md): at 0.25 m the
-        seed-to-seed p95 over readable links drops from 1.5 dB to 0.9 dB. None (default):
-        every position shoots its own rays.
-    share_radius_m : float, optional
-        Share chains between the positions of one call within this radius
-        (:mod:`propagation.shared`): each position shoots ``shared_samples_per_src`` rays,
-        is solved as ``PathSolver`` solves it, and is then given every chain that was a
-        valid path at a neighbour, solved again by Sionna's image method at the exact
-        position (no path is moved). A position without a neighbour shoots
-        ``samples_per_src`` rays as in direct tracing (the paths ``PathSolver`` returns
-        twice counted once). Excludes ``lattice_spacing_m``.
-        Measured on ``corridor_lab``'s evaluation tour (docs/physics.md): 1 m at 3,000 rays
-        gives a seed-to-seed p95 of 0.93 dB over readable links, against 1.13 dB for direct
-        tracing at 30,000 rays, in less than half the time.
-    shared_samples_per_src : int, optional
-        Rays per position when it shares (default ``samples_per_src``).
     channel_hz : float or array_like, optional
         Frequency of each pose's coherent sum (n,), Hz (a hopping reader's channel): one
         trace at ``frequency_hz`` (materials evaluated there) serves every channel; the
         gain and ``h`` are those at the channel. Default: ``frequency_hz``.
     channel_gradient : bool
         Also compute ``LinkSet.dh_dpos`` (the Doppler of a moving antenna).
-    completion_order : int
-        0 (default): the paths Sionna's shoot-and-bounce finds. 1-3: also every specular
-        reflection path of up to this order over the scene's large planes (>= 1 m^2:
-        walls, floor, ceiling, large furniture faces), solved by Sionna's image method
-        and field calculator (:mod:`propagation.completion`) and merged without double
-        counting. At 3e4 rays the sampling misses ~1 % / 26 % / 69 % of the order 1 / 2 /
-        3 reflections off those planes on ``corridor_lab`` (it picks reflection or
-        refraction at each hit by their Fresnel weights, so chains of weak reflections
-        are rarely shot); completion adds them for ~3 % (order 2) / ~15 % (order 3) of
-        the tracing time.
+    cache_dir : str or Path, optional
+        Folder of the on-disk path cache (:mod:`propagation.pathcache`); a second call
+        with the same scene, positions, frequency and solver settings traces nothing, even
+        with other orientations, patterns or polarisation.
+    progress : callable, optional
+        ``progress(done, total)`` in antenna positions traced, called after each chunk.
 
     Returns
     -------
@@ -259,18 +218,17 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     Raises
     ------
     ValueError
-        Wrong shapes, NaN poses, unknown pattern/polarisation, an antenna outside the
-        scene bounds or inside solid geometry (naming the pose index and coordinates).
+        Wrong shapes, NaN poses, an antenna outside the scene bounds or inside solid
+        geometry (naming the pose index and coordinates).
     scenes.UnknownMaterialError
         If the scene uses a material the library does not know.
+    propagation.sionna_internals.SionnaVersionError
+        ``method="shared"`` on an untested Sionna / Mitsuba / Dr.Jit version.
     """
+    opt = TraceOptions() if options is None else options
+    if not isinstance(opt, TraceOptions):
+        raise TypeError(f"options must be a TraceOptions, got {type(opt).__name__}")
     poses, tags, pairs = _validate(antenna_poses, tag_positions, pairs)
-    for name in (reader_pattern, tag_pattern):
-        if name not in PATTERNS:
-            raise ValueError(f"unknown antenna pattern {name!r}; known: {', '.join(PATTERNS)}")
-    if reader_polarization not in POLARIZATIONS:
-        raise ValueError(f"unknown reader_polarization {reader_polarization!r}; "
-                         f"known: {', '.join(POLARIZATIONS)}")
     n, m = pairs.shape
     if channel_hz is None:
         channel = np.full(n, float(frequency_hz))
@@ -286,12 +244,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     inv = inv.reshape(-1)
     need = np.zeros((len(uniq), m), dtype=bool)
     np.logical_or.at(need, inv, pairs)
-    ps = trace_paths(scene, uniq, tags, need, frequency_hz=frequency_hz, max_depth=max_depth,
-                     samples_per_src=samples_per_src, cache_dir=cache_dir,
-                     memory_budget_bytes=memory_budget_bytes, progress=progress, seed=seed,
-                     refraction=refraction, lattice_spacing_m=lattice_spacing_m,
-                     completion_order=completion_order, share_radius_m=share_radius_m,
-                     shared_samples_per_src=shared_samples_per_src)
+    ps = trace_paths(scene, uniq, tags, need, opt, frequency_hz=frequency_hz, cache_dir=cache_dir,
+                     progress=progress)
 
     ii, jj = np.nonzero(pairs)
     gain = np.zeros((n, m))
@@ -300,8 +254,8 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
     n_paths = np.zeros((n, m), np.int64)
     los = np.zeros((n, m), bool)
     if len(ii):
-        ch = link_channels(ps.paths, inv[ii], jj, poses[ii], tags, channel[ii], reader_pattern,
-                           reader_polarization, tag_pattern, tag_axes, gradient=channel_gradient)
+        ch = link_channels(ps.paths, inv[ii], jj, poses[ii], tags, channel[ii], opt.reader_pattern,
+                           opt.reader_polarization, opt.tag_pattern, tag_axes, gradient=channel_gradient)
         h[ii, jj] = ch.h
         gain[ii, jj] = ch.h.real**2 + ch.h.imag**2
         n_paths[ii, jj], los[ii, jj] = ch.n_paths, ch.los
@@ -311,9 +265,9 @@ def trace_links(scene, antenna_poses, tag_positions, frequency_hz: float = 865e6
         gain_db = np.where(pairs, 10.0 * np.log10(gain), -np.inf)
     return LinkSet(
         gain=gain, gain_db=gain_db, n_paths=n_paths, los=los, traced=pairs.copy(),
-        frequency_hz=float(frequency_hz), max_depth=int(max_depth),
-        samples_per_src=int(samples_per_src), reader_pattern=reader_pattern,
-        tag_pattern=tag_pattern, reader_polarization=reader_polarization,
+        frequency_hz=float(frequency_hz), max_depth=int(opt.max_depth),
+        samples_per_src=int(opt.samples_per_src), reader_pattern=opt.reader_pattern,
+        tag_pattern=opt.tag_pattern, reader_polarization=opt.reader_polarization,
         n_traced_sources=ps.n_traced_sources, n_solver_calls=ps.n_solver_calls,
         trace_s=ps.trace_s, settings=ps.settings, h=h, dh_dpos=dh,
     )

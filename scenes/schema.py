@@ -57,6 +57,8 @@ def type_phrase(tp: Any) -> str:
         return " or ".join(type_phrase(a) for a in typing.get_args(tp) if a is not type(None))
     if origin in (list, tuple):
         return "an array"
+    if origin is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
     if origin is dict:
         args = typing.get_args(tp)
         return "a table of strings" if len(args) == 2 and args[1] is str else "a table"
@@ -112,6 +114,10 @@ def convert_value(value: Any, tp: Any, key: str, *, empty_is_none: bool = False,
             except ValueTypeError:
                 continue
         raise ValueTypeError(key, f"must be {type_phrase(tp)}, got {value!r}")
+    if origin is typing.Literal:
+        if value not in args:
+            raise ValueTypeError(key, f"must be {type_phrase(tp)}, got {value!r}")
+        return value
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
             raise ValueTypeError(key, f"must be an array, got {value!r}")

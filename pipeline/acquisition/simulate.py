@@ -9,6 +9,7 @@ reader's response (:mod:`pipeline.acquisition.reader`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +60,7 @@ class TracedLinks:
 
 
 def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, frequency_hz: float,
-                 trace: dict, channel_hz=None) -> TracedLinks:
+                 trace, cache_dir=None, progress=None, channel_hz=None) -> TracedLinks:
     """Trace the masked pairs, deduplicated over (antenna pose, channel).
 
     One trace per antenna position at the carrier ``frequency_hz`` (materials there) serves
@@ -82,9 +83,9 @@ def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, frequency_hz
     inv = inv.reshape(-1)
     umask = np.zeros((len(uniq), m), dtype=bool)
     np.logical_or.at(umask, inv, mask[rows])
-    kw = {"tag_normals": tags.normals, **trace}
-    links = trace_links(scene, uniq[:, :6], tags.positions_m, frequency_hz=frequency_hz,
-                        pairs=umask, channel_hz=uniq[:, 6], channel_gradient=True, **kw)
+    links = trace_links(scene, uniq[:, :6], tags.positions_m, trace, frequency_hz=frequency_hz,
+                        tag_normals=tags.normals, pairs=umask, channel_hz=uniq[:, 6],
+                        channel_gradient=True, cache_dir=cache_dir, progress=progress)
     t = np.asarray(links.traced, dtype=bool)[inv]
     sel = mask[rows] & t
     gain_db[rows] = np.where(sel, np.asarray(links.gain_db, dtype=float)[inv], -np.inf)
@@ -115,8 +116,9 @@ def simulate_reads(
     reader: ReaderConfig,
     rng: np.random.Generator,
     *,
-    trace: dict | None = None,
+    trace=None,
     cache_dir: str | Path | None = None,
+    progress=None,
     tags=None,
     frequency_hz: float | None = None,
 ) -> ReadLog:
@@ -138,12 +140,14 @@ def simulate_reads(
         losses (the study's ``[reader]``).
     rng : numpy.random.Generator
         Source of anti-collision losses and RSSI noise.
-    trace : dict, optional
-        Keyword arguments for :func:`propagation.trace_links` (``max_depth``,
-        ``samples_per_src``, ``reader_pattern``, ``tag_pattern``, ...);
-        ``frequency_hz`` is the argument below and ``pairs`` comes from the range mask.
+    trace : propagation.TraceOptions, optional
+        The tracer and its settings for :func:`propagation.trace_links` (default: the
+        library's, i.e. the study's); ``frequency_hz`` is the argument below and the
+        links come from the range mask.
     cache_dir : str or Path, optional
         Trace cache directory passed to :func:`propagation.trace_links`.
+    progress : callable, optional
+        ``progress(done, total)`` passed to :func:`propagation.trace_links`.
     tags : scenes.TagSet, optional
         The tags this tour can read (e.g. only the training or only the held-out
         layout); default ``scene.tags``.
@@ -169,12 +173,11 @@ def simulate_reads(
     detuning draws the same RSSI noise and misses as that reader did.
     """
     trk = as_pose_track(track)
-    trace = dict(trace or {})
-    for key in ("frequency_hz", "pairs", "channel_hz", "channel_gradient"):
-        if key in trace:
-            raise ValueError(f"simulate_reads: trace[{key!r}] is set by the reader, remove it")
-    if cache_dir is not None:
-        trace["cache_dir"] = cache_dir
+    from propagation import TraceOptions
+
+    trace = TraceOptions() if trace is None else trace
+    if not isinstance(trace, TraceOptions):
+        raise TypeError(f"simulate_reads: trace must be a propagation.TraceOptions, got {type(trace).__name__}")
     budget = reader.link_budget(frequency_hz)
     aux = rng.spawn(1)[0]  # everything new draws here: rng's own stream is the old reader's
     mounts = list(robot.antennas)
@@ -190,7 +193,7 @@ def simulate_reads(
     extra_db = np.maximum(0.0, -pop.sensitivity_offset_db)[None, :]
     mask = in_range_mask(d_true, reader, float(plan.channels_hz.min()), extra_db)
     links = _trace_gains(scene, tags, att.true_antenna, mask, budget.frequency_hz, trace,
-                         channel_hz=att.frequency_hz)
+                         cache_dir=cache_dir, progress=progress, channel_hz=att.frequency_hz)
     info: dict = {}
     reads = reads_from_gains(att, tags, links.gain_db, links.traced, reader, rng, h=links.h,
                              dh_dpos=links.dh_dpos, population=pop, offsets_rad=offsets,
@@ -202,7 +205,7 @@ def simulate_reads(
         "antennas": [getattr(a, "name", str(i)) for i, a in enumerate(mounts)],
         "tag_ids": [str(i) for i in tags.ids],
         "reader": reader_metadata(reader, budget),
-        "trace": {k: v for k, v in trace.items() if k not in ("cache_dir", "progress")},
+        "trace": dataclasses.asdict(trace),
         "n_slots": int(n),  # (cycle, active antenna) slots; rows = n_slots * n_tags
         "n_pairs": int(n * m),
         "n_pairs_in_range": int(mask.sum()),

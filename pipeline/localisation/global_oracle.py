@@ -187,7 +187,7 @@ def _modes(log_post: np.ndarray, pos: np.ndarray, n: int, sep_m: float) -> np.nd
 
 
 def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLikelihood, *,
-                  search: OracleSearch | None = None, frequency_hz: float, trace_kw: dict,
+                  search: OracleSearch | None = None, frequency_hz: float, trace,
                   pattern_kw: dict, cache_dir=None, miss_probability=None, extra_centres=None,
                   truth_m=None, truth_normals=None) -> GlobalOracle:
     """Localise every tag of ``obs`` with the oracle over all ``sites`` (coarse to fine).
@@ -206,8 +206,8 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
         The reader's likelihood (budget, noise, misses).
     search : OracleSearch, optional
     frequency_hz : float
-    trace_kw : dict
-        The study tracer's solver options (:func:`propagation.anchored.trace_anchor_paths`).
+    trace : propagation.TraceOptions
+        The study tracer's options (:func:`propagation.anchored.trace_anchor_paths`).
     pattern_kw : dict
         ``reader_pattern``, ``reader_polarization``, ``tag_pattern``.
     cache_dir : path, optional
@@ -270,7 +270,7 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
         need = np.zeros((len(uniq), len(centres)), bool)
         np.logical_or.at(need, inv, want)
         paths = trace_anchor_paths(scene, uniq, pos[centres], need, frequency_hz=frequency_hz,
-                                   cache_dir=cache_dir, **trace_kw)
+                                   cache_dir=cache_dir, options=trace)
         for t in np.flatnonzero(changed):
             blocks[t] = _window_posterior(obs, t, np.flatnonzero(owner == t), centres, want, paths,
                                           inv, pos, nrm, poses, fine, search.window_m, frequency_hz,
@@ -298,7 +298,7 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
     preferred = None
     if truth_m is not None:
         preferred = _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites,
-                                     scene, fine, frequency_hz, trace_kw, pattern_kw, cache_dir,
+                                     scene, fine, frequency_hz, trace, pattern_kw, cache_dir,
                                      miss_probability)
     return GlobalOracle(post, coarse, tuple(pos[np.array(cs)] for cs in centres_of),
                         n_model, int(need[inv].sum()), preferred)
@@ -350,7 +350,7 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
 
 
 def _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites, scene, fine,
-                     frequency_hz, trace_kw, pattern_kw, cache_dir, miss_probability) -> np.ndarray:
+                     frequency_hz, trace, pattern_kw, cache_dir, miss_probability) -> np.ndarray:
     """Per tag: the truth scores higher than the estimate, both traced exactly on the
     tag's fine slots (``slots_of`` (T, S)) and scored with the fine likelihood."""
     from propagation.anchored import anchored_gains_db, trace_anchor_paths
@@ -369,7 +369,7 @@ def _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites, 
     for j in range(len(points)):
         need[inv[want[:, j]], col[j]] = True
     paths = trace_anchor_paths(scene, uniq, targets, need, frequency_hz=frequency_hz,
-                               cache_dir=cache_dir, **trace_kw)
+                               cache_dir=cache_dir, options=trace)
     s, c = np.nonzero(want)
     gain = np.full((obs.n_slots, 2 * obs.n_tags), -np.inf)
     gain[s, c] = anchored_gains_db(paths, inv[s], targets, col[c], points[c], normals[c], poses[s],

@@ -63,10 +63,11 @@ import numpy as np
 import pandas as pd
 from scipy.special import i0e, logsumexp
 
+from propagation.constants import SPEED_OF_LIGHT
+
 from .tags import TagPosteriors, _check_candidates, _check_prior
 
 __all__ = [
-    "C0_M_PER_S",
     "PHASE_COLUMNS",
     "PhaseColumnsMissing",
     "PhasePosteriors",
@@ -79,8 +80,6 @@ __all__ = [
     "simulate_phase_rad",
 ]
 
-#: Speed of light in vacuum [m/s].
-C0_M_PER_S = 299_792_458.0
 #: Columns of a read table the phase estimator needs beyond the pose columns.
 PHASE_COLUMNS = ("frequency_hz", "phase_rad")
 _POSE_COLS = ("x_m", "y_m", "z_m")
@@ -274,7 +273,7 @@ def simulate_phase_rad(antenna_xyz_m, tag_xyz_m, frequency_hz, offset_rad, rng: 
     p = np.asarray(antenna_xyz_m, dtype=np.float64).reshape(-1, 3)
     d = np.linalg.norm(p - np.asarray(tag_xyz_m, dtype=np.float64), axis=-1)
     n = len(p)
-    ph = 4.0 * np.pi * np.asarray(frequency_hz, float) * d / C0_M_PER_S + offset_rad
+    ph = 4.0 * np.pi * np.asarray(frequency_hz, float) * d / SPEED_OF_LIGHT + offset_rad
     ph = ph + float(noise_std_rad) * rng.standard_normal(n)
     if pi_ambiguity:
         ph = ph + np.pi * rng.integers(0, 2, n)
@@ -453,7 +452,7 @@ def localise_tags_phase(reads: PhaseReads, candidates, *, phase_sigma_rad: float
             near = _within(cand, xyz, float(reach_m))
             cols = np.flatnonzero(near) if near.any() else cols
         group, sizes = _groups(reads, rows, segment_m, float(frequency_tol_hz))
-        wavenum = 8.0 * np.pi * reads.frequency_hz[rows] / C0_M_PER_S
+        wavenum = 8.0 * np.pi * reads.frequency_hz[rows] / SPEED_OF_LIGHT
         args = (xyz, wavenum, 2.0 * reads.phase_rad[rows], group, len(sizes))
         res = _resultants(*args, cand[cols], chunk)
         if n_top and cell:

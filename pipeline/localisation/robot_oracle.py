@@ -117,7 +117,7 @@ class FieldLikelihood:
 
 
 def gain_field(scene, mounts, tag_positions_m, tag_normals, free_space, *, frequency_hz: float,
-               trace_kw: dict, pattern_kw: dict, cache_dir=None, spacing_m: float = 0.25,
+               trace, pattern_kw: dict, cache_dir=None, spacing_m: float = 0.25,
                n_heading: int = 16, lattice_m: float = 0.5) -> GainField:
     """Tabulate the local-mean gain of every mount to every tag over the free space.
 
@@ -130,8 +130,10 @@ def gain_field(scene, mounts, tag_positions_m, tag_normals, free_space, *, frequ
     free_space : object with ``contains(xy)``
         The robot's free space (poses elsewhere get -inf).
     frequency_hz : float
-    trace_kw, pattern_kw : dict
-        The study tracer's solver options and pattern names, as for
+    trace : propagation.TraceOptions
+        The study tracer's options (its patterns are not used here: ``pattern_kw``).
+    pattern_kw : dict
+        Pattern names, as for
         :func:`propagation.anchored.trace_anchor_paths` and
         :func:`~propagation.anchored.moved_antenna_local_mean_db`.
     cache_dir : path, optional
@@ -172,7 +174,7 @@ def gain_field(scene, mounts, tag_positions_m, tag_normals, free_space, *, frequ
     rep, cell_of = anchor_groups(ant[good, :3], np.zeros((len(good), 3)), lattice_m)
     lattice = ant[good[rep], :3]
     paths = trace_anchor_paths(scene, lattice, tags, np.ones((len(lattice), len(tags)), bool),
-                               frequency_hz=frequency_hz, cache_dir=cache_dir, **trace_kw)
+                               frequency_hz=frequency_hz, cache_dir=cache_dir, options=trace)
     k, t = np.divmod(np.arange(len(good) * len(tags)), len(tags))
     gains = np.full((len(ant), len(tags)), -np.inf)
     gains[good] = moved_antenna_local_mean_db(paths, cell_of[k], tags, t, normals, ant[good[k]],

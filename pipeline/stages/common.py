@@ -48,7 +48,7 @@ log = logging.getLogger(__name__)
 #: Config keys every traced result depends on (the reads and truth_traces stages).
 TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
                 "tracing.reader_pattern", "tracing.tag_pattern", "tracing.reader_polarization",
-                "tracing.backend", "tracing.lattice_spacing_m", "tracing.completion_order",
+                "tracing.backend", "tracing.method", "tracing.completion_order",
                 "tracing.share_radius_m", "tracing.shared_samples_per_src")
 
 #: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
@@ -200,21 +200,23 @@ def link_budget(cfg: StudyConfig):
     return cfg.reader.link_budget(cfg.frequency_hz)
 
 
-def trace_options(cfg: StudyConfig) -> dict:
-    """Keyword arguments for ``propagation.trace_links`` from the [tracing] section."""
+def trace_options(cfg: StudyConfig):
+    """The ``propagation.TraceOptions`` of the [tracing] section (for ``trace_links``)."""
+    from propagation.tracing import TraceOptions
+
     t = cfg.tracing
-    return {
-        "max_depth": t.max_depth,
-        "samples_per_src": t.samples_per_src,
-        "reader_pattern": t.reader_pattern,
-        "tag_pattern": t.tag_pattern,
-        "reader_polarization": t.reader_polarization,
-        "memory_budget_bytes": int(t.memory_budget_mb * 2**20),
-        "lattice_spacing_m": t.lattice_spacing_m if t.lattice_spacing_m > 0 else None,
-        "completion_order": t.completion_order,
-        "share_radius_m": t.share_radius_m if t.share_radius_m > 0 else None,
-        "shared_samples_per_src": t.shared_samples_per_src,
-    }
+    return TraceOptions(
+        method=t.method,
+        max_depth=t.max_depth,
+        samples_per_src=t.samples_per_src,
+        shared_samples_per_src=t.shared_samples_per_src,
+        share_radius_m=t.share_radius_m,
+        completion_order=t.completion_order,
+        reader_pattern=t.reader_pattern,
+        tag_pattern=t.tag_pattern,
+        reader_polarization=t.reader_polarization,
+        memory_budget_bytes=int(t.memory_budget_mb * 2**20),
+    )
 
 
 def preferred_backend(tracing: TracingConfig) -> str:

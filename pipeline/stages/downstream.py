@@ -48,10 +48,10 @@ def _models(ctx) -> dict:
     return models
 
 
-def _solver_and_patterns(cfg) -> tuple[dict, dict]:
-    """The study tracer's options split into solver options and pattern names."""
+def _solver_and_patterns(cfg) -> tuple:
+    """The study tracer's options (``propagation.TraceOptions``) and its pattern names."""
     opts = trace_options(cfg)
-    return opts, {k: opts.pop(k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
+    return opts, {k: getattr(opts, k) for k in ("reader_pattern", "reader_polarization", "tag_pattern")}
 
 
 def _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand) -> tuple[dict, dict]:
@@ -82,7 +82,7 @@ def _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand) -> tuple[di
     reach = max(dn.oracle_reach_m, 1.1 * float(d_read.max()) if len(d_read) else 0.0)
     res = global_oracle(obs, true_obs.slot_poses, cand, sc, oracle,
                         search=OracleSearch(window_m=dn.oracle_window_m, reach_m=reach),
-                        frequency_hz=cfg.frequency_hz, trace_kw=opts, pattern_kw=pattern_kw,
+                        frequency_hz=cfg.frequency_hz, trace=opts, pattern_kw=pattern_kw,
                         cache_dir=resolve_cache_dir(cfg), miss_probability=q,
                         truth_m=eval_tags.positions_m[rows], truth_normals=eval_tags.normals[rows])
     err = np.linalg.norm(res.posteriors.map_m - eval_tags.positions_m[rows], axis=1)
@@ -102,7 +102,7 @@ def _robot_oracle(ctx, eval_tags, free):
     cfg = ctx.config
     opts, pattern_kw = _solver_and_patterns(cfg)
     field = gain_field(load_scene(ctx), list(build_robot(cfg).antennas), eval_tags.positions_m,
-                       eval_tags.normals, free, frequency_hz=cfg.frequency_hz, trace_kw=opts,
+                       eval_tags.normals, free, frequency_hz=cfg.frequency_hz, trace=opts,
                        pattern_kw=pattern_kw, cache_dir=resolve_cache_dir(cfg))
     oracle = OracleLikelihood.from_reader(cfg.reader, frequency_hz=cfg.frequency_hz)
     return FieldLikelihood(oracle, field), field.n_traced_links

@@ -39,12 +39,11 @@ def stage_reads(ctx) -> dict:
     info = {"variant": variant, "cache_dir": str(cache)}
     for name, prefix in (("train", ""), ("eval", "eval_")):
         track = read_track(ctx, name)
-        opts = trace_options(cfg)
-        opts["progress"] = ctx.progress(f"tracing {name} links")
         # held out: the training tour reads only the training tags, the evaluation tour
         # only the held-out ones
         tags = split_tags(ctx, name)
-        readlog = simulate_reads(sc, robot, track, cfg.reader, rng, trace=opts, cache_dir=cache,
+        readlog = simulate_reads(sc, robot, track, cfg.reader, rng, trace=trace_options(cfg), cache_dir=cache,
+                                 progress=ctx.progress(f"tracing {name} links"),
                                  tags=tags, frequency_hz=cfg.frequency_hz)
         readlog.write(ctx.staging_dir, prefix=prefix)
         info[name] = {"n_attempts": readlog.n_attempts, "n_reads": readlog.n_reads,

@@ -88,9 +88,9 @@ def _trace_sites(ctx, attempt_pose_rows: np.ndarray) -> dict:
         cols = np.flatnonzero(pairs[i])
         if len(cols):
             links = propagation.trace_links(
-                sc, poses[i:i + 1], sites.positions_m[cols], frequency_hz=cfg.frequency_hz,
-                tag_normals=sites.normals[cols], cache_dir=resolve_cache_dir(cfg),
-                **trace_options(cfg))
+                sc, poses[i:i + 1], sites.positions_m[cols], trace_options(cfg),
+                frequency_hz=cfg.frequency_hz, tag_normals=sites.normals[cols],
+                cache_dir=resolve_cache_dir(cfg))
             fresh += int(links.n_traced_sources)
             traced[i, cols] = np.asarray(links.traced, bool)[0]
             gain[i, cols] = np.where(traced[i, cols], np.asarray(links.gain_db, float)[0], -np.inf)
@@ -125,8 +125,8 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
     for i, pose in enumerate(poses):
         pts = _polar_points(pose, d, a)
         free = is_free(sc, pts)
-        links = propagation.trace_links(sc, pose[None], pts[free], frequency_hz=cfg.frequency_hz,
-                                        cache_dir=cache, **opts)
+        links = propagation.trace_links(sc, pose[None], pts[free], opts, frequency_hz=cfg.frequency_hz,
+                                        cache_dir=cache)
         gain = np.full(len(pts), -np.inf)
         gain[free] = np.asarray(links.gain_db, float)[0]
         n_free += int(free.sum())

@@ -66,6 +66,20 @@ def test_wrong_type_named(tmp_path):
         load_config(p)
 
 
+def test_tracing_method_is_a_name_checked_in_one_line(tmp_path):
+    # the tracer is chosen by name; anything else is refused with the key and the choices
+    from pipeline.config import TracingConfig
+
+    p = tmp_path / "study.toml"
+    p.write_text('[tracing]\nmethod = "pooled"\n')
+    with pytest.raises(ConfigError, match=r"tracing\.method: must be one of 'shared', 'direct', got 'pooled'") as err:
+        load_config(p)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ConfigError, match="method must be one of 'shared', 'direct'"):
+        TracingConfig(method="naive")
+    assert TracingConfig().method == "shared"  # the fast tracer, as propagation.TraceOptions()
+
+
 def test_bool_is_not_int(tmp_path):
     p = tmp_path / "study.toml"
     p.write_text("seed = true\n")

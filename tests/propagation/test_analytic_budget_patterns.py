@@ -13,11 +13,12 @@ from propagation import (
     pattern_gain_db,
 )
 from propagation import backend as backend_mod
+from propagation.constants import SPEED_OF_LIGHT
 
 
 def test_friis_closed_form():
     # lambda/(4 pi d) at 865 MHz, 1 m: 0.346572 m / 12.566 m = -31.19 dB (exact arithmetic)
-    lam = 299_792_458.0 / 865e6
+    lam = SPEED_OF_LIGHT / 865e6
     expected = 20 * np.log10(lam / (4 * np.pi * 10.0)) + 8.0 + 2.15
     assert free_space_gain_db(10.0, 865e6, 8.0, 2.15) == pytest.approx(expected, abs=1e-12)
     # doubling distance costs 6.02 dB (inverse square law)

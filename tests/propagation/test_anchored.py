@@ -106,7 +106,7 @@ def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene):
     oracle's own likelihood: the coarse-to-fine search lands within a window of it."""
     from pipeline.localisation import Observations, OracleLikelihood
     from pipeline.localisation.global_oracle import OracleSearch, global_oracle
-    from propagation import LinkBudget, trace_links
+    from propagation import LinkBudget, TraceOptions, trace_links
     from scenes.tagsites import tag_sites
 
     sites = tag_sites(corridor_scene, spacing_m=0.1, z_range_m=(0.8, 1.2))
@@ -114,16 +114,16 @@ def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene):
     x = np.linspace(2.0, 10.0, 33)
     yaw = np.where(np.arange(len(x)) % 2 == 0, -np.pi / 2, np.pi / 2)  # toward either wall
     poses = np.column_stack([x, 0 * x + 1.2, 0 * x + 0.7, yaw, 0 * x, 0 * x])
-    trace_kw = {"max_depth": 2, "samples_per_src": 3000}
-    gains = trace_links(corridor_scene, poses, true.positions_m, tag_normals=true.normals,
-                        frequency_hz=F, **trace_kw).gain_db  # (S, 1)
+    trace = TraceOptions(method="direct", max_depth=2, samples_per_src=3000)
+    gains = trace_links(corridor_scene, poses, true.positions_m, trace, tag_normals=true.normals,
+                        frequency_hz=F).gain_db  # (S, 1)
     oracle = OracleLikelihood(LinkBudget(), miss_probability=0.0, rssi_noise_db=1.0)
     read, rssi = oracle.sample(gains.T, np.random.default_rng(3))
     assert 5 <= read.sum() < len(x)  # informative: some reads, some misses
     obs = Observations(("t",), np.arange(len(x), dtype=float), yaw < 0, poses, read, rssi,
                        np.ones_like(read))
     res = global_oracle(obs, poses, sites, corridor_scene, oracle, search=OracleSearch(),
-                        frequency_hz=F, trace_kw=trace_kw,
+                        frequency_hz=F, trace=trace,
                         pattern_kw={"reader_pattern": "tr38901", "reader_polarization": "V",
                                     "tag_pattern": "hw_dipole"},
                         truth_m=true.positions_m, truth_normals=true.normals)
@@ -135,7 +135,7 @@ def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene):
     assert not res.truth_preferred[0]  # the estimate scores at least as well as the truth
     # the search never looks at the truth: without it (or with a wrong one) the same answer
     blind = global_oracle(obs, poses, sites, corridor_scene, oracle, search=OracleSearch(),
-                          frequency_hz=F, trace_kw=trace_kw,
+                          frequency_hz=F, trace=trace,
                           pattern_kw={"reader_pattern": "tr38901", "reader_polarization": "V",
                                       "tag_pattern": "hw_dipole"})
     assert blind.truth_preferred is None

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from propagation import two_ray_gain_db
+from propagation import TraceOptions, two_ray_gain_db
 from propagation.completion import PlaneLookup, complete_specular, large_planes, merge_paths
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
 from propagation.pathsolve import _trace_chunk
 from propagation.sionna_scene import load_sionna_scene
@@ -13,7 +14,7 @@ from scenes import material
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 
 F = 865e6
-C0 = 299_792_458.0
+C0 = SPEED_OF_LIGHT
 
 
 def _gain_db(sp: SourcePaths) -> np.ndarray:
@@ -167,24 +168,24 @@ def test_merge_paths_tolerates_float32_noise_not_distinct_paths():
 
 
 def test_trace_links_with_completion_adds_paths_and_keeps_its_own_cache(corridor_scene, tmp_path):
-    """trace_links(completion_order=2): every path of the plain trace is kept, the missed
+    """TraceOptions(completion_order=2): every path of the plain trace is kept, the missed
     low-order reflections are added, and the completed traces live under their own cache
     key (a plain trace must never be served a completed one, nor the reverse)."""
     from propagation import trace_links
 
     poses = np.array([[3.0, 1.1, 0.8, 0.0], [5.0, 1.3, 1.0, 0.5]])
     tags = np.array([[8.0, 0.3, 1.0], [2.0, 2.0, 1.5], [6.5, 1.0, 0.4]])
-    kw = dict(samples_per_src=3000, max_depth=3, cache_dir=tmp_path, seed=3)
-    plain = trace_links(corridor_scene, poses, tags, **kw)
-    done = trace_links(corridor_scene, poses, tags, completion_order=2, **kw)
+    plain_opts = TraceOptions(samples_per_src=3000, max_depth=3, seed=3, completion_order=0)
+    plain = trace_links(corridor_scene, poses, tags, plain_opts, cache_dir=tmp_path)
+    done = trace_links(corridor_scene, poses, tags, plain_opts.replace(completion_order=2), cache_dir=tmp_path)
     assert np.all(done.n_paths >= plain.n_paths)
     assert done.n_paths.sum() > plain.n_paths.sum()  # 3000 rays miss some order-2 reflections
     assert done.n_traced_sources == 2  # not served from the plain trace's cache entry
-    again = trace_links(corridor_scene, poses, tags, completion_order=2, **kw)
+    again = trace_links(corridor_scene, poses, tags, plain_opts.replace(completion_order=2), cache_dir=tmp_path)
     assert again.n_traced_sources == 0
     np.testing.assert_array_equal(again.gain_db, done.gain_db)
     with pytest.raises(ValueError, match="completion_order"):
-        trace_links(corridor_scene, poses, tags, completion_order=4, **kw)
+        plain_opts.replace(completion_order=4)
 
 
 def test_completed_cache_never_holds_an_uncompleted_link(corridor_scene, tmp_path):
@@ -195,16 +196,17 @@ def test_completed_cache_never_holds_an_uncompleted_link(corridor_scene, tmp_pat
 
     poses = np.array([[3.0, 1.1, 0.8, 0.0], [3.4, 1.2, 0.9, 0.3]])
     tags = np.array([[8.0, 0.3, 1.0], [2.0, 2.0, 1.5]])
-    kw = dict(samples_per_src=2000, max_depth=3, seed=5, completion_order=2)
-    trace_links(corridor_scene, poses, tags, pairs=np.eye(2, dtype=bool), cache_dir=tmp_path, **kw)
-    cached = trace_links(corridor_scene, poses, tags, cache_dir=tmp_path, **kw)
+    opts = TraceOptions(samples_per_src=2000, shared_samples_per_src=2000, max_depth=3, seed=5,
+                        completion_order=2)
+    trace_links(corridor_scene, poses, tags, opts, pairs=np.eye(2, dtype=bool), cache_dir=tmp_path)
+    cached = trace_links(corridor_scene, poses, tags, opts, cache_dir=tmp_path)
     assert cached.n_traced_sources == 0  # the cross pairs came from the cache ...
-    fresh = trace_links(corridor_scene, poses, tags, cache_dir=tmp_path / "fresh", **kw)
+    fresh = trace_links(corridor_scene, poses, tags, opts, cache_dir=tmp_path / "fresh")
     # ... and hold the completed reflections: same path count; gains agree except for
     # the few high-order paths two samplings of 2000 rays find differently
     np.testing.assert_array_less(np.abs(cached.n_paths - fresh.n_paths), 0.2 * fresh.n_paths + 3)
-    ok = trace_links(corridor_scene, poses, tags, cache_dir=tmp_path / "d0",
-                     **{**kw, "max_depth": 0})  # completion order capped by max_depth
+    ok = trace_links(corridor_scene, poses, tags, opts.replace(max_depth=0),
+                     cache_dir=tmp_path / "d0")  # completion order capped by max_depth
     assert np.all(ok.n_paths <= 1)
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import scenes
-from propagation import free_space_gain_db, slab_transmission_db, trace_links
+from propagation import TraceOptions, free_space_gain_db, slab_transmission_db, trace_links
 from tests.scenes.maphelpers import OCC, RES, building, paint, write_map
 
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
@@ -35,8 +35,8 @@ def test_link_through_an_extracted_brick_wall_crosses_one_slab(two_rooms):
     assert t == pytest.approx(0.2, abs=RES)  # the drawn wall, within one map cell
     tx = np.array([[2.0, 2.7, 1.5, 0.0]])
     rx = np.array([[5.5, 2.7, 1.5]])
-    kw = dict(samples_per_src=10_000, reader_pattern="iso", tag_pattern="iso")
-    got = trace_links(two_rooms, tx, rx, max_depth=1, **kw)
+    got = trace_links(two_rooms, tx, rx, TraceOptions(method="direct", max_depth=1, samples_per_src=10_000,
+                                                      reader_pattern="iso", tag_pattern="iso"))
     # max_depth = 1: every reflected path would need a second interaction (the crossing), so
     # the straight ray through the wall is the only path (as in test_radio_geometry.py)
     assert got.n_paths[0, 0] == 1

@@ -128,11 +128,11 @@ def test_settings_key_covers_solver_versions(monkeypatch):
 def test_tampered_pack_is_retraced_to_the_original_values(tmp_path, corridor_scene):
     """A real (small) trace: a pack whose transfer values were scaled by 1.2 is named,
     removed and traced again; the gains come back as the first trace gave them."""
-    from propagation import trace_links
+    from propagation import TraceOptions, trace_links
 
     poses = np.array([[3.0, 1.2, 1.0, 0.0], [6.0, 1.2, 1.0, np.pi]])
     tags = corridor_scene.tags.positions_m[:4]
-    kw = dict(max_depth=1, samples_per_src=2000, cache_dir=tmp_path)
+    kw = dict(options=TraceOptions(method="direct", max_depth=1, samples_per_src=2000), cache_dir=tmp_path)
     first = trace_links(corridor_scene, poses, tags, **kw)
     assert first.n_traced_sources == 2
     (npz,) = sorted(tmp_path.rglob("pack-*.npz"))

@@ -8,11 +8,13 @@ import pytest
 
 import scenes
 from propagation import (
+    TraceOptions,
     free_space_gain_db,
     slab_coefficients,
     slab_transmission_db,
     trace_links,
 )
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import settings_key
 
 # the material library warns (by design) that P.2040 fits are extrapolated below 1 GHz
@@ -33,7 +35,7 @@ def test_slab_closed_form():
                - slab_transmission_db(eps, sigma, 0.12, F, 0.7, "TE")) > 0.5
     # a vanishing slab transmits everything; a lossless half-wave slab too (Fabry-Perot)
     assert slab_transmission_db(eps, sigma, 1e-9, F) == pytest.approx(0.0, abs=1e-6)
-    lam = 299_792_458.0 / F
+    lam = SPEED_OF_LIGHT / F
     assert slab_transmission_db(4.0, 0.0, lam / 4, F) == pytest.approx(0.0, abs=1e-9)  # n d = lambda/2
     # energy: |R|^2 + |T|^2 = 1 without loss, < 1 with it
     r, t = slab_coefficients(0.3, 4.0, 0.0, 0.1, F)
@@ -68,10 +70,10 @@ def test_one_wall_transmits_once(brick_box, case):
     rx, mat, thickness_m, theta = CASES[case]
     tx = np.array([[2.0, 1.2, 1.5, 0.0]])
     rx = np.array([rx])
-    kw = dict(samples_per_src=10_000, reader_pattern="iso", tag_pattern="iso")
+    iso = TraceOptions(method="direct", samples_per_src=10_000, reader_pattern="iso", tag_pattern="iso")
     fs = free_space_gain_db(np.linalg.norm(rx[0] - tx[0, :3]), F)
     closed = float(slab_transmission_db(*scenes.material(mat, F), thickness_m, F, theta, "TE"))
-    new = trace_links(brick_box, tx, rx, max_depth=1, **kw)
+    new = trace_links(brick_box, tx, rx, iso.replace(max_depth=1))
     assert new.n_paths[0, 0] == 1  # the straight ray (LinkSet.los flags it: its delay is d / c)
     # 0.5 dB (brief); with a single unobstructed ray the only differences are Sionna's
     # float32 arithmetic (measured: 1e-5 dB), so 0.5 dB is a loose bound that still
@@ -80,7 +82,7 @@ def test_one_wall_transmits_once(brick_box, case):
     # the old closed box: two faces, each a slab of the library thickness (here equal to
     # the wall's), so the wall counts twice and two interactions are needed to cross it
     old_scene = dataclasses.replace(brick_box, radio_surfaces=None)
-    old = trace_links(old_scene, tx, rx, max_depth=2, **kw)
+    old = trace_links(old_scene, tx, rx, iso.replace(max_depth=2))
     assert old.n_paths[0, 0] == 1
     assert old.gain_db[0, 0] - fs == pytest.approx(2 * closed, abs=0.5)
     assert abs(old.gain_db[0, 0] - fs - closed) > 3.0  # the test tells the two apart
@@ -92,7 +94,9 @@ def test_cache_never_mixes_closed_boxes_and_radio_surfaces(brick_box, tmp_path):
     settings = {"frequency_hz": F, "max_depth": 2}
     assert settings_key(old_scene.content_hash(), settings) != settings_key(brick_box.content_hash(), settings)
     tx, rx = np.array([[2.0, 1.2, 1.5, 0.0]]), np.array([[2.0, -1.0, 1.5]])
-    kw = dict(max_depth=2, samples_per_src=2000, cache_dir=tmp_path, reader_pattern="iso", tag_pattern="iso")
+    kw = dict(options=TraceOptions(method="direct", max_depth=2, samples_per_src=2000, reader_pattern="iso",
+                                   tag_pattern="iso"),
+              cache_dir=tmp_path)
     first = trace_links(old_scene, tx, rx, **kw)
     second = trace_links(brick_box, tx, rx, **kw)
     assert second.n_traced_sources == 1  # not served from the closed-box entry
@@ -103,8 +107,7 @@ def test_cache_never_mixes_closed_boxes_and_radio_surfaces(brick_box, tmp_path):
 def test_antenna_check_uses_solids(brick_box):
     # inside the wall's thickness (y = -0.06): no radio surface there, but a solid
     with pytest.raises(ValueError, match="inside solid geometry"):
-        trace_links(brick_box, np.array([[2.0, -0.06, 1.5, 0.0]]), np.array([[2.0, 1.2, 1.5]]),
-                    max_depth=0, samples_per_src=100)
+        trace_links(brick_box, np.array([[2.0, -0.06, 1.5, 0.0]]), np.array([[2.0, 1.2, 1.5]]), TraceOptions(method="direct", max_depth=0, samples_per_src=100))
 
 
 def test_wall_measurement_surface_sits_in_front_of_the_traced_faces():

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from propagation import trace_links, two_ray_gain_db
+from propagation import TraceOptions, trace_links, two_ray_gain_db
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathsolve import _trace_chunk
 from propagation.shared import chain_ids, shared_rows, sharing_neighbours, trace_shared
 from propagation.sionna_paths import path_copies
@@ -15,7 +16,7 @@ from tests.helpers.scenes import make_corridor
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 
 F = 865e6
-C0 = 299_792_458.0
+C0 = SPEED_OF_LIGHT
 
 
 def test_chain_ids_name_equal_rows_alike():
@@ -274,8 +275,7 @@ def test_shared_floor_links_match_two_ray(floor_scene):
     heights = np.array([0.6, 0.7, 0.8])
     tags = np.stack([d, 0 * d, 0 * d + h_r], axis=1)
     poses = np.column_stack([np.zeros(3), np.zeros(3), heights, np.zeros(3)])
-    links = trace_links(floor_scene, poses, tags, max_depth=1, samples_per_src=20000, reader_pattern="iso",
-                        tag_pattern="iso", share_radius_m=0.25, shared_samples_per_src=2000)
+    links = trace_links(floor_scene, poses, tags, TraceOptions(method="shared", completion_order=0, max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso", share_radius_m=0.25, shared_samples_per_src=2000))
     assert links.settings["share_radius_m"] == 0.25
     for k, h_t in enumerate(heights):
         ref = two_ray_gain_db(d, h_t, h_r, F, eps, sigma, "V")
@@ -294,28 +294,29 @@ def test_shared_tour_is_closer_to_a_dense_trace_and_caches(tmp_path):
     tags = scene.tags.positions_m
     x = np.arange(2.0, 8.0, 0.1)
     poses = np.column_stack([x, 1.2 + 0.05 * np.sin(3 * x), np.full_like(x, 0.7), np.zeros_like(x)])
-    kw = dict(max_depth=3, tag_normals=scene.tags.normals)
-    share = dict(share_radius_m=0.5, shared_samples_per_src=1000, samples_per_src=1000)
-    reference = trace_links(scene, poses, tags, seed=7, samples_per_src=30000, **kw)
-    direct = trace_links(scene, poses, tags, seed=1, samples_per_src=1000, **kw)
-    shared = trace_links(scene, poses, tags, seed=1, cache_dir=tmp_path, **share, **kw)
+    kw = dict(tag_normals=scene.tags.normals)
+    direct_opts = TraceOptions(method="direct", max_depth=3, seed=1, samples_per_src=1000)
+    share = TraceOptions(max_depth=3, seed=1, share_radius_m=0.5, shared_samples_per_src=1000,
+                         samples_per_src=1000, completion_order=0)
+    reference = trace_links(scene, poses, tags, direct_opts.replace(seed=7, samples_per_src=30000), **kw)
+    direct = trace_links(scene, poses, tags, direct_opts, **kw)
+    shared = trace_links(scene, poses, tags, share, cache_dir=tmp_path, **kw)
     strong = reference.gain_db > reference.gain_db.max() - 25
     direct_err = np.percentile(np.abs(direct.gain_db - reference.gain_db)[strong], 90)
     shared_err = np.percentile(np.abs(shared.gain_db - reference.gain_db)[strong], 90)
     assert shared_err < 0.8 * direct_err
     assert shared.n_paths.sum() > 1.3 * direct.n_paths.sum()
-    again = trace_links(scene, poses, tags, seed=1, cache_dir=tmp_path, **share, **kw)
+    again = trace_links(scene, poses, tags, share, cache_dir=tmp_path, **kw)
     assert again.n_traced_sources == 0
     np.testing.assert_array_equal(again.gain_db, shared.gain_db)
     # a lone position shoots samples_per_src rays, as in direct tracing
-    lone = trace_links(scene, poses[:1], tags, seed=1, share_radius_m=0.5, shared_samples_per_src=10,
-                       samples_per_src=1000, **kw)
-    alone = trace_links(scene, poses[:1], tags, seed=1, samples_per_src=1000, **kw)
+    lone = trace_links(scene, poses[:1], tags, share.replace(shared_samples_per_src=10), **kw)
+    alone = trace_links(scene, poses[:1], tags, direct_opts, **kw)
     # the solver's own rays, image method and fields (this corridor gives no copies); its
     # threads may order a path differently (1e-3 dB)
     np.testing.assert_allclose(lone.gain_db, alone.gain_db, atol=1e-3)
-    with pytest.raises(ValueError, match="exclude each other"):
-        trace_links(scene, poses[:2], tags, share_radius_m=0.5, lattice_spacing_m=0.25, **kw)
+    with pytest.raises(ValueError, match="share_radius_m"):
+        share.replace(share_radius_m=0.0)
 
 
 def _solver_paths(rts, source, receivers, max_depth, samples, seed) -> dict:
@@ -366,10 +367,9 @@ def test_lone_position_is_the_solvers_paths_without_its_copies():
     rts = load_sionna_scene(scene, F)
     set_deterministic(True)
     try:
-        lone = trace_links(scene, pose, tags, max_depth=5, samples_per_src=30000, share_radius_m=1.0,
-                           shared_samples_per_src=3000, seed=42)
+        lone = trace_links(scene, pose, tags, TraceOptions(method="shared", completion_order=0, max_depth=5, samples_per_src=30000, share_radius_m=1.0, shared_samples_per_src=3000, seed=42))
         raw = _solver_paths(rts, pose[:, :3], tags, 5, 30000, 42)
-        direct = trace_links(scene, pose, tags, max_depth=5, samples_per_src=30000, seed=42)
+        direct = trace_links(scene, pose, tags, TraceOptions(method="direct", max_depth=5, samples_per_src=30000, seed=42))
     finally:
         set_deterministic(False)
     n_rx = len(tags)
@@ -426,10 +426,7 @@ def test_sharing_trace_links_completes_in_its_own_kernels(corridor_scene, tmp_pa
     x = np.arange(3.0, 3.6, 0.1)
     poses = np.column_stack([x, np.full_like(x, 1.2), np.full_like(x, 0.7), np.zeros_like(x)])
     traced = []
-    big = launched_kernels(lambda: traced.append(trace_links(
-        corridor_scene, poses, corridor_scene.tags.positions_m[:5], frequency_hz=F,
-        samples_per_src=3000, max_depth=3, seed=2, share_radius_m=0.5,
-        shared_samples_per_src=500, completion_order=2, cache_dir=tmp_path)), 3000)
+    big = launched_kernels(lambda: traced.append(trace_links(corridor_scene, poses, corridor_scene.tags.positions_m[:5], TraceOptions(method="shared", samples_per_src=3000, max_depth=3, seed=2, share_radius_m=0.5, shared_samples_per_src=500, completion_order=2), frequency_hz=F, cache_dir=tmp_path)), 3000)
     links = traced[0]
     assert links.n_traced_sources == len(poses)
     ops = [e["operation_count"] for e in big]

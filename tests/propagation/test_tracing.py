@@ -6,12 +6,18 @@ import pytest
 import scenes
 from propagation import (
     CacheWarning,
+    TraceOptions,
     free_space_gain_db,
     pattern_gain_db,
     trace_links,
     two_ray_gain_db,
 )
+from propagation.channels import link_channels
+from propagation.constants import SPEED_OF_LIGHT as C0
+from propagation.pathsolve import _trace_chunk
 from propagation.patterns import sionna_orientation
+from propagation.sionna_scene import load_sionna_scene
+from propagation.tracing import tag_dipole_axes
 from scenes import Scene, TagSet, UnknownMaterialError, material
 from tests.helpers.scenes import box, make_corridor
 
@@ -25,7 +31,7 @@ def test_free_space_matches_friis(far_floor_scene):
     # max_depth=0: line of sight only, the floor 500 m below only serves as scene geometry
     poses = np.array([[0.0, 0.0, 1.0, 0.6], [0.0, 0.0, 1.0, 0.0]])
     tags = np.array([[1.0, 0.0, 1.0], [3.0, 3.0, 1.0], [0.0, 5.0, 2.0], [30.0, -4.0, 0.2]])
-    links = trace_links(far_floor_scene, poses, tags, max_depth=0, samples_per_src=1000)
+    links = trace_links(far_floor_scene, poses, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000))
     d = np.linalg.norm(tags - poses[0, :3], axis=1)
     az = np.arctan2(tags[:, 1], tags[:, 0])
     th = np.arccos((tags[:, 2] - 1.0) / d)
@@ -53,8 +59,7 @@ def test_floor_matches_two_ray_fresnel_v_and_h(floor_scene):
     h_t, h_r = 0.6, 1.0
     # V: reader V-polarised isotropic, vertical isotropic "dipole" tag (iso pattern, V pol)
     tags = np.stack([d, 0 * d, 0 * d + h_r], axis=1)
-    links = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, 0.0]]), tags, max_depth=1,
-                        samples_per_src=20000, reader_pattern="iso", tag_pattern="iso")
+    links = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, 0.0]]), tags, TraceOptions(method="direct", max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso"))
     ref = two_ray_gain_db(d, h_t, h_r, F, eps, sigma, "V")
     ok = _away_from_nulls(ref, d, h_t, h_r)
     assert ok.sum() > 30
@@ -62,9 +67,7 @@ def test_floor_matches_two_ray_fresnel_v_and_h(floor_scene):
     # H: link along +y, reader rolled 90 deg about its boresight (E along x), flat tags
     # (normal +z) whose dipole axis is x: both horizontal, perpendicular to the plane of incidence
     tags_h = np.stack([0 * d, d, 0 * d + h_r], axis=1)
-    links_h = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, np.pi / 2, 0.0, np.pi / 2]]), tags_h,
-                          max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso",
-                          tag_normals=np.tile([0.0, 0.0, 1.0], (len(d), 1)))
+    links_h = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, np.pi / 2, 0.0, np.pi / 2]]), tags_h, TraceOptions(method="direct", max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso"), tag_normals=np.tile([0.0, 0.0, 1.0], (len(d), 1)))
     ref_h = two_ray_gain_db(d, h_t, h_r, F, eps, sigma, "H")
     ok_h = _away_from_nulls(ref_h, d, h_t, h_r)
     assert ok_h.sum() > 30
@@ -88,7 +91,7 @@ def test_pattern_reapplication_matches_patterned_sionna_trace(corridor_scene):
     # depth 1 and many rays so that both calls find the same path set (sampling differences
     # between two calls are the only other source of mismatch, see docs/physics.md)
     spp = 300_000
-    ours = trace_links(corridor_scene, poses, tags, max_depth=1, samples_per_src=spp)
+    ours = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=spp))
     s = load_sionna_scene(corridor_scene, F)
     s.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="tr38901", polarization="V")
     s.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="hw_dipole", polarization="V")
@@ -105,7 +108,7 @@ def test_pattern_reapplication_matches_patterned_sionna_trace(corridor_scene):
     # float32 field computation in Sionna vs float64 here: 0.01 dB
     np.testing.assert_allclose(ours.gain_db, direct, atol=0.01)
     # the orientations matter (the test could fail): rotated vs unrotated differ by dB
-    flat = trace_links(corridor_scene, poses[:, :4] * [1, 1, 1, 0], tags, max_depth=1, samples_per_src=spp)
+    flat = trace_links(corridor_scene, poses[:, :4] * [1, 1, 1, 0], tags, TraceOptions(method="direct", max_depth=1, samples_per_src=spp))
     assert np.max(np.abs(flat.gain_db - ours.gain_db)) > 3.0
 
 
@@ -135,7 +138,7 @@ def test_corridor_lab_path_loss_exponent_local_mean():
     import scenes
 
     lab = scenes.load("corridor_lab")
-    lam = 299_792_458.0 / F
+    lam = C0 / F
     ant = np.array([1.0, 1.2, 0.7])
     pose = np.array([[*ant, 0.0]])
     rng = np.random.default_rng(0)
@@ -145,12 +148,12 @@ def test_corridor_lab_path_loss_exponent_local_mean():
     jitter[:, 0] = 0.0
     rx = (base[:, None, :] + jitter).reshape(-1, 3)
     d = np.linalg.norm(base - ant, axis=1)
-    links = trace_links(lab, pose, rx)
+    links = trace_links(lab, pose, rx, TraceOptions(method="direct"))
     assert links.los.all()
     local_mean_db = 10 * np.log10(links.gain[0].reshape(-1, 8).mean(axis=1))
     n = _ple(d, local_mean_db)
     assert 1.4 <= n <= 2.2, n
-    los_only = trace_links(lab, pose, rx, max_depth=0, samples_per_src=1000)
+    los_only = trace_links(lab, pose, rx, TraceOptions(method="direct", max_depth=0, samples_per_src=1000))
     n0 = _ple(d, 10 * np.log10(los_only.gain[0].reshape(-1, 8).mean(axis=1)))
     # LOS only equals Friis with both patterns (tested above), so its fit is that of the
     # closed form: 0.02 covers the +-lambda spread of the 8 points around each distance
@@ -170,7 +173,8 @@ def test_pairs_mask_and_cache(corridor_scene, tmp_path):
     pairs[0, :3] = True
     pairs[1, 2:] = True
     pairs[2, 1] = True
-    kw = dict(max_depth=2, samples_per_src=5000, cache_dir=tmp_path)
+    opts = TraceOptions(method="direct", max_depth=2, samples_per_src=5000)
+    kw = dict(options=opts, cache_dir=tmp_path)
     calls = []
     first = trace_links(corridor_scene, poses, tags, pairs=pairs, progress=lambda d, t: calls.append((d, t)), **kw)
     assert first.n_solver_calls >= 1 and first.n_traced_sources == 2  # two distinct positions
@@ -185,7 +189,8 @@ def test_pairs_mask_and_cache(corridor_scene, tmp_path):
     # new orientations at the same positions, other patterns: still a cache hit
     rotated = poses.copy()
     rotated[:, 3] += 0.7
-    third = trace_links(corridor_scene, rotated, tags, pairs=pairs, reader_pattern="iso", **kw)
+    third = trace_links(corridor_scene, rotated, tags, opts.replace(reader_pattern="iso"), pairs=pairs,
+                        cache_dir=tmp_path)
     assert third.n_solver_calls == 0
     assert not np.allclose(third.gain[pairs], first.gain[pairs])
     # one pack (NPZ + JSON index) per solver call, not one file per position
@@ -199,16 +204,14 @@ def test_pairs_mask_and_cache(corridor_scene, tmp_path):
     assert fourth.n_traced_sources == 2 and not victim.exists()
     np.testing.assert_allclose(fourth.gain, first.gain, rtol=1e-5)  # same seed, same paths
     # other solver settings do not hit the cache
-    fifth = trace_links(corridor_scene, poses, tags, pairs=pairs, max_depth=1, samples_per_src=5000,
-                        cache_dir=tmp_path)
+    fifth = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=5000), pairs=pairs, cache_dir=tmp_path)
     assert fifth.n_traced_sources == 2
 
 
 def test_memory_budget_chunks_sources(corridor_scene):
     poses = np.array([[x, 1.2, 1.0, 0.0] for x in (2.0, 5.0, 8.0)])
     tags = corridor_scene.tags.positions_m[:2]
-    links = trace_links(corridor_scene, poses, tags, max_depth=1, samples_per_src=2000,
-                        memory_budget_bytes=1)  # smaller than one source: one source per call
+    links = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=2000, memory_budget_bytes=1))  # smaller than one source: one source per call
     assert links.n_solver_calls == 3 and links.settings["sources_per_call"] == 1
 
 
@@ -216,33 +219,32 @@ def test_bad_inputs_raise_clear_errors(corridor_scene):
     tags = corridor_scene.tags.positions_m[:2]
     ok = np.array([[3.0, 1.2, 1.0, 0.0]])
     with pytest.raises(ValueError, match=r"antenna pose 0 at \(-5"):
-        trace_links(corridor_scene, np.array([[-5.0, 1.2, 1.0, 0.0]]), tags)
+        trace_links(corridor_scene, np.array([[-5.0, 1.2, 1.0, 0.0]]), tags, TraceOptions(method="direct"))
     with pytest.raises(ValueError, match=r"antenna pose 1 .* inside solid geometry"):
-        trace_links(corridor_scene, np.array([[3.0, 1.2, 1.0, 0.0], [3.0, -0.05, 1.0, 0.0]]), tags)
+        trace_links(corridor_scene, np.array([[3.0, 1.2, 1.0, 0.0], [3.0, -0.05, 1.0, 0.0]]), tags, TraceOptions(method="direct"))
     with pytest.raises(ValueError, match="antenna pose 0 is not finite"):
-        trace_links(corridor_scene, np.array([[np.nan, 1.2, 1.0, 0.0]]), tags)
+        trace_links(corridor_scene, np.array([[np.nan, 1.2, 1.0, 0.0]]), tags, TraceOptions(method="direct"))
     with pytest.raises(ValueError, match=r"antenna_poses must have shape"):
-        trace_links(corridor_scene, np.zeros((2, 5)), tags)
+        trace_links(corridor_scene, np.zeros((2, 5)), tags, TraceOptions(method="direct"))
     with pytest.raises(ValueError, match=r"tag_positions must have shape"):
-        trace_links(corridor_scene, ok, np.zeros((2, 2)))
+        trace_links(corridor_scene, ok, np.zeros((2, 2)), TraceOptions(method="direct"))
     with pytest.raises(ValueError, match=r"pairs must be a bool mask of shape \(1, 2\)"):
-        trace_links(corridor_scene, ok, tags, pairs=np.ones((2, 2), bool))
+        trace_links(corridor_scene, ok, tags, TraceOptions(method="direct"), pairs=np.ones((2, 2), bool))
     with pytest.raises(ValueError, match="patch"):
-        trace_links(corridor_scene, ok, tags, reader_pattern="patch")
+        trace_links(corridor_scene, ok, tags, TraceOptions(method="direct", reader_pattern="patch"))
     with pytest.raises(ValueError, match="tag_normals"):
-        trace_links(corridor_scene, ok, tags, tag_normals=np.zeros((2, 3)))
+        trace_links(corridor_scene, ok, tags, TraceOptions(method="direct"), tag_normals=np.zeros((2, 3)))
     weird = Scene("weird", {"unobtainium": box([-1, -1, -0.2], [1, 1, 0])},
                   TagSet(["a"], [[0.5, 0.0, 1.0]], [[0, 0, 1]]))
     with pytest.raises(UnknownMaterialError, match="unobtainium"):
-        trace_links(weird, np.array([[0.0, 0.0, 1.0, 0.0]]), [[0.5, 0.0, 1.0]], max_depth=0)
+        trace_links(weird, np.array([[0.0, 0.0, 1.0, 0.0]]), [[0.5, 0.0, 1.0]], TraceOptions(method="direct", max_depth=0))
 
 
 def test_circular_reader_costs_3db_on_linear_tag(far_floor_scene):
     tags = np.array([[4.0, 0.0, 1.0], [6.0, 1.0, 1.5]])
     pose = np.array([[0.0, 0.0, 1.0, 0.0]])
-    lin = trace_links(far_floor_scene, pose, tags, max_depth=0, samples_per_src=1000)
-    circ = trace_links(far_floor_scene, pose, tags, max_depth=0, samples_per_src=1000,
-                       reader_polarization="RHCP")
+    lin = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000))
+    circ = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000, reader_polarization="RHCP"))
     # circular-to-linear polarisation mismatch is exactly 1/2 (3.01 dB) in line of sight
     np.testing.assert_allclose(lin.gain_db - circ.gain_db, 10 * np.log10(2), atol=1e-6)
 
@@ -262,7 +264,7 @@ def test_antenna_inside_corridor_lab_cabinet_raises():
     lab = scenes.load("corridor_lab")
     check_antenna_positions(lab, [[13.0, 1.2, 1.0], [13.0, 1.6, 1.0]])  # free space: no error
     with pytest.raises(ValueError, match=r"antenna pose 1 at \(13, 2.14, 1\) m lies inside solid .*metal"):
-        trace_links(lab, np.array([[13.0, 1.2, 1.0, 0.0], [13.0, 2.14, 1.0, 0.0]]), lab.tags.positions_m[:2])
+        trace_links(lab, np.array([[13.0, 1.2, 1.0, 0.0], [13.0, 2.14, 1.0, 0.0]]), lab.tags.positions_m[:2], TraceOptions(method="direct"))
 
 
 def test_refraction_switch_drops_paths_through_walls(corridor_scene):
@@ -270,8 +272,8 @@ def test_refraction_switch_drops_paths_through_walls(corridor_scene):
     # crossing the closed wall slab takes two interactions (in and out), hence depth 2
     pose = np.array([[3.0, 1.2, 1.0, 0.0]])
     tags = np.array([[6.0, -0.5, 1.0], [6.0, 1.2, 1.0]])
-    on = trace_links(corridor_scene, pose, tags, max_depth=2, samples_per_src=20000)
-    off = trace_links(corridor_scene, pose, tags, max_depth=2, samples_per_src=20000, refraction=False)
+    on = trace_links(corridor_scene, pose, tags, TraceOptions(method="direct", max_depth=2, samples_per_src=20000))
+    off = trace_links(corridor_scene, pose, tags, TraceOptions(method="direct", max_depth=2, samples_per_src=20000, refraction=False))
     assert on.n_paths[0, 0] > 0 and off.n_paths[0, 0] == 0 and np.isneginf(off.gain_db[0, 0])
     assert on.settings["refraction"] and not off.settings["refraction"]
     # the in-corridor link keeps its line of sight either way
@@ -290,7 +292,8 @@ def test_deterministic_mode_makes_cold_traces_identical(tmp_path):
     rng = np.random.default_rng(3)
     poses = np.column_stack([rng.uniform(2, 22, 6), rng.uniform(0.9, 1.5, 6), np.full(6, 0.7),
                              rng.uniform(-np.pi, np.pi, 6)])
-    kw = dict(max_depth=4, samples_per_src=10_000, tag_normals=scene.tags.normals)
+    kw = dict(options=TraceOptions(method="direct", max_depth=4, samples_per_src=10_000),
+              tag_normals=scene.tags.normals)
     assert set_deterministic(True) == 1
     try:
         assert backend_info()["deterministic"] is True
@@ -316,3 +319,57 @@ def test_deterministic_mode_is_refused_on_cuda():
     with pytest.raises(BackendError, match="CPU variant"):
         set_deterministic(True)
     assert backend_info()["deterministic"] is False
+
+
+def test_channel_phase_frequency_and_position_gradient(far_floor_scene):
+    # line of sight: h = |h| exp(-j 2 pi f d / c) at every channel from one trace
+    pose = np.array([[0.0, 0.0, 1.0, 0.0]])
+    tags = np.array([[2.0, 0.3, 1.0], [4.0, -1.0, 1.2]])
+    d = np.linalg.norm(tags - pose[0, :3], axis=1)
+    for f in (865.7e6, 867.5e6, 915e6):
+        ls = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=100), channel_hz=f)
+        expected = np.exp(-2j * np.pi * f * d / C0)
+        # float32 delays: 1e-7 relative of d ~ 1e-3 rad at 4 m
+        np.testing.assert_allclose(np.angle(ls.h[0] * np.conj(expected)), 0.0, atol=1e-3)
+        # the amplitude stays the traced carrier's (documented in link_channels): Friis
+        # at the channel differs by 20 log10(f / F), 0.03 dB across the ETSI band
+        base = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=100))
+        np.testing.assert_allclose(ls.gain_db[0], base.gain_db[0], atol=1e-9)
+        assert abs(free_space_gain_db(d, 867.5e6) - free_space_gain_db(d, F)).max() < 0.03
+    # dh/dpos against a central difference of h (1 mm steps); the gradient keeps only the
+    # phase term, the 1/d amplitude term is smaller by 1 / (k d) ~ 2 %
+    ls = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=100), channel_gradient=True)
+    eps = 1e-3
+    for ax in range(3):
+        step = np.zeros(4)
+        step[ax] = eps
+        hp = trace_links(far_floor_scene, pose + step, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=100)).h[0]
+        hm = trace_links(far_floor_scene, pose - step, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=100)).h[0]
+        fd = (hp - hm) / (2 * eps)
+        scale = np.abs(ls.h[0]) * 2 * np.pi * F / C0
+        np.testing.assert_allclose(ls.dh_dpos[0, :, ax], fd, atol=0.05 * scale.max())
+
+
+def test_link_channels_rejects_nothing_silently(corridor_scene):
+    # a link whose tag was never traced from its path set is an internal error, not a 0
+    rts = load_sionna_scene(corridor_scene, F)
+    tags = corridor_scene.tags.positions_m[:2]
+    sp = _trace_chunk(rts, np.array([[3.0, 1.2, 0.7]]), tags[:1], 1, 1000, 1)
+    with pytest.raises(RuntimeError, match="missing"):
+        link_channels(sp, np.array([0]), np.array([1]), np.zeros((1, 6)), tags, F, "iso", "V", "iso",
+                      tag_dipole_axes(None, 2))
+
+
+def test_copies_are_found_by_tolerance_not_by_grid():
+    """Float32 copies of one path straddling a 0.1 mm grid line are one path; a distinct
+    path with the same length and departure but another arrival direction is kept."""
+    from propagation.sionna_paths import path_copies as _copies
+
+    k = np.array([0.6, 0.8, 0.0])
+    t = np.eye(2, dtype=complex)[None].repeat(4, axis=0)
+    length = np.array([12.34995, 12.34995 + 2e-6, 12.34995 + 3e-6, 12.34995 + 4e-6])  # grid line at 12.35
+    k_rx = np.array([k, k + 1e-7, [0.0, 0.6, 0.8], k])
+    src = np.zeros(4, np.int64)
+    tg = np.array([0, 0, 0, 1])  # the last row is another tag: never a copy
+    drop = _copies(src, tg, length, np.tile(k, (4, 1)), k_rx, t)
+    np.testing.assert_array_equal(drop, [False, True, False, False])

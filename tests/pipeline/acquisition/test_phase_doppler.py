@@ -11,10 +11,11 @@ from pipeline.acquisition.phase import (
     reported_phase_rad,
 )
 from propagation.channels import link_channels
+from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
 from propagation.tracing import tag_dipole_axes
 
-C = 299_792_458.0
+C = SPEED_OF_LIGHT
 
 
 def _los_channels(d_m, channel_hz, gradient=False):

@@ -14,10 +14,11 @@ from pipeline.acquisition import (
     tdm_samples,
 )
 from pipeline.robot.kinematics import Robot, antenna_poses
-from propagation import antenna_frame_angles
+from propagation import TraceOptions, antenna_frame_angles
+from propagation.constants import SPEED_OF_LIGHT
 
 # Low ray count and depth: these tests check bookkeeping, not path convergence.
-TRACE = {"max_depth": 2, "samples_per_src": 2000}
+TRACE = TraceOptions(method="direct", max_depth=2, samples_per_src=2000)
 # 8 dBm conducted: free-space maximum range with both maximum pattern gains and the
 # 6 dB margin is lambda / (4 pi) * 10^((8 + 8 + 2.15 - 3 + 18 + 6) / 20) = 2.5 m.
 SHORT_BUDGET = {"tx_power_dbm": 8.0}
@@ -160,8 +161,9 @@ def test_all_antennas_mode_schedule(track):
     assert len(att.time_s) == 21
 
 
-def test_trace_keys_owned_by_reader(scene, track):
-    with pytest.raises(ValueError, match="frequency_hz"):
+def test_trace_is_trace_options_not_keywords(scene, track):
+    # the links, frequency and channels are the reader's; the tracer's options come whole
+    with pytest.raises(TypeError, match="TraceOptions"):
         simulate_reads(
             scene, Robot(), track, _reader(), np.random.default_rng(0), trace={"frequency_hz": 1e9}
         )
@@ -186,7 +188,7 @@ def test_channels_phase_and_doppler_columns(scene, track, tmp_path):
     # 0.4 m/s antenna: |f_D| <= 2 v / lambda = 2.3 Hz for every path (the direction
     # derivative of each path's phase is bounded by the wavenumber)
     assert np.isfinite(dop[rd]).all() and np.isnan(dop[~rd]).all()
-    assert np.abs(dop[rd]).max() <= 2 * 0.4 * 867.5e6 / 299_792_458.0 * 1.001
+    assert np.abs(dop[rd]).max() <= 2 * 0.4 * 867.5e6 / SPEED_OF_LIGHT * 1.001
     np.testing.assert_array_equal(r["seen_count"].to_numpy(), rd.astype(int))  # fixed inventory
     assert len(log.metadata["phase_offsets_rad"]) == 2 and len(log.metadata["phase_offsets_rad"][0]) == 4
     assert len(log.metadata["tag_population"]["sensitivity_offset_db"]) == 3

@@ -60,7 +60,7 @@ def test_coverage_at_the_tags_is_smooth_across_the_tags_height():
     median gain over a row of wall tags changes smoothly with the antenna's height
     through the tags' height (the former plane metric dropped 7-14 dB there)."""
     import scenes
-    from propagation import trace_links
+    from propagation import TraceOptions, trace_links
 
     sc = scenes.load("corridor_lab")
     tag_z = 1.0
@@ -73,7 +73,7 @@ def test_coverage_at_the_tags_is_smooth_across_the_tags_height():
     for h in heights:
         poses = np.column_stack([xs, np.full_like(xs, 1.2), np.full_like(xs, h),
                                  np.full_like(xs, -np.pi / 2)])
-        links = trace_links(sc, poses, tags, tag_normals=normals, max_depth=2, samples_per_src=3000)
+        links = trace_links(sc, poses, tags, TraceOptions(method="direct", max_depth=2, samples_per_src=3000), tag_normals=normals)
         g = np.asarray(links.gain_db, float)
         med.append(float(np.median(g)))
         cov.append(float(link_closed(g - 10.0, budget).mean()))  # 10 dB less power: not all close
