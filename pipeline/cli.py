@@ -57,10 +57,14 @@ def _setup_logging(verbose: bool) -> None:
         handler = RichHandler(show_path=False, rich_tracebacks=False)
         handler.setFormatter(logging.Formatter("%(message)s"))
         root.addHandler(handler)
+    for h in root.handlers:
+        if isinstance(h, RichHandler):
+            h.setLevel(logging.DEBUG if verbose else logging.WARNING)
     root.setLevel(logging.WARNING)
-    # the console shows progress bars and warnings; INFO and DEBUG lines only with -v
+    # the console shows progress bars and warnings, INFO and DEBUG lines only with -v; the
+    # project's loggers pass INFO so that run.log (pipeline.runlog) holds every INFO line
     for name in ("pipeline", "scenes", "propagation", "fuzzymodel"):
-        logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.WARNING)
+        logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.INFO)
 
 
 def _fail(msg: str, code: int = 2):

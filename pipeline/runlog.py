@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import logging
 import os
 import resource
+import stat
 import sys
+import threading
 import time
 import tomllib
 from pathlib import Path
@@ -125,53 +128,90 @@ def is_file_handler(h: logging.Handler) -> bool:
     return isinstance(h, (_RunLogHandler, logging.FileHandler))
 
 
+def _open_log(path: Path, mode: str):
+    """The log file's text stream: never through a link, never a FIFO or device (refused by
+    ``fstat`` on the same descriptor, opened without blocking), appended by every writer
+    (O_APPEND: each line lands whole at the end, neither process overwrites the other's).
+    ``mode="w"`` starts a new file: an old regular file is unlinked first (not truncated:
+    it may be a hard link to a file elsewhere)."""
+    from pipeline.runstore import UnsafePathError
+
+    if mode == "w" and os.path.lexists(path):
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            raise UnsafePathError(f"{path} is not a regular file: rfidstudy does not write "
+                                  "its log into it; remove it")
+        os.unlink(path)
+    flags = (os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0)
+             | getattr(os, "O_NONBLOCK", 0) | (os.O_EXCL if mode == "w" else 0))
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.ENXIO):  # a link; a FIFO without a reader
+            raise UnsafePathError(f"{path} is a link or not a regular file: rfidstudy does "
+                                  "not write its log into it; remove it") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise UnsafePathError(f"{path} is not a regular file: rfidstudy does not write its "
+                              "log into it; remove it")
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "w", encoding="utf-8", buffering=1)
+
+
+class _ThisThread(logging.Filter):
+    """Passes the records of the thread that opened the log (and of processes forked from
+    it): two runs in one process (threads of a Dask worker) keep their lines apart."""
+
+    def __init__(self):
+        super().__init__()
+        self.ident = threading.get_ident()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.thread == self.ident
+
+
 @contextlib.contextmanager
 def log_to_file(path: Path, mode: str = "a"):
     """Within the block, the project's log records at INFO and above are also written to
-    `path` (the console's handlers keep their own levels: INFO lines reach the console
-    only with ``-v``)."""
-    # never through a link (a run directory from someone else may hold one named run.log)
-    # O_APPEND in both processes: each line lands whole at the end, neither overwrites
-    # the other's
-    flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0) | (
-        os.O_TRUNC if mode == "w" else 0)
-    stream = os.fdopen(os.open(path, flags, 0o644), "w", encoding="utf-8", buffering=1)
+    `path`.
+
+    No logger's or handler's level is changed: what reaches the file is what the logging
+    configuration lets through at INFO and above (the command line sets the project's
+    loggers to INFO, its console handler to WARNING without ``-v``). The console handlers
+    pass each distinct warning once while the block runs. Where logging is not configured
+    at all (a spawned worker), warnings still reach stderr, as Python's last-resort
+    handler would print them.
+    """
+    stream = _open_log(path, mode)
     handler = _RunLogHandler(stream)
     handler.setLevel(logging.INFO)
     handler.setFormatter(logging.Formatter(_LOG_FORMAT))
+    handler.addFilter(_ThisThread())
     root = logging.getLogger()
-    lowered = {}
-    for name in PROJECT_LOGGERS:
-        lg = logging.getLogger(name)
-        if lg.getEffectiveLevel() > logging.INFO:
-            lowered[name] = lg.level
-            lg.setLevel(logging.INFO)
-    # records now reach the root at INFO: a console handler without a level of its own
-    # would print them, so each gets the level the console had
-    quiet = [(h, h.level) for h in root.handlers
-             if h.level == logging.NOTSET and not is_file_handler(h)]
-    console_level = min([lv for lv in lowered.values() if lv] or [logging.WARNING])
-    for h, _ in quiet:
-        if lowered:
-            h.setLevel(console_level)
+    fallback = None
+    if not root.handlers:  # the file handler would otherwise silence the last resort
+        fallback = logging.StreamHandler(sys.stderr)
+        fallback.setLevel(logging.WARNING)
+        root.addHandler(fallback)
     # one filter per console handler: a shared one would let only the first handler see
     # each message
     consoles = [(h, _OnceEach()) for h in root.handlers if not is_file_handler(h)]
     for h, once in consoles:
         h.addFilter(once)
-    root.addHandler(handler)
+    loggers = [logging.getLogger(name) for name in PROJECT_LOGGERS]
+    for lg in loggers:
+        lg.addHandler(handler)
     try:
         yield handler
     finally:
+        for lg in loggers:
+            lg.removeHandler(handler)
         for h, once in consoles:
             h.removeFilter(once)
-        root.removeHandler(handler)
+        if fallback is not None:
+            root.removeHandler(fallback)
         handler.close()
         stream.close()
-        for h, lv in quiet:
-            h.setLevel(lv)
-        for name, lv in lowered.items():
-            logging.getLogger(name).setLevel(lv)
 
 
 @contextlib.contextmanager

@@ -148,8 +148,10 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
     ctx = StageContext(config, store, stage, Path(staged), None, {})
     t0 = time.perf_counter()
     try:
-        with reproducible_outputs(), final_paths_in_logs(Path(staged), store.root), \
-                log_to_file(store.path(RUN_LOG)):  # appended beside the runner's lines
+        # run.log first: final_paths_in_logs rewrites the paths of every handler present
+        with log_to_file(store.path(RUN_LOG)), reproducible_outputs(), \
+                final_paths_in_logs(Path(staged), store.root):  # appended beside the runner's
+            log.info("stage %s: started in process %d", stage, os.getpid())
             info = func(ctx) or {}
         msg = ("ok", info, time.perf_counter() - t0, peak_rss_mib())
     except BaseException as exc:  # noqa: BLE001 - everything goes back to the runner

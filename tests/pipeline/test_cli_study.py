@@ -248,6 +248,9 @@ def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study, tmp_
     # every line of both processes, whole: the runner's stage lines and the report's
     assert any("INFO" in ln and "stage report: running" in ln for ln in log_lines)
     assert all(ln[:4].isdigit() for ln in log_lines), log_lines[:5]
+    # the side process's own line (truth_traces beside tour and reads on 2 CPUs)
+    side = [ln for ln in log_lines if "MainProcess" not in ln]
+    assert any("truth_traces: started in process" in ln for ln in side), log_lines
     manifest = json.loads((out / "manifest.json").read_text())
     assert "run.log" in manifest["files"]
 
@@ -260,8 +263,12 @@ def test_a_repeated_warning_reaches_the_console_once_and_run_log_every_time(tmp_
 
     console = io.StringIO()
     handler = logging.StreamHandler(console)
+    handler.setLevel(logging.WARNING)  # as the command line's console handler without -v
     root = logging.getLogger()
     root.addHandler(handler)
+    project = logging.getLogger("pipeline")
+    level = project.level
+    project.setLevel(logging.INFO)  # as the command line sets it
     log = logging.getLogger("pipeline.test_once")
     try:
         with log_to_file(tmp_path / "run.log", mode="w"):
@@ -271,6 +278,7 @@ def test_a_repeated_warning_reaches_the_console_once_and_run_log_every_time(tmp_
         log.warning("material X extrapolated below its range")  # a new run: shown again
     finally:
         root.removeHandler(handler)
+        project.setLevel(level)
     shown = console.getvalue().splitlines()
     assert shown.count("material X extrapolated below its range") == 2, shown
     assert "an info line" not in shown

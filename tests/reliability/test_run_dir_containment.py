@@ -261,3 +261,25 @@ def test_folder_listings_skip_links_and_fifos_and_refuse_a_linked_folder(tmp_pat
     (tmp_path / "truth").symlink_to(tmp_path / "fields")
     with pytest.raises(UnsafePathError, match="truth is a symbolic link"):
         run_files(tmp_path, "truth", "*.npz")
+
+
+@pytest.mark.parametrize("kind", ["fifo", "link"])
+def test_run_log_is_never_written_through_a_fifo_or_a_link(tmp_path, kind):
+    # a FIFO named run.log used to block the run forever, holding the directory's lock
+    import os
+
+    from pipeline.runlog import log_to_file
+    from pipeline.runstore import UnsafePathError
+
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep\n")
+    path = tmp_path / "run.log"
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.symlink_to(outside)
+    for mode in ("w", "a"):
+        with pytest.raises(UnsafePathError, match="run.log"):
+            with log_to_file(path, mode=mode):
+                pass
+    assert outside.read_text() == "keep\n"
