@@ -457,8 +457,11 @@ def _sweep_table(summary, params: list[str], width: int = 80) -> str:
     t = summary[cols].copy()
     if "read_rate" in t.columns:
         t = t.sort_values("read_rate", ascending=False, na_position="last")
-    text = t.to_string(index=False, max_colwidth=20, float_format=lambda v: f"{v:.4g}")
-    return "\n".join(ln[:width] for ln in text.splitlines())
+    while True:  # whole columns dropped from the right until it fits: never a cut number
+        text = t.to_string(index=False, max_colwidth=20, float_format=lambda v: f"{v:.4g}")
+        if max(map(len, text.splitlines())) <= width or t.shape[1] <= 1:
+            return text
+        t = t.iloc[:, :-1]
 
 
 def _duration(s: float | None) -> str:

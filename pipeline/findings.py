@@ -26,9 +26,13 @@ _SENTENCES = (
 )
 
 
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and v == v
+
+
 def _iv_text(e: dict, unit: str, digits: int) -> str:
     est = f"{e['estimate']:.{digits}f}{unit}"
-    if e.get("low") is None or e.get("high") is None:
+    if not (_is_num(e.get("low")) and _is_num(e.get("high"))):
         return f"{est} (no interval: {e.get('note') or 'too few units'})"
     return f"{est} [{e['low']:.{digits}f}, {e['high']:.{digits}f}]"
 
@@ -43,17 +47,18 @@ def _names(models: list[str]) -> str:
 def _metric_sentence(key: str, what: str, unit: str, digits: int, ivs: dict,
                      cmp_: dict) -> str | None:
     sec = ivs.get(key) or {}
-    ref = (sec.get("models") or {}).get(REFERENCE)
-    if not isinstance(ref, dict) or ref.get("estimate") is None:
+    models = sec.get("models") if isinstance(sec, dict) else None
+    ref = models.get(REFERENCE) if isinstance(models, dict) else None
+    if not isinstance(ref, dict) or not _is_num(ref.get("estimate")):
         return None
-    verdicts = cmp_.get(key) or {}
-    worse = [m for m, c in verdicts.items() if (c or {}).get("verdict") == "worse"]
-    better = [m for m, c in verdicts.items() if (c or {}).get("verdict") == "better"]
-    same = [m for m, c in verdicts.items()
-            if (c or {}).get("verdict") not in ("worse", "better", None)]
+    verdicts = cmp_.get(key) if isinstance(cmp_.get(key), dict) else {}
+    v = {m: c.get("verdict") for m, c in verdicts.items() if isinstance(c, dict)}
+    worse = [m for m, x in v.items() if x == "worse"]
+    better = [m for m, x in v.items() if x == "better"]
+    same = [m for m, x in v.items() if x == "not distinguishable at 95 %"]
     s = (f"The chapter's FCM + ANFIS has {what} of {_iv_text(ref, unit, digits)} "
          f"over {sec.get('n_units', '?')} {sec.get('unit', 'unit')}s.")
-    if ref.get("low") is None or ref.get("high") is None:
+    if not (_is_num(ref.get("low")) and _is_num(ref.get("high"))):
         return s + " Without an interval no model is ranked on it."
     parts = []
     if better:
@@ -86,8 +91,8 @@ def findings(metrics: dict) -> tuple[list[str], list[str]]:
         What the numbers rest on (units, intervals not computed, single run).
     """
     ivs = metrics.get("intervals") if isinstance(metrics.get("intervals"), dict) else {}
-    cmp_ = ((metrics.get("comparisons") or {}).get("metrics") or {}) if isinstance(
-        metrics.get("comparisons"), dict) else {}
+    cmp_ = metrics.get("comparisons") if isinstance(metrics.get("comparisons"), dict) else {}
+    cmp_ = cmp_.get("metrics") if isinstance(cmp_.get("metrics"), dict) else {}
     out, caveats = [], []
     if not ivs:
         return ([], ["This run has no intervals (an older run directory): its numbers "
@@ -97,20 +102,29 @@ def findings(metrics: dict) -> tuple[list[str], list[str]]:
         if s:
             out.append(s)
     pose = (cmp_.get("heldout.rssi_mae_db") or {}).get("anfis_truepose")
-    if isinstance(pose, dict) and pose.get("estimate") is not None and pose.get("low") is not None:
-        cost = (-pose["estimate"], -pose["high"], -pose["low"])
-        verdict = "costs nothing measurable" if pose.get("verdict") not in ("better", "worse") \
-            else "costs a measurable amount"
-        out.append(f"Training on MCL poses instead of true poses {verdict}: it changes the "
-                   f"held-out RSSI MAE by {cost[0]:+.2f} dB [{cost[1]:+.2f}, {cost[2]:+.2f}].")
-    units = {sec.get("unit"): sec.get("n_units") for sec in ivs.values() if isinstance(sec, dict)}
+    if isinstance(pose, dict) and all(_is_num(pose.get(k)) for k in ("estimate", "low", "high")):
+        # comparisons are model minus reference: true-pose minus MCL-pose; MCL's cost is
+        # the negative, with the interval mirrored
+        cost, lo, hi = -pose["estimate"], -pose["high"], -pose["low"]
+        verdict = pose.get("verdict")
+        how = ("costs a measurable amount" if verdict == "better" else
+               "measurably helps" if verdict == "worse" else "costs nothing measurable")
+        out.append(f"Training on MCL poses instead of true poses {how}: it changes the "
+                   f"held-out RSSI MAE by {cost:+.2f} dB [{lo:+.2f}, {hi:+.2f}].")
+    units: dict[str, set] = {}
+    for sec in ivs.values():
+        if isinstance(sec, dict) and isinstance(sec.get("unit"), str):
+            units.setdefault(sec["unit"], set()).add(sec.get("n_units"))
+    counts = {u: "-".join(str(n) for n in sorted(x for x in ns if isinstance(x, int)))
+              for u, ns in units.items()}
     caveats.append("Intervals resample " + ", ".join(
-        f"{n} {u}s" for u, n in units.items() if u) + "; models are compared on the same "
+        f"{n} {u}s" for u, n in counts.items()) + "; models are compared on the same "
         "units, so a difference is stated only where its paired interval excludes 0.")
-    missing = sorted({model_label(m) for sec in ivs.values() if isinstance(sec, dict)
-                      for m, e in (sec.get("models") or {}).items()
-                      if isinstance(e, dict) and e.get("estimate") is not None
-                      and e.get("low") is None})
+    missing = sorted({model_label(str(m)) for sec in ivs.values() if isinstance(sec, dict)
+                      and isinstance(sec.get("models"), dict)
+                      for m, e in sec["models"].items()
+                      if isinstance(e, dict) and _is_num(e.get("estimate"))
+                      and not _is_num(e.get("low"))})
     if missing:
         caveats.append("Some estimates have no interval (too few units, e.g. filter runs of "
                        "one study): " + ", ".join(missing[:6])

@@ -361,11 +361,15 @@ def figure_captions(run_dir: Path) -> dict[str, str]:
     return dict(CAPTIONS)
 
 
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 def _interval_text(iv: dict | None, digits: int = 3) -> str:
-    if not isinstance(iv, dict) or iv.get("estimate") is None:
+    if not isinstance(iv, dict) or not _is_number(iv.get("estimate")):
         return "–"
     est = f"{iv['estimate']:.{digits}g}"
-    if iv.get("low") is None or iv.get("high") is None:
+    if not (_is_number(iv.get("low")) and _is_number(iv.get("high"))):
         return f"{est} (no interval: {iv.get('note') or 'undefined'})"
     return f"{est} [{iv['low']:.{digits}g}, {iv['high']:.{digits}g}]"
 
@@ -379,9 +383,9 @@ def intervals_html(metrics: dict) -> list[str]:
     ivs = metrics.get("intervals")
     if not isinstance(ivs, dict) or not ivs:
         return []
-    cmp_ = metrics.get("comparisons") or {}
-    ref = cmp_.get("reference", "anfis")
-    by_metric = cmp_.get("metrics") or {}
+    cmp_ = metrics.get("comparisons") if isinstance(metrics.get("comparisons"), dict) else {}
+    ref = str(cmp_.get("reference", "anfis"))
+    by_metric = cmp_.get("metrics") if isinstance(cmp_.get("metrics"), dict) else {}
     out = ["<h3>Rankings with 95 % intervals</h3>",
            f"<p>Each number with its 95 % confidence interval from a bootstrap over the "
            f"independent units (held-out tags; filter runs; with replicates, both within each "
@@ -390,16 +394,20 @@ def intervals_html(metrics: dict) -> list[str]:
            "'not distinguishable at 95 %'. The order of the rows is the estimates' and is not "
            "a ranking where the verdicts say 'not distinguishable'.</p>"]
     for key, sec in ivs.items():
-        models = sec.get("models") or {}
+        if not isinstance(sec, dict) or not isinstance(sec.get("models"), dict):
+            continue  # a malformed entry of a stranger's metrics.json: not shown
+        models = {m: e for m, e in sec["models"].items()
+                  if isinstance(e, dict) and _is_number(e.get("estimate"))}
         lower = next((m.lower_is_better for m in METRICS if m.key == key), True)
         order = sorted(models, key=lambda m: (models[m].get("estimate") is None,
                                               (1 if lower else -1) * (models[m].get("estimate") or 0)))
         rows = []
         for m in order:
-            c = (by_metric.get(key) or {}).get(m)
+            per = by_metric.get(key) if isinstance(by_metric.get(key), dict) else {}
+            c = per.get(m) if isinstance(per.get(m), dict) else None
             rows.append([m, _interval_text(models[m]),
                          "(reference)" if m == ref else _interval_text(c),
-                         "" if m == ref else (c or {}).get("verdict", "–")])
+                         "" if m == ref else str((c or {}).get("verdict", "–"))])
         out.append(_table_html(f"{sec.get('label', key)}: {sec.get('n_units')} {sec.get('unit')}s",
                                ["model", "estimate [95 % interval]",
                                 f"minus {ref} [95 % interval]", "verdict"], rows))
@@ -466,7 +474,7 @@ def _figure_html(png: Path, run: Path, embed: bool, captions: dict[str, str]) ->
     else:
         src = png.relative_to(run).as_posix()
     cap = captions.get(png.stem, png.stem.replace("_", " "))
-    return (f"<figure id='fig-{html.escape(png.stem)}'><img src='{src}' "
+    return (f"<figure id='fig-{html.escape(png.stem)}'><img src='{html.escape(src)}' "
             f"alt='{html.escape(png.stem)}'><figcaption>{html.escape(cap)} "
             f"<span class='muted'>(figures/{html.escape(png.stem)}.png)</span></figcaption>"
             "</figure>")

@@ -318,12 +318,16 @@ def check_sweep_dir(out_dir: str | Path) -> Path:
     file, or a non-empty directory that is not a sweep directory of this tool (a user's
     ``summary.csv`` there would be overwritten)."""
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out {out_dir}: a file, not a directory")
-    out = out.resolve()
-    if out.is_dir():
-        entries = sorted(p.name for p in out.iterdir())
-        ours = (out / "sweep.json").is_file() or (out / "runs").is_dir()
+    try:
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out_dir}: a file, not a directory")
+        out = out.resolve()
+        entries = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    except (OSError, RuntimeError) as exc:  # a link loop, no permission
+        raise ConfigError(f"--out {out_dir}: cannot be used as a sweep directory: {exc}") from None
+    if entries:
+        # sweep.json is written before the first point runs: its presence marks our own
+        ours = (out / "sweep.json").is_file() and not (out / "sweep.json").is_symlink()
         if entries and not ours:
             shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
             raise ConfigError(f"--out {out_dir} is not empty ({shown}) and is not a sweep "
@@ -355,6 +359,9 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
 
     out = check_sweep_dir(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
+    # the marker first: an interrupted sweep's directory is recognised as ours on rerun
+    atomic_write_json(out / "sweep.json", {"source": plan.source, "parameters": plan.parameters,
+                                           "runs": plan.names})
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]
     rows = run_studies(args, scheduler=scheduler, workers=workers, client=client,

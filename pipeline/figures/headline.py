@@ -11,7 +11,6 @@ side by side: the figure ``baselines`` of a run, and ``rfidstudy compare``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -75,11 +74,10 @@ _COLUMNS = ["metric", "label", "model", "estimate", "low", "high", "unit", "n_un
 
 
 def _read_metrics(run_dir) -> dict:
+    from pipeline.runstore import read_run_json  # size-capped, a regular file, no link
+
     path = require(run_dir, "metrics.json")
-    try:
-        m = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    m = read_run_json(path)
     if not isinstance(m, dict):
         raise ValueError(f"{path}: not a metrics object")
     return m
@@ -111,20 +109,22 @@ def headline_table(run_dir, metrics=HEADLINE_METRICS) -> pd.DataFrame:
     """
     m = _read_metrics(run_dir)
     intervals = m.get("intervals") if isinstance(m.get("intervals"), dict) else {}
-    comparisons = (m.get("comparisons") or {}).get("metrics") or {}
+    comparisons = m.get("comparisons") if isinstance(m.get("comparisons"), dict) else {}
+    comparisons = comparisons.get("metrics") if isinstance(comparisons.get("metrics"), dict) else {}
     rows = []
     for spec in metrics:
         iv = intervals.get(spec.key)
-        if not isinstance(iv, dict):
+        if not isinstance(iv, dict) or not isinstance(iv.get("models"), dict):
             iv = {"models": _point_estimates(run_dir, spec.key)}
-        for model, e in (iv.get("models") or {}).items():
+        by_model = comparisons.get(spec.key) if isinstance(comparisons.get(spec.key), dict) else {}
+        for model, e in iv["models"].items():
             if not isinstance(e, dict):
                 continue
-            c = (comparisons.get(spec.key) or {}).get(model) or {}
+            c = by_model.get(model) if isinstance(by_model.get(model), dict) else {}
             rows.append({"metric": spec.key, "label": spec.label, "model": model,
                          "estimate": _num(e.get("estimate")), "low": _num(e.get("low")),
-                         "high": _num(e.get("high")), "unit": e.get("unit") or "",
-                         "n_units": e.get("n_units"), "verdict": c.get("verdict") or "",
+                         "high": _num(e.get("high")), "unit": str(e.get("unit") or ""),
+                         "n_units": e.get("n_units"), "verdict": str(c.get("verdict") or ""),
                          "lower_is_better": spec.lower_is_better})
     return pd.DataFrame(rows, columns=_COLUMNS)
 

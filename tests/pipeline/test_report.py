@@ -29,3 +29,14 @@ def test_status_reflects_failure_not_the_running_manifest(tmp_path):
     assert "<td>status</td><td>complete</td>" in html
     html = write_report(_run_dir(tmp_path, failure={"stage": "models"})).read_text()
     assert "<td>status</td><td>failed</td>" in html
+
+
+def test_a_strangers_malformed_intervals_give_a_report_not_a_traceback(tmp_path):
+    run = _run_dir(tmp_path)
+    metrics = {"heldout": {"models": {}}, "intervals": {"a": [1, 2], "b": {"models": {
+        "anfis": {"estimate": "5.5"}, "x": {"estimate": 1.0, "low": None, "high": 2.0}}}},
+        "comparisons": {"reference": ["not", "a", "name"], "metrics": {"b": [1]}}}
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    html = write_report(run).read_text()
+    assert "<td>x</td>" in html and "no interval" in html
+    assert "Traceback" not in html

@@ -114,5 +114,11 @@ def test_sweep_console_table_is_short_and_ranked():
     lines = text.splitlines()
     assert max(map(len, lines)) <= 80
     assert "a_long_column_nobody_reads" not in text and "note" not in text
+    # too many columns for 80: whole columns go, never part of a number
+    wide = summary.assign(**{f"p{k}_with_a_long_name": 1.23456 for k in range(6)})
+    text = _sweep_table(wide, [f"p{k}_with_a_long_name" for k in range(6)] + ["tx_power_dbm"])
+    assert max(map(len, text.splitlines())) <= 80
+    header = text.splitlines()[0].split()
+    assert all(h in wide.columns for h in header), header
     # best read rate first, the failed point last
     assert lines[1].split()[0] == "27.15" and "failed" in lines[-1]

@@ -35,10 +35,11 @@ def test_a_users_directory_is_refused_and_left_alone(tmp_path):
     d = tmp_path / "mine"
     d.mkdir()
     (d / "summary.csv").write_text("my numbers\n")
+    (d / "runs").mkdir()  # a folder of the user's that happens to be called runs/
     res = runner.invoke(app, ["sweep", EXAMPLE, "--out", str(d)])
     assert res.exit_code == 2 and "not a sweep directory" in res.output
     assert (d / "summary.csv").read_text() == "my numbers\n"
-    assert sorted(p.name for p in d.iterdir()) == ["summary.csv"]
+    assert sorted(p.name for p in d.iterdir()) == ["runs", "summary.csv"]
     check_sweep_dir(tmp_path / "new")  # a missing or empty directory is fine
 
 
@@ -51,3 +52,10 @@ def test_a_nan_point_stops_the_sweep_before_any_point_runs(tmp_path):
     res = runner.invoke(app, ["sweep", str(sw), "--out", str(tmp_path / "s")])
     assert res.exit_code == 2 and "point 1" in res.output
     assert not (tmp_path / "s").exists()
+
+
+def test_a_link_loop_as_out_is_one_line(tmp_path):
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    res = runner.invoke(app, ["sweep", EXAMPLE, "--out", str(loop)])
+    assert res.exit_code == 2 and "cannot be used as a sweep directory" in res.output, res.output
