@@ -378,10 +378,36 @@ def config_from_mapping(data: dict, source: str = "<config>", base_dir: Path | N
     A relative ``scene`` path (one that is not a bundled name) and a relative
     ``tracing.cache_dir`` are resolved against ``base_dir``.
     """
+    _removed_keys(data, source)
     cfg = from_dict(StudyConfig, data, source=source)
     if base_dir is not None:
         cfg = _resolve_paths(cfg, Path(base_dir))
     return cfg
+
+
+#: Keys of older configs that no longer exist -> what to write instead (an old run
+#: directory's config.toml holds them).
+REMOVED_KEYS = {
+    "tracing.lattice_spacing_m": "pooled tracing was removed; delete the key (0 meant off, "
+                                 "the default)",
+    "tracing.pooled": "pooled tracing was removed; delete the key",
+}
+
+
+def _removed_keys(data: dict, source: str) -> None:
+    """A removed key gets a migration hint instead of 'unknown key'; share_radius_m = 0
+    (the old way to trace every position alone) points to tracing.method = "direct"."""
+    tracing = data.get("tracing") if isinstance(data, dict) else None
+    if not isinstance(tracing, dict):
+        return
+    for dotted, hint in REMOVED_KEYS.items():
+        if dotted.split(".", 1)[1] in tracing:
+            raise ConfigError(f"{source}: {dotted}: {hint}")
+    r = tracing.get("share_radius_m")
+    if isinstance(r, (int, float)) and not isinstance(r, bool) and r == 0:
+        raise ConfigError(f"{source}: tracing.share_radius_m = 0 no longer switches sharing "
+                          "off: set tracing.method = \"direct\" (every position traced alone) "
+                          "and delete share_radius_m")
 
 
 def _resolve_paths(cfg: StudyConfig, base_dir: Path) -> StudyConfig:

@@ -430,8 +430,8 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
 
     A path of ``b`` is dropped when a path of ``a`` (or an earlier one of ``b``) to the
     same tag has a length within ``length_tol_m`` and departure and arrival directions
-    within ``direction_tol`` per component (the copy test of pooled tracing,
-    ``sionna_paths.path_copies``, without its transfer-matrix check). Tolerances, not rounding to a grid: the same path
+    within ``direction_tol`` per component (``sionna_paths.path_copies``' test, without its
+    transfer-matrix check). Tolerances, not rounding to a grid: the same path
     solved from two candidates differs by float32 noise (~1e-6 m at 20 m), which a
     0.1 mm grid line splits ~2 % of the time. The paths of ``a`` are all kept: Sionna's
     traces hold distinct paths with equal length and departure (a wave bouncing inside

@@ -68,7 +68,7 @@ DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
 SHARING_ALGORITHM = 6  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
 # 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed);
-# 6: no padding receivers (propagation.shooting): they shared the shooting's per-source table of
+# 6: no padding receivers (the shooting loop, propagation.sionna_internals): they shared the shooting's per-source table of
 # specular chains with the tags, so a rare collision could drop a tag's chain
 
 

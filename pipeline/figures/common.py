@@ -61,7 +61,7 @@ STYLE = {
     "legend.frameon": False,
     "axes.spines.top": False,
     "axes.spines.right": False,
-    "axes.grid": True,
+    "axes.grid": False,  # on where it helps (dot plots); never over colour maps
     "grid.linewidth": 0.5,
     "grid.alpha": 0.35,
     "lines.linewidth": 1.2,
@@ -93,7 +93,7 @@ class FigureOutput:
 
 # the default FigureOutput is frozen: immutable, safe as a ContextVar default
 _OUTPUT: contextvars.ContextVar[FigureOutput] = contextvars.ContextVar(
-    "figure_output", default=FigureOutput())  # noqa: B039  # noqa: B039 (frozen dataclass: immutable)
+    "figure_output", default=FigureOutput())  # noqa: B039 (frozen dataclass: immutable)
 
 
 @contextlib.contextmanager

@@ -203,7 +203,7 @@ def draw_headline(tables: dict[str, pd.DataFrame], metrics=HEADLINE_METRICS,
                                     color="tab:green" if v == "better" else "tab:red")
         ax.set_title(spec.label + (" (lower is better)" if spec.lower_is_better
                                    else " (higher is better)"), fontsize=8.5)
-        ax.grid(axis="y", visible=False)
+        ax.grid(axis="x", visible=True)
     for ax in axes[len(present):]:
         ax.set_visible(False)
     for ax in axes[::ncol]:

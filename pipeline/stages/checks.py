@@ -9,7 +9,7 @@ import numpy as np
 from pipeline.config import ConfigError
 from pipeline.stages.common import load_scene, study_route
 
-__all__ = ["CHECKS", "check_antenna_mounts"]
+__all__ = ["CHECKS", "check_antenna_mounts", "check_tracer_versions"]
 
 
 def check_antenna_mounts(ctx) -> None:
@@ -80,4 +80,30 @@ def check_antenna_mounts(ctx) -> None:
 
 #: The checks of the full study, run before the first stage that is not ``always``
 #: (after the scene stage).
-CHECKS = (check_antenna_mounts,)
+def check_tracer_versions(ctx) -> None:
+    """The fast tracer (``tracing.method = "shared"``) on the tested sionna-rt, mitsuba and
+    drjit only (:data:`propagation.sionna_internals.TESTED_VERSIONS`, read from the package
+    metadata without importing them): an untested version stops the study here, before
+    the tour, with the one line the tracer itself would give at the reads stage."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from propagation.sionna_internals import TESTED_VERSIONS, SionnaVersionError
+
+    if ctx.config.tracing.method != "shared":
+        return
+    got = {}
+    for pkg in TESTED_VERSIONS:
+        try:
+            got[pkg] = version(pkg)
+        except PackageNotFoundError:
+            got[pkg] = "not installed"
+    if got != TESTED_VERSIONS:
+        have = ", ".join(f"{k} {v}" for k, v in got.items())
+        want = ", ".join(f"{k} {v}" for k, v in TESTED_VERSIONS.items())
+        raise ConfigError(str(SionnaVersionError(
+            f"tracing.method = \"shared\" uses Sionna internals tested only with {want}, but "
+            f"{have} is installed: set tracing.method = \"direct\" (Sionna's public API "
+            "only) or install the tested versions (constraints.txt)")))
+
+
+CHECKS = (check_tracer_versions, check_antenna_mounts)

@@ -215,3 +215,12 @@ def test_unknown_detuning_material_is_named():
         config_from_mapping({"reader": {"detuning_materials": ["unobtainium"]}})
     cfg = config_from_mapping({"reader": {"detuning_materials": ["metal", "glass"]}})
     assert cfg.reader.detuning_materials == ("metal", "glass")
+
+
+def test_keys_of_older_configs_get_a_migration_hint():
+    from pipeline.config import ConfigError, config_from_mapping
+
+    with pytest.raises(ConfigError, match="lattice_spacing_m: pooled tracing was removed"):
+        config_from_mapping({"tracing": {"lattice_spacing_m": 0.0}})
+    with pytest.raises(ConfigError, match='tracing.method = "direct"'):
+        config_from_mapping({"tracing": {"share_radius_m": 0.0}})

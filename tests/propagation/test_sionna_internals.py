@@ -198,3 +198,21 @@ def test_no_sionna_internals_outside_the_compat_module():
     hits = [f"{path.relative_to(ROOT)}:{line}: {what}" for path in files if path != compat
             for line, what in _internal_uses(ast.parse(path.read_text(encoding="utf-8")))]
     assert not hits, "Sionna internals outside propagation/sionna_internals.py: " + ", ".join(hits)
+
+
+def test_the_study_refuses_an_untested_version_before_the_tour(monkeypatch):
+    # the check reads the package metadata: an untested sionna-rt stops the study at its
+    # checks (after the scene), naming both versions, before any tour or tracing
+    import importlib.metadata as md
+    from types import SimpleNamespace
+
+    from pipeline.config import ConfigError, StudyConfig, replace_path
+    from pipeline.stages.checks import check_tracer_versions
+
+    real = md.version
+    monkeypatch.setattr(md, "version", lambda pkg: "2.3.0" if pkg == "sionna-rt" else real(pkg))
+    ctx = SimpleNamespace(config=StudyConfig())
+    with pytest.raises(ConfigError, match=r"sionna-rt 2\.3\.0.*tracing\.method = \"direct\""):
+        check_tracer_versions(ctx)
+    check_tracer_versions(SimpleNamespace(config=replace_path(StudyConfig(), "tracing.method",
+                                                                 "direct")))
