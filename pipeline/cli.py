@@ -19,6 +19,7 @@ during ``run`` exits 130 after naming the stage it interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import sys
@@ -239,6 +240,34 @@ def _csv_option(value: str | None) -> list[str] | None:
     return None if value is None else [v.strip() for v in value.split(",") if v.strip()]
 
 
+def _figure_output(format_: str | None, dpi: int | None):
+    """The :class:`~pipeline.figures.FigureOutput` of ``--format`` and ``--dpi`` (each
+    default where not given); ValueError naming a bad value."""
+    from pipeline.figures import FigureOutput
+
+    return FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
+                        **({"dpi": dpi} if dpi is not None else {}))
+
+
+@contextlib.contextmanager
+def _output_errors(where: str, data_errors=(FileNotFoundError, ValueError)):
+    """One line for what a command reading a run directory and writing files can meet: a
+    refused run directory (exit 2), unreadable inputs (``data_errors``, exit 1), a place
+    that cannot be written (exit 2, naming `where` or the file)."""
+    from pipeline.runstore import RunDirError
+
+    try:
+        yield
+    except RunDirError as exc:
+        _fail(str(exc))
+    except data_errors as exc:
+        _fail(str(exc), code=1)
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        _fail_os(exc, where)
+
+
 @app.command()
 def figures(
     run_dir: Annotated[Path, typer.Argument(help="A run directory.")],
@@ -261,7 +290,7 @@ def figures(
     writes into RUN/paper_figures (or --out DIR); PDFs embed TrueType (Type 42) fonts.
     """
     _setup_logging(verbose)
-    from pipeline.figures import FIGURES, FigureOutput, draw_all
+    from pipeline.figures import FIGURES, draw_all
     from pipeline.report import write_report
     from pipeline.runstore import RunDirError
 
@@ -272,8 +301,7 @@ def figures(
         return
     custom = format_ is not None or dpi is not None or only is not None
     try:
-        output = FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
-                              **({"dpi": dpi} if dpi is not None else {}))
+        output = _figure_output(format_, dpi)
     except ValueError as exc:
         _fail(str(exc))
     names = _csv_option(only)
@@ -292,18 +320,10 @@ def figures(
         _fail("--format, --dpi and --only do not write into the study's own figures/ (its "
               "stage record hashes them): leave out --out, or give another directory")
     t0 = time.perf_counter()
-    try:
-        with store.lock("rfidstudy figures"):
-            paths = draw_all(run_dir, out_dir=target, names=names, output=output)
-            report = write_report(run_dir) if study_figures else None
-    except RunDirError as exc:
-        _fail(str(exc))
-    except (FileNotFoundError, ValueError, KeyError) as exc:
-        _fail(str(exc), code=1)
-    except OSError as exc:
-        if exc.errno not in _WRITE_ERRNOS:
-            raise
-        _fail_os(exc, str(target))
+    with _output_errors(str(target), (FileNotFoundError, ValueError, KeyError)), \
+            store.lock("rfidstudy figures"):
+        paths = draw_all(run_dir, out_dir=target, names=names, output=output)
+        report = write_report(run_dir) if study_figures else None
     tail = f"; report {report}" if report is not None else ""
     typer.echo(f"{len(paths)} figure files in {target}{tail} "
                f"({time.perf_counter() - t0:.1f} s)")
@@ -318,9 +338,9 @@ def compare(
     dpi: Annotated[int | None, typer.Option(help="Resolution of PNG [dpi] (default 120).")] = None,
 ):
     """Draw the headline numbers of several runs side by side, each with its 95 % interval."""
-    from pipeline.figures import FigureOutput, figure_output
+    from pipeline.figures import figure_output
     from pipeline.figures.headline import compare_runs
-    from pipeline.runstore import RunDirError, is_run_dir
+    from pipeline.runstore import is_run_dir
 
     for d in run_dirs:
         if not d.is_dir() or not is_run_dir(d):
@@ -328,19 +348,9 @@ def compare(
         if out.resolve() == d.resolve() or d.resolve() in out.resolve().parents:
             _fail(f"--out {out} is inside the run directory {d}: compare writes outside the runs "
                   "it reads")
-    try:
-        output = FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
-                              **({"dpi": dpi} if dpi is not None else {}))
-        with figure_output(output):
+    with _output_errors(str(out)):
+        with figure_output(_figure_output(format_, dpi)):
             paths = compare_runs(run_dirs, out)
-    except RunDirError as exc:
-        _fail(str(exc))
-    except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc), code=1)
-    except OSError as exc:
-        if exc.errno not in _WRITE_ERRNOS:
-            raise
-        _fail_os(exc, str(out))
     typer.echo(f"{len(run_dirs)} runs compared: {', '.join(str(p) for p in paths)}")
 
 
@@ -348,20 +358,10 @@ def compare(
 def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     """Rewrite report.html from a run directory's files."""
     from pipeline.report import write_report
-    from pipeline.runstore import RunDirError
 
     store = _existing_run_dir(run_dir, "report")
-    try:
-        with store.lock("rfidstudy report"):
-            typer.echo(str(write_report(run_dir)))
-    except RunDirError as exc:
-        _fail(str(exc))
-    except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc), code=1)
-    except OSError as exc:
-        if exc.errno not in _WRITE_ERRNOS:
-            raise
-        _fail_os(exc, str(run_dir))
+    with _output_errors(str(run_dir)), store.lock("rfidstudy report"):
+        typer.echo(str(write_report(run_dir)))
 
 
 @app.command()

@@ -8,7 +8,8 @@ table with 95 % intervals and verdicts, findings generated from the numbers
 its tables and captioned figures (:mod:`pipeline.figures.captions`); the rankings, every
 other number of ``metrics.json`` (laid out from the JSON's nesting, so new metrics show
 up without changes here), the config and the manifest are collapsed (``<details>``).
-Missing values show as '–', shares as percentages.
+Missing values show as '–', shares as percentages; the tables are
+:mod:`pipeline.reporttables`'.
 """
 
 from __future__ import annotations
@@ -19,12 +20,23 @@ import html
 import json
 import logging
 import os
-import re
 import tomllib
 from pathlib import Path
 
-from pipeline.evaluation.headline import METRICS
 from pipeline.figures.captions import CAPTIONS, SECTIONS
+from pipeline.reporttables import (
+    budget_html,
+    downstream_html,
+    flatten_scalars,
+    fmt_cell,
+    heldout_html,
+    intervals_html,
+    mcl_html,
+    metrics_tables,
+    model_comparison_tables,
+    sites_html,
+    table_html,
+)
 from pipeline.runstore import (
     UnsafePathError,
     atomic_write_text,
@@ -33,9 +45,7 @@ from pipeline.runstore import (
     run_files,
 )
 
-__all__ = ["budget_html", "downstream_html", "figure_captions", "headline_html", "heldout_html",
-           "intervals_html", "mcl_html", "metrics_tables", "sites_html",
-           "model_comparison_tables", "write_pooled_report", "write_report"]
+__all__ = ["figure_captions", "write_pooled_report", "write_report"]
 
 log = logging.getLogger(__name__)
 
@@ -69,99 +79,6 @@ def _load_json(path: Path) -> dict | None:
     return data
 
 
-_SHARE = re.compile(r"(share|fraction|within_\d|within \d|converged_share|recovered_share)",
-                    re.IGNORECASE)
-
-
-def _is_share(col: str) -> bool:
-    """A column of shares in [0, 1] (shown as percentages): named so, and without a unit."""
-    return bool(_SHARE.search(col)) and "[" not in col
-
-
-def _fmt(v, col: str = "") -> str:
-    """A table cell: '–' for a missing value, shares as percentages, 4 significant digits."""
-    if v is None:
-        return "–"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int):
-        return f"{v:d}"
-    if isinstance(v, float):
-        if v != v:
-            return "–"
-        if _is_share(col) and 0.0 <= v <= 1.0:
-            return f"{100 * v:.1f} %"
-        return f"{v:.4g}"
-    return html.escape(str(v))
-
-
-def _is_scalar(v) -> bool:
-    return v is None or isinstance(v, (int, float, str, bool))
-
-
-def metrics_tables(metrics: dict, prefix: str = "") -> list[tuple[str, list[str], list[list]]]:
-    """Lay out nested metrics as tables.
-
-    Parameters
-    ----------
-    metrics : dict
-        Parsed ``metrics.json``.
-    prefix : str
-        Dotted name of ``metrics`` inside the whole document.
-
-    Returns
-    -------
-    list of (title, column names, rows)
-        A mapping whose values are all mappings of scalars becomes one table (rows =
-        outer keys); a mapping's scalar entries become a two-column table; deeper
-        nesting recurses with dotted titles.
-    """
-    tables = []
-    scalars = [(k, v) for k, v in metrics.items() if _is_scalar(v)]
-    subs = [(k, v) for k, v in metrics.items() if isinstance(v, dict)]
-    if scalars:
-        tables.append((prefix or "summary", ["quantity", "value"], [[k, v] for k, v in scalars]))
-    for k, v in subs:
-        name = f"{prefix}.{k}" if prefix else k
-        rows_are_tables = v and all(
-            isinstance(x, dict) and x and all(_is_scalar(y) for y in x.values()) for x in v.values()
-        )
-        if rows_are_tables:
-            cols: list[str] = []
-            for x in v.values():
-                cols += [c for c in x if c not in cols]
-            rows = [[rk] + [x.get(c) for c in cols] for rk, x in v.items()]
-            tables.append((name, [""] + cols, rows))
-        else:
-            tables.extend(metrics_tables(v, name))
-    return tables
-
-
-def model_comparison_tables(models: dict) -> list[tuple[str, list[str], list[list]]]:
-    """One table per metric group (rssi_dbm, detection, rho, fig7...): rows = models.
-
-    Parameters
-    ----------
-    models : dict
-        ``metrics.json``'s ``models`` mapping: model name -> group -> statistics.
-    """
-    groups: list[str] = []
-    for m in models.values():
-        if isinstance(m, dict):
-            groups += [g for g, v in m.items() if isinstance(v, dict) and g not in groups]
-    tables = []
-    for g in groups:
-        cols: list[str] = []
-        rows = []
-        for name, m in models.items():
-            stats = _flatten(m.get(g, {})) if isinstance(m, dict) else {}
-            cols += [c for c in stats if c not in cols]
-            rows.append((name, stats))
-        tables.append((f"models: {g}", ["model"] + cols,
-                       [[name] + [st.get(c) for c in cols] for name, st in rows]))
-    return tables
-
-
 def _methods_html(run: Path, cfg: dict) -> list[str]:
     """Methods: materials (P.2040 fits extrapolated to the study frequency), radio geometry
     and the held-out design, from scene/scene.json and config.toml."""
@@ -174,8 +91,8 @@ def _methods_html(run: Path, cfg: dict) -> list[str]:
            "carrying its thickness (a stud partition as two plasterboard leaves); Sionna RT "
            "applies the ITU-R P.2040 slab model once per surface crossed. Boxes and cabinets "
            "are closed shells. The evaluation tour reads a held-out tag layout "
-           f"({_fmt(info.get('n_tags_eval'))} tags drawn on the scene's surfaces with their "
-           f"own seed) that the training tour ({_fmt(info.get('n_tags_train'))} tags) never "
+           f"({fmt_cell(info.get('n_tags_eval'))} tags drawn on the scene's surfaces with their "
+           f"own seed) that the training tour ({fmt_cell(info.get('n_tags_train'))} tags) never "
            "reads.</p>"]
     try:
         rows = extrapolated_materials(info.get("materials") or [], f_hz)
@@ -185,169 +102,10 @@ def _methods_html(run: Path, cfg: dict) -> list[str]:
         out.append(f"<p>Material properties follow ITU-R P.2040-3 Table 3; these fits are valid "
                    f"from 1 GHz and are extrapolated to {f_hz / 1e9:.4g} GHz (smooth power "
                    "laws, the usual practice for UHF):</p>")
-        out.append(_table_html("materials extrapolated below their P.2040 range",
+        out.append(table_html("materials extrapolated below their P.2040 range",
                                ["material", "valid from [GHz]", "eps_r", "sigma [S/m]"],
                                [[r["material"], r["range_ghz"][0], r["relative_permittivity"],
                                  r["conductivity_s_per_m"]] for r in rows]))
-    return out
-
-
-_HEADLINE_COLS = (
-    ("RSSI MAE [dB]", "rssi_dbm", "mae"), ("RSSI RMSE [dB]", "rssi_dbm", "rmse"),
-    ("RSSI bias [dB]", "rssi_dbm", "bias"), ("RSSI links", "rssi_dbm", "n"),
-    ("RMSE on the bound's links [dB]", "rssi_dbm_bound_links", "rmse"), ("fT cell MAE", "detection", "mae"),
-    ("Brier", "detection", "brier"), ("Fig. 7 median [%]", "fig7", "median_pct"),
-    ("Fig. 7 p90 [%]", "fig7", "p90_pct"), ("Fig. 7 share < 20 %", "fig7", "share_below_20pct"),
-)
-
-
-def headline_html(metrics: dict) -> list[str]:
-    """The held-out headline, error budget, MCL bias, downstream and tag-site tables as HTML
-    parts (each also alone: :func:`heldout_html`, :func:`budget_html`, :func:`mcl_html`,
-    :func:`downstream_html`, :func:`sites_html`).
-
-    Parameters
-    ----------
-    metrics : dict
-        ``metrics.json`` with a ``heldout`` section (see ``pipeline.stages.evaluation``).
-    """
-    return [*heldout_html(metrics), *budget_html(metrics), *mcl_html(metrics),
-            *downstream_html(metrics), *sites_html(metrics)]
-
-
-def heldout_html(metrics: dict) -> list[str]:
-    """The held-out table: every model's point scores against the truth, and the bound."""
-    held = metrics["heldout"]
-    fig7 = metrics.get("fig7") or {}
-    data = held.get("data") or {}
-    out = ["<h3>Held-out scores in detail</h3>",
-           f"<p>Every number is on data no model saw: the evaluation tour (its own MCL run in "
-           f"the same map) reading the held-out tag layout ({_fmt(data.get('n_tags'))} tags, "
-           f"{_fmt(data.get('n_attempts'))} attempts), against the noise-free ray-traced truth; "
-           f"RSSI within d &lt; {_fmt(data.get('d_max_m'))} m. Baselines are fitted on the "
-           "training tour only. Fig. 7 is chapter Sec. 5: |f&#772;s - s| x 100 on "
-           "normalised RSSI, within the training domain. '–': the model predicts no such "
-           "quantity. The row 'bound' is an oracle, not a model: the held-out truth's own "
-           "(d, &alpha;) cell means on its own links (cells holding enough of them), which no "
-           "function constant on those cells can beat there; 'RMSE on the bound's links' "
-           "puts every model on those same links, and the error budget uses them.</p>"]
-    rows = []
-    models = dict(held.get("models") or {})
-    models["bound"] = held.get("bound") or {}
-    for name, m in models.items():
-        row = [name]
-        for _, sec, key in _HEADLINE_COLS:
-            if sec == "fig7":
-                src = fig7.get(name)
-            elif name == "bound" and sec == "rssi_dbm_bound_links":
-                src = (m or {}).get("rssi_dbm")  # the bound is on its own links
-            else:
-                src = (m or {}).get(sec)
-            row.append(None if not isinstance(src, dict) else src.get(key))
-        rows.append(row)
-    out.append(_table_html("held-out: model against the ray-traced truth",
-                           ["model"] + [c[0] for c in _HEADLINE_COLS], rows))
-    return out
-
-
-_BUDGET_ORDER = ("representation_bound", "model_form", "localisation", "reader_noise", "total",
-                 "n_links")
-
-
-def budget_html(metrics: dict) -> list[str]:
-    """The error budget of the held-out RSSI error (terms in the budget's order; a term
-    with no number at all is left out) and the bound against the cell size."""
-    out = []
-    budget = metrics.get("error_budget")
-    if isinstance(budget, dict):
-        cols = ("rmse_db", "between_cells_db", "within_cells_db2", "step_db", "how")
-        terms = [k for k, v in budget.items() if isinstance(v, dict) and k != "by_cell_size"]
-        terms = sorted(terms, key=lambda k: _BUDGET_ORDER.index(k) if k in _BUDGET_ORDER
-                       else len(_BUDGET_ORDER))  # stable: unknown terms keep their order
-        rows = [[k, *[budget[k].get(c) for c in cols]] for k in terms
-                if any(budget[k].get(c) is not None for c in cols[:-1])]
-        n = (budget.get("n_links") or {}).get("value") if isinstance(budget.get("n_links"),
-                                                                     dict) else None
-        out.append(_table_html(
-            "error budget of the held-out RSSI error"
-            + (f" (matched terms on {n} links)" if n is not None else ""),
-            ["term", "RMSE [dB]", "between cells [dB]", "within cells [dB²]", "step [dB]", "how"],
-            rows))
-        by_size = budget.get("by_cell_size")
-        if isinstance(by_size, dict) and by_size:
-            cols = [c for v in by_size.values() for c in v]
-            cols = list(dict.fromkeys(cols))
-            out.append(_table_html("the bound against the cell size (smaller cells: a lower "
-                                   "bound, down to 0 at one link per cell)", ["cells", *cols],
-                                   [[k, *[v.get(c) for c in cols]] for k, v in by_size.items()]))
-    return out
-
-
-def mcl_html(metrics: dict) -> list[str]:
-    """MCL pose error and bias per tour, one row per tour (transposed: a column per tour,
-    so the many statistics fit the page)."""
-    loc = metrics.get("localisation")
-    if not isinstance(loc, dict) or not loc:
-        return []
-    tours = [k for k, v in loc.items() if isinstance(v, dict)]
-    stats: list[str] = []
-    for k in tours:
-        stats += [c for c, x in loc[k].items() if _is_scalar(x) and c not in stats]
-    return [_table_html("MCL pose error and bias (biased map)", ["statistic", *tours],
-                        [[c, *[loc[k].get(c) for k in tours]] for c in stats])]
-
-
-def downstream_html(metrics: dict) -> list[str]:
-    """The downstream tables: held-out tags and the RFID-only robot filter per model."""
-    out = []
-    for key, title, cols in (
-            ("tag_localisation", "held-out tags localised from the evaluation tour's "
-             "reads (MAP over candidate sites; 3-D error)",
-             ("median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "horizontal_median_m",
-              "n_tags")),
-            ("robot_localisation", "RFID-only robot localisation (unknown start, "
-             "kidnapped halfway; medians over every step of every filter run, before and "
-             "from the kidnapping; runs that converged and recovered)",
-             ("median_m", "median_before_kidnap_m", "median_after_kidnap_m", "p90_m",
-              "converged_runs", "recovered_runs", "n_runs"))):
-        sec = metrics.get(key)
-        if isinstance(sec, dict) and sec:
-            out.append(_table_html(title, ["model", *cols],
-                                   [[n, *[(v or {}).get(c) for c in cols]] for n, v in sec.items()]))
-    return out
-
-
-def sites_html(metrics: dict) -> list[str]:
-    """Truth where tags are: the model's rho against the truth at clear and obstructed sites."""
-    out = []
-    sites = metrics.get("tag_sites")
-    if isinstance(sites, dict) and sites:
-        rows = []
-        for name, s in sites.items():
-            for part in ("clear", "obstructed"):
-                p = s.get(part) or {}
-                rho = p.get("rho") or {}
-                rows.append([name, part, p.get("n_pairs"), rho.get("mae"), rho.get("bias"),
-                             p.get("fT_mae"), p.get("true_read_fraction"),
-                             p.get("predicted_read_fraction")])
-        out.append("<p>Truth where tags are: every tag site (a grid on every surface facing "
-                   "free space, tag dipole in the surface) within the training domain of "
-                   "evaluation-tour antenna poses; 'obstructed': the straight line crosses a "
-                   "wall, cabinet or box.</p>")
-        out.append(_table_html("tag sites: model against the truth",
-                               ["model", "pairs", "n", "rho MAE", "rho bias", "fT MAE",
-                                "true read fraction", "predicted read fraction"], rows))
-    return out
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    """Scalars of a nested mapping with dotted keys (one level deep; lists dropped)."""
-    out = {}
-    for k, v in d.items():
-        if _is_scalar(v):
-            out[f"{prefix}{k}"] = v
-        elif isinstance(v, dict) and not prefix:
-            out.update({kk: vv for kk, vv in _flatten(v, f"{k}.").items()})
     return out
 
 
@@ -359,59 +117,6 @@ def figure_captions(run_dir: Path) -> dict[str, str]:
     if isinstance(caps, dict):
         return {str(k): str(v) for k, v in caps.items()}
     return dict(CAPTIONS)
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _interval_text(iv: dict | None, digits: int = 3) -> str:
-    if not isinstance(iv, dict) or not _is_number(iv.get("estimate")):
-        return "–"
-    est = f"{iv['estimate']:.{digits}g}"
-    if not (_is_number(iv.get("low")) and _is_number(iv.get("high"))):
-        return f"{est} (no interval: {iv.get('note') or 'undefined'})"
-    return f"{est} [{iv['low']:.{digits}g}, {iv['high']:.{digits}g}]"
-
-
-def intervals_html(metrics: dict) -> list[str]:
-    """The ranking tables: per headline metric, every model's estimate with its 95 %
-    interval, its difference to the reference model on the same units and the verdict
-    (``metrics.json`` sections ``intervals`` and ``comparisons``,
-    :mod:`pipeline.evaluation.headline`). Models are listed best first by estimate; a
-    difference is stated only where its interval excludes 0."""
-    ivs = metrics.get("intervals")
-    if not isinstance(ivs, dict) or not ivs:
-        return []
-    cmp_ = metrics.get("comparisons") if isinstance(metrics.get("comparisons"), dict) else {}
-    ref = str(cmp_.get("reference", "anfis"))
-    by_metric = cmp_.get("metrics") if isinstance(cmp_.get("metrics"), dict) else {}
-    out = ["<h3>Rankings with 95 % intervals</h3>",
-           f"<p>Each number with its 95 % confidence interval from a bootstrap over the "
-           f"independent units (held-out tags; filter runs; with replicates, both within each "
-           f"replicate), and each model against <b>{html.escape(ref)}</b> on the same units: "
-           "'better' or 'worse' only where the interval of the difference excludes 0, else "
-           "'not distinguishable at 95 %'. The order of the rows is the estimates' and is not "
-           "a ranking where the verdicts say 'not distinguishable'.</p>"]
-    for key, sec in ivs.items():
-        if not isinstance(sec, dict) or not isinstance(sec.get("models"), dict):
-            continue  # a malformed entry of a stranger's metrics.json: not shown
-        models = {m: e for m, e in sec["models"].items()
-                  if isinstance(e, dict) and _is_number(e.get("estimate"))}
-        lower = next((m.lower_is_better for m in METRICS if m.key == key), True)
-        order = sorted(models, key=lambda m: (models[m].get("estimate") is None,
-                                              (1 if lower else -1) * (models[m].get("estimate") or 0)))
-        rows = []
-        for m in order:
-            per = by_metric.get(key) if isinstance(by_metric.get(key), dict) else {}
-            c = per.get(m) if isinstance(per.get(m), dict) else None
-            rows.append([m, _interval_text(models[m]),
-                         "(reference)" if m == ref else _interval_text(c),
-                         "" if m == ref else str((c or {}).get("verdict", "–"))])
-        out.append(_table_html(f"{sec.get('label', key)}: {sec.get('n_units')} {sec.get('unit')}s",
-                               ["model", "estimate [95 % interval]",
-                                f"minus {ref} [95 % interval]", "verdict"], rows))
-    return out
 
 
 def write_pooled_report(metrics: dict, out: str | Path) -> Path:
@@ -428,7 +133,7 @@ def write_pooled_report(metrics: dict, out: str | Path) -> Path:
              "complete replicates' held-out tags and filter runs.</p>"]
     failed = rep.get("failed") or []
     if failed:
-        parts.append(_table_html("failed replicates (not pooled)", ["replicate", "seed", "error"],
+        parts.append(table_html("failed replicates (not pooled)", ["replicate", "seed", "error"],
                                  [[f.get("k"), f.get("seed"), f.get("error")] for f in failed]))
     parts.extend(intervals_html(metrics))
     per = metrics.get("per_replicate") or {}
@@ -436,7 +141,7 @@ def write_pooled_report(metrics: dict, out: str | Path) -> Path:
     parts.append("<h2>Each replicate's own estimates</h2>")
     for key, models in (per.get("metrics") or {}).items():
         label = ((metrics.get("intervals") or {}).get(key) or {}).get("label", key)
-        parts.append(_table_html(label, ["model", *[f"replicate {k}" for k in reps]],
+        parts.append(table_html(label, ["model", *[f"replicate {k}" for k in reps]],
                                  [[m, *vals] for m, vals in models.items()]))
     parts.append("<h2>Replicates</h2><ul>")
     for k in reps:
@@ -446,16 +151,6 @@ def write_pooled_report(metrics: dict, out: str | Path) -> Path:
     out = Path(out)
     atomic_write_text(out, "\n".join(parts))
     return out
-
-
-def _table_html(title: str, cols: list[str], rows: list[list]) -> str:
-    # headers break at underscores (long keys would otherwise widen the table off the page)
-    head = "".join(f"<th>{html.escape(str(c)).replace('_', '_<wbr>')}</th>" for c in cols)
-    body = "".join("<tr>" + "".join(f"<td>{_fmt(c, str(col))}</td>"
-                                    for c, col in zip(r, cols, strict=False)) + "</tr>"
-                   for r in rows)
-    return (f"<h3>{html.escape(title)}</h3><div class='tw'><table><tr>{head}</tr>{body}"
-            "</table></div>")
 
 
 def _figure_files(run: Path) -> dict[str, Path]:
@@ -641,11 +336,11 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     backend = manifest.get("backend") or {}
     if isinstance(backend, dict) and backend:
         summary.append(["Dr.Jit variant", backend.get("variant")])
-    parts.append(_table_html("run", ["item", "value"], summary))
+    parts.append(table_html("run", ["item", "value"], summary))
     stages = manifest.get("stages") or {}
     if stages:
         rows = [[n, s.get("status"), s.get("elapsed_s"), s.get("peak_rss_mib")] for n, s in stages.items()]
-        parts.append(_table_html("stages", ["stage", "status", "elapsed [s]", "peak memory [MiB]"],
+        parts.append(table_html("stages", ["stage", "status", "elapsed [s]", "peak memory [MiB]"],
                                  rows))
     if metrics is not None:
         rest = dict(body)
@@ -658,22 +353,22 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
             raw.append("<p>ANFIS (trained on MCL poses) against the baselines, and against the "
                        "same models trained on true poses (the localisation-error split).</p>")
             for title, cols, rows in model_comparison_tables(rest.pop("models")):
-                raw.append(_table_html(title, cols, rows))
+                raw.append(table_html(title, cols, rows))
         split = rest.pop("localisation_split", None)
         if isinstance(split, dict) and isinstance(split.get("difference"), dict):
             # evaluate_all writes the differences flat: {"rssi_dbm.mae": x, ...}
-            rows = [[k, v] for k, v in sorted(_flatten(split["difference"]).items())]
+            rows = [[k, v] for k, v in sorted(flatten_scalars(split["difference"]).items())]
             raw.append("<p>Each value is the metric of the model trained on MCL poses minus "
                        "that of the model trained on true poses: the share of the error that "
                        "localisation adds.</p>")
-            raw.append(_table_html("MCL-pose minus true-pose model", ["metric", "difference"],
+            raw.append(table_html("MCL-pose minus true-pose model", ["metric", "difference"],
                                    rows))
         if isinstance(rest.get("in_sample"), dict):
             raw.append("<p class='muted'>In-sample (training tour, training tags): scored on "
                        "the reads the models were fitted on: optimistic, kept for comparison "
                        "with the held-out numbers.</p>")
         for title, cols, rows in metrics_tables(rest):
-            raw.append(_table_html(title, cols, rows))
+            raw.append(table_html(title, cols, rows))
         if raw:
             parts.append("<details><summary>every other number in metrics.json (in-sample "
                          "scores, Fig. 6 view, coverage, model fits)</summary>")
