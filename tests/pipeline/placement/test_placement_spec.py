@@ -36,6 +36,23 @@ def test_grid_is_the_cartesian_product_with_mirrored_pairs(tmp_path):
     assert cfg.seed == spec.base.seed and cfg.reader == spec.base.reader
 
 
+def test_orientation_only_siblings_wait_for_their_positions(tmp_path):
+    """Candidates sharing antenna positions must not run side by side (both would trace the
+    positions cold): one per position set first, the siblings in a second wave."""
+    from pipeline.placement.runner import position_waves
+
+    spec = load_placement(_write(tmp_path, "[grid]\nz_m = [0.5, 1.0]\ntilt_deg = [0.0, 20.0]\n"
+                                           "yaw_deg = [30.0, 60.0]\n"))
+    cands = candidates_of(spec)
+    first, rest = position_waves(cands)
+    assert sorted(c.values["z_m"] for c in first) == [0.5, 1.0]  # one per height
+    assert len(rest) == 6 and {c.name for c in first} | {c.name for c in rest} == \
+        {c.name for c in cands}
+    # a different lateral offset is a different position set, never a sibling
+    spec2 = load_placement(_write(tmp_path, "[grid]\ny_m = [0.15, 0.2]\ntilt_deg = [0.0, 20.0]\n"))
+    assert len(position_waves(candidates_of(spec2))[0]) == 2
+
+
 def test_asymmetric_and_single_antenna_mounts():
     low_high = mount_antennas(MountConfig(), {"z_m": 0.4, "z_right_m": 1.4})
     assert [a.z_m for a in low_high] == [0.4, 1.4]
