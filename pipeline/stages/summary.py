@@ -75,7 +75,8 @@ def tour_tags(run_dir: str | Path, budget=None):
         cfg = config_from_mapping(read_toml(path), source=str(path))
         budget = cfg.reader.link_budget(cfg.frequency_hz)
     reads = pd.read_parquet(inside(run, "reads.parquet"),
-                            columns=["time_s", "cycle", "tag_id", "read", "in_range", "gain_db"])
+                            columns=["time_s", "cycle", "antenna", "tag_id", "read", "in_range",
+                                     "gain_db"])
     tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "z_m"])
     return tour_tag_table(reads, t_s, passes, tags, budget)
 
