@@ -221,10 +221,11 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=9,
+              ("scene", "tour", "reads", "models"), version=10,
               # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
               # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
               # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
               # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin);
-              # 8: robot medians over all steps, every run's steps (robot_steps.parquet)
+              # 8: robot medians over all steps, every run's steps (robot_steps.parquet);
+              # 9: the oracle's Rician fading; 10: the phase likelihood's cell mean
               description="downstream localisation (tags, robot)")
