@@ -38,6 +38,7 @@ __all__ = [
     "split_tags",
     "spread_evenly",
     "stage_rng",
+    "tag_candidates",
     "study_route",
     "study_scene",
     "trace_options",
@@ -73,6 +74,26 @@ def resolve_cache_dir(cfg: StudyConfig) -> Path:
     if env:
         return Path(env).expanduser().resolve()
     return (Path.home() / ".cache" / "rfidstudy").resolve()
+
+
+def tag_candidates(scene, cfg: StudyConfig):
+    """Where the downstream stage looks for a held-out tag (every model, the phase
+    estimator and the oracle alike): the sites of every vertical surface of ``scene``
+    that faces free space, at every height it has (floor to top), every
+    ``downstream.candidate_spacing_m`` (:func:`scenes.tagsites.tag_sites` with
+    ``z_range_m=None``).
+
+    Not the held-out tags' own height band (``evaluation.eval_tag_heights_m``): a user's
+    unknown tags could be wherever a tag sticks, and candidates cut to the band the
+    evaluation drew its tags from would hand every model a prior it could not have. The
+    grid is laid on each face before any height cut, so where the band's candidates were
+    these still are: a held-out tag (drawn on the :data:`EVAL_TAG_SPACING_M` grid, whose
+    cell centres fall between this grid's) lies half a cell diagonal (3.5 cm at 5 cm)
+    from its nearest candidate, never on one.
+    """
+    from scenes.tagsites import tag_sites
+
+    return tag_sites(scene, spacing_m=cfg.downstream.candidate_spacing_m, z_range_m=None)
 
 
 def study_scene(cfg: StudyConfig):
