@@ -35,6 +35,7 @@ __all__ = [
     "read_track",
     "resolve_cache_dir",
     "select_backend",
+    "source_revision",
     "split_tags",
     "spread_evenly",
     "stage_rng",
@@ -359,11 +360,32 @@ def _version(dist: str) -> str | None:
         return None
 
 
+def source_revision() -> dict:
+    """The git commit of the code that runs (this package's checkout) and whether its
+    tracked files differ from it: ``{"commit": sha or None, "dirty": bool or None}``,
+    with ``"why"`` where git could not say (no git, not a checkout, e.g. an installed
+    wheel). What a number quoted from a run directory names as its source."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
+                                "--untracked-files=no"], capture_output=True, text=True,
+                               timeout=10, check=True).stdout.strip() != ""
+    except (OSError, subprocess.SubprocessError) as exc:
+        return {"commit": None, "dirty": None, "why": f"{type(exc).__name__}: {exc}"[:200]}
+    return {"commit": sha, "dirty": dirty}
+
+
 def manifest_info(cfg: StudyConfig) -> dict:
-    """Package versions, platform and the Dr.Jit backend for ``manifest.json``."""
+    """Package versions, platform, the source's git commit and the Dr.Jit backend for
+    ``manifest.json``."""
     dists = ["rfidstudy", "sionna-rt", "mitsuba", "drjit", "numpy", "scipy", "scikit-fuzzy",
              "trimesh", "pandas", "pyarrow", "matplotlib", "dask", "distributed"]
     info = {
+        "source": source_revision(),
         "versions": {d: _version(d) for d in dists},
         "python": platform.python_version(),
         "platform": platform.platform(),
