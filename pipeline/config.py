@@ -286,7 +286,8 @@ class DownstreamConfig:
 
     enabled: bool = option(True, "Run the downstream benchmark stage.")
     candidate_spacing_m: float = option(
-        0.05, "Grid of candidate tag positions on the scene's surfaces for the models [m].")
+        0.05, "Grid of candidate tag positions on the scene's surfaces, at every height they "
+        "have (not the held-out tags' band), for the models, phase estimator and oracle [m].")
     oracle: bool = option(
         False, "Also localise with the ray-traced oracle: the reader's own likelihood of the reads "
         "given the true gains, searched over every candidate coarse to fine without looking at "

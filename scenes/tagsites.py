@@ -83,7 +83,7 @@ def _face_grid(tri: np.ndarray, normal: np.ndarray, spacing_m: float) -> np.ndar
     return o + c[:, :1] * u_ax + c[:, 1:] * v_ax
 
 
-def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (0.2, 1.6),
+def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] | None = (0.2, 1.6),
               offset_m: float = 0.005, max_clearance_m: float = 2.0) -> TagSites:
     """Candidate tag sites on every vertical surface of ``scene`` that faces free space.
 
@@ -93,8 +93,9 @@ def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (
         Its solid meshes (``scene.meshes``) are sampled; its own tags are ignored.
     spacing_m : float
         Grid spacing on each face [m].
-    z_range_m : (float, float)
-        Tag heights kept [m] (inclusive).
+    z_range_m : (float, float) or None
+        Tag heights kept [m] (inclusive); None: every height of the faces, floor to top
+        (where a user's unknown tag could be).
     offset_m : float
         Distance of the tag centre from the surface, along the normal [m].
     max_clearance_m : float
@@ -115,8 +116,8 @@ def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (
         raise ValueError(f"tag_sites: spacing_m must be > 0, got {spacing_m!r}")
     if not (np.isfinite(offset_m) and offset_m > 0):
         raise ValueError(f"tag_sites: offset_m must be > 0, got {offset_m!r}")
-    z0, z1 = (float(v) for v in z_range_m)
-    if not (np.isfinite(z0) and np.isfinite(z1) and z0 < z1):
+    z0, z1 = (-np.inf, np.inf) if z_range_m is None else (float(v) for v in z_range_m)
+    if z_range_m is not None and not (np.isfinite(z0) and np.isfinite(z1) and z0 < z1):
         raise ValueError(f"tag_sites: z_range_m must be (lo, hi) with lo < hi, got {z_range_m!r}")
     pos, nrm, mat = [], [], []
     for name in sorted(scene.meshes):

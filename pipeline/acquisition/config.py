@@ -71,6 +71,11 @@ class ReaderConfig:
     Lombardini, "A phase-based technique for localization of UHF-RFID tags moving on a
     conveyor belt", IEEE Sensors J. 15(1), 2015); ``phase_resolution_rad``: Impinj readers
     report the phase in 12 bits (Speedway "Low Level User Data Support" note).
+    ``phase_power_shift_rad``, ``phase_power_span_db``: a tag's backscatter phase moves
+    with the power its chip absorbs; Megalou et al. (IEEE RFID-TA 2021) measured 100
+    degrees across a tag's incident powers, here a ramp over the first
+    ``phase_power_span_db`` above the tag's threshold (:mod:`pipeline.acquisition.phase`).
+    Every tag also has a reflection phase offset of its own (uniform, drawn per read log).
     ``inventory``: ``"gen2"`` (the default) runs the EPC Gen2 Q algorithm for the
     antenna's dwell in each slot (:mod:`pipeline.acquisition.gen2`, ``[reader.gen2]``):
     reads (``seen_count``) and misses follow from the tags in the field and the link
@@ -123,6 +128,11 @@ class ReaderConfig:
     phase_noise_rad: float = option(0.1, "Standard deviation of the reported phase's noise [rad].")
     phase_resolution_rad: float = option(
         2.0 * math.pi / 4096, "Reported phase quantisation step [rad] (Impinj: 12 bits); 0: none.")
+    phase_power_shift_rad: float = option(
+        math.radians(100.0), "Tag chip's backscatter phase shift from its threshold to "
+        "phase_power_span_db above it [rad] (Megalou et al. 2021: 100 degrees); 0: none.")
+    phase_power_span_db: float = option(
+        20.0, "Absorbed power above the tag's threshold over which that shift builds up [dB].")
     doppler_noise_hz: float = option(0.0, "Standard deviation of the reported Doppler's noise [Hz].")
     inventory: str = option(
         "gen2", "Misses: 'gen2' (Q-algorithm inventory) or 'fixed' (anticollision_miss_probability).")
@@ -149,7 +159,10 @@ class ReaderConfig:
         if self.region not in REGIONS:
             raise ConfigError(f"region must be one of {sorted(REGIONS)}, got {self.region!r}")
         channel_plan(self.region, self.channels_hz, self.channel_dwell_s)  # checks, naming the key
-        for name in ("phase_noise_rad", "phase_resolution_rad", "doppler_noise_hz",
+        if not self.phase_power_span_db > 0:
+            raise ConfigError(f"phase_power_span_db must be > 0, got {self.phase_power_span_db!r}")
+        for name in ("phase_noise_rad", "phase_resolution_rad", "phase_power_shift_rad",
+                     "doppler_noise_hz",
                      "tag_sensitivity_spread_db", "tag_modulation_spread_db", "metal_detuning_loss_db"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")

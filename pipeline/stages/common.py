@@ -35,9 +35,11 @@ __all__ = [
     "read_track",
     "resolve_cache_dir",
     "select_backend",
+    "source_revision",
     "split_tags",
     "spread_evenly",
     "stage_rng",
+    "tag_candidates",
     "study_route",
     "study_scene",
     "trace_options",
@@ -73,6 +75,26 @@ def resolve_cache_dir(cfg: StudyConfig) -> Path:
     if env:
         return Path(env).expanduser().resolve()
     return (Path.home() / ".cache" / "rfidstudy").resolve()
+
+
+def tag_candidates(scene, cfg: StudyConfig):
+    """Where the downstream stage looks for a held-out tag (every model, the phase
+    estimator and the oracle alike): the sites of every vertical surface of ``scene``
+    that faces free space, at every height it has (floor to top), every
+    ``downstream.candidate_spacing_m`` (:func:`scenes.tagsites.tag_sites` with
+    ``z_range_m=None``).
+
+    Not the held-out tags' own height band (``evaluation.eval_tag_heights_m``): a user's
+    unknown tags could be wherever a tag sticks, and candidates cut to the band the
+    evaluation drew its tags from would hand every model a prior it could not have. The
+    grid is laid on each face before any height cut, so where the band's candidates were
+    these still are: a held-out tag (drawn on the :data:`EVAL_TAG_SPACING_M` grid, whose
+    cell centres fall between this grid's) lies half a cell diagonal (3.5 cm at 5 cm)
+    from its nearest candidate, never on one.
+    """
+    from scenes.tagsites import tag_sites
+
+    return tag_sites(scene, spacing_m=cfg.downstream.candidate_spacing_m, z_range_m=None)
 
 
 def study_scene(cfg: StudyConfig):
@@ -338,11 +360,32 @@ def _version(dist: str) -> str | None:
         return None
 
 
+def source_revision() -> dict:
+    """The git commit of the code that runs (this package's checkout) and whether its
+    tracked files differ from it: ``{"commit": sha or None, "dirty": bool or None}``,
+    with ``"why"`` where git could not say (no git, not a checkout, e.g. an installed
+    wheel). What a number quoted from a run directory names as its source."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
+                                "--untracked-files=no"], capture_output=True, text=True,
+                               timeout=10, check=True).stdout.strip() != ""
+    except (OSError, subprocess.SubprocessError) as exc:
+        return {"commit": None, "dirty": None, "why": f"{type(exc).__name__}: {exc}"[:200]}
+    return {"commit": sha, "dirty": dirty}
+
+
 def manifest_info(cfg: StudyConfig) -> dict:
-    """Package versions, platform and the Dr.Jit backend for ``manifest.json``."""
+    """Package versions, platform, the source's git commit and the Dr.Jit backend for
+    ``manifest.json``."""
     dists = ["rfidstudy", "sionna-rt", "mitsuba", "drjit", "numpy", "scipy", "scikit-fuzzy",
              "trimesh", "pandas", "pyarrow", "matplotlib", "dask", "distributed"]
     info = {
+        "source": source_revision(),
         "versions": {d: _version(d) for d in dists},
         "python": platform.python_version(),
         "platform": platform.platform(),

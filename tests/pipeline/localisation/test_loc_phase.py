@@ -170,6 +170,33 @@ def test_read_table_round_trip_and_missing_phase_is_named():
         localise_tags_phase(tab, CAND)
 
 
+def test_refined_cells_carry_the_cell_mean_likelihood():
+    # a candidate stands for its cell: refined, its likelihood is the mean of the point
+    # likelihood over the cell's 27 sub-points (log-mean-exp), so the posterior over the
+    # cells is exactly what the posterior over every sub-point sums to per cell. A
+    # maximum over the sub-points (not a likelihood) gives a different, unnormalised
+    # answer and fails this.
+    from pipeline.localisation.phase import cell_points
+
+    rd = _phase_reads(1, 0.1)
+    cell = 0.05
+    near = np.all(np.abs(CAND - TAGS[0]) <= [0.16, 0.01, 0.16], axis=1)  # 7 x 7 cells on its wall
+    coarse = CAND[near]
+    assert len(coarse) == 49
+    cells = localise_tags_phase(rd, coarse, phase_sigma_rad=0.1, refine_top=len(coarse),
+                                cell_m=cell)
+    fine_pts = cell_points(coarse, cell)  # (49, 27, 3)
+    fine = localise_tags_phase(rd, fine_pts.reshape(-1, 3), phase_sigma_rad=0.1, refine_top=0)
+    from scipy.special import logsumexp
+
+    summed = logsumexp(fine.log_posterior.reshape(len(IDS), len(coarse), 27), axis=2)
+    np.testing.assert_allclose(cells.log_posterior, summed, rtol=1e-5, atol=2e-3)
+    np.testing.assert_allclose(np.exp(cells.log_posterior).sum(axis=1), 1.0, atol=1e-9)
+    # the likelihood is peaked within the cells (else the test would not tell mean from max)
+    lp = fine.log_posterior[0].reshape(len(coarse), 27)
+    assert np.median(lp.max(axis=1) - lp.min(axis=1)) > 1.0
+
+
 def test_combined_posterior_is_the_normalised_product():
     _, _, post = _errors(_phase_reads(0, 0.1))
     both = combine_posteriors(post, post, name="twice")
