@@ -160,7 +160,7 @@ def single_run_text(metrics: dict, scores: dict, origin: str, min_count: int | N
     mcl = ((metrics.get("localisation") or {}).get("eval") or {}).get("position_error_median_m")
     sizes = []
     beats = []
-    for key, row in sorted((eb.get("by_cell_size") or {}).items(),
+    for _key, row in sorted((eb.get("by_cell_size") or {}).items(),
                            key=lambda kv: float(kv[1]["d_bin_m"])):
         if row.get("rmse_db") is None:
             sizes.append(f"no cell holds enough links at {row['d_bin_m']:g} m × "
