@@ -263,7 +263,8 @@ def read_map(path: str | Path) -> RosMap:
     x, alpha = _pixels(image_path, where)
     if x.size == 0:
         raise RosMapError(f"{where}: key 'image': {image_path} has no pixels")
-    _check_agrees(x, res, mode, where, image_path)
+    # map_server negates first, then reads the values: so does the check
+    _check_agrees(255.0 - x if negate else x, res, mode, where, image_path)
     if negate:
         x = 255.0 - x
     x = np.flipud(x)  # image row 0 is the top (largest y); grid row 0 the lowest y

@@ -84,9 +84,10 @@ def search(ranges: dict, evaluate: Callable[[dict], float | tuple], *, n_trials:
         if constrained:
             value, violations = float(result[0]), list(result[1])
             for i, v in enumerate(violations):
-                # a constraint that could not be evaluated counts as violated (1.0: any
-                # positive number means "not met" to Optuna, which refuses NaN)
-                trial.set_constraint(f"c{i}", float(v) if math.isfinite(float(v)) else 1.0)
+                # a constraint that could not be evaluated counts as violated, worse than
+                # any measured miss (Optuna refuses NaN and ranks infeasible trials by the
+                # sum of their violations)
+                trial.set_constraint(f"c{i}", float(v) if math.isfinite(float(v)) else 1e9)
         else:
             value = float(result)
         if math.isfinite(value):

@@ -150,6 +150,9 @@ def test_an_image_the_yaml_describes_wrongly_is_refused(tmp_path):
     with pytest.raises(RosMapError, match=r"key 'mode': .* use mode 'raw'"):
         read_map(write_map(tmp_path / "c", g, mode="trinary"))
     assert read_map(write_map(tmp_path / "d", g, mode="raw")).occupancy.max() == 100
+    # the same raw map saved negated (255 - occupancy) with negate: 1 is no mismatch
+    neg = read_map(write_map(tmp_path / "e", 255 - g, mode="raw", negate=1))
+    assert np.array_equal(neg.occupancy, read_map(tmp_path / "d" / "map.yaml").occupancy)
 
 
 def test_no_free_space_and_garbage_image(tmp_path):
