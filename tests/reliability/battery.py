@@ -17,7 +17,7 @@ Outcomes: ``ok`` (the case should succeed and did, every check holding), ``clear
 (a file outside the run, or a user's file, changed or vanished), ``hang`` (timeout),
 ``traceback``, ``silent accept`` (a value that must be refused ran with exit 0),
 ``silent wrong`` (exit 0 with a wrong result), ``n/a`` (cannot be staged here).
-It prints one line per case and the counts per outcome; about 5 minutes on 2 cores.
+It prints one line per case and the counts per outcome; about 6.5 minutes on 2 shared cores.
 """
 
 from __future__ import annotations
