@@ -25,6 +25,14 @@ ANTENNA_MODES = ("round_robin", "all")
 INVENTORY_MODES = ("fixed", "gen2")
 #: Which antenna poses the training sets use: MCL estimates or ground truth.
 POSE_SOURCES = ("est", "true")
+#: Accepted conducted reader power [dBm]. The upper end is the largest power any UHF RFID
+#: regulation lets a reader radiate, even before its antenna's gain: FCC 15.247 allows
+#: 1 W conducted into up to 6 dBi, 4 W = 36 dBm EIRP; ETSI EN 302 208 allows 2 W ERP =
+#: 35.15 dBm EIRP. The lower end, 1 mW, is already ~20 dB below any reader's setting
+#: (commercial readers go down to about 10 dBm) and powers a -18 dBm tag chip only within
+#: a few tens of centimetres. Values in between beyond the region's limit are allowed
+#: (what-if studies) and logged at the reads stage.
+TX_POWER_RANGE_DBM = (0.0, 36.0)
 
 
 @section
@@ -93,8 +101,9 @@ class ReaderConfig:
     """
 
     read_rate_hz: float = option(
-        4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10)."
-    )
+        4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10). "
+        "A cycle shorter than 1 ms holds no EPC Gen2 single-tag slot (3.7 ms at the default "
+        "link, pipeline.acquisition.gen2).", max=1_000)
     antenna_mode: str = option(
         "round_robin", "Antenna multiplexing: 'round_robin' (one port per cycle) or 'all'."
     )
@@ -105,7 +114,9 @@ class ReaderConfig:
     )
     tx_power_dbm: float = option(
         LinkBudget.tx_power_dbm,
-        "Conducted reader power [dBm] (2 W ERP = 35.15 dBm EIRP with the 8 dBi antenna).",
+        "Conducted reader power [dBm] (2 W ERP = 35.15 dBm EIRP with the 8 dBi antenna), in "
+        f"[{TX_POWER_RANGE_DBM[0]:g}, {TX_POWER_RANGE_DBM[1]:g}]; above the region's EIRP limit "
+        "is logged.",
     )
     tag_sensitivity_dbm: float = option(
         LinkBudget.tag_sensitivity_dbm, "Tag chip sensitivity [dBm] (Monza-4 class)."
@@ -149,6 +160,14 @@ class ReaderConfig:
     def __post_init__(self):
         if not self.read_rate_hz > 0:
             raise ConfigError(f"read_rate_hz must be > 0, got {self.read_rate_hz!r}")
+        lo, hi = TX_POWER_RANGE_DBM
+        if not math.isfinite(self.tx_power_dbm):
+            raise ConfigError(f"reader.tx_power_dbm must be a finite power in [{lo:g}, {hi:g}] dBm, "
+                              f"got {self.tx_power_dbm!r}")
+        if not lo <= self.tx_power_dbm <= hi:
+            raise ConfigError(f"reader.tx_power_dbm = {self.tx_power_dbm!r} dBm: outside [{lo:g}, {hi:g}] "
+                              "dBm (36 dBm = 4 W EIRP, the most any UHF RFID regulation allows; "
+                              "ETSI EN 302 208: 35.15 dBm EIRP)")
         for name in ("rssi_noise_db", "rssi_resolution_db", "polarization_loss_db", "range_margin_db"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -175,7 +194,12 @@ class ReaderConfig:
             raise ConfigError(f"detuning_materials: unknown material(s) {unknown}; the library "
                               f"has {', '.join(sorted(MATERIALS))}")
         if self.inventory == "gen2" and self.antenna_mode == "round_robin":
-            self.gen2.dwell_s(1.0 / self.read_rate_hz)  # a dwell that cannot fit: named error
+            try:  # a dwell that cannot fit: named error
+                self.gen2.dwell_s(1.0 / self.read_rate_hz)
+            except ConfigError as exc:
+                raise ConfigError(f"reader.read_rate_hz = {self.read_rate_hz!r} gives antenna slots of "
+                                  f"{1.0 / self.read_rate_hz:.4g} s: {exc}; lower read_rate_hz or the "
+                                  "gen2 timing") from None
 
     def antenna_slot_s(self, n_antennas: int) -> float:
         """One antenna's time slot in a read cycle [s]: ``1 / read_rate_hz`` with

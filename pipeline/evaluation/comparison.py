@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
-from scenes.fileio import atomic_save_npz
+from scenes.fileio import atomic_save_npz, read_npz
 
 from .cells import CellGrid
 from .geometry import antenna_frame_geometry
@@ -292,7 +292,7 @@ class RhoPoints:
     def load(cls, path) -> RhoPoints:
         """Read the truth part of a file written by :meth:`save`."""
         path = Path(path)
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path) as z:
             need = {"antenna_pose", "points_m", "d_m", "alpha_rad", "gain_db", "fs_true",
                     "p_true", "rho_true", "rssi_range_dbm", "grid_shape"}
             missing = sorted(need - set(z.files))

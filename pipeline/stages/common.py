@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.config import StudyConfig, TracingConfig
+from scenes.fileio import read_npz
 
 __all__ = [
     "EVAL_TAG_SPACING_M",
@@ -304,7 +305,7 @@ def read_track(ctx, name: str):
 
     path = ctx.input(f"tour/{name}_track.npz")
     try:
-        with np.load(path) as z:
+        with read_npz(path) as z:
             return PoseTrack(t_s=z["t_s"], true_poses=z["true"], est_poses=z["est"],
                              odom_poses=z["odom"])
     except (OSError, KeyError, ValueError) as exc:
