@@ -360,20 +360,40 @@ def _version(dist: str) -> str | None:
         return None
 
 
-def source_revision() -> dict:
-    """The git commit of the code that runs (this package's checkout) and whether its
-    tracked files differ from it: ``{"commit": sha or None, "dirty": bool or None}``,
-    with ``"why"`` where git could not say (no git, not a checkout, e.g. an installed
-    wheel). What a number quoted from a run directory names as its source."""
+#: Source folders whose untracked files count as a change to the code that runs.
+SOURCE_DIRS = ("pipeline", "scenes", "propagation", "fuzzymodel")
+
+
+def source_revision(root=None) -> dict:
+    """The git commit of the code that runs (this package's checkout) and whether it
+    differs from it: ``{"commit": sha or None, "dirty": bool or None}``, with ``"why"``
+    where git could not say (no git, not a checkout, e.g. an installed wheel).
+
+    ``root`` (default: the folder holding this ``pipeline`` package) must be the top
+    level of its git checkout (``git rev-parse --show-toplevel``) and hold ``pipeline/``:
+    a package installed inside some other repository's tree names no commit rather than
+    that repository's. ``dirty``: a tracked file differs from the commit, or an untracked
+    (and not ignored) file lies under one of :data:`SOURCE_DIRS`. What a number quoted
+    from a run directory names as its source."""
     import subprocess
 
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[2] if root is None else Path(root).resolve()
+
+    def git(*args) -> str:
+        return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
+                              timeout=10, check=True).stdout
+
+    if not (root / "pipeline").is_dir():
+        return {"commit": None, "dirty": None, "why": f"{root} holds no pipeline/"}
     try:
-        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
-                             text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
-                                "--untracked-files=no"], capture_output=True, text=True,
-                               timeout=10, check=True).stdout.strip() != ""
+        top = git("rev-parse", "--show-toplevel").strip()
+        if Path(top).resolve() != root:
+            return {"commit": None, "dirty": None,
+                    "why": f"{root} is not the top of its git checkout ({top})"[:200]}
+        sha = git("rev-parse", "HEAD").strip()
+        dirty = (git("status", "--porcelain", "--untracked-files=no").strip() != ""
+                 or git("status", "--porcelain", "--untracked-files=all", "--",
+                        *SOURCE_DIRS).strip() != "")
     except (OSError, subprocess.SubprocessError) as exc:
         return {"commit": None, "dirty": None, "why": f"{type(exc).__name__}: {exc}"[:200]}
     return {"commit": sha, "dirty": dirty}
