@@ -86,15 +86,20 @@ def tag_candidates(scene, cfg: StudyConfig):
 
     Not the held-out tags' own height band (``evaluation.eval_tag_heights_m``): a user's
     unknown tags could be wherever a tag sticks, and candidates cut to the band the
-    evaluation drew its tags from would hand every model a prior it could not have. The
-    grid is laid on each face before any height cut, so where the band's candidates were
-    these still are: a held-out tag (drawn on the :data:`EVAL_TAG_SPACING_M` grid, whose
-    cell centres fall between this grid's) lies half a cell diagonal (3.5 cm at 5 cm)
-    from its nearest candidate, never on one.
+    evaluation drew its tags from would hand every model a prior it could not have.
+
+    The held-out tags are drawn on each face's :data:`EVAL_TAG_SPACING_M` grid; this
+    grid is laid half a step off it along both face axes (``tag_sites(between_m=...)``),
+    so when :data:`EVAL_TAG_SPACING_M` is a whole multiple of the candidate spacing (the
+    default 0.1 m / 0.05 m) a held-out tag lies exactly half a cell diagonal (3.5 cm at
+    5 cm) from its nearest candidates, never on one, whatever the faces' sizes (two grids
+    each centred on its face coincided where ``floor(W / 0.05)`` was odd). Another
+    spacing may put a candidate on a held-out tag.
     """
     from scenes.tagsites import tag_sites
 
-    return tag_sites(scene, spacing_m=cfg.downstream.candidate_spacing_m, z_range_m=None)
+    return tag_sites(scene, spacing_m=cfg.downstream.candidate_spacing_m, z_range_m=None,
+                     between_m=EVAL_TAG_SPACING_M)
 
 
 def study_scene(cfg: StudyConfig):

@@ -227,5 +227,6 @@ STAGE = Stage("downstream", stage_downstream,
               # 9: the oracle's Rician fading; 10: the phase likelihood's cell mean, candidates on
               # every surface height (tag_candidates), not the held-out tags' band
               # 11: a model using the tag's height above the antenna (Vorst & Zell) gets
-              # each candidate's / mapped tag's
+              # each candidate's / mapped tag's; the candidate grid half a step off the
+              # held-out tags' (tag_candidates)
               description="downstream localisation (tags, robot)")
