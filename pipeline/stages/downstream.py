@@ -228,5 +228,5 @@ STAGE = Stage("downstream", stage_downstream,
               # every surface height (tag_candidates), not the held-out tags' band
               # 11: a model using the tag's height above the antenna (Vorst & Zell) gets
               # each candidate's / mapped tag's; the candidate grid half a step off the
-              # held-out tags' (tag_candidates)
+              # held-out tags' (tag_candidates); the phase cell a 3 x 3 patch on the face
               description="downstream localisation (tags, robot)")
