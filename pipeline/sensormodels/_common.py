@@ -25,7 +25,7 @@ import pandas as pd
 
 from fuzzymodel import denormalise_rssi, normalise_rssi, wrap_angle
 from pipeline.configschema import check_keys
-from pipeline.evaluation.tables import require_columns, write_json_atomic
+from pipeline.evaluation.tables import require_columns, tag_position_lookup, write_json_atomic
 
 __all__ = [
     "COMPETITOR_FORMAT",
@@ -186,7 +186,8 @@ def group_folds(groups, n_folds: int, rng: np.random.Generator) -> np.ndarray:
 
 def tag_height_differences(reads: pd.DataFrame, tags, pose: str = "est") -> np.ndarray:
     """Each row's tag height above its antenna [m]: the tag's z (``tags``, a
-    :class:`scenes.TagSet` holding every ``tag_id`` of the table) less ``<pose>_ant_z_m``.
+    :class:`scenes.TagSet` or a tags table holding every ``tag_id`` of the table, see
+    :func:`pipeline.evaluation.tables.tag_position_lookup`) less ``<pose>_ant_z_m``.
 
     Raises
     ------
@@ -196,8 +197,7 @@ def tag_height_differences(reads: pd.DataFrame, tags, pose: str = "est") -> np.n
     if pose not in ("est", "true"):
         raise ValueError(f"pose must be 'est' or 'true', got {pose!r}")
     require_columns(reads, ("tag_id", f"{pose}_ant_z_m"), "reads")
-    z_of = dict(zip((str(i) for i in tags.ids), np.asarray(tags.positions_m, float)[:, 2],
-                    strict=True))
+    z_of = {k: float(v[2]) for k, v in tag_position_lookup(tags).items()}
     ids = reads["tag_id"].astype(str).to_numpy()
     unknown = sorted(set(ids) - set(z_of))
     if unknown:

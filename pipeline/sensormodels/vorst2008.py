@@ -25,17 +25,25 @@ What the model sees
     antenna's, :func:`~._common.tag_height_differences`; an attempt without one is an
     error, not a tag in the antenna's plane). Using d itself for r, as before, put a tag
     0.9 m above the antenna at 1 m horizontally 35 % too far out on the grid.
-    Prediction: the study's interface ``fT(d, alpha)`` gives every model the 3-D range and
-    the bearing only, never the tag's height (the localisers' candidates, the held-out
-    links and the truth grids alike). The model answers with its ground-plane table
-    averaged over the tag heights of its own training link table at that range:
+    Prediction where the tag's height is known (the paper's model):
+    :meth:`Vorst2008Model.fT_at_height` ``(d, alpha, dz)`` looks the ground-plane table up
+    at ``r = sqrt(d^2 - dz^2)``, 0 at d >= d_max_m. Every caller that knows the height
+    goes through it (:func:`pipeline.evaluation.interface.detection_probability`, which
+    gives any other model plain ``fT``): the tag localiser (each candidate's height less
+    the slot antenna's), the robot filter (each mapped tag's height less the particle's
+    antenna's) and the held-out scores (each link's tag height less its true antenna's:
+    the Brier score per link; the cell MAE's cell prediction is the mean over the cell's
+    held-out links of the table at the cell centre and each link's height).
+    Prediction where it is not (``fT(d, alpha)``: the truth grids' cell centres over
+    (d, alpha), the surfaces of the figures, the Fig. 6 view): the ground-plane table
+    averaged over the tag heights of the model's own training link table at that range,
     ``fT(d, alpha) = sum_k w_k(d) P(read | sqrt(d^2 - dz_k^2), alpha)``, ``w_k(d)`` the share
     of the training attempts in d's range bin (of ``cell_m``; all bins pooled where it is
     empty) whose height difference falls in bin k (0.1 m), over the bins with
     ``|dz_k| <= d`` (a range shorter than every such height: the antenna's own cell). It
     is tabulated at load on a polar grid (``cell_m`` / 5 in range, 0.5 deg in bearing)
-    and looked up. :meth:`Vorst2008Model.ground_plane_fT` is the table itself, for a
-    caller that knows the height.
+    and looked up. Feeding a caller that knows the height this mix instead would blur the
+    competitor's model over heights it could tell apart.
 Simplified / our choices (only the paper's abstract was available to us: it names two
 non-parametric density estimators without our being able to check which; we offer the
 histogram and a Gaussian Parzen window, as bandwidth 0 and > 0 of one estimator)
@@ -129,7 +137,8 @@ class Vorst2008Model(CompetitorModel):
     REFERENCE = ("Vorst & Zell, 'Semi-autonomous learning of an RFID sensor model for mobile "
                  "robot self-localization', EUROS 2008")
     DESCRIPTION = ("kernel-smoothed detection rate on a Cartesian grid of the antenna's ground "
-                   "plane (horizontal range), averaged over the training tag heights; no RSSI")
+                   "plane (horizontal range) at the tag's height where known, else averaged "
+                   "over the training tag heights; no RSSI")
     predicts_rssi = False
 
     def __post_init__(self) -> None:
@@ -166,6 +175,19 @@ class Vorst2008Model(CompetitorModel):
         (broadcast; 0 at r >= d_max_m): the paper's model, for a caller that knows the
         tag's height."""
         return np.clip(self._apply(self._ground, r, alpha), 0.0, 1.0)
+
+    def fT_at_height(self, d, alpha, dz) -> np.ndarray:  # noqa: N802 - the chapter's name
+        """P(read) of a tag at 3-D range ``d`` [m], bearing ``alpha`` [rad] and height
+        ``dz`` [m] above the antenna (broadcast): the ground-plane table at the horizontal
+        range ``sqrt(d^2 - dz^2)`` (0 where ``|dz| >= d``: the antenna's own cell), 0 at
+        ``d >= d_max_m`` as :meth:`fT`; NaN in, NaN out."""
+        d, a, z = np.broadcast_arrays(np.asarray(d, dtype=np.float64),
+                                      np.asarray(alpha, dtype=np.float64),
+                                      np.asarray(dz, dtype=np.float64))
+        r = np.sqrt(np.maximum(d * d - z * z, 0.0))
+        r = np.where(np.isfinite(z), r, np.nan)
+        return np.where(d < self.d_max_m, self.ground_plane_fT(r, a), np.where(
+            np.isfinite(d) & np.isfinite(r), 0.0, np.nan))
 
     def _ground(self, r, a):
         ix, iy = _cell(r, a, self.d_max_m, self.cell_m)

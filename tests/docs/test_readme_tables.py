@@ -100,3 +100,34 @@ def test_manifest_source_is_the_checkout_commit():
         pytest.skip("not a git checkout")
     src = source_revision()
     assert src["commit"] == head.stdout.strip() and isinstance(src["dirty"], bool)
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="git not installed")
+def test_source_revision_checks_the_checkout_and_untracked_sources(tmp_path):
+    from pipeline.stages.common import source_revision
+
+    def git(*args, cwd=tmp_path / "repo"):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=cwd,
+                       check=True, capture_output=True)
+
+    repo = tmp_path / "repo"
+    (repo / "pipeline").mkdir(parents=True)
+    (repo / "pipeline" / "a.py").write_text("x = 1\n")
+    git("init", "-q", cwd=tmp_path)  # an enclosing checkout: not the package's own
+    nested = source_revision(repo)
+    assert nested["commit"] is None and "not the top" in nested["why"]
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-qm", "c")
+    clean = source_revision(repo)
+    assert isinstance(clean["commit"], str) and len(clean["commit"]) == 40
+    assert clean["dirty"] is False
+    (repo / "notes.txt").write_text("not source\n")  # untracked outside the sources
+    assert source_revision(repo)["dirty"] is False
+    (repo / "scenes").mkdir()
+    (repo / "scenes" / "new.py").write_text("y = 2\n")  # untracked source
+    assert source_revision(repo)["dirty"] is True
+    (repo / "scenes" / "new.py").unlink()
+    (repo / "pipeline" / "a.py").write_text("x = 2\n")  # tracked and changed
+    assert source_revision(repo)["dirty"] is True
+    assert "no pipeline/" in source_revision(tmp_path / "elsewhere")["why"]

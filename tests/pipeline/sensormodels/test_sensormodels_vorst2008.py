@@ -162,7 +162,8 @@ def test_the_table_is_over_the_horizontal_range(synth):
     # (a cell of ~25 attempts moves by the prior of one pseudo-attempt at the overall rate)
     np.testing.assert_allclose(up.fT(d, 0.0), [1, 1, 1, 1, 0, 0], atol=0.05)
     dz, w = up.height_mix(1.3)
-    np.testing.assert_allclose(dz, [0.9]) and np.testing.assert_allclose(w, [1.0])
+    np.testing.assert_allclose(dz, [0.9])
+    np.testing.assert_allclose(w, [1.0])
 
 
 def test_fT_averages_the_table_over_the_training_heights(synth):
