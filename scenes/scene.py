@@ -22,6 +22,13 @@ from scenes.radio import RadioSurface, hash_radio_surfaces
 __all__ = ["Scene", "TagSet"]
 
 
+def _few(ids, n: int = 5) -> str:
+    """The first ``n`` of ``ids`` for a one-line message, with how many more there are."""
+    ids = [str(i) for i in np.asarray(ids).reshape(-1)]
+    more = f" and {len(ids) - n:,} more" if len(ids) > n else ""
+    return f"{ids[:n]}{more}"
+
+
 @dataclass(frozen=True)
 class TagSet:
     """Passive UHF tags placed in a scene.
@@ -50,19 +57,18 @@ class TagSet:
                 f"TagSet: ids ({len(ids)}), positions_m ({len(pos)}) and normals ({len(nrm)}) "
                 "must have the same length"
             )
-        if len(set(ids.tolist())) != len(ids):
-            dup = sorted({i for i in ids.tolist() if ids.tolist().count(i) > 1})
-            raise ValueError(f"TagSet: duplicate tag ids {dup}")
+        uniq, counts = np.unique(ids, return_counts=True)  # O(n log n): scenes of 10^4 tags
+        if np.any(counts > 1):
+            raise ValueError(f"TagSet: duplicate tag ids {_few(uniq[counts > 1])}")
         bad = ~np.all(np.isfinite(pos), axis=1)
         if np.any(bad):
-            raise ValueError(f"TagSet: positions_m of tags {ids[bad].tolist()} contain NaN or inf")
+            raise ValueError(f"TagSet: positions_m of tags {_few(ids[bad])} contain NaN or inf")
         bad = ~np.all(np.isfinite(nrm), axis=1)
         if np.any(bad):
-            raise ValueError(f"TagSet: normals of tags {ids[bad].tolist()} contain NaN or inf")
+            raise ValueError(f"TagSet: normals of tags {_few(ids[bad])} contain NaN or inf")
         norms = np.linalg.norm(nrm, axis=1)
         if np.any(norms < 1e-9):
-            bad = ids[norms < 1e-9].tolist()
-            raise ValueError(f"TagSet: zero normal for tags {bad}")
+            raise ValueError(f"TagSet: zero normal for tags {_few(ids[norms < 1e-9])}")
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "positions_m", pos)
         object.__setattr__(self, "normals", nrm / norms[:, None])

@@ -45,6 +45,29 @@ def test_the_bound_is_a_bound_not_a_default():
         replace_path(StudyConfig(), "tracing.max_depth", 11)
 
 
+def test_too_many_tags_stop_before_any_tracing():
+    """1e5 tags never answered (each is traced from every antenna position): more than
+    MAX_TAGS stop when the tags are made and when a scene is checked, naming the count."""
+    import numpy as np
+
+    import scenes
+    from scenes.tags import MAX_TAGS, TagSet, make_tags, validate_tags
+
+    n = MAX_TAGS + 1
+    with pytest.raises(ValueError, match=rf"many.toml: tag: {n:,} tags, more than the {MAX_TAGS:,}"):
+        make_tags(None, [{"id": f"t{i}", "position_m": [0.0, 0.0, 1.0]} for i in range(n)],
+                  "many.toml: tag")
+    scene = scenes.load("corridor_lab")
+    normals = np.tile([1.0, 0.0, 0.0], (n, 1))
+    scene.tags = TagSet(np.array([f"t{i}" for i in range(n)]), np.zeros((n, 3)), normals)
+    with pytest.raises(ValueError, match=rf"corridor_lab: {n:,} tags"):
+        validate_tags(scene)
+    # a bad tag set names a few ids, not every one (a one-line message)
+    with pytest.raises(ValueError) as exc:
+        TagSet(np.array([f"t{i}" for i in range(n)]), np.zeros((n, 3)), np.zeros((n, 3)))
+    assert f"and {n - 5:,} more" in str(exc.value) and len(str(exc.value)) < 200
+
+
 def test_too_many_antennas_is_named():
     ants = [{"name": f"a{i}", "z_m": 0.7} for i in range(17)]
     with pytest.raises(ConfigError, match=r"antennas has 17 entries: more than its upper bound 16"):
