@@ -165,6 +165,13 @@ class TracingConfig:
         _TRACE.shared_samples_per_src,
         "method 'shared': rays shot per antenna position that shares chains with neighbours.",
         max=5_000_000)
+    min_samples_per_position: int | None = option(
+        _TRACE.min_samples_per_position,
+        "method 'shared': the least rays a position's chains come from, whatever its neighbours: "
+        "a position whose own and neighbours' shared_samples_per_src rays fall short (sparse "
+        "poses, a path's ends) shoots the rest alone (propagation.shared.own_ray_levels); unset "
+        "= samples_per_src (no position draws from fewer rays than a lone one); 0 = off, as before "
+        "issue 37 (bench/seed_noise.py).", max=50_000_000)
     completion_order: int = option(
         _TRACE.completion_order,
         "method 'shared': also solve every specular reflection path of up to this order (0 = "
@@ -198,6 +205,8 @@ class TracingConfig:
         if not (np.isfinite(self.share_radius_m) and 0.0 < self.share_radius_m <= 5.0):
             raise ConfigError(f"share_radius_m must be a radius in (0, 5] m, got {self.share_radius_m!r}")
         _positive(self, "shared_samples_per_src")
+        if self.min_samples_per_position is not None:
+            _nonneg(self, "min_samples_per_position")
 
 
 @section

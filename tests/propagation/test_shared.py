@@ -6,7 +6,7 @@ import pytest
 from propagation import TraceOptions, trace_links, two_ray_gain_db
 from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathsolve import _trace_chunk
-from propagation.shared import chain_ids, shared_rows, sharing_neighbours, trace_shared
+from propagation.shared import chain_ids, own_ray_levels, shared_rows, sharing_neighbours, trace_shared
 from propagation.sionna_paths import path_copies
 from propagation.sionna_scene import load_sionna_scene
 from scenes import material
@@ -99,6 +99,25 @@ def test_sharing_neighbours_within_radius():
     assert [nb.tolist() for nb in nbs] == [[1], [0, 2], [1], []]
     with pytest.raises(ValueError, match="radius"):
         sharing_neighbours(pos, -1.0)
+
+
+def test_own_ray_levels_fill_a_short_neighbourhood_up_to_the_minimum():
+    # 3,000 rays each, minimum 30,000: a lone position (traced alone anyway) and one with
+    # 9 or more neighbours need nothing; one neighbour: 27,000 missing -> the cap (30,000);
+    # 5 neighbours: 15,000 -> 24,000 (3,000 x 8); 8 neighbours: 6,000 -> 6,000 (3,000 x 2)
+    nbs = [np.zeros(0, np.int64), np.arange(1), np.arange(5), np.arange(8), np.arange(9), np.arange(20)]
+    levels = own_ray_levels(nbs, 3000, 30000)
+    assert levels.tolist() == [0, 30000, 24000, 6000, 0, 0]
+    n_nb = np.array([len(nb) for nb in nbs])
+    short = levels > 0
+    assert np.all(levels[short] + 3000 * n_nb[short] >= 30000)  # the guarantee
+    assert np.all(levels[short] >= 6000)  # never the shared rays' own lattice again
+    assert own_ray_levels(nbs, 3000, 0).tolist() == [0] * 6  # off
+    # 7 neighbours: 9,000 missing -> 12,000; a minimum below two positions' rays: nothing
+    assert own_ray_levels([np.arange(7)], 3000, 30000).tolist() == [12000]
+    assert own_ray_levels([np.arange(1)], 3000, 5000).tolist() == [0]
+    with pytest.raises(ValueError, match="min_samples"):
+        own_ray_levels(nbs, 3000, -1)
 
 
 def _path_rows(sp):
