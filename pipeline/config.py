@@ -136,8 +136,11 @@ class TracingConfig:
         "not reproducible).",
     )
     reader_polarization: str = option(
-        "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
-    )
+        _TRACE.reader_polarization,
+        "Reader antenna polarisation, traced path by path: RHCP or LHCP (a circular panel; the "
+        "mismatch with the linear tag dipole is in the gain: 3.01 dB per way on a line-of-sight "
+        "path, other values after reflections), V or H (a linear panel). reader.polarization_loss_db "
+        "adds to it (default 0).")
     max_depth: int = option(
         _TRACE.max_depth,
         "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5).", max=10)

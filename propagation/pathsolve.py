@@ -128,9 +128,14 @@ class TraceOptions:
         hit by their Fresnel weights, so chains of weak reflections are rarely shot.
     reader_pattern, tag_pattern : str
         Pattern names (:data:`propagation.patterns.PATTERNS`), applied after tracing.
-    reader_polarization : {"V", "H", "RHCP", "LHCP"}
-        Reader polarisation. With a circular reader the 3 dB circular-to-linear
-        mismatch is inside the gain, so set ``LinkBudget.polarization_loss_db = 0``.
+    reader_polarization : {"RHCP", "LHCP", "V", "H"}
+        Reader polarisation, applied after tracing with the patterns
+        (:func:`propagation.patterns.pattern_field_world`, the per-path 2x2 transfer
+        matrices of the ``VH`` trace): default ``"RHCP"``, the circular panel of a UHF
+        RFID reader. The mismatch with the linear tag dipole is then in the gain, path by
+        path (1/2 = 3.01 dB on a line-of-sight path, other values after reflections, which
+        change the wave's polarisation), so ``LinkBudget.polarization_loss_db`` is 0 by
+        default; ``"V"`` / ``"H"``: a linear panel.
     seed : int
         Sionna's sampling seed.
     refraction : bool
@@ -152,7 +157,7 @@ class TraceOptions:
     completion_order: int = 3
     reader_pattern: str = "tr38901"
     tag_pattern: str = "hw_dipole"
-    reader_polarization: str = "V"
+    reader_polarization: str = "RHCP"
     seed: int = 42
     refraction: bool = True
     memory_budget_bytes: int | None = 2 * 1024**3
