@@ -6,7 +6,13 @@ import pytest
 from propagation import TraceOptions, trace_links, two_ray_gain_db
 from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathsolve import _trace_chunk
-from propagation.shared import chain_ids, own_ray_levels, shared_rows, sharing_neighbours, trace_shared
+from propagation.shared import (
+    chain_ids,
+    own_ray_levels,
+    shared_rows,
+    sharing_neighbours,
+    trace_shared,
+)
 from propagation.sionna_paths import path_copies
 from propagation.sionna_scene import load_sionna_scene
 from scenes import material
