@@ -112,9 +112,11 @@ class TraceOptions:
         levels) and keeps the paths of both traces, copies removed. None (default):
         ``samples_per_src``, the rays of a position without a neighbour, so no position
         of the shared tracer draws from fewer rays than a lone one; 0: off (before
-        issue 37: a position with one neighbour drew from 6,000 rays, and its
-        seed-to-seed p95 was 1.75 dB against 0.91 dB on the dense evaluation path;
-        ``bench/seed_noise.py``).
+        issue 37: a position with one neighbour drew from 6,000 rays; on 48 such
+        positions of ``corridor_lab`` the seed-to-seed p95 over readable links was
+        1.80 dB, 1.30 dB with the default, against 0.93 dB on the dense evaluation
+        path, whose positions have 12-50 neighbours; ``bench/seed_noise.py``,
+        docs/physics.md).
     share_radius_m : float
         Positions of one solver call within this distance share chains (``"shared"``),
         metres, > 0. A position is given every chain that was a valid path at a
