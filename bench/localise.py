@@ -37,7 +37,7 @@ from pipeline.localisation import (
     tag_position_errors,
 )
 from pipeline.robot.kinematics import default_antennas
-from pipeline.sensormodels import fit_joho2009, fit_liu2006, fit_vorst2008
+from pipeline.sensormodels import Attempts, fit_joho2009, fit_liu2006, fit_vorst2008
 from tests.helpers.localisation import SyntheticSensor, corridor_scenario, sample_attempts
 
 D_MAX_M = 3.0
@@ -56,7 +56,9 @@ def fit_models(truth: SyntheticSensor, rng: np.random.Generator, n: int = 20000)
         "anfis": SensorModel(ssm, tdm, rr),
         "joho2009": fit_joho2009(att, rr),
         "liu2006": fit_liu2006(att, rr, d_max_m=D_MAX_M),
-        "vorst2008": fit_vorst2008(att, rr, rng, d_max_m=D_MAX_M),
+        # the synthetic sensor is a function of (d, alpha): its tags in the antennas' plane
+        "vorst2008": fit_vorst2008(Attempts(att.d, att.alpha, att.read, att.rssi, att.group,
+                                            dz_m=0.0), rr, rng, d_max_m=D_MAX_M),
     }
     p_far, d_far = fit_far_detection(att_all, D_MAX_M)
     out = {}

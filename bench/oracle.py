@@ -47,9 +47,9 @@ def main() -> None:
         resolve_cache_dir,
         select_backend,
         study_scene,
+        tag_candidates,
         trace_options,
     )
-    from scenes.tagsites import tag_sites
 
     cfg = load_config(f"{args.run}/config.toml")
     select_backend(cfg)
@@ -61,8 +61,7 @@ def main() -> None:
     ids = list(tags.ids)
     obs = observations_from_reads(eval_reads, "est", tag_ids=ids, pitch_rad=antenna_tilts(cfg))
     true_obs = observations_from_reads(eval_reads, "true", tag_ids=ids, pitch_rad=antenna_tilts(cfg))
-    cand = tag_sites(sc, spacing_m=cfg.downstream.candidate_spacing_m,
-                     z_range_m=tuple(cfg.evaluation.eval_tag_heights_m))
+    cand = tag_candidates(sc, cfg)
     oracle = OracleLikelihood.from_reader(cfg.reader, frequency_hz=cfg.frequency_hz)
     q = None
     if cfg.reader.inventory == "gen2":

@@ -31,6 +31,8 @@ from pipeline.robot.kinematics import default_antennas
 from pipeline.robot.simulate import LocalisationConfig
 from pipeline.robot.trajectory import TourConfig
 from propagation.linkbudget import LinkBudget
+from propagation.pathsolve import memory_shortfall
+from propagation.patterns import PATTERNS, POLARIZATIONS
 from propagation.tracing import METHODS, TraceMethod, TraceOptions
 
 #: The library's tracing defaults: the [tracing] section's defaults are these, so the
@@ -147,7 +149,10 @@ class TracingConfig:
     samples_per_src: int = option(
         _TRACE.samples_per_src, "Rays shot per antenna position traced alone (method 'direct': every "
         "one; 'shared': one without a neighbour; convergence check: bench/trace.py).", max=5_000_000)
-    memory_budget_mb: float = option(_TRACE.memory_budget_bytes / 2**20, "Peak memory of one tracing call [MiB] (sources are chunked to fit).")
+    memory_budget_mb: float = option(
+        _TRACE.memory_budget_bytes / 2**20, "Peak memory of one tracing call [MiB] (sources are "
+        "chunked to fit; a max_depth and ray count whose one antenna position would not fit "
+        "are refused, naming the memory they need).", max=1_048_576)
     method: TraceMethod = option(
         _TRACE.method,
         "Tracer: 'shared' (fast: positions within share_radius_m share the chains their rays "
@@ -174,7 +179,7 @@ class TracingConfig:
         "a position whose own and neighbours' shared_samples_per_src rays fall short (sparse "
         "poses, a path's ends) shoots the rest alone (propagation.shared.own_ray_levels); unset "
         "= samples_per_src (no position draws from fewer rays than a lone one); 0 = off, as before "
-        "issue 37 (bench/seed_noise.py).", max=50_000_000)
+        "issue 37 (bench/seed_noise.py).", max=5_000_000)
     completion_order: int = option(
         _TRACE.completion_order,
         "method 'shared': also solve every specular reflection path of up to this order (0 = "
@@ -210,6 +215,20 @@ class TracingConfig:
         _positive(self, "shared_samples_per_src")
         if self.min_samples_per_position is not None:
             _nonneg(self, "min_samples_per_position")
+        for key, name in (("reader_pattern", self.reader_pattern), ("tag_pattern", self.tag_pattern)):
+            if name not in PATTERNS:
+                raise ConfigError(f"tracing.{key} = {name!r}: unknown antenna pattern; known: "
+                                  f"{', '.join(PATTERNS)}")
+        if self.reader_polarization not in POLARIZATIONS:
+            raise ConfigError(f"tracing.reader_polarization = {self.reader_polarization!r}: "
+                              f"unknown; known: {', '.join(POLARIZATIONS)}")
+        # a lone position shoots at least min_samples_per_position rays
+        own = max(self.samples_per_src, self.min_samples_per_position or 0)
+        short = memory_shortfall(self.method, self.max_depth, own,
+                                 self.shared_samples_per_src, int(self.memory_budget_mb * 2**20),
+                                 budget_key="memory_budget_mb", prefix="tracing.")
+        if short:  # before any work, rather than a tracer taking all the memory
+            raise ConfigError(short)
 
 
 @section
@@ -227,7 +246,7 @@ class TrainingConfig:
     min_attempts: int = option(5, "Detection-model cells with fewer read attempts are dropped.")
     d_bin_m: float = option(0.25, "Distance bin of the detection-model cells [m].")
     alpha_bin_deg: float = option(10.0, "Bearing bin of the detection-model cells [deg].")
-    n_clusters: int = option(3, "FCM clusters = Takagi-Sugeno rules per model.")
+    n_clusters: int = option(3, "FCM clusters = Takagi-Sugeno rules per model.", max=100)
     fcm_exponent: float = option(2.0, "FCM fuzziness exponent m (Bezdek 1981).")
     epochs: int = option(100, "ANFIS hybrid-learning epochs (Jang 1993); the best checking epoch is kept.", max=100_000)
     step_size: float = option(0.01, "Initial ANFIS gradient step size (adapted per Jang 1993).")
@@ -263,7 +282,8 @@ class EvaluationConfig:
     field_height_m: float = option(1.0, "Height of the planar RSSI field (tag height) [m].")
     n_eval_tags: int = option(
         16, "Held-out tags drawn on the scene's walls, boxes and cabinets (own seed stream): the "
-        "evaluation tour reads only these, the training tour only the scene's own tags (>= 8).")
+        "evaluation tour reads only these, the training tour only the scene's own tags (>= 8).",
+        max=10_000)
     eval_tag_min_separation_m: float = option(
         0.5, "Smallest distance of a held-out tag from any other tag, training tags included [m].")
     eval_tag_heights_m: tuple[float, ...] = option(
@@ -272,7 +292,8 @@ class EvaluationConfig:
         0.5, "Spacing of the tag-like truth sites on every vertical surface facing free space [m] "
         "(the solver's cost grows with the sites in reach of each pose).")
     n_site_poses: int = option(
-        16, "Evaluation-tour antenna poses at which the truth is traced to every tag site in reach.")
+        16, "Evaluation-tour antenna poses at which the truth is traced to every tag site in reach.",
+        max=10_000)
 
     def __post_init__(self):
         _positive(self, "grid_d_max_m", "grid_n_d", "grid_n_alpha", "n_sample_poses",
@@ -298,7 +319,8 @@ class DownstreamConfig:
 
     enabled: bool = option(True, "Run the downstream benchmark stage.")
     candidate_spacing_m: float = option(
-        0.05, "Grid of candidate tag positions on the scene's surfaces for the models [m].")
+        0.05, "Grid of candidate tag positions on the scene's surfaces, at every height they "
+        "have (not the held-out tags' band), for the models, phase estimator and oracle [m].")
     oracle: bool = option(
         False, "Also localise with the ray-traced oracle: the reader's own likelihood of the reads "
         "given the true gains, searched over every candidate coarse to fine without looking at "

@@ -28,7 +28,7 @@ from propagation.sionna_scene import (
     device_point,
     load_sionna_scene,
 )
-from scenes.fileio import atomic_save_npz, atomic_write_text
+from scenes.fileio import atomic_save_npz, atomic_write_text, read_npz
 from scenes.geometry import in_triangles_2d
 
 __all__ = ["RssiField", "rssi_field", "wall_surface_mesh"]
@@ -98,7 +98,7 @@ class RssiField:
     def load(cls, path) -> RssiField:
         """Read a field written by :meth:`save`; a missing key raises naming the file."""
         path = Path(path)
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path) as z:
             missing = [f.name for f in fields(cls) if f.name not in z.files]
             if missing:
                 raise ValueError(f"{path}: not an RssiField file (missing {missing})")

@@ -43,7 +43,7 @@ from propagation.sionna_paths import to_source_paths
 from propagation.sionna_scene import load_sionna_scene
 
 __all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "METHODS", "PathSet", "TraceMethod", "TraceOptions",
-           "bytes_per_source", "padded_target_count", "trace_paths"]
+           "bytes_per_source", "memory_shortfall", "padded_target_count", "trace_paths"]
 
 logger = logging.getLogger(__name__)
 
@@ -185,6 +185,11 @@ class TraceOptions:
                              f"known: {', '.join(POLARIZATIONS)}")
         if self.memory_budget_bytes is not None and int(self.memory_budget_bytes) < 1:
             raise ValueError(f"memory_budget_bytes must be positive, got {self.memory_budget_bytes!r}")
+        if self.memory_budget_bytes is not None:
+            short = memory_shortfall(self.method, int(self.max_depth), int(self.samples_per_src),
+                                     int(self.shared_samples_per_src), int(self.memory_budget_bytes))
+            if short:
+                raise ValueError(short)
 
     @property
     def min_samples(self) -> int:
@@ -206,6 +211,31 @@ def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
     depth)`` bounds these with a margin.
     """
     return int(samples_per_src * (300 + 300 * max(1, max_depth)))
+
+
+def memory_shortfall(method: str, max_depth: int, samples_per_src: int, shared_samples_per_src: int,
+                     budget_bytes: int, budget_key: str = "memory_budget_bytes",
+                     prefix: str = "") -> str | None:
+    """Why one antenna position cannot be traced within ``budget_bytes``, or None.
+
+    The tracer chunks sources to fit its memory budget, but one source is the smallest
+    chunk: a depth or ray count whose single source exceeds the budget would be traced
+    anyway and could take all the memory (``max_depth = 1000`` once took 20.5 GB). The
+    message gives the memory one position would need (:func:`bytes_per_source`; with
+    ``"shared"`` the candidate buffer of a sharing position is held twice) and the keys
+    to change (named with ``prefix``, e.g. ``"tracing."``).
+    """
+    need = bytes_per_source(samples_per_src, max_depth)
+    what = f"{prefix}samples_per_src = {samples_per_src:,}"
+    if method == "shared" and 2 * bytes_per_source(shared_samples_per_src, max_depth) > need:
+        need = 2 * bytes_per_source(shared_samples_per_src, max_depth)
+        what = f"{prefix}shared_samples_per_src = {shared_samples_per_src:,}"
+    if need <= budget_bytes:
+        return None
+    mib = 2.0**20
+    return (f"{what} at {prefix}max_depth = {max_depth} needs about {need / mib:,.0f} MiB to trace "
+            f"one antenna position, more than {prefix}{budget_key} ({budget_bytes / mib:,.0f} MiB): "
+            f"lower the rays or the depth, or raise {prefix}{budget_key} if the machine has the memory")
 
 
 def _default_budget() -> int:
@@ -474,6 +504,9 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
                                budget // (2 * bytes_per_source(int(opt.shared_samples_per_src), max_depth))))
     n_calls, t_trace = 0, 0.0
     if todo:
+        short = memory_shortfall(opt.method, max_depth, samples_per_src, int(opt.shared_samples_per_src), budget)
+        if short:  # before anything is traced: one source is the smallest chunk
+            raise ValueError(short)
         ensure_variant()
         if shared:
             from propagation.sionna_internals import check_versions

@@ -110,7 +110,8 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
             return load_map(path, **kwargs)
         return build(load_spec(path))
     if not path.is_file():
-        raise FileNotFoundError(f"scene file {text!r} does not exist")
+        raise FileNotFoundError(f"scene file {text!r} "
+                                + ("is a directory, not a file" if path.is_dir() else "does not exist"))
     if suffix == ".toml":
         return build(load_spec(path))
     if suffix == ".xml":

@@ -60,6 +60,8 @@ MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
 
 
 def _require_file(path: Path, what: str) -> None:
+    if path.is_dir():
+        raise FileNotFoundError(f"{what} {str(path)!r} is a directory, not a file")
     if not path.is_file():
         raise FileNotFoundError(f"{what} {str(path)!r} does not exist")
 

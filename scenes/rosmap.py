@@ -52,6 +52,13 @@ __all__ = [
 #: YAML keys of a map_server map (every other key is refused by name).
 MAP_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode")
 _MODES = ("trinary", "scale", "raw")
+#: Largest side of a map [m]: a building's map, with room for a campus; a larger one is
+#: almost always a resolution in the wrong unit (0.05 typed as 5).
+MAX_SIDE_M = 2000.0
+#: Share of pixels between 101 and 254 above which an image is no raw occupancy image
+#: (raw mode reads 0-100 as occupancy percent and 255 as unknown; a few stray values in
+#: an edited map are tolerated).
+RAW_STRAY_SHARE = 0.01
 #: Cell classes of :attr:`RosMap.cell_class` and :func:`resolve_unknown`.
 OBSTACLE, FREE, UNKNOWN, OUTSIDE = 1, 0, -1, -2
 
@@ -161,6 +168,31 @@ def _pixels(image_path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None
     return colour.mean(axis=-1), alpha
 
 
+def _check_agrees(x: np.ndarray, res: float, mode: str, where: str, image_path: Path) -> None:
+    """Refuse an image the YAML describes wrongly: a map larger than :data:`MAX_SIDE_M`
+    (resolution in the wrong unit), ``mode: raw`` over a grey-level image, or a raw
+    occupancy image (only the values 0, 100 and 255) read as grey levels."""
+    ny, nx = x.shape
+    side = max(nx, ny) * res
+    if side > MAX_SIDE_M:
+        raise RosMapError(f"{where}: key 'resolution': {res} m/cell makes the {nx} x {ny} image "
+                          f"{nx * res:.0f} m x {ny * res:.0f} m (largest side allowed "
+                          f"{MAX_SIDE_M:.0f} m); is it in metres per cell?")
+    values = np.round(x)
+    if mode == "raw":
+        stray = float(np.mean((values > 100) & (values < 255)))
+        if stray > RAW_STRAY_SHARE:
+            raise RosMapError(f"{where}: key 'mode': 'raw' reads pixels as occupancy 0-100 or "
+                              f"255 (unknown), but {stray:.0%} of {image_path.name} are 101-254: "
+                              "a grey-level map; use mode 'trinary' or 'scale'")
+    else:
+        levels = set(np.unique(values).tolist())
+        if 100.0 in levels and levels <= {0.0, 100.0, 255.0}:
+            raise RosMapError(f"{where}: key 'mode': {image_path.name} holds only the values "
+                              f"0, 100 and 255, a raw occupancy image; read as grey levels "
+                              f"({mode!r}) its walls would be unknown: use mode 'raw'")
+
+
 def read_map(path: str | Path) -> RosMap:
     """Read a map_server YAML and its image.
 
@@ -179,7 +211,8 @@ def read_map(path: str | Path) -> RosMap:
         One line naming the file and the key: a missing or unknown key, a value of the
         wrong type, ``resolution <= 0``, thresholds outside ``0 <= free < occupied <= 1``,
         an unknown ``mode``, a rotated ``origin``, a missing or unreadable image, an
-        empty image, a map without a single free or obstacle cell.
+        empty image, an image the YAML describes wrongly (:func:`_check_agrees`), a map
+        without a single free or obstacle cell.
     FileNotFoundError
         The YAML does not exist.
     """
@@ -230,6 +263,8 @@ def read_map(path: str | Path) -> RosMap:
     x, alpha = _pixels(image_path, where)
     if x.size == 0:
         raise RosMapError(f"{where}: key 'image': {image_path} has no pixels")
+    # map_server negates first, then reads the values: so does the check
+    _check_agrees(255.0 - x if negate else x, res, mode, where, image_path)
     if negate:
         x = 255.0 - x
     x = np.flipud(x)  # image row 0 is the top (largest y); grid row 0 the lowest y

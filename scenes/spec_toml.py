@@ -154,7 +154,8 @@ def load_spec(path: str | Path) -> SceneSpec:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"scene spec {str(path)!r} does not exist")
+        raise FileNotFoundError(f"scene spec {str(path)!r} "
+                                + ("is a directory, not a file" if path.is_dir() else "does not exist"))
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

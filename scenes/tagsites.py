@@ -60,11 +60,32 @@ class TagSites:
                         self.clearance_m[index])
 
 
-def _face_grid(tri: np.ndarray, normal: np.ndarray, spacing_m: float) -> np.ndarray:
+def _axis_points(lo: float, hi: float, spacing_m: float, between_m: float | None) -> np.ndarray:
+    """Grid coordinates on one face axis [lo, hi]: cell centres ``spacing_m`` apart, the
+    grid centred on the face (both ends keep the same margin); with ``between_m``, shifted
+    by half a step off the centred grid of spacing ``between_m`` instead (every point
+    ``spacing_m / 2 + k spacing_m`` from that grid's first point, kept >= half a step
+    inside the face; an axis shorter than one step: one point a quarter of its extent off
+    the centre)."""
+    n = max(1, int(np.floor((hi - lo) / spacing_m)))
+    if between_m is None:
+        return lo + (hi - lo - (n - 1) * spacing_m) / 2 + spacing_m * np.arange(n)
+    na = max(1, int(np.floor((hi - lo) / between_m)))
+    a0 = lo + (hi - lo - (na - 1) * between_m) / 2  # the other grid's first point
+    k = np.arange(int(np.floor((lo - a0) / spacing_m)) - 1,
+                  int(np.ceil((hi - a0) / spacing_m)) + 2)
+    p = a0 + spacing_m / 2 + spacing_m * k
+    p = p[(p >= lo + spacing_m / 2 - 1e-9) & (p <= hi - spacing_m / 2 + 1e-9)]
+    return p if len(p) else np.array([(lo + hi) / 2 + (hi - lo) / 4])
+
+
+def _face_grid(tri: np.ndarray, normal: np.ndarray, spacing_m: float,
+               between_m: float | None = None) -> np.ndarray:
     """Grid points (cell centres, ``spacing_m`` apart) on coplanar vertical triangles.
 
     ``tri`` (k, 3, 3) share the plane of unit horizontal ``normal``; returns (p, 3) points
-    of the plane that fall inside one of the triangles.
+    of the plane that fall inside one of the triangles. ``between_m``: the grid is laid
+    half a step off the face's grid of that spacing (:func:`_axis_points`).
     """
     v_ax = np.array([0.0, 0.0, 1.0])
     u_ax = np.cross(v_ax, normal)
@@ -72,19 +93,17 @@ def _face_grid(tri: np.ndarray, normal: np.ndarray, spacing_m: float) -> np.ndar
     o = tri[0, 0]
     uv = np.stack([(tri - o) @ u_ax, (tri - o) @ v_ax], axis=-1)  # (k, 3, 2)
     lo, hi = uv.reshape(-1, 2).min(0), uv.reshape(-1, 2).max(0)
-    nu = max(1, int(np.floor((hi[0] - lo[0]) / spacing_m)))
-    nv = max(1, int(np.floor((hi[1] - lo[1]) / spacing_m)))
-    # cell centres, the grid centred on the face so both ends keep the same margin
-    us = lo[0] + (hi[0] - lo[0] - (nu - 1) * spacing_m) / 2 + spacing_m * np.arange(nu)
-    vs = lo[1] + (hi[1] - lo[1] - (nv - 1) * spacing_m) / 2 + spacing_m * np.arange(nv)
+    us = _axis_points(lo[0], hi[0], spacing_m, between_m)
+    vs = _axis_points(lo[1], hi[1], spacing_m, between_m)
     cu, cv = np.meshgrid(us, vs, indexing="ij")
     c = np.stack([cu.ravel(), cv.ravel()], axis=1)
     c = c[in_triangles_2d(c, uv)]
     return o + c[:, :1] * u_ax + c[:, 1:] * v_ax
 
 
-def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (0.2, 1.6),
-              offset_m: float = 0.005, max_clearance_m: float = 2.0) -> TagSites:
+def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] | None = (0.2, 1.6),
+              offset_m: float = 0.005, max_clearance_m: float = 2.0,
+              between_m: float | None = None) -> TagSites:
     """Candidate tag sites on every vertical surface of ``scene`` that faces free space.
 
     Parameters
@@ -93,12 +112,19 @@ def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (
         Its solid meshes (``scene.meshes``) are sampled; its own tags are ignored.
     spacing_m : float
         Grid spacing on each face [m].
-    z_range_m : (float, float)
-        Tag heights kept [m] (inclusive).
+    z_range_m : (float, float) or None
+        Tag heights kept [m] (inclusive); None: every height of the faces, floor to top
+        (where a user's unknown tag could be).
     offset_m : float
         Distance of the tag centre from the surface, along the normal [m].
     max_clearance_m : float
         Cap of the free distance measured in front of each site [m].
+    between_m : float, optional
+        Lay each face's grid half a step (``spacing_m / 2`` along both face axes) off the
+        grid that ``tag_sites(scene, spacing_m=between_m)`` lays on it, instead of
+        centring it on the face: when ``between_m`` is a whole multiple of ``spacing_m``
+        no site of the one grid is a site of the other (each of the other's is half a
+        cell diagonal from the nearest of these).
 
     Returns
     -------
@@ -113,10 +139,12 @@ def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (
     """
     if not (np.isfinite(spacing_m) and spacing_m > 0):
         raise ValueError(f"tag_sites: spacing_m must be > 0, got {spacing_m!r}")
+    if between_m is not None and not (np.isfinite(between_m) and between_m > 0):
+        raise ValueError(f"tag_sites: between_m must be > 0, got {between_m!r}")
     if not (np.isfinite(offset_m) and offset_m > 0):
         raise ValueError(f"tag_sites: offset_m must be > 0, got {offset_m!r}")
-    z0, z1 = (float(v) for v in z_range_m)
-    if not (np.isfinite(z0) and np.isfinite(z1) and z0 < z1):
+    z0, z1 = (-np.inf, np.inf) if z_range_m is None else (float(v) for v in z_range_m)
+    if z_range_m is not None and not (np.isfinite(z0) and np.isfinite(z1) and z0 < z1):
         raise ValueError(f"tag_sites: z_range_m must be (lo, hi) with lo < hi, got {z_range_m!r}")
     pos, nrm, mat = [], [], []
     for name in sorted(scene.meshes):
@@ -134,7 +162,7 @@ def tag_sites(scene, spacing_m: float = 0.25, z_range_m: tuple[float, float] = (
         group = group.reshape(-1)
         for g in range(int(group.max()) + 1):
             sel = group == g
-            p = _face_grid(tris[sel], nh[sel][0], spacing_m)
+            p = _face_grid(tris[sel], nh[sel][0], spacing_m, between_m)
             if len(p) == 0:
                 continue
             p = p[(p[:, 2] >= z0) & (p[:, 2] <= z1)]

@@ -25,6 +25,14 @@ ANTENNA_MODES = ("round_robin", "all")
 INVENTORY_MODES = ("fixed", "gen2")
 #: Which antenna poses the training sets use: MCL estimates or ground truth.
 POSE_SOURCES = ("est", "true")
+#: Accepted conducted reader power [dBm]. The upper end is the largest power any UHF RFID
+#: regulation lets a reader radiate, even before its antenna's gain: FCC 15.247 allows
+#: 1 W conducted into up to 6 dBi, 4 W = 36 dBm EIRP; ETSI EN 302 208 allows 2 W ERP =
+#: 35.15 dBm EIRP. The lower end, 1 mW, is already ~20 dB below any reader's setting
+#: (commercial readers go down to about 10 dBm) and powers a -18 dBm tag chip only within
+#: a few tens of centimetres. Values in between beyond the region's limit are allowed
+#: (what-if studies) and logged at the reads stage.
+TX_POWER_RANGE_DBM = (0.0, 36.0)
 
 
 @section
@@ -71,6 +79,11 @@ class ReaderConfig:
     Lombardini, "A phase-based technique for localization of UHF-RFID tags moving on a
     conveyor belt", IEEE Sensors J. 15(1), 2015); ``phase_resolution_rad``: Impinj readers
     report the phase in 12 bits (Speedway "Low Level User Data Support" note).
+    ``phase_power_shift_rad``, ``phase_power_span_db``: a tag's backscatter phase moves
+    with the power its chip absorbs; Megalou et al. (IEEE RFID-TA 2021) measured 100
+    degrees across a tag's incident powers, here a ramp over the first
+    ``phase_power_span_db`` above the tag's threshold (:mod:`pipeline.acquisition.phase`).
+    Every tag also has a reflection phase offset of its own (uniform, drawn per read log).
     ``inventory``: ``"gen2"`` (the default) runs the EPC Gen2 Q algorithm for the
     antenna's dwell in each slot (:mod:`pipeline.acquisition.gen2`, ``[reader.gen2]``):
     reads (``seen_count``) and misses follow from the tags in the field and the link
@@ -88,8 +101,9 @@ class ReaderConfig:
     """
 
     read_rate_hz: float = option(
-        4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10)."
-    )
+        4.0, "Read cycles per second; each is a new antenna position to trace (paper_scale: 10). "
+        "A cycle shorter than 1 ms holds no EPC Gen2 single-tag slot (3.7 ms at the default "
+        "link, pipeline.acquisition.gen2).", max=1_000)
     antenna_mode: str = option(
         "round_robin", "Antenna multiplexing: 'round_robin' (one port per cycle) or 'all'."
     )
@@ -100,7 +114,9 @@ class ReaderConfig:
     )
     tx_power_dbm: float = option(
         LinkBudget.tx_power_dbm,
-        "Conducted reader power [dBm] (2 W ERP = 35.15 dBm EIRP with the 8 dBi antenna).",
+        "Conducted reader power [dBm] (2 W ERP = 35.15 dBm EIRP with the 8 dBi antenna), in "
+        f"[{TX_POWER_RANGE_DBM[0]:g}, {TX_POWER_RANGE_DBM[1]:g}]; above the region's EIRP limit "
+        "is logged.",
     )
     tag_sensitivity_dbm: float = option(
         LinkBudget.tag_sensitivity_dbm, "Tag chip sensitivity [dBm] (Monza-4 class)."
@@ -125,6 +141,11 @@ class ReaderConfig:
     phase_noise_rad: float = option(0.1, "Standard deviation of the reported phase's noise [rad].")
     phase_resolution_rad: float = option(
         2.0 * math.pi / 4096, "Reported phase quantisation step [rad] (Impinj: 12 bits); 0: none.")
+    phase_power_shift_rad: float = option(
+        math.radians(100.0), "Tag chip's backscatter phase shift from its threshold to "
+        "phase_power_span_db above it [rad] (Megalou et al. 2021: 100 degrees); 0: none.")
+    phase_power_span_db: float = option(
+        20.0, "Absorbed power above the tag's threshold over which that shift builds up [dB].")
     doppler_noise_hz: float = option(0.0, "Standard deviation of the reported Doppler's noise [Hz].")
     inventory: str = option(
         "gen2", "Misses: 'gen2' (Q-algorithm inventory) or 'fixed' (anticollision_miss_probability).")
@@ -141,6 +162,14 @@ class ReaderConfig:
     def __post_init__(self):
         if not self.read_rate_hz > 0:
             raise ConfigError(f"read_rate_hz must be > 0, got {self.read_rate_hz!r}")
+        lo, hi = TX_POWER_RANGE_DBM
+        if not math.isfinite(self.tx_power_dbm):
+            raise ConfigError(f"reader.tx_power_dbm must be a finite power in [{lo:g}, {hi:g}] dBm, "
+                              f"got {self.tx_power_dbm!r}")
+        if not lo <= self.tx_power_dbm <= hi:
+            raise ConfigError(f"reader.tx_power_dbm = {self.tx_power_dbm!r} dBm: outside [{lo:g}, {hi:g}] "
+                              "dBm (36 dBm = 4 W EIRP, the most any UHF RFID regulation allows; "
+                              "ETSI EN 302 208: 35.15 dBm EIRP)")
         for name in ("rssi_noise_db", "rssi_resolution_db", "polarization_loss_db", "range_margin_db"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -151,7 +180,10 @@ class ReaderConfig:
         if self.region not in REGIONS:
             raise ConfigError(f"region must be one of {sorted(REGIONS)}, got {self.region!r}")
         channel_plan(self.region, self.channels_hz, self.channel_dwell_s)  # checks, naming the key
-        for name in ("phase_noise_rad", "phase_resolution_rad", "doppler_noise_hz",
+        if not self.phase_power_span_db > 0:
+            raise ConfigError(f"phase_power_span_db must be > 0, got {self.phase_power_span_db!r}")
+        for name in ("phase_noise_rad", "phase_resolution_rad", "phase_power_shift_rad",
+                     "doppler_noise_hz",
                      "tag_sensitivity_spread_db", "tag_modulation_spread_db", "metal_detuning_loss_db"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -164,7 +196,12 @@ class ReaderConfig:
             raise ConfigError(f"detuning_materials: unknown material(s) {unknown}; the library "
                               f"has {', '.join(sorted(MATERIALS))}")
         if self.inventory == "gen2" and self.antenna_mode == "round_robin":
-            self.gen2.dwell_s(1.0 / self.read_rate_hz)  # a dwell that cannot fit: named error
+            try:  # a dwell that cannot fit: named error
+                self.gen2.dwell_s(1.0 / self.read_rate_hz)
+            except ConfigError as exc:
+                raise ConfigError(f"reader.read_rate_hz = {self.read_rate_hz!r} gives antenna slots of "
+                                  f"{1.0 / self.read_rate_hz:.4g} s: {exc}; lower read_rate_hz or the "
+                                  "gen2 timing") from None
 
     def antenna_slot_s(self, n_antennas: int) -> float:
         """One antenna's time slot in a read cycle [s]: ``1 / read_rate_hz`` with

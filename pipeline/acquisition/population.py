@@ -7,6 +7,9 @@ Real tags of one model are not identical, and where a tag is stuck matters:
   ``tag_sensitivity_dbm + N(0, tag_sensitivity_spread_db^2)``;
 - **backscatter spread**: the modulation factor M (the difference of the chip's two
   reflection states) varies likewise: ``modulation_loss_db + N(0, tag_modulation_spread_db^2)``;
+- **reflection phase**: each tag's chip, inlay and mounting give its backscatter a phase
+  offset of its own, uniform on [0, 2 pi) (:mod:`pipeline.acquisition.phase`; the
+  reported phase also moves with the power the chip absorbs, see there);
 - **detuning on metal**: a dipole inlay a few millimetres from a conductor is detuned
   (its impedance no longer matches the chip) and its radiation efficiency drops. This is
   a loss of the tag antenna's gain, so it counts once on the forward link and twice in
@@ -36,6 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.acquisition.phase import tag_phase_offsets
+
 __all__ = ["TagPopulation", "draw_population", "surface_materials"]
 
 #: A tag is "on" a surface when the surface is within this distance of its centre [m].
@@ -59,6 +64,9 @@ class TagPopulation:
     detuning_loss_db : numpy.ndarray
         Tag gain penalty, >= 0, (m,), float64, dB: once on the forward link, twice on the
         backscattered power.
+    phase_offset_rad : numpy.ndarray, optional
+        The tag's own reflection phase offset, (m,), float64, rad, constant per tag;
+        default 0 for every tag (the nominal tag).
     """
 
     tag_ids: np.ndarray
@@ -66,6 +74,16 @@ class TagPopulation:
     modulation_offset_db: np.ndarray
     surface_material: np.ndarray
     detuning_loss_db: np.ndarray
+    phase_offset_rad: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        m = len(self.tag_ids)
+        off = (np.zeros(m) if self.phase_offset_rad is None
+               else np.asarray(self.phase_offset_rad, dtype=float).reshape(-1))
+        if off.shape != (m,) or not np.isfinite(off).all():
+            raise ValueError(f"TagPopulation: phase_offset_rad must be {m} finite values, got "
+                             f"shape {off.shape}")
+        object.__setattr__(self, "phase_offset_rad", off)
 
     def to_dict(self) -> dict:
         """JSON-able: one list per attribute."""
@@ -73,7 +91,8 @@ class TagPopulation:
                 "sensitivity_offset_db": self.sensitivity_offset_db.tolist(),
                 "modulation_offset_db": self.modulation_offset_db.tolist(),
                 "surface_material": [str(s) for s in self.surface_material],
-                "detuning_loss_db": self.detuning_loss_db.tolist()}
+                "detuning_loss_db": self.detuning_loss_db.tolist(),
+                "phase_offset_rad": self.phase_offset_rad.tolist()}
 
 
 def surface_materials(scene, tags) -> np.ndarray:
@@ -110,7 +129,9 @@ def draw_population(tags, reader, rng: np.random.Generator, materials=None) -> T
         ``tag_sensitivity_spread_db``, ``tag_modulation_spread_db``,
         ``metal_detuning_loss_db``, ``detuning_materials``.
     rng : numpy.random.Generator
-        Exactly two arrays of m standard normals are drawn (sensitivity, then modulation).
+        Exactly two arrays of m standard normals are drawn (sensitivity, then modulation);
+        the tags' phase offsets come from a child stream (``rng.spawn``), so adding them
+        left every other draw of ``rng`` as it was.
     materials : array_like of str, optional
         Surface material per tag (:func:`surface_materials`); None: no detuning.
 
@@ -129,4 +150,5 @@ def draw_population(tags, reader, rng: np.random.Generator, materials=None) -> T
         modulation_offset_db=reader.tag_modulation_spread_db * z_m,
         surface_material=mat,
         detuning_loss_db=np.where(on, reader.metal_detuning_loss_db, 0.0),
+        phase_offset_rad=tag_phase_offsets(m, rng.spawn(1)[0]),
     )

@@ -40,6 +40,7 @@ from pipeline.acquisition.phase import (
     antenna_velocity,
     doppler_hz,
     phase_offsets,
+    power_phase_rad,
     reported_phase_rad,
 )
 from pipeline.acquisition.population import TagPopulation
@@ -291,7 +292,8 @@ def reads_from_gains(
         Channel coefficients (n, m) and their position derivative (n, m, 3) at each
         attempt's channel; without them ``phase_rad`` and ``doppler_hz`` are NaN.
     population : TagPopulation, optional
-        Per-tag deviations; default the nominal tag.
+        Per-tag deviations, the tags' own phase offsets included; default the nominal tag
+        (no deviation, phase offset 0).
     offsets_rad : numpy.ndarray, optional
         Phase offset per (antenna, channel index), (n_antennas, n_channels); default
         drawn from ``aux_rng`` (:func:`pipeline.acquisition.phase.phase_offsets`).
@@ -345,8 +347,15 @@ def reads_from_gains(
         dop = np.full(n * m, np.nan)
     else:
         hh = np.asarray(h, complex).reshape(-1)
-        off = np.asarray(offsets_rad)[att.antenna, att.channel_index]
-        phase = reported_phase_rad(hh, rep(off, m), reader.phase_noise_rad, aux,
+        off = rep(np.asarray(offsets_rad)[att.antenna, att.channel_index], m)
+        if population is not None:  # the tag's own reflection phase
+            off = off + population.phase_offset_rad[tag_row]
+        # the chip's reflection phase moves with the power it absorbs above its threshold
+        threshold = reader.tag_sensitivity_dbm + pop.get("sensitivity_offset_db", 0.0)
+        with np.errstate(invalid="ignore"):
+            off = off + power_phase_rad(resp.tag_power_dbm - threshold,
+                                        reader.phase_power_shift_rad, reader.phase_power_span_db)
+        phase = reported_phase_rad(hh, off, reader.phase_noise_rad, aux,
                                    reader.phase_resolution_rad)
         dop = np.full(n * m, np.nan) if dh_dpos is None else doppler_hz(
             hh, np.asarray(dh_dpos, complex).reshape(-1, 3), rep(att.antenna_velocity_mps, m, axis=0))

@@ -162,8 +162,11 @@ def simulate_reads(
         One row per (attempt, tag) with columns :data:`READ_COLUMNS`; rows of untraced
         (out-of-range) pairs have ``in_range`` False, ``read`` False, ``gain_db`` -inf.
         ``metadata`` counts the traced pairs (``n_pairs_traced``) and records the hop
-        sequence (``channels``), the tag population drawn (``tag_population``), the phase
-        offsets (``phase_offsets_rad``) and the Gen2 slot counts (``gen2``).
+        sequence (``channels``), the tag population drawn (``tag_population``, each tag's
+        own phase offset ``phase_offset_rad`` included), the (antenna, channel) phase
+        offsets (``phase_offsets_rad``) and the Gen2 slot counts (``gen2``). The reported
+        phase also carries the chip's power-dependent term
+        (:func:`pipeline.acquisition.phase.power_phase_rad`).
 
     Notes
     -----

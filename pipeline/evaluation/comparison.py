@@ -34,11 +34,11 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
-from scenes.fileio import atomic_save_npz
+from scenes.fileio import atomic_save_npz, read_npz
 
 from .cells import CellGrid
 from .geometry import antenna_frame_geometry
-from .interface import check_sensor
+from .interface import check_sensor, detection_probability, uses_tag_height
 from .metrics import ErrorStats, brier_score, error_stats, nan_to_none
 from .tables import require_columns
 from .truth import TruthGrid, check_miss_probability, true_detected, true_rssi_dbm
@@ -49,6 +49,7 @@ __all__ = [
     "RhoPoints",
     "RssiComparison",
     "closing_links",
+    "cell_centre_fT",
     "detection_vs_truth",
     "rho_points_truth",
     "rho_vs_truth",
@@ -191,8 +192,31 @@ class DetectionComparison:
                             "n_attempts": self.n_attempts})
 
 
+def cell_centre_fT(sensor, grid: CellGrid, cells=None, d_m=None,  # noqa: N802
+                   alpha_rad=None, dz_m=None) -> np.ndarray:
+    """The model's detection probability at the cells ``cells`` of `grid` (a bool mask of
+    shape (n_d, n_alpha); None: every cell, flat row-major): ``fT`` at the cell centre;
+    for a model that uses the tag's height above the antenna
+    (:func:`~.interface.uses_tag_height`) given the links ``(d_m, alpha_rad, dz_m)``, the
+    mean over each cell's links of the model at the cell centre and the link's height
+    (cells without a link: ``fT`` at the centre), the height mix the cell's truth is a
+    mean over."""
+    D, A = grid.centre_mesh()
+    sel = np.ones(D.shape, bool) if cells is None else np.asarray(cells, bool)
+    out = np.asarray(sensor.fT(D[sel], A[sel]), dtype=np.float64)
+    if dz_m is None or not uses_tag_height(sensor):
+        return out
+    idx = grid.index(np.asarray(d_m, np.float64), np.asarray(alpha_rad, np.float64))
+    cell = idx.flat[idx.valid]
+    dz = np.broadcast_to(np.asarray(dz_m, np.float64), idx.valid.shape)[idx.valid]
+    p = np.asarray(detection_probability(sensor, D.ravel()[cell], A.ravel()[cell], dz), np.float64)
+    n = np.bincount(cell, minlength=D.size)[sel.ravel()]
+    s = np.bincount(cell, weights=p, minlength=D.size)[sel.ravel()]
+    return np.where(n > 0, s / np.maximum(n, 1), out)
+
+
 def detection_vs_truth(
-    reads: pd.DataFrame, sensor, truth: TruthGrid, min_attempts: int = 20
+    reads: pd.DataFrame, sensor, truth: TruthGrid, min_attempts: int = 20, dz_m=None
 ) -> DetectionComparison:
     """Compare ``sensor.fT`` with the true detection probability (see module doc).
 
@@ -205,6 +229,10 @@ def detection_vs_truth(
         From :func:`~.truth.detection_truth`.
     min_attempts : int
         Cells with fewer attempts are not compared.
+    dz_m : array_like (len(reads),), optional
+        Each row's tag height above its (true) antenna [m]: a model that uses it is
+        scored with it (:func:`~.interface.detection_probability` per row, and
+        :func:`cell_centre_fT` per cell); other models ignore it.
 
     Returns
     -------
@@ -215,15 +243,17 @@ def detection_vs_truth(
     if int(min_attempts) < 1:
         raise ValueError(f"min_attempts must be >= 1, got {min_attempts!r}")
     grid: CellGrid = truth.grid
-    D, A = grid.centre_mesh()
     ok = truth.n_attempts >= int(min_attempts)
-    ft_cells = np.asarray(sensor.fT(D[ok], A[ok]), dtype=np.float64)
-    cells = error_stats(ft_cells, truth.p_detect[ok])
     d = reads["d_true_m"].to_numpy(np.float64)
     a = reads["alpha_true_rad"].to_numpy(np.float64)
+    dz = None if dz_m is None else np.broadcast_to(np.asarray(dz_m, np.float64), d.shape)
+    ft_cells = cell_centre_fT(sensor, grid, ok, d, a, dz)
+    cells = error_stats(ft_cells, truth.p_detect[ok])
     idx = grid.index(d, a)
     outcome = reads["read"].to_numpy(bool)[idx.valid]
-    ft_rows = np.asarray(sensor.fT(d[idx.valid], a[idx.valid]), dtype=np.float64)
+    ft_rows = np.asarray(detection_probability(sensor, d[idx.valid], a[idx.valid],
+                                               None if dz is None else dz[idx.valid]),
+                         dtype=np.float64)
     p_rows = truth.p_detect.ravel()[idx.flat[idx.valid]]
     base = float(outcome.mean()) if outcome.size else float("nan")
     return DetectionComparison(
@@ -292,7 +322,7 @@ class RhoPoints:
     def load(cls, path) -> RhoPoints:
         """Read the truth part of a file written by :meth:`save`."""
         path = Path(path)
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path) as z:
             need = {"antenna_pose", "points_m", "d_m", "alpha_rad", "gain_db", "fs_true",
                     "p_true", "rho_true", "rssi_range_dbm", "grid_shape"}
             missing = sorted(need - set(z.files))

@@ -11,7 +11,8 @@ RSSI (per model that predicts RSSI)
 Detection (per model that predicts fT)
     :func:`~.comparison.detection_vs_truth`: fT at the cell centres against the held-out
     truth's detection probability per (d, alpha) cell (MAE), and the Brier score of
-    ``fT(d_true, alpha_true)`` on the held-out read outcomes.
+    ``fT(d_true, alpha_true)`` on the held-out read outcomes; a model that uses the tag's
+    height above the antenna is given each link's (``dz_m``).
 Bound (an oracle on the held-out data itself, not a model)
     The held-out truth's own (d, alpha) cell means on its own links
     (:func:`~.bound.cell_mean_bound`, cells of the truth grid holding at least
@@ -92,7 +93,7 @@ def reader_noise_stats(eval_reads: pd.DataFrame, budget, d_max_m: float) -> dict
 
 def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGrid,
                    eval_truth: TruthGrid, budget, *, d_max_m: float, min_attempts: int,
-                   rssi_models=None, detection_models=None) -> dict:
+                   rssi_models=None, detection_models=None, dz_m=None) -> dict:
     """RSSI and detection scores of every model and the oracle bound on held-out reads.
 
     Parameters
@@ -112,6 +113,10 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
     rssi_models, detection_models : collection of str, optional
         Names scored on RSSI / on detection (default: all); the others get None there
         (a log-distance fit predicts no detection, a grid count no RSSI).
+    dz_m : array_like (len(eval_reads),), optional
+        Each link's tag height above its true antenna [m]; a model that uses it (Vorst &
+        Zell's ground-plane table) is scored on detection with it
+        (:func:`~.comparison.detection_vs_truth`).
 
     Returns
     -------
@@ -143,7 +148,7 @@ def heldout_scores(sensors: dict, eval_reads: pd.DataFrame, train_truth: TruthGr
                                      if scored and bound.n_links else None),
             "bound_excess": excess,
             "detection": (detection_vs_truth(eval_reads, s, eval_truth,
-                                             min_attempts=min_attempts).to_dict()
+                                             min_attempts=min_attempts, dz_m=dz_m).to_dict()
                           if name in detection_models else None),
         }
     bound_out = {

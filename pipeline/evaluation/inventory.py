@@ -9,8 +9,10 @@ walls at their own heights), not on a free-space plane. From a tour's read log
 - ``n_attempts``: read attempts of the tag during the pass (one per antenna per cycle);
 - ``n_in_range``: those within the reader's range (the attempts the read rate counts);
 - ``n_reads``: successful reads;
-- ``n_cycles``: read cycles during the pass;
-- ``n_cycles_closed``: cycles in which the tag's link closes for at least one antenna
+- ``n_cycles``: read rounds during the pass (a round is one dwell of every antenna: with
+  the chapter's ``round_robin`` multiplexing, one antenna per read cycle, a round is
+  ``n_antennas`` consecutive cycles; with ``all``, one cycle);
+- ``n_cycles_closed``: rounds in which the tag's link closes for at least one antenna
   (:func:`link_closed`: tag powered and backscatter above the reader's sensitivity, for
   the nominal tag, from the ray-traced gain on the attempt's hopped channel, which holds
   the multipath but no reader noise or tag-to-tag spread): the share of the tour's
@@ -40,6 +42,7 @@ __all__ = [
     "INVENTORY_METRICS",
     "inventory_statistic",
     "link_closed",
+    "read_rounds",
     "tour_tag_table",
 ]
 
@@ -81,7 +84,7 @@ def tour_tag_table(reads: pd.DataFrame, t_s, pass_index, tags: pd.DataFrame, bud
     ----------
     reads : pandas.DataFrame
         The tour's read log: ``time_s``, ``cycle``, ``tag_id``, ``read``, ``in_range``,
-        ``gain_db``.
+        ``gain_db``, and ``antenna`` (without it each cycle is a round).
     t_s : array_like, float64, (n_poses,)
         Pose times of the tour [s], increasing.
     pass_index : array_like, int, (n_poses,)
@@ -116,7 +119,7 @@ def tour_tag_table(reads: pd.DataFrame, t_s, pass_index, tags: pd.DataFrame, bud
     df = pd.DataFrame({
         "unit": tag,
         "pass": passes[pose],
-        "cycle": reads["cycle"].to_numpy(np.int64),
+        "cycle": read_rounds(reads),
         "in_range": reads["in_range"].to_numpy(bool),
         "read": reads["read"].to_numpy(bool),
         "closed": link_closed(reads["gain_db"].to_numpy(np.float64), budget)
@@ -132,6 +135,22 @@ def tour_tag_table(reads: pd.DataFrame, t_s, pass_index, tags: pd.DataFrame, bud
     out = out.astype({"n_attempts": np.int64, "n_in_range": np.int64, "n_reads": np.int64,
                       "n_cycles": np.int64, "n_cycles_closed": np.int64, "pass": np.int64})
     return out[list(INVENTORY_COLUMNS)]
+
+
+def read_rounds(reads: pd.DataFrame) -> np.ndarray:
+    """The read round of each row: ``cycle // (antennas / antennas per cycle)``.
+
+    Counted per read cycle, a round-robin reader (one active antenna per cycle) would
+    make "closes for at least one antenna" the same as "closes for this attempt's
+    antenna", and the route coverage the same number as the read rate wherever the
+    reader reads every closing link."""
+    cycle = reads["cycle"].to_numpy(np.int64)
+    if "antenna" not in reads or len(reads) == 0:
+        return cycle
+    ant = reads["antenna"].to_numpy(np.int64)
+    n_ant = len(np.unique(ant))
+    per_cycle = int(pd.Series(ant).groupby(cycle).nunique().max())
+    return cycle // max(1, n_ant // max(1, per_cycle))
 
 
 Statistic = Callable[[np.ndarray], np.ndarray]

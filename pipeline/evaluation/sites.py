@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
-from scenes.fileio import atomic_save_npz
+from scenes.fileio import atomic_save_npz, read_npz
 
 from .geometry import antenna_frame_geometry
 from .interface import check_sensor
@@ -85,7 +85,7 @@ class SiteTruth:
         path = Path(path)
         need = ("antenna_poses", "positions_m", "normals", "material", "gain_db", "traced",
                 "obstructed")
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path) as z:
             missing = [k for k in need if k not in z.files]
             if missing:
                 raise ValueError(f"{path}: missing key(s) {missing}")

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scenes.fileio import atomic_save_npz
+from scenes.fileio import atomic_save_npz, read_npz
 
 from .cells import CellGrid
 from .interface import check_sensor
@@ -185,7 +185,7 @@ class TruthGrid:
         import json
 
         path = Path(path)
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path) as z:
             need = {"grid", "n_attempts", "n_closed", "n_reads", "p_detect", "rssi_dbm",
                     "miss_probability"}
             missing = sorted(need - set(z.files))

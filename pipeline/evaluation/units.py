@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .comparison import closing_links
+from .comparison import cell_centre_fT, closing_links
+from .interface import detection_probability
 from .tables import require_columns
 from .truth import TruthGrid, true_detected, true_rssi_dbm
 
@@ -150,8 +151,13 @@ def rssi_link_errors(eval_reads: pd.DataFrame, sensors: dict, budget, *, d_max_m
 
 
 def detection_outcomes(eval_reads: pd.DataFrame, sensors: dict, eval_truth: TruthGrid,
-                       miss_probability, budget, *, names) -> pd.DataFrame:
+                       miss_probability, budget, *, names, dz_m=None) -> pd.DataFrame:
     """Per held-out attempt inside the truth grid and model: cell, outcome, truth, fT.
+
+    ``dz_m`` (one per row of `eval_reads`, optional): each link's tag height above its
+    true antenna [m], which a model that uses it is scored with
+    (:func:`~.interface.detection_probability`), as in
+    :func:`~.comparison.detection_vs_truth`.
 
     ``p_true`` is the attempt's contribution to its cell's true detection probability
     (closed x (1 - miss probability), :func:`~.truth.detection_truth`): summed over a
@@ -174,20 +180,33 @@ def detection_outcomes(eval_reads: pd.DataFrame, sensors: dict, eval_truth: Trut
             "cell": idx.flat[valid].astype(np.int64),
             "read": eval_reads["read"].to_numpy(bool)[valid],
             "p_true": (closed * (1.0 - q))[valid]}
+    dz = None if dz_m is None else np.broadcast_to(np.asarray(dz_m, np.float64), d.shape)[valid]
     parts = [pd.DataFrame({"model": name, **base,
-                           "ft": np.asarray(sensors[name].fT(d[valid], a[valid]), np.float64)})
+                           "ft": np.asarray(detection_probability(sensors[name], d[valid],
+                                                                  a[valid], dz), np.float64)})
              for name in names]
     return _concat(parts, {"model": str, "unit": str, "cell": np.int64, "read": bool,
                            "p_true": float, "ft": float})
 
 
-def detection_cells(sensors: dict, grid, *, names) -> pd.DataFrame:
-    """fT at every cell centre of ``grid``, per model: model, cell, ft_centre."""
+def detection_cells(sensors: dict, grid, *, names, eval_reads: pd.DataFrame | None = None,
+                    dz_m=None) -> pd.DataFrame:
+    """fT at every cell centre of ``grid``, per model: model, cell, ft_centre.
+
+    With the held-out links (`eval_reads` and their tag heights above the antennas
+    ``dz_m``), a model that uses the height gets :func:`~.comparison.cell_centre_fT`'s
+    mean over each cell's links, as the held-out cell MAE scores it."""
     D, A = grid.centre_mesh()
     cell = np.arange(D.size, dtype=np.int64)
+    d = a = None
+    if eval_reads is not None and dz_m is not None:
+        d = eval_reads["d_true_m"].to_numpy(np.float64)
+        a = eval_reads["alpha_true_rad"].to_numpy(np.float64)
+    else:
+        dz_m = None
     parts = [pd.DataFrame({"model": name, "cell": cell,
-                           "ft_centre": np.asarray(sensors[name].fT(D.ravel(), A.ravel()),
-                                                   np.float64)}) for name in names]
+                           "ft_centre": cell_centre_fT(sensors[name], grid, None, d, a, dz_m)})
+             for name in names]
     return _concat(parts, {"model": str, "cell": np.int64, "ft_centre": float})
 
 

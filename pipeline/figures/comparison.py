@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.runstore import run_files
+from scenes.fileio import read_npz
 
 from .common import (
     load_sensor,
@@ -55,7 +56,7 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
     meshes = {}
     for row, f in zip(axes, files, strict=True):
         rp = RhoPoints.load(f)
-        with np.load(f, allow_pickle=False) as z:
+        with read_npz(f) as z:
             learned = np.array(z["anfis__rho"], float) if "anfis__rho" in z.files else None
         if learned is None:
             sensor = sensor or load_sensor(run_dir, "anfis")

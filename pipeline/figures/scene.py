@@ -24,6 +24,7 @@ import pandas as pd
 from matplotlib.collections import LineCollection
 
 from pipeline.runstore import run_files
+from scenes.fileio import read_npz
 
 from .common import find_first, new_figure, require, save_figure
 
@@ -77,7 +78,7 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
 
     run_dir = Path(run_dir)
     plan = require(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
-    with np.load(plan, allow_pickle=False) as z:
+    with read_npz(plan) as z:
         segs = _segments(z)
         route = np.asarray(z["route_m"], float) if "route_m" in z.files else None
     tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
@@ -154,7 +155,7 @@ def _field_arrays(path: Path) -> dict:
     no ray arrived) and ``plane_centers_m`` (ny, nx, 3), ``antenna_pose`` (6,).
     Also accepted: ``gain_db`` with ``x_m``/``y_m`` axes or meshes.
     """
-    with np.load(path, allow_pickle=False) as z:
+    with read_npz(path) as z:
         files = set(z.files)
         pose = np.array(z["antenna_pose"], float).ravel() if "antenna_pose" in files else None
         if "plane_gain" in files and "plane_centers_m" in files:
@@ -178,7 +179,7 @@ def fig_fields(run_dir, out_dir=None) -> list[Path]:
     plan = find_first(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
     segs = None
     if plan is not None:
-        with np.load(plan, allow_pickle=False) as z:
+        with read_npz(plan) as z:
             segs = _segments(z)
     fig = new_figure(10.0, 2.6 * len(files))
     axes = np.atleast_1d(fig.subplots(len(files), 1))

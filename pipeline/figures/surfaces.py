@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from scenes.fileio import read_npz
+
 from .common import deg, load_sensor, new_figure, require, save_figure
 
 __all__ = ["fig_learned_vs_truth_detection", "fig_learned_vs_truth_rssi", "fig_ssm_surface",
@@ -71,7 +73,7 @@ def fig_tdm_surface(run_dir, out_dir=None) -> list[Path]:
 
 def _truth_and_model(run_dir, key_truth: str, key_model: str):
     path = require(run_dir, "truth/detection_grid.npz")
-    with np.load(path, allow_pickle=False) as z:
+    with read_npz(path) as z:
         for k in ("d_edges_m", "alpha_edges_rad", "d_centres_m", "alpha_centres_rad", key_truth):
             if k not in z.files:
                 raise ValueError(f"{path}: missing key {k!r}")

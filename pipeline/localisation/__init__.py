@@ -8,7 +8,7 @@
 * :mod:`.tags` - posteriors of tag positions over candidate sites, estimates and error
   summaries (:func:`localise_tags`, :func:`localisation_summary`);
 * :mod:`.phase` - tag positions from the reads' backscatter phases, a synthetic-aperture
-  estimator robust to the reader's pi ambiguity and unknown per-(antenna, channel)
+  estimator robust to the reader's pi ambiguity and unknown per-(antenna, channel, tag)
   offsets (:func:`localise_tags_phase`, :func:`phase_reads_from_table`);
 * :mod:`.global_oracle` - the oracle over every candidate, a coarse-to-fine search that
   never looks at the truth (:func:`global_oracle`, the study's ``downstream.oracle``);

@@ -9,7 +9,9 @@ candidate position, seen from the slot's antenna at distance d and bearing alpha
 (Joho, Plagemann & Burgard, ICRA 2009; the chapter's ``rho = fs fT`` is its two factors
 without the normalisation). Sources of P(read), mu and sigma:
 
-* :class:`ModelLikelihood`, a ``SensorLike`` model: ``P(read) = fT(d, alpha)``,
+* :class:`ModelLikelihood`, a ``SensorLike`` model: ``P(read) = fT(d, alpha)`` (for a
+  model that uses the tag's height above the antenna, ``fT_at_height(d, alpha, dz)``
+  where the caller passes ``dz_m``: :func:`~pipeline.evaluation.interface.detection_probability`),
   ``mu = fs_dbm(d, alpha)``, sigma from the model where it has one
   (``rssi_sigma_db(d, alpha)``, e.g. Joho 2009 per cell) else the ``sigma_rssi_db``
   given (e.g. :func:`rssi_residual_std`, the training residual std). A model without RSSI
@@ -47,6 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+
+from pipeline.evaluation.interface import detection_probability, uses_tag_height
 
 from .observations import near_geometry, pair_geometry
 
@@ -236,6 +240,9 @@ class ModelLikelihood:
         self.use_rssi = bool(use_rssi) and bool(getattr(model, "predicts_rssi", True))
         self.own = bool(use_own_likelihood) and callable(getattr(model, "log_likelihood", None))
         self.has_sigma = callable(getattr(model, "rssi_sigma_db", None))
+        #: The model's P(read) depends on the tag's height above the antenna (callers
+        #: pass ``dz_m`` to :meth:`terms`; others may skip computing it).
+        self.uses_height = uses_tag_height(model)
         if sigma_rssi_db is not None and not (np.isfinite(sigma_rssi_db) and sigma_rssi_db > 0):
             raise ValueError(f"{self.name}: sigma_rssi_db must be finite and > 0, "
                              f"got {sigma_rssi_db!r}")
@@ -286,14 +293,19 @@ class ModelLikelihood:
                                    np.asarray(rssi_dbm, dtype=np.float64))
         return np.log(self.far_probability(d)) + np.where(np.isfinite(r), self.flat_logpdf, 0.0)
 
-    def terms(self, d_m, alpha_rad) -> GaussianTerms | OwnTerms:
+    def terms(self, d_m, alpha_rad, dz_m=None) -> GaussianTerms | OwnTerms:
         """Per-pair terms at distances `d_m` [m] and bearings `alpha_rad` [rad] (broadcast).
 
-        Bearings beyond ``d_max_m`` are not used (may be NaN).
+        Bearings beyond ``d_max_m`` are not used (may be NaN). ``dz_m`` (broadcast), the
+        tag's height above the antenna [m] where the caller knows it, reaches a model that
+        uses it (:attr:`uses_height`); the others ignore it.
         """
         d, a = np.broadcast_arrays(np.asarray(d_m, dtype=np.float64),
                                    np.asarray(alpha_rad, dtype=np.float64))
         shape = d.shape
+        z = None
+        if dz_m is not None and self.uses_height:
+            z = np.broadcast_to(np.asarray(dz_m, dtype=np.float64), shape).reshape(-1)
         d, a = d.reshape(-1), a.reshape(-1)
         near = np.isfinite(d) if self.d_max_m is None else d < self.d_max_m
         near &= np.isfinite(a)
@@ -313,7 +325,8 @@ class ModelLikelihood:
         sd = np.ones(d.shape)
         dn, an = d[near], a[near]
         if dn.size:
-            pn = np.asarray(m.fT(dn, an), dtype=np.float64)
+            pn = np.asarray(detection_probability(m, dn, an, None if z is None else z[near]),
+                            dtype=np.float64)
             p[near] = np.clip(np.nan_to_num(pn, nan=0.0), self.eps, 1.0 - self.eps)
             if self.use_rssi:
                 mu[near] = m.fs_dbm(dn, an)
@@ -340,7 +353,7 @@ class ModelLikelihood:
         v = np.where(read[None, :], v_read, v_miss)
         return np.where(d < self.d_far_m, v[0], v[1])
 
-    def pair_loglik(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:
+    def pair_loglik(self, d_m, alpha_rad, read, rssi_dbm, dz_m=None) -> np.ndarray:
         """``log p(read, rssi | d, alpha)`` of every (pose, tag) pair of one attempt slot.
 
         Equal, value for value, to ``terms(d_m, alpha_rad).loglik(read[None], rssi[None])``;
@@ -357,6 +370,8 @@ class ModelLikelihood:
             The slot's outcome per tag.
         rssi_dbm : array_like, shape (k,)
             RSSI of a read [dBm]; NaN: not read, or read without an RSSI.
+        dz_m : array_like, broadcast to (n, k), optional
+            Tag heights above the antennas [m], for a model that uses them (:meth:`terms`).
 
         Returns
         -------
@@ -369,8 +384,9 @@ class ModelLikelihood:
         if d.ndim != 2 or a.shape != d.shape or {read.shape, rssi.shape} != {(d.shape[1],)}:
             raise ValueError(f"pair_loglik: d_m and alpha_rad must be (n, k) and read, rssi_dbm "
                              f"(k,); got {d.shape}, {a.shape}, {read.shape}, {rssi.shape}")
+        z = None if dz_m is None else np.broadcast_to(np.asarray(dz_m, dtype=np.float64), d.shape)
         if self.d_max_m is None:  # no far rule: every pair is the model's
-            return self.terms(d, a).loglik(read[None, :], rssi[None, :])
+            return self.terms(d, a, z).loglik(read[None, :], rssi[None, :])
         out = self._far_loglik(d, read, rssi)
         near = (d < self.d_max_m) & np.isfinite(a)
         if not near.any():
@@ -380,7 +396,7 @@ class ModelLikelihood:
         # the model sees the batch the terms give it (every near pair, in the same order):
         # a model may round differently in another batch (ANFIS's matrix product does, for
         # a single row), and the filter's resampling would then differ
-        out[near] = self.terms(dn, an).loglik(readn, rn)
+        out[near] = self.terms(dn, an, None if z is None else z[near]).loglik(readn, rn)
         return out
 
     def pose_loglik(self, antenna_poses, points_m, read, rssi_dbm) -> np.ndarray:
@@ -390,7 +406,8 @@ class ModelLikelihood:
         with ``d, alpha = pair_geometry(antenna_poses, points_m, alpha_needed_within_m)``,
         in fewer passes over the (n, k) pairs (the robot filter's inner loop): the near
         pairs are found once, by flat index, and their bearings are never scattered into
-        an (n, k) matrix.
+        an (n, k) matrix. A model that uses the tag's height above the antenna
+        (:attr:`uses_height`) gets each pair's: the point's z less the pose's.
 
         Parameters
         ----------
@@ -411,14 +428,18 @@ class ModelLikelihood:
         if {read.shape, rssi.shape} != {(k,)}:
             raise ValueError(f"pose_loglik: read and rssi_dbm must be ({k},), one per point, "
                              f"got {read.shape}, {rssi.shape}")
+        pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+        pz = np.asarray(antenna_poses, dtype=np.float64)[:, 2]
         if self.d_max_m is None:
-            d, a = pair_geometry(antenna_poses, points_m, self.alpha_needed_within_m)
-            return self.pair_loglik(d, a, read, rssi).sum(axis=1)
-        d, sel, an = near_geometry(antenna_poses, points_m, self.d_max_m)
+            d, a = pair_geometry(antenna_poses, pts, self.alpha_needed_within_m)
+            dz = pts[None, :, 2] - pz[:, None] if self.uses_height else None
+            return self.pair_loglik(d, a, read, rssi, dz).sum(axis=1)
+        d, sel, an = near_geometry(antenna_poses, pts, self.d_max_m)
         out = self._far_loglik(d, read, rssi)
         if len(sel):
             cols = sel % d.shape[1]
-            out.ravel()[sel] = self.terms(d.ravel()[sel], an).loglik(read[cols], rssi[cols])
+            dz = pts[cols, 2] - pz[sel // d.shape[1]] if self.uses_height else None
+            out.ravel()[sel] = self.terms(d.ravel()[sel], an, dz).loglik(read[cols], rssi[cols])
         return out.sum(axis=1)
 
     def log_likelihood(self, d_m, alpha_rad, read, rssi_dbm) -> np.ndarray:

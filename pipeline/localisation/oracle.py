@@ -78,8 +78,8 @@ def oracle_plan(obs: Observations, sites, centres, *, window_m: float = 0.5,
         antenna poses to the tracer: the gains are the physics, whatever the robot
         believes; the oracle then scores them at ``obs.slot_poses``' slots).
     sites : array_like (K, 3)
-        Candidate sites (e.g. ``tag_sites(scene, 0.1, eval_tag_heights_m).positions_m``,
-        which contains the held-out tags' positions exactly).
+        Candidate sites (e.g. ``tag_sites(scene, 0.05, None).positions_m``, every surface
+        height; the study's held-out tags lie 2.5-3.5 cm from their nearest site).
     centres : array_like (T, 3) or sequence of T arrays (k_t, 3)
         Window centre(s) of each tag, in the order of ``obs.tag_ids``.
     window_m : float

@@ -6,8 +6,13 @@ i of a tag at position c, from the reader antenna at p_i on channel f_i,
     phase_i = mod(4 pi f_i |p_i - c| / c0 + offset(antenna, channel) + n_i + pi B_i, 2 pi)
 
 (in free space; the ray-traced channel h gives ``-angle(h**2)`` instead of the first
-term), with an unknown constant ``offset`` per (antenna, channel) (cables, reader and tag
-chip), noise ``n_i`` and the reader's pi ambiguity ``B_i`` in {0, 1}. Two steps make the
+term), with an unknown constant ``offset`` per (antenna, channel) and tag (cables and reader
+per antenna and channel, each tag's own reflection phase), noise ``n_i`` and the reader's
+pi ambiguity ``B_i`` in {0, 1}. The simulated reader also shifts a read's phase with the
+power its tag's chip absorbs (:mod:`pipeline.acquisition.phase`, up to 100 degrees):
+this estimator does not model that term; it varies within a group as the antenna moves,
+so it lowers the concentration the data show (kappa, estimated from the data by
+default) and biases the range where it changes fastest. Two steps make the
 unknowns drop out:
 
 * **pi ambiguity**: the doubled phase ``2 phase_i`` is the same for B = 0 and 1, so the
@@ -26,7 +31,25 @@ offset), so
     log p(phases | c) = sum_g log I0(kappa R_g(c)) + const,
 
 whose large-kappa limit is ``kappa sum_g R_g(c)``: the classic holographic score (sum
-of the groups' magnitudes), here with a calibrated scale. kappa comes from the
+of the groups' magnitudes), here with a calibrated scale. A candidate stands for its
+cell (the square of the grid's spacing about it on its face, for candidates with
+surface normals such as :class:`scenes.tagsites.TagSites`; the cube of that side for
+bare positions): its likelihood is the point likelihood averaged over the cell, the tag
+uniform within it, ``p(phases | cell) = mean over the cell of p(phases | x)``, by the
+midpoint rule on 3 x 3 sub-cells in the face's (horizontal, vertical) plane (3 x 3 x 3
+for bare positions; a log-mean-exp of the sub-points' log likelihoods).
+
+Approximation: only the ``refine_top`` candidates of highest holographic score per tag
+get that cell mean; every other candidate keeps its centre's point likelihood, which
+stands in for its cell's mean (higher where the centre sits on a lobe, lower where a
+lobe narrower than the cell passes beside it). The posterior thus mixes the two
+quantities; it is exactly the posterior over cells only with ``refine_top`` >= the
+candidates in reach (every cell refined; 9 times the work), and close to it where the
+unrefined candidates' likelihood is far below the refined ones' (a few nats per group
+below the main lobe). :attr:`PhasePosteriors.refined` says which candidates carry the
+cell mean. The result is a likelihood (with every cell refined, the posterior over
+cells is what the posterior over the sub-points sums to per cell), so that
+:func:`combine_posteriors` may multiply it with another source's. kappa comes from the
 phase noise std given (``phase_sigma_rad``: the wrapped-normal std sigma of one phase
 gives the doubled phase a mean resultant length ``exp(-2 sigma^2)``) or, by default,
 from the data: the pooled, bias-corrected resultant length of every group at each
@@ -65,6 +88,7 @@ from scipy.special import i0e, logsumexp
 
 from propagation.constants import SPEED_OF_LIGHT
 
+from .phase_cells import _grid_step, cell_points
 from .tags import TagPosteriors, _check_candidates, _check_prior
 
 __all__ = [
@@ -76,6 +100,7 @@ __all__ = [
     "estimate_kappa",
     "kappa_from_sigma",
     "localise_tags_phase",
+    "cell_points",
     "phase_reads_from_table",
     "simulate_phase_rad",
 ]
@@ -96,9 +121,13 @@ class PhasePosteriors(TagPosteriors):
     kappa : float
         Von Mises concentration of the doubled phase the likelihood used (given or
         estimated; 0: the phases carried no position).
+    refined : numpy.ndarray, shape (T, C), bool, or None
+        The candidates whose likelihood is their cell's mean (the ``refine_top`` of each
+        tag); the others carry their centre's point likelihood (module doc).
     """
 
     kappa: float = float("nan")
+    refined: np.ndarray | None = None
 
 
 class PhaseColumnsMissing(ValueError):
@@ -400,12 +429,16 @@ def localise_tags_phase(reads: PhaseReads, candidates, *, phase_sigma_rad: float
         Split each (antenna, channel) group every this much antenna travel [m]; default
         one group per (antenna, channel).
     refine_top : int
-        Per tag, the candidates of the highest holographic score ``sum_g R_g`` that get
-        the best score within their cell (a cube of side ``cell_m`` about the
-        candidate, sampled 3 x 3 x 3): the main lobe of a long aperture is a few
-        centimetres wide, narrower than the candidate grid, so a tag between candidates
-        would otherwise lose to a sidelobe or a mirror image that happens to fall on a
-        candidate. 0: no refinement.
+        Per tag, the candidates of the highest holographic score ``sum_g R_g`` whose
+        likelihood is the mean of the point likelihood over their cell (the square of
+        side ``cell_m`` on the candidate's face where the candidates carry ``normals``,
+        else the cube; the midpoint rule, :func:`cell_points`, a log-mean-exp of the
+        sub-points' log likelihoods) instead of its centre's value: the
+        main lobe of a long aperture is a few centimetres wide, narrower than the
+        candidate grid, so a tag between candidates would otherwise lose to a sidelobe
+        or a mirror image that happens to fall on a candidate. 0: no refinement (every
+        candidate its centre's value). The others keep their centre's value: an
+        approximation (module doc; :attr:`PhasePosteriors.refined`).
     cell_m : float, optional
         Candidate spacing [m]; default the median nearest-neighbour distance of the
         candidates.
@@ -431,6 +464,11 @@ def localise_tags_phase(reads: PhaseReads, candidates, *, phase_sigma_rad: float
         raise ValueError(f"reads must be PhaseReads (see phase_reads_from_table), got "
                          f"{type(reads).__name__}")
     cand = _check_candidates(candidates)
+    normals = getattr(candidates, "normals", None)
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+        if len(normals) != len(cand):
+            raise ValueError(f"candidates: {len(normals)} normals for {len(cand)} positions")
     T, C = reads.n_tags, len(cand)
     lp = _check_prior(log_prior, T, C)
     if reach_m is not None and not float(reach_m) > 0:
@@ -455,23 +493,28 @@ def localise_tags_phase(reads: PhaseReads, candidates, *, phase_sigma_rad: float
         wavenum = 8.0 * np.pi * reads.frequency_hz[rows] / SPEED_OF_LIGHT
         args = (xyz, wavenum, 2.0 * reads.phase_rad[rows], group, len(sizes))
         res = _resultants(*args, cand[cols], chunk)
-        if n_top and cell:
-            _refine(res, cand[cols], args, cell, n_top, chunk)
-        per_tag.append((cols, res, sizes))
+        top, sub = (_refine(res, cand[cols], None if normals is None else normals[cols], args,
+                            cell, n_top, chunk) if n_top and cell
+                    else (np.zeros(0, np.int64), None))
+        per_tag.append((cols, res, sizes, top, sub))
     if phase_sigma_rad is not None:
         kappa = kappa_from_sigma(phase_sigma_rad)
     else:
-        best = [(r[:, np.argmax(r.sum(axis=0))], n) for _, r, n in filter(None, per_tag)]
+        best = [(_best_resultants(r, sub), n) for _, r, n, _, sub in filter(None, per_tag)]
         kappa = estimate_kappa(np.concatenate([b[0] for b in best]) if best else [],
                                np.concatenate([b[1] for b in best]) if best else [])
     ll = np.zeros((T, C))
+    refined = np.zeros((T, C), dtype=bool)
     for t, item in enumerate(per_tag):
         if item is None:
             continue
-        cols, res, _ = item
-        x = kappa * res.astype(np.float64)
+        cols, res, _, top, sub = item
         row = np.full(C, -np.inf)
-        row[cols] = np.sum(x + np.log(i0e(x)), axis=0)  # log I0(x) = x + log i0e(x)
+        row[cols] = _log_i0_sum(kappa, res)
+        if sub is not None:  # the cell's mean likelihood: log-mean-exp over its sub-points
+            lsub = _log_i0_sum(kappa, sub)  # (k, 9 or 27)
+            row[cols[top]] = logsumexp(lsub, axis=1) - np.log(lsub.shape[1])
+            refined[t, cols[top]] = True
         ll[t] = row
     post = ll if lp is None else ll + lp
     bad = ~np.isfinite(logsumexp(post, axis=1))
@@ -480,31 +523,37 @@ def localise_tags_phase(reads: PhaseReads, candidates, *, phase_sigma_rad: float
                      + (0.0 if lp is None else lp[bad]))
     post = post - logsumexp(post, axis=1, keepdims=True)
     return PhasePosteriors(str(name), reads.tag_ids, cand, post, reads.n_attempts.copy(),
-                           reads.n_reads, float(local_radius_m), kappa=float(kappa))
+                           reads.n_reads, float(local_radius_m), kappa=float(kappa),
+                           refined=refined)
 
 
-def _grid_step(cand: np.ndarray) -> float:
-    """Median nearest-neighbour distance of the candidates [m] (0 for one candidate)."""
-    from scipy.spatial import cKDTree
-
-    if len(cand) < 2:
-        return 0.0
-    d, _ = cKDTree(cand).query(cand, k=2)
-    return float(np.median(d[:, 1]))
-
-
-def _refine(res: np.ndarray, cand: np.ndarray, args: tuple, cell_m: float, n_top: int,
-            chunk: int) -> None:
-    """Replace, in place, the resultants (G, C) of the `n_top` best candidates by those
-    of the best of 27 points of their cell (offsets -cell/3, 0, +cell/3 per axis)."""
+def _refine(res: np.ndarray, cand: np.ndarray, normals, args: tuple, cell_m: float,
+            n_top: int, chunk: int) -> tuple[np.ndarray, np.ndarray]:
+    """The `n_top` candidates of highest holographic score and the resultants at the
+    sub-points of their cells (:func:`cell_points`): ``(top (k,), sub (G, k, 9 or 27))``."""
     k = min(n_top, len(cand))
     top = np.argpartition(res.sum(axis=0), len(cand) - k)[len(cand) - k:]
-    o = np.array([-1.0, 0.0, 1.0]) * cell_m / 3.0
-    off = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
-    pts = (cand[top][:, None, :] + off[None]).reshape(-1, 3)
-    sub = _resultants(*args, pts, chunk).reshape(len(res), k, len(off))
-    best = np.argmax(sub.sum(axis=0), axis=1)  # (k,)
-    res[:, top] = sub[:, np.arange(k), best]
+    pts = cell_points(cand[top], cell_m, None if normals is None else normals[top])
+    sub = _resultants(*args, pts.reshape(-1, 3), chunk).reshape(len(res), k, pts.shape[1])
+    return top, sub
+
+
+def _log_i0_sum(kappa: float, res: np.ndarray) -> np.ndarray:
+    """``sum_g log I0(kappa R_g)`` over the first axis of the resultants (G, ...)."""
+    x = kappa * res.astype(np.float64)
+    return np.sum(x + np.log(i0e(x)), axis=0)  # log I0(x) = x + log i0e(x)
+
+
+def _best_resultants(res: np.ndarray, sub: np.ndarray | None) -> np.ndarray:
+    """Each group's resultant (G,) at the point of highest holographic score, cell centres
+    and refined sub-points alike (where :func:`estimate_kappa` reads the data's
+    concentration)."""
+    j = int(np.argmax(res.sum(axis=0)))
+    if sub is None or sub.size == 0:
+        return res[:, j]
+    score = sub.sum(axis=0)  # (k, 27)
+    a, b = np.unravel_index(int(np.argmax(score)), score.shape)
+    return sub[:, a, b] if score[a, b] > res[:, j].sum() else res[:, j]
 
 
 def _within(cand: np.ndarray, xyz: np.ndarray, radius_m: float) -> np.ndarray:

@@ -229,7 +229,10 @@ def localise_tags(obs: Observations, candidates, sources, *, log_prior=None,
             f = far[(src.d_max_m, src.d_far_m)]
             act = f["active"]
             ia = np.flatnonzero(act)
-            terms = src.terms(d[ia], alpha[pos[ia]])
+            # a model using the tag's height gets each candidate's above the slot's antenna
+            dz = (cand[cols, 2][None, :] - obs.slot_poses[ia, 2][:, None]
+                  if src.uses_height else None)
+            terms = src.terms(d[ia], alpha[pos[ia]], dz)
             out = miss[:, ia] @ terms.log_miss
             if src.d_max_m is not None:  # pairs of the other slots: the far rule, by counts
                 lm_band, lm_out = src.far_log_miss(np.array([0.0, np.inf]))

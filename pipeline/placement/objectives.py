@@ -11,7 +11,7 @@ read_rate                    reads / in-range attempts on the training    replic
                              tour (:mod:`pipeline.evaluation.inventory`)
 completeness                 share of (tag, pass) read >= ``min_reads``   replicate x tag
                              times in that pass
-surface_coverage             share of the route's read cycles in which    replicate x tag
+surface_coverage             share of the route's read rounds in which    replicate x tag
                              the tag's local-mean link closes, at the
                              tag's own position and height
 tag_localisation_median_m    median MAP error of the held-out tags' posi- replicate x held-out

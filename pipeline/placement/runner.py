@@ -37,7 +37,8 @@ from pipeline.runstore import atomic_write_json
 from .candidates import Candidate, candidates_of
 from .spec import PlacementSpec
 
-__all__ = ["PlacementResult", "ProgressEvent", "candidate_dir", "run_placement"]
+__all__ = ["PlacementResult", "ProgressEvent", "candidate_dir", "position_waves",
+           "run_placement"]
 
 log = logging.getLogger(__name__)
 
@@ -134,6 +135,27 @@ def _replicate_config(spec: PlacementSpec, cand: Candidate, k: int, cache_dir: s
     return replace_path(cfg, "seed", replicate_seed(spec.base.seed, k))
 
 
+def position_key(cand: Candidate) -> tuple:
+    """The antenna positions of a candidate (robot frame, 1 um), orientation left out: the
+    propagation cache is keyed by position, so candidates with one key share traces."""
+    return tuple(sorted((round(a.x_m, 6), round(a.y_m, 6), round(a.z_m, 6))
+                        for a in cand.antennas))
+
+
+def position_waves(cands: list[Candidate]) -> list[list[Candidate]]:
+    """``cands`` in two waves: the first candidate of each set of antenna positions, then
+    the rest. Studies run side by side (``workers`` > 1) would otherwise trace the same
+    positions twice at once, each before the other's traces reach the cache; in waves the
+    siblings find every position traced."""
+    seen: set = set()
+    first, rest = [], []
+    for c in cands:
+        key = position_key(c)
+        (rest if key in seen else first).append(c)
+        seen.add(key)
+    return [w for w in (first, rest) if w]
+
+
 class _Runner:
     """Runs candidates' replicates in batches and keeps the progress books."""
 
@@ -150,14 +172,20 @@ class _Runner:
         self.n_run = 0  # candidates finished in those batches
 
     def run(self, cands: list[Candidate]) -> None:
-        from pipeline.sweep import run_studies
-
-        from .objectives import traced_counts
-
+        """Run ``cands``' replicates not done yet: one candidate per set of antenna
+        positions first, then their orientation-only siblings (:func:`position_waves`)."""
         todo = [c for c in cands if c.name not in self.done]
         if not todo:
             return
         self.expected = max(self.expected, len(self.done) + len(todo))
+        for wave in position_waves(todo):
+            self._run_batch(wave)
+
+    def _run_batch(self, todo: list[Candidate]) -> None:
+        from pipeline.sweep import run_studies
+
+        from .objectives import traced_counts
+
         n = self.spec.settings.replicates
         args, owner = [], []
         for c in todo:

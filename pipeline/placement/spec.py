@@ -332,6 +332,9 @@ def check_placement(spec: PlacementSpec) -> None:
     if opt.n_trials and opt.sampler == "cmaes" and len(ranges) < 2:
         raise _fail(src, "optimise.sampler = 'cmaes' needs at least two ranges (Optuna's CMA-ES "
                          "is multivariate); use 'tpe' for one")
+    if opt.n_trials and opt.sampler == "cmaes" and s.constraint:
+        raise _fail(src, "optimise.sampler = 'cmaes' with [[constraint]]: Optuna's CMA-ES "
+                         "cannot honour constraints; use 'tpe' (constrained TPE)")
     cands = candidates_of(spec)
     if not cands and not opt.n_trials:
         raise _fail(src, "no candidates: give [grid] values, [[preset]] tables or [optimise]")

@@ -35,8 +35,10 @@ class LocalisationConfig:
 
     enabled: bool = option(True, "Run MCL; if false the estimated poses equal the true poses.")
     n_particles: int = option(MCLConfig.n_particles, "MCL particles.", max=1_000_000)
-    n_beams_used: int = option(MCLConfig.n_beams_used, "Laser beams per scan used by the likelihood field.")
-    laser_beams: int = option(LaserScanner.n_beams, "Laser beams over the field of view (SICK LMS-200: 181).")
+    n_beams_used: int = option(MCLConfig.n_beams_used, "Laser beams per scan used by the likelihood field.",
+                               max=10_000)
+    laser_beams: int = option(LaserScanner.n_beams, "Laser beams over the field of view (SICK LMS-200: 181).",
+                              max=10_000)
     laser_fov_deg: float = option(math.degrees(LaserScanner.fov_rad), "Laser field of view [deg].")
     laser_max_range_m: float = option(LaserScanner.max_range_m, "Laser maximum range [m].")
     laser_noise_m: float = option(LaserScanner.range_noise_m, "Laser range noise standard deviation [m].")

@@ -96,8 +96,8 @@ class TourConfig:
     lane_fractions: tuple[float, ...] = option(
         (-0.6, 0.0, 0.6), "Lateral lanes as fractions of the free band, in [-1, 1] (0 = middle)."
     )
-    lane_changes_per_pass: int = option(1, "Lane changes inside each pass.")
-    stops_per_pass: int = option(1, "Stops inside each pass.")
+    lane_changes_per_pass: int = option(1, "Lane changes inside each pass.", max=1_000)
+    stops_per_pass: int = option(1, "Stops inside each pass.", max=1_000)
     speed_m_per_s: float = option(0.3, "Cruise speed [m/s] (the chapter's robot: about 0.3 m/s).")
     dt_s: float = option(0.1, "Pose sampling period (one laser scan / MCL update per pose) [s].")
     max_length_m: float = option(

@@ -12,7 +12,8 @@ RFID sensor models. Each competitor here is fitted on the training tour's reads
   "Liu et al. (2006)" the chapter cites for such a model, a paper not checked here, so
   not a reproduction of it.
 * :mod:`.vorst2008` - Vorst & Zell (EUROS 2008): kernel-smoothed detection rates on a
-  Cartesian antenna-frame grid; no RSSI (fs = 1, fs_dbm = NaN, ``predicts_rssi`` False).
+  Cartesian grid of the antenna's ground plane (horizontal geometry: fitted with each
+  attempt's tag height); no RSSI (fs = 1, fs_dbm = NaN, ``predicts_rssi`` False).
 * :mod:`.ablations` - the chapter's model with FCM only (no ANFIS) and with a grid
   partition instead of FCM, as ``fuzzymodel.SensorModel``.
 
@@ -26,6 +27,7 @@ from ._common import (
     attempts_from_reads,
     group_folds,
     read_model_file,
+    tag_height_differences,
 )
 from .ablations import ABLATIONS, fit_ablation
 from .competitors import COMPETITORS, MODEL_CLASSES, fit_competitors, load_competitor
@@ -55,4 +57,5 @@ __all__ = [
     "fit_vorst2008",
     "load_competitor",
     "read_model_file",
+    "tag_height_differences",
 ]

@@ -25,7 +25,7 @@ import pandas as pd
 
 from fuzzymodel import denormalise_rssi, normalise_rssi, wrap_angle
 from pipeline.configschema import check_keys
-from pipeline.evaluation.tables import require_columns, write_json_atomic
+from pipeline.evaluation.tables import require_columns, tag_position_lookup, write_json_atomic
 
 __all__ = [
     "COMPETITOR_FORMAT",
@@ -37,6 +37,7 @@ __all__ = [
     "group_folds",
     "nearest_fill",
     "read_model_file",
+    "tag_height_differences",
 ]
 
 #: Format tag of every competitor model file.
@@ -102,9 +103,11 @@ class Attempts:
     """Read attempts as flat arrays: ``d`` [m], ``alpha`` [rad] wrapped to (-pi, pi],
     ``read`` (bool), ``rssi`` [dBm] (NaN where not read or not reported) and, optionally,
     ``group`` (int codes of the attempt's tag, for cross-validation folds that keep a
-    tag's correlated attempts together; None: unknown)."""
+    tag's correlated attempts together; None: unknown) and ``dz`` (the tag's height above
+    the antenna [m], a scalar broadcast to every attempt or one per attempt; None:
+    unknown), which a ground-plane model needs (:mod:`.vorst2008`)."""
 
-    def __init__(self, d_m, alpha_rad, read, rssi_dbm=None, group=None):
+    def __init__(self, d_m, alpha_rad, read, rssi_dbm=None, group=None, dz_m=None):
         d = np.asarray(d_m, dtype=np.float64).ravel()
         a = wrap_angle(np.asarray(alpha_rad, dtype=np.float64).ravel())
         r = np.asarray(read).ravel()
@@ -120,10 +123,16 @@ class Attempts:
         if not (d.shape == a.shape == r.shape == s.shape) or (g is not None and g.shape != d.shape):
             raise ValueError(f"d {d.shape}, alpha {a.shape}, read {r.shape}, rssi {s.shape}"
                              + ("" if g is None else f", group {g.shape}") + " differ")
+        dz = None
+        if dz_m is not None:
+            dz = np.broadcast_to(np.asarray(dz_m, dtype=np.float64), d.shape).ravel().copy()
+            if not np.isfinite(dz).all():
+                raise ValueError("dz_m (tag height above the antenna) must be finite")
         ok = np.isfinite(d) & np.isfinite(a) & (d >= 0)
         self.d, self.alpha, self.read = d[ok], a[ok], r[ok]
         self.rssi = np.where(self.read, s[ok], np.nan)
         self.group = None if g is None else g[ok]
+        self.dz = None if dz is None else dz[ok]
 
     def __len__(self) -> int:
         return int(self.d.size)
@@ -132,7 +141,8 @@ class Attempts:
         """The attempts with ``d < d_max_m``."""
         keep = self.d < float(d_max_m)
         return Attempts(self.d[keep], self.alpha[keep], self.read[keep], self.rssi[keep],
-                        None if self.group is None else self.group[keep])
+                        None if self.group is None else self.group[keep],
+                        None if self.dz is None else self.dz[keep])
 
     @property
     def has_rssi(self) -> np.ndarray:
@@ -174,12 +184,36 @@ def group_folds(groups, n_folds: int, rng: np.random.Generator) -> np.ndarray:
     return fold_of[code.reshape(-1)]
 
 
-def attempts_from_reads(reads: pd.DataFrame, d_max_m: float, pose: str = "est") -> Attempts:
+def tag_height_differences(reads: pd.DataFrame, tags, pose: str = "est") -> np.ndarray:
+    """Each row's tag height above its antenna [m]: the tag's z (``tags``, a
+    :class:`scenes.TagSet` or a tags table holding every ``tag_id`` of the table, see
+    :func:`pipeline.evaluation.tables.tag_position_lookup`) less ``<pose>_ant_z_m``.
+
+    Raises
+    ------
+    ValueError
+        A ``tag_id`` of the table that ``tags`` does not hold, or a missing column.
+    """
+    if pose not in ("est", "true"):
+        raise ValueError(f"pose must be 'est' or 'true', got {pose!r}")
+    require_columns(reads, ("tag_id", f"{pose}_ant_z_m"), "reads")
+    z_of = {k: float(v[2]) for k, v in tag_position_lookup(tags).items()}
+    ids = reads["tag_id"].astype(str).to_numpy()
+    unknown = sorted(set(ids) - set(z_of))
+    if unknown:
+        raise ValueError(f"reads: tag(s) {unknown[:5]} not among the {len(z_of)} tags given")
+    return np.array([z_of[t] for t in ids], dtype=np.float64) - reads[f"{pose}_ant_z_m"].to_numpy(
+        np.float64)
+
+
+def attempts_from_reads(reads: pd.DataFrame, d_max_m: float, pose: str = "est",
+                        dz_m=None) -> Attempts:
     """The attempts of a ``reads.parquet`` table with ``d < d_max_m``.
 
     Geometry from ``d_<pose>_m`` / ``alpha_<pose>_rad`` (``"est"``: MCL poses, what the
     robot knows; ``"true"``: ground truth); rows with non-finite geometry are dropped.
-    The ``tag_id`` column, where present, is the attempts' ``group``.
+    The ``tag_id`` column, where present, is the attempts' ``group``; ``dz_m`` (one per
+    row, e.g. :func:`tag_height_differences`, or a scalar), where given, their ``dz``.
     """
     if pose not in ("est", "true"):
         raise ValueError(f"pose must be 'est' or 'true', got {pose!r}")
@@ -190,7 +224,7 @@ def attempts_from_reads(reads: pd.DataFrame, d_max_m: float, pose: str = "est") 
     group = reads["tag_id"].astype(str).to_numpy() if "tag_id" in reads.columns else None
     return Attempts(reads[dc].to_numpy(np.float64), reads[ac].to_numpy(np.float64),
                     reads["read"].to_numpy(bool),
-                    reads["rssi_dbm"].to_numpy(np.float64), group).within(d_max_m)
+                    reads["rssi_dbm"].to_numpy(np.float64), group, dz_m).within(d_max_m)
 
 
 class CompetitorModel:

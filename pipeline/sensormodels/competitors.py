@@ -28,7 +28,7 @@ MODEL_CLASSES = {JOHO2009: Joho2009Model, LIU2006: Liu2006Model, VORST2008: Vors
 
 def fit_competitors(reads: pd.DataFrame, rssi_range_dbm, *, d_max_m: float,
                     grid: CellGrid | None = None, rng=None, pose: str = "est",
-                    joho: dict | None = None, liu: dict | None = None,
+                    dz_m=None, joho: dict | None = None, liu: dict | None = None,
                     vorst: dict | None = None) -> dict:
     """Fit the three paper competitors on one reads table.
 
@@ -46,6 +46,10 @@ def fit_competitors(reads: pd.DataFrame, rssi_range_dbm, *, d_max_m: float,
         Cross-validation folds of the Vorst model (required).
     pose : {"est", "true"}
         Geometry columns.
+    dz_m : array_like (len(reads),) or float
+        Each row's tag height above its antenna [m]
+        (:func:`~._common.tag_height_differences`): the Vorst & Zell model's table is over
+        the horizontal range (required by it: a ValueError without).
     joho, liu, vorst : dict, optional
         Extra keyword arguments of :func:`fit_joho2009`, :func:`fit_liu2006`,
         :func:`fit_vorst2008`.
@@ -57,7 +61,7 @@ def fit_competitors(reads: pd.DataFrame, rssi_range_dbm, *, d_max_m: float,
     """
     if rng is None:
         raise ValueError("fit_competitors: pass rng (a numpy Generator, e.g. the stage's)")
-    att = attempts_from_reads(reads, d_max_m, pose=pose)
+    att = attempts_from_reads(reads, d_max_m, pose=pose, dz_m=dz_m)
     grid = CellGrid(d_max_m=d_max_m) if grid is None else grid
     return {
         JOHO2009: fit_joho2009(att, rssi_range_dbm, grid, **(joho or {})),

@@ -9,7 +9,8 @@ import numpy as np
 from pipeline.config import ConfigError
 from pipeline.stages.common import load_scene, study_route
 
-__all__ = ["CHECKS", "check_antenna_mounts", "check_tracer_versions"]
+__all__ = ["CHECKS", "check_antenna_mounts", "check_cache_dir", "check_memory_budget",
+           "check_tracer_versions"]
 
 
 def check_antenna_mounts(ctx) -> None:
@@ -106,4 +107,51 @@ def check_tracer_versions(ctx) -> None:
             "only) or install the tested versions (constraints.txt)")))
 
 
-CHECKS = (check_tracer_versions, check_antenna_mounts)
+def check_cache_dir(ctx) -> None:
+    """The propagation cache (:func:`pipeline.stages.common.resolve_cache_dir`) is a
+    directory this process can write, made here if missing: a file there, a place under
+    /proc or a read-only one stops the study before the tour, naming where the path came
+    from (``tracing.cache_dir``, ``$RFIDSTUDY_CACHE`` or the default) and the path."""
+    import os
+
+    from pipeline.stages.common import resolve_cache_dir
+
+    if ctx.config.tracing.cache_dir:
+        src = f"tracing.cache_dir = {ctx.config.tracing.cache_dir!r}"
+    elif os.environ.get("RFIDSTUDY_CACHE"):
+        src = f"$RFIDSTUDY_CACHE = {os.environ['RFIDSTUDY_CACHE']!r}"
+    else:
+        src = "the default propagation cache (set tracing.cache_dir or $RFIDSTUDY_CACHE)"
+    try:
+        path = resolve_cache_dir(ctx.config)
+    except (OSError, RuntimeError) as exc:
+        raise ConfigError(f"{src}: cannot be resolved: {exc}") from None
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{src}: {path} is a file, not a directory (the propagation cache is a "
+                          "directory of traces)")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{src}: cannot make the propagation cache directory {path}: "
+                          f"{exc.strerror or exc}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ConfigError(f"{src}: the propagation cache directory {path} is not writable")
+
+
+def check_memory_budget(ctx) -> None:
+    """``tracing.memory_budget_mb`` fits this machine's memory: the tracer fills its budget
+    (up to 128 antenna positions per call), so a budget above the physical memory would be
+    taken at its word and exhaust the machine instead of chunking."""
+    import os
+
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError):  # not reported on this platform: nothing to check against
+        return
+    budget = ctx.config.tracing.memory_budget_mb * 2**20
+    if total > 0 and budget > total:
+        raise ConfigError(f"tracing.memory_budget_mb = {ctx.config.tracing.memory_budget_mb:g}: more "
+                          f"than this machine's memory ({total / 2**20:,.0f} MiB); lower it")
+
+
+CHECKS = (check_tracer_versions, check_cache_dir, check_memory_budget, check_antenna_mounts)

@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.config import StudyConfig, TracingConfig
+from scenes.fileio import read_npz
 
 __all__ = [
     "EVAL_TAG_SPACING_M",
@@ -35,9 +36,11 @@ __all__ = [
     "read_track",
     "resolve_cache_dir",
     "select_backend",
+    "source_revision",
     "split_tags",
     "spread_evenly",
     "stage_rng",
+    "tag_candidates",
     "study_route",
     "study_scene",
     "trace_options",
@@ -74,6 +77,31 @@ def resolve_cache_dir(cfg: StudyConfig) -> Path:
     if env:
         return Path(env).expanduser().resolve()
     return (Path.home() / ".cache" / "rfidstudy").resolve()
+
+
+def tag_candidates(scene, cfg: StudyConfig):
+    """Where the downstream stage looks for a held-out tag (every model, the phase
+    estimator and the oracle alike): the sites of every vertical surface of ``scene``
+    that faces free space, at every height it has (floor to top), every
+    ``downstream.candidate_spacing_m`` (:func:`scenes.tagsites.tag_sites` with
+    ``z_range_m=None``).
+
+    Not the held-out tags' own height band (``evaluation.eval_tag_heights_m``): a user's
+    unknown tags could be wherever a tag sticks, and candidates cut to the band the
+    evaluation drew its tags from would hand every model a prior it could not have.
+
+    The held-out tags are drawn on each face's :data:`EVAL_TAG_SPACING_M` grid; this
+    grid is laid half a step off it along both face axes (``tag_sites(between_m=...)``),
+    so when :data:`EVAL_TAG_SPACING_M` is a whole multiple of the candidate spacing (the
+    default 0.1 m / 0.05 m) a held-out tag lies exactly half a cell diagonal (3.5 cm at
+    5 cm) from its nearest candidates, never on one, whatever the faces' sizes (two grids
+    each centred on its face coincided where ``floor(W / 0.05)`` was odd). Another
+    spacing may put a candidate on a held-out tag.
+    """
+    from scenes.tagsites import tag_sites
+
+    return tag_sites(scene, spacing_m=cfg.downstream.candidate_spacing_m, z_range_m=None,
+                     between_m=EVAL_TAG_SPACING_M)
 
 
 def study_scene(cfg: StudyConfig):
@@ -284,7 +312,7 @@ def read_track(ctx, name: str):
 
     path = ctx.input(f"tour/{name}_track.npz")
     try:
-        with np.load(path) as z:
+        with read_npz(path) as z:
             return PoseTrack(t_s=z["t_s"], true_poses=z["true"], est_poses=z["est"],
                              odom_poses=z["odom"])
     except (OSError, KeyError, ValueError) as exc:
@@ -340,11 +368,52 @@ def _version(dist: str) -> str | None:
         return None
 
 
+#: Source folders whose untracked files count as a change to the code that runs.
+SOURCE_DIRS = ("pipeline", "scenes", "propagation", "fuzzymodel")
+
+
+def source_revision(root=None) -> dict:
+    """The git commit of the code that runs (this package's checkout) and whether it
+    differs from it: ``{"commit": sha or None, "dirty": bool or None}``, with ``"why"``
+    where git could not say (no git, not a checkout, e.g. an installed wheel).
+
+    ``root`` (default: the folder holding this ``pipeline`` package) must be the top
+    level of its git checkout (``git rev-parse --show-toplevel``) and hold ``pipeline/``:
+    a package installed inside some other repository's tree names no commit rather than
+    that repository's. ``dirty``: a tracked file differs from the commit, or an untracked
+    (and not ignored) file lies under one of :data:`SOURCE_DIRS`. What a number quoted
+    from a run directory names as its source."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2] if root is None else Path(root).resolve()
+
+    def git(*args) -> str:
+        return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
+                              timeout=10, check=True).stdout
+
+    if not (root / "pipeline").is_dir():
+        return {"commit": None, "dirty": None, "why": f"{root} holds no pipeline/"}
+    try:
+        top = git("rev-parse", "--show-toplevel").strip()
+        if Path(top).resolve() != root:
+            return {"commit": None, "dirty": None,
+                    "why": f"{root} is not the top of its git checkout ({top})"[:200]}
+        sha = git("rev-parse", "HEAD").strip()
+        dirty = (git("status", "--porcelain", "--untracked-files=no").strip() != ""
+                 or git("status", "--porcelain", "--untracked-files=all", "--",
+                        *SOURCE_DIRS).strip() != "")
+    except (OSError, subprocess.SubprocessError) as exc:
+        return {"commit": None, "dirty": None, "why": f"{type(exc).__name__}: {exc}"[:200]}
+    return {"commit": sha, "dirty": dirty}
+
+
 def manifest_info(cfg: StudyConfig) -> dict:
-    """Package versions, platform and the Dr.Jit backend for ``manifest.json``."""
+    """Package versions, platform, the source's git commit and the Dr.Jit backend for
+    ``manifest.json``."""
     dists = ["rfidstudy", "sionna-rt", "mitsuba", "drjit", "numpy", "scipy", "scikit-fuzzy",
              "trimesh", "pandas", "pyarrow", "matplotlib", "dask", "distributed"]
     info = {
+        "source": source_revision(),
         "versions": {d: _version(d) for d in dists},
         "python": platform.python_version(),
         "platform": platform.platform(),

@@ -21,6 +21,7 @@ from pipeline.stages.common import (
     select_backend,
     split_tags,
     stage_rng,
+    tag_candidates,
     trace_options,
 )
 from pipeline.study import Stage
@@ -113,11 +114,7 @@ def _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources) -> tuple:
     estimator (NumPy only: safe in a forked process)."""
     from pipeline.localisation import localise_tags
     from pipeline.localisation.benchmark import phase_posteriors
-    from scenes.tagsites import tag_sites
-
-    cfg = ctx.config
-    cand = tag_sites(load_scene(ctx), spacing_m=cfg.downstream.candidate_spacing_m,
-                     z_range_m=tuple(cfg.evaluation.eval_tag_heights_m))
+    cand = tag_candidates(load_scene(ctx), ctx.config)
     posts = localise_tags(obs, cand, sources)
     # the phase estimator's candidates: within the farthest training read of a pose that
     # read the tag; sub-apertures of 1 m of antenna travel (MCL drifts: on the tiny study
@@ -219,12 +216,17 @@ def stage_downstream(ctx) -> dict:
 
 
 STAGE = Stage("downstream", stage_downstream,
-              ("seed", "downstream", "evaluation.eval_tag_heights_m", "training.d_max_m", "reader",
+              ("seed", "downstream", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=9,
+              ("scene", "tour", "reads", "models"), version=11,
               # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
               # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
               # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
               # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin);
-              # 8: robot medians over all steps, every run's steps (robot_steps.parquet)
+              # 8: robot medians over all steps, every run's steps (robot_steps.parquet);
+              # 9: the oracle's Rician fading; 10: the phase likelihood's cell mean, candidates on
+              # every surface height (tag_candidates), not the held-out tags' band
+              # 11: a model using the tag's height above the antenna (Vorst & Zell) gets
+              # each candidate's / mapped tag's; the candidate grid half a step off the
+              # held-out tags' (tag_candidates); the phase cell a 3 x 3 patch on the face
               description="downstream localisation (tags, robot)")

@@ -111,7 +111,12 @@ def stage_evaluation(ctx) -> dict:
         "log_distance": base,
         "grid_count": base,
     }
-    from pipeline.sensormodels import ABLATIONS, COMPETITORS, load_competitor
+    from pipeline.sensormodels import (
+        ABLATIONS,
+        COMPETITORS,
+        load_competitor,
+        tag_height_differences,
+    )
 
     sensors.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
     sensors.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
@@ -121,10 +126,14 @@ def stage_evaluation(ctx) -> dict:
     train_truth = TruthGrid.load(ctx.input("truth/detection_grid.npz"))
     eval_truth = TruthGrid.load(ctx.input("truth/detection_grid_eval.npz"))
     tr = cfg.training
+    # each held-out link's tag height above its true antenna: a model whose detection
+    # depends on it (Vorst & Zell's ground-plane table) is scored with it
+    eval_dz = tag_height_differences(eval_reads, tags, pose="true")
     heldout = heldout_scores(sensors, eval_reads, train_truth, eval_truth, budget,
                              d_max_m=tr.d_max_m, min_attempts=tr.min_attempts,
                              rssi_models=rssi_names,
-                             detection_models=("anfis", "anfis_truepose", "grid_count", *extra))
+                             detection_models=("anfis", "anfis_truepose", "grid_count", *extra),
+                             dz_m=eval_dz)
     metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
                "reads": {"range_margin": _range_margin(meta, eval_meta)},
                "model_fits": model_fits({n: sensors[n] for n in COMPETITORS})}
@@ -174,17 +183,17 @@ def stage_evaluation(ctx) -> dict:
         metrics["coverage"] = coverage
     det_names = ("anfis", "anfis_truepose", "grid_count", *extra)
     units = write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results,
-                              rssi_names=rssi_names, detection_names=det_names)
+                              rssi_names=rssi_names, detection_names=det_names, dz_m=eval_dz)
     metrics.update(headline_intervals(units, seed=cfg.seed, min_attempts=tr.min_attempts))
     atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
     return {"models": sorted(sensors)}
 
 
 def write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results, *,
-                      rssi_names, detection_names):
+                      rssi_names, detection_names, dz_m=None):
     """Write the per-unit tables of :mod:`pipeline.evaluation.units` under ``evaluation/``
     and return them with the downstream stage's tag and robot tables (the intervals'
-    input)."""
+    input); ``dz_m``: the held-out links' tag heights above their true antennas."""
     import pandas as pd
 
     from pipeline.evaluation import units as u
@@ -197,8 +206,9 @@ def write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results
                                       names=rssi_names),
         detection_attempts=u.detection_outcomes(
             eval_reads, sensors, eval_truth, attempt_miss_probability(cfg, eval_reads, budget),
-            budget, names=detection_names),
-        detection_cells=u.detection_cells(sensors, eval_truth.grid, names=detection_names),
+            budget, names=detection_names, dz_m=dz_m),
+        detection_cells=u.detection_cells(sensors, eval_truth.grid, names=detection_names,
+                                          eval_reads=eval_reads, dz_m=dz_m),
         fig7_groups=u.fig7_groups(fig7_results))
     for name in ("rssi_links", "detection_attempts", "detection_cells", "fig7_groups"):
         write_parquet_atomic(getattr(tables, name), ctx.out(u.TABLES[name]))
@@ -236,11 +246,12 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
-              version=13,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              version=14,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
               # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
               # 8: the Gen2 reader's miss probability at tag sites and fields;
               # 9: per-unit tables, intervals and paired comparisons; 10: detection MAE on
               # the observed sample's cells; 11: no interval for the cell MAE;
               # 12: each model over its own units, comparisons on the shared ones;
-              # 13: model_fits; the error budget's oracle bound
+              # 13: model_fits; the error budget's oracle bound; 14: a model using the
+              # tag's height above the antenna (Vorst & Zell) scored at each link's
               description="metrics")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.runstore import atomic_write_json
-from pipeline.stages.common import POSE_SOURCES, read_reads, stage_rng
+from pipeline.stages.common import POSE_SOURCES, read_reads, split_tags, stage_rng
 from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_models"]
@@ -94,10 +94,17 @@ def stage_models(ctx) -> dict:
     base_true.save(ctx.out("models/baselines_truepose.json"))
     # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
     # so the ANFIS fits above stay bit-identical
-    from pipeline.sensormodels import ABLATIONS, fit_ablation, fit_competitors
+    from pipeline.sensormodels import (
+        ABLATIONS,
+        fit_ablation,
+        fit_competitors,
+        tag_height_differences,
+    )
 
+    # the training tags' heights above the antennas (Vorst & Zell's ground plane)
+    dz = tag_height_differences(reads, split_tags(ctx, "train"), pose="est")
     comps = fit_competitors(reads, rssi_range, d_max_m=cfg.d_max_m, grid=grid,
-                            rng=stage_rng(ctx.config, "competitors"))
+                            rng=stage_rng(ctx.config, "competitors"), dz_m=dz)
     for name, model in comps.items():
         model.save(ctx.out(f"models/{name}.json"))
     ssm_set = TrainingSet.from_parquet(ctx.input("training/ssm_est.parquet"))
@@ -112,5 +119,7 @@ def stage_models(ctx) -> dict:
 
 
 STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
-              version=3,  # 2: competitors and ablations (pipeline.sensormodels); 3: Vorst folds by tag
+              version=5,  # 2: competitors and ablations (pipeline.sensormodels); 3: Vorst folds by tag;
+              # 4: Vorst & Zell's table over the horizontal range (training tag heights)
+              # 5: Vorst & Zell's description (the height where known)
               description="FCM + ANFIS")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pipeline.runstore import run_files
+from scenes.fileio import read_npz
 
 __all__ = ["corridor_coverage", "inventory_summary", "run_summary", "tour_tags"]
 
@@ -57,14 +58,13 @@ def tour_tags(run_dir: str | Path, budget=None):
     ``tour/train_track.npz`` and ``scene/tags.parquet``, every file read through
     :func:`pipeline.runstore.inside`); ``budget`` defaults to the run's own
     ``config.toml``. None for a run whose track predates ``pass_index``."""
-    import numpy as np
     import pandas as pd
 
     from pipeline.evaluation.inventory import tour_tag_table
     from pipeline.runstore import inside
 
     run = Path(run_dir)
-    with np.load(inside(run, "tour/train_track.npz")) as z:
+    with read_npz(inside(run, "tour/train_track.npz")) as z:
         if "pass_index" not in z.files:
             return None
         t_s, passes = z["t_s"], z["pass_index"]
@@ -75,7 +75,8 @@ def tour_tags(run_dir: str | Path, budget=None):
         cfg = config_from_mapping(read_toml(path), source=str(path))
         budget = cfg.reader.link_budget(cfg.frequency_hz)
     reads = pd.read_parquet(inside(run, "reads.parquet"),
-                            columns=["time_s", "cycle", "tag_id", "read", "in_range", "gain_db"])
+                            columns=["time_s", "cycle", "antenna", "tag_id", "read", "in_range",
+                                     "gain_db"])
     tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "z_m"])
     return tour_tag_table(reads, t_s, passes, tags, budget)
 

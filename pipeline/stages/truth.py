@@ -10,6 +10,7 @@ import numpy as np
 
 from pipeline.stages.common import link_budget, read_reads
 from pipeline.study import Stage
+from scenes.fileio import read_npz
 
 __all__ = ["STAGE", "attempt_miss_probability", "pose_miss_probability", "stage_truth"]
 
@@ -59,7 +60,7 @@ def _check_trace_poses(ctx) -> None:
     checks = [(path, SiteTruth.load(path).antenna_poses, spread_evenly(poses, ev.n_site_poses))]
     for i, want in enumerate(spread_evenly(poses, ev.n_sample_poses)):
         p = ctx.input(f"truth/free_space_points_{i:02d}.npz")
-        with np.load(p) as z:
+        with read_npz(p) as z:
             checks.append((p, z["pose"], want))
     for p, got, want in checks:
         if np.shape(got) != np.shape(want) or not np.array_equal(got, want):
@@ -105,7 +106,7 @@ def _free_space_view(ctx, eval_reads, budget) -> dict:
     for i in range(cfg.evaluation.n_sample_poses):
         path = ctx.input(f"truth/free_space_points_{i:02d}.npz")
         try:
-            with np.load(path, allow_pickle=False) as z:
+            with read_npz(path) as z:
                 pose, pts, gain = z["pose"], z["points_m"], z["gain_db"]
         except (OSError, KeyError, ValueError) as exc:
             raise ValueError(f"{path}: cannot read the traced free-space points ({exc}); "

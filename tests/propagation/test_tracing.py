@@ -15,7 +15,7 @@ from propagation import (
 )
 from propagation.channels import link_channels
 from propagation.constants import SPEED_OF_LIGHT as C0
-from propagation.pathsolve import _trace_chunk
+from propagation.pathsolve import _trace_chunk, bytes_per_source
 from propagation.patterns import sionna_orientation
 from propagation.sionna_scene import load_sionna_scene
 from propagation.tracing import tag_dipole_axes
@@ -212,8 +212,23 @@ def test_pairs_mask_and_cache(corridor_scene, tmp_path):
 def test_memory_budget_chunks_sources(corridor_scene):
     poses = np.array([[x, 1.2, 1.0, 0.0] for x in (2.0, 5.0, 8.0)])
     tags = corridor_scene.tags.positions_m[:2]
-    links = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=2000, memory_budget_bytes=1))  # smaller than one source: one source per call
+    one = bytes_per_source(2000, 1)
+    links = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=2000, memory_budget_bytes=one + 1))  # room for one source: one source per call
     assert links.n_solver_calls == 3 and links.settings["sources_per_call"] == 1
+
+
+@pytest.mark.parametrize("method", ["direct", "shared"])
+def test_a_source_larger_than_the_memory_budget_stops_before_tracing(method):
+    # one source is the smallest chunk: it used to be traced whatever the budget
+    # (max_depth = 1000 took 20.5 GB); now the options are refused with the memory needed
+    need = bytes_per_source(2000, 3) * (2 if method == "shared" else 1)
+    key = "shared_samples_per_src = 2,000" if method == "shared" else "samples_per_src = 2,000"
+    with pytest.raises(ValueError, match=rf"{key} at max_depth = 3 needs about {need / 2**20:,.0f} MiB.*"
+                                         r"more than memory_budget_bytes"):
+        TraceOptions(method=method, max_depth=3, samples_per_src=2000, shared_samples_per_src=2000,
+                     memory_budget_bytes=need - 1)
+    TraceOptions(method=method, max_depth=3, samples_per_src=2000, shared_samples_per_src=2000,
+                 memory_budget_bytes=need)  # exactly enough
 
 
 def test_bad_inputs_raise_clear_errors(corridor_scene):

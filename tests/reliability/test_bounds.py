@@ -22,7 +22,10 @@ SIZES = ["tracing.max_depth", "tracing.samples_per_src", "tracing.shared_samples
          "tracing.field_samples_per_tx", "training.epochs", "localisation.n_particles",
          "tour.n_passes", "tour.n_eval_poses", "downstream.robot_particles",
          "downstream.robot_runs", "evaluation.n_sample_poses", "evaluation.grid_n_d",
-         "evaluation.grid_n_alpha"]
+         "evaluation.grid_n_alpha", "evaluation.n_eval_tags", "evaluation.n_site_poses",
+         "reader.read_rate_hz", "tracing.memory_budget_mb", "training.n_clusters",
+         "localisation.laser_beams", "localisation.n_beams_used", "tour.lane_changes_per_pass",
+         "tour.stops_per_pass"]
 
 
 @pytest.mark.parametrize("key", SIZES)
@@ -57,3 +60,26 @@ def test_values_outside_their_documented_range_are_refused(key, value, words):
     with pytest.raises(ConfigError) as err:
         replace_path(StudyConfig(), key, value)
     assert words in str(err.value)
+
+
+@pytest.mark.parametrize("sets, words", [
+    # within every key's bound, but one antenna position would not fit the memory budget:
+    # the tracer used to trace it anyway (one source is the smallest chunk)
+    (["tracing.max_depth=10", "tracing.samples_per_src=5000000"],
+     "tracing.samples_per_src = 5,000,000 at tracing.max_depth = 10 needs about 15,736 MiB"),
+    (["tracing.shared_samples_per_src=3000000"],
+     "tracing.shared_samples_per_src = 3,000,000 at tracing.max_depth = 2 needs about 5,150 MiB"),
+    # a float is no ray count (it once ended in a Mitsuba TypeError)
+    (["tracing.samples_per_src=1e12"], "tracing.samples_per_src: must be an integer"),
+])
+def test_a_trace_that_cannot_fit_its_memory_budget_stops_naming_the_memory(tmp_path, sets, words):
+    out = tmp_path / "run"
+    args = ["run", str(ROOT / "configs" / "tiny.toml"), "--no-progress", "--out", str(out)]
+    for s in sets:
+        args += ["--set", s]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert words in res.output and "Traceback" not in res.output
+    if "MiB" in words:
+        assert "raise tracing.memory_budget_mb" in res.output
+    assert not out.exists()

@@ -135,6 +135,26 @@ def test_bad_maps_name_file_and_key(tmp_path, case):
     assert "\n" not in msg and str(path) in msg and key in msg
 
 
+def test_an_image_the_yaml_describes_wrongly_is_refused(tmp_path):
+    # a resolution in the wrong unit: the padded 2 m building's 68-pixel image at
+    # 100 m/cell is 6.8 km across
+    with pytest.raises(RosMapError, match=r"key 'resolution': 100.0 m/cell .* metres per cell"):
+        read_map(_bad(tmp_path / "a", resolution=100.0))
+    # mode raw over a grey-level map (free 254, unknown 205)
+    with pytest.raises(RosMapError, match=r"key 'mode': 'raw' .* grey-level map"):
+        read_map(_bad(tmp_path / "b", mode="raw"))
+    # a raw occupancy image (0 free, 100 occupied, 255 unknown) read as trinary
+    g = blank(2.0, 2.0, 0)
+    paint(g, 0.0, 0.0, 0.2, 2.0, 100)
+    paint(g, 1.5, 1.5, 2.0, 2.0, 255)
+    with pytest.raises(RosMapError, match=r"key 'mode': .* use mode 'raw'"):
+        read_map(write_map(tmp_path / "c", g, mode="trinary"))
+    assert read_map(write_map(tmp_path / "d", g, mode="raw")).occupancy.max() == 100
+    # the same raw map saved negated (255 - occupancy) with negate: 1 is no mismatch
+    neg = read_map(write_map(tmp_path / "e", 255 - g, mode="raw", negate=1))
+    assert np.array_equal(neg.occupancy, read_map(tmp_path / "d" / "map.yaml").occupancy)
+
+
 def test_no_free_space_and_garbage_image(tmp_path):
     path = write_map(tmp_path / "a", blank(2.0, 2.0, OCC))
     with pytest.raises(RosMapError, match=r"map\.yaml: key 'image': .*no free cell"):

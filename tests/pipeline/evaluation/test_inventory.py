@@ -49,6 +49,31 @@ def test_counts_per_tag_and_pass_leave_turnarounds_out():
     assert inventory_statistic("read_rate", rows, codes, 2)(np.array([0.0, 2.0])) == pytest.approx(1 / 3)
 
 
+def test_coverage_counts_rounds_of_every_antenna_not_attempts():
+    """Round-robin multiplexing (one antenna per read cycle, as the chapter's reader): a
+    tag the left antenna reaches and the right one never does is covered along the whole
+    route (some antenna closes in every round) while half its attempts read. Counted per
+    cycle, coverage would equal the read rate (0.5), as it did before rounds."""
+    from pipeline.evaluation.inventory import read_rounds
+
+    n = 8  # cycles: antenna 0, 1, 0, 1, ...
+    cyc = np.arange(n)
+    ant = cyc % 2
+    gain = np.where(ant == 0, -30.0, -90.0)  # only the left antenna's link closes
+    reads = pd.DataFrame({"tag_id": "A", "time_s": cyc * 0.5, "cycle": cyc, "antenna": ant,
+                          "read": ant == 0, "in_range": True, "gain_db": gain})
+    assert read_rounds(reads).tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
+    tab = tour_tag_table(reads, np.array([0.0]), np.array([0]),
+                         pd.DataFrame({"tag_id": ["A"], "z_m": [1.0]}), LinkBudget())
+    codes = np.zeros(len(tab), int)
+    w = np.ones(1)
+    assert inventory_statistic("read_rate", tab, codes, 1)(w) == pytest.approx(0.5)
+    assert inventory_statistic("surface_coverage", tab, codes, 1)(w) == pytest.approx(1.0)
+    # every antenna in every cycle ("all" multiplexing): each cycle is a round
+    both = pd.DataFrame({"cycle": np.repeat(np.arange(4), 2), "antenna": np.tile([0, 1], 4)})
+    assert read_rounds(both).tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
+
+
 def test_link_closed_is_both_thresholds_of_the_budget():
     b = LinkBudget()
     g = np.array([b.min_gain_db() + 0.01, b.min_gain_db() - 0.01, -np.inf, np.nan])

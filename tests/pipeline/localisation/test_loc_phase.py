@@ -170,6 +170,33 @@ def test_read_table_round_trip_and_missing_phase_is_named():
         localise_tags_phase(tab, CAND)
 
 
+def test_refined_cells_carry_the_cell_mean_likelihood():
+    # a candidate stands for its cell: refined, its likelihood is the mean of the point
+    # likelihood over the cell's 27 sub-points (log-mean-exp), so the posterior over the
+    # cells is exactly what the posterior over every sub-point sums to per cell. A
+    # maximum over the sub-points (not a likelihood) gives a different, unnormalised
+    # answer and fails this.
+    from pipeline.localisation.phase import cell_points
+
+    rd = _phase_reads(1, 0.1)
+    cell = 0.05
+    near = np.all(np.abs(CAND - TAGS[0]) <= [0.16, 0.01, 0.16], axis=1)  # 7 x 7 cells on its wall
+    coarse = CAND[near]
+    assert len(coarse) == 49
+    cells = localise_tags_phase(rd, coarse, phase_sigma_rad=0.1, refine_top=len(coarse),
+                                cell_m=cell)
+    fine_pts = cell_points(coarse, cell)  # (49, 27, 3)
+    fine = localise_tags_phase(rd, fine_pts.reshape(-1, 3), phase_sigma_rad=0.1, refine_top=0)
+    from scipy.special import logsumexp
+
+    summed = logsumexp(fine.log_posterior.reshape(len(IDS), len(coarse), 27), axis=2)
+    np.testing.assert_allclose(cells.log_posterior, summed, rtol=1e-5, atol=2e-3)
+    np.testing.assert_allclose(np.exp(cells.log_posterior).sum(axis=1), 1.0, atol=1e-9)
+    # the likelihood is peaked within the cells (else the test would not tell mean from max)
+    lp = fine.log_posterior[0].reshape(len(coarse), 27)
+    assert np.median(lp.max(axis=1) - lp.min(axis=1)) > 1.0
+
+
 def test_combined_posterior_is_the_normalised_product():
     _, _, post = _errors(_phase_reads(0, 0.1))
     both = combine_posteriors(post, post, name="twice")
@@ -189,3 +216,52 @@ def test_benchmark_records_why_the_phase_model_did_not_run():
     posts, info = phase_posteriors(tab, IDS, CAND, reach_m=4.0)
     assert info["run"] is True and set(posts) == {"phase"}
     assert info["n_reads_with_phase"] == len(tab) and info["tags_without_phase"] == 0
+
+
+class _Sites:
+    """Candidates with their surface normals, as scenes.tagsites.TagSites carries them."""
+
+    def __init__(self, positions_m):
+        self.positions_m = np.asarray(positions_m, float)
+        # the corridor's walls y = 0 and y = W face its middle
+        self.normals = np.zeros_like(self.positions_m)
+        self.normals[:, 1] = np.sign(W / 2 - self.positions_m[:, 1])
+
+
+def test_cells_of_candidates_on_a_face_are_patches_in_its_plane():
+    from pipeline.localisation.phase import cell_points
+
+    sites = _Sites(CAND[:5])
+    pts = cell_points(sites.positions_m, 0.06, sites.normals)
+    assert pts.shape == (5, 9, 3)
+    off = pts - sites.positions_m[:, None]
+    # no sub-point leaves the face's plane (the cube put 9 of 27 inside the wall)
+    np.testing.assert_allclose(np.einsum("cki,ci->ck", off, sites.normals), 0.0, atol=1e-12)
+    # a 3 x 3 midpoint grid of the 6 cm square: along the wall (x) and up (z)
+    np.testing.assert_allclose(np.unique(np.round(off[0, :, 0], 12)), [-0.02, 0.0, 0.02])
+    np.testing.assert_allclose(np.unique(np.round(off[0, :, 2], 12)), [-0.02, 0.0, 0.02])
+    assert cell_points(sites.positions_m, 0.06).shape == (5, 27, 3)  # bare positions: the cube
+
+
+def test_partial_refinement_mixes_cell_means_and_centre_values():
+    # refine_top of 49: those candidates carry the cell mean (as with every cell refined),
+    # the others their centre's point likelihood (as with none refined): the documented
+    # approximation, and `refined` says which is which
+    rd = _phase_reads(1, 0.1)
+    near = np.all(np.abs(CAND - TAGS[0]) <= [0.16, 0.01, 0.16], axis=1)
+    sites = _Sites(CAND[near])
+    kw = {"phase_sigma_rad": 0.1, "cell_m": 0.05}
+    part = localise_tags_phase(rd, sites, refine_top=10, **kw)
+    full = localise_tags_phase(rd, sites, refine_top=49, **kw)
+    none = localise_tags_phase(rd, sites, refine_top=0, **kw)
+    assert part.refined.shape == (len(IDS), 49) and full.refined.all() and not none.refined.any()
+    ref = part.refined[0]
+    assert ref.sum() == 10
+    # likelihoods up to each posterior's normalising constant
+    d_full = part.log_posterior[0, ref] - full.log_posterior[0, ref]
+    d_none = part.log_posterior[0, ~ref] - none.log_posterior[0, ~ref]
+    np.testing.assert_allclose(d_full, d_full[0], atol=1e-9)
+    np.testing.assert_allclose(d_none, d_none[0], atol=1e-9)
+    # and the two quantities differ (else the test could not tell them apart)
+    gap = full.log_posterior[0] - none.log_posterior[0]
+    assert np.ptp(gap) > 0.1

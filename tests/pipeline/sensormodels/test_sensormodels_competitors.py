@@ -21,7 +21,7 @@ METHODS = ("fs", "fs_dbm", "fT", "rho")
 def models(synth):
     reads = synth.as_reads(*synth.sample(60_000, seed=12))
     return fit_competitors(reads, synth.RSSI_RANGE, d_max_m=3.0,
-                           grid=CellGrid(3.0, 0.25, 15.0), rng=np.random.default_rng(0))
+                           grid=CellGrid(3.0, 0.25, 15.0), rng=np.random.default_rng(0), dz_m=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -43,16 +43,19 @@ def test_fit_competitors_gives_the_three_sensor_like_models(models, synth):
 def test_pose_selects_the_geometry_columns(synth):
     reads = synth.as_reads(*synth.sample(20_000, seed=13))
     reads["alpha_true_rad"] = reads["alpha_est_rad"] + np.pi  # true poses face the other way
-    est = fit_competitors(reads, synth.RSSI_RANGE, d_max_m=3.0, rng=np.random.default_rng(0))
+    est = fit_competitors(reads, synth.RSSI_RANGE, d_max_m=3.0, rng=np.random.default_rng(0),
+                          dz_m=0.0)
     true = fit_competitors(reads, synth.RSSI_RANGE, d_max_m=3.0, rng=np.random.default_rng(0),
-                           pose="true")
+                           pose="true", dz_m=0.0)
     for name in COMPETITORS:
         assert est[name].fT(1.0, 0.0) > 0.5 and true[name].fT(1.0, np.pi) > 0.5
     with pytest.raises(ValueError, match="rng"):
         fit_competitors(reads, synth.RSSI_RANGE, d_max_m=3.0)
     with pytest.raises(ValueError, match="missing column"):
         fit_competitors(reads.drop(columns="rssi_dbm"), synth.RSSI_RANGE, d_max_m=3.0,
-                        rng=np.random.default_rng(0))
+                        rng=np.random.default_rng(0), dz_m=0.0)
+    with pytest.raises(ValueError, match="tag heights"):  # never a silent in-plane tag
+        fit_competitors(reads, synth.RSSI_RANGE, d_max_m=3.0, rng=np.random.default_rng(0))
 
 
 @pytest.mark.parametrize("name", COMPETITORS)
