@@ -10,7 +10,10 @@ A refactoring that must not change the truth leaves the hash unchanged.
 
 Usage::
 
-    .venv/bin/python bench/gains_hash.py
+    .venv/bin/python bench/gains_hash.py [--set tracing.min_samples_per_position=0 ...]
+
+(``--set``: config overrides, as ``rfidstudy run --set``; e.g. the minimum ray budget off
+gives the hash of the tracer before issue 37, whose six shared poses drew from fewer rays.)
 """
 
 from __future__ import annotations
@@ -35,11 +38,18 @@ def fixed_links(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def main() -> None:
+    import argparse
+
+    from pipeline.cli import resolve_target
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    args = ap.parse_args()
     propagation.select_variant("llvm")
     propagation.set_deterministic(True)
     scene = scenes.load("corridor_lab")
     poses, tags, normals = fixed_links(scene)
-    opts = trace_options(StudyConfig())
+    opts = trace_options(resolve_target(None, args.set) if args.set else StudyConfig())
     t0 = time.perf_counter()
     if dataclasses.is_dataclass(opts):
         links = propagation.trace_links(scene, poses, tags, opts, tag_normals=normals)

@@ -138,8 +138,11 @@ class TracingConfig:
         "not reproducible).",
     )
     reader_polarization: str = option(
-        "V", "Reader antenna polarisation: V, H, RHCP or LHCP (circular: set reader.polarization_loss_db = 0)."
-    )
+        _TRACE.reader_polarization,
+        "Reader antenna polarisation, traced path by path: RHCP or LHCP (a circular panel; the "
+        "mismatch with the linear tag dipole is in the gain: 3.01 dB per way on a line-of-sight "
+        "path, other values after reflections), V or H (a linear panel). reader.polarization_loss_db "
+        "adds to it (default 0).")
     max_depth: int = option(
         _TRACE.max_depth,
         "Maximum number of interactions per path (convergence check in bench/trace.py: depth 5).", max=10)
@@ -170,6 +173,13 @@ class TracingConfig:
         _TRACE.shared_samples_per_src,
         "method 'shared': rays shot per antenna position that shares chains with neighbours.",
         max=5_000_000)
+    min_samples_per_position: int | None = option(
+        _TRACE.min_samples_per_position,
+        "method 'shared': the least rays a position's chains come from, whatever its neighbours: "
+        "a position whose own and neighbours' shared_samples_per_src rays fall short (sparse "
+        "poses, a path's ends) shoots the rest alone (propagation.shared.own_ray_levels); unset "
+        "= samples_per_src (no position draws from fewer rays than a lone one); 0 = off, as before "
+        "issue 37 (bench/seed_noise.py).", max=5_000_000)
     completion_order: int = option(
         _TRACE.completion_order,
         "method 'shared': also solve every specular reflection path of up to this order (0 = "
@@ -203,6 +213,8 @@ class TracingConfig:
         if not (np.isfinite(self.share_radius_m) and 0.0 < self.share_radius_m <= 5.0):
             raise ConfigError(f"share_radius_m must be a radius in (0, 5] m, got {self.share_radius_m!r}")
         _positive(self, "shared_samples_per_src")
+        if self.min_samples_per_position is not None:
+            _nonneg(self, "min_samples_per_position")
         for key, name in (("reader_pattern", self.reader_pattern), ("tag_pattern", self.tag_pattern)):
             if name not in PATTERNS:
                 raise ConfigError(f"tracing.{key} = {name!r}: unknown antenna pattern; known: "
@@ -210,7 +222,9 @@ class TracingConfig:
         if self.reader_polarization not in POLARIZATIONS:
             raise ConfigError(f"tracing.reader_polarization = {self.reader_polarization!r}: "
                               f"unknown; known: {', '.join(POLARIZATIONS)}")
-        short = memory_shortfall(self.method, self.max_depth, self.samples_per_src,
+        # a lone position shoots at least min_samples_per_position rays
+        own = max(self.samples_per_src, self.min_samples_per_position or 0)
+        short = memory_shortfall(self.method, self.max_depth, own,
                                  self.shared_samples_per_src, int(self.memory_budget_mb * 2**20),
                                  budget_key="memory_budget_mb", prefix="tracing.")
         if short:  # before any work, rather than a tracer taking all the memory

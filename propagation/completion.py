@@ -425,7 +425,7 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
 
 
 def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
-                direction_tol: float = 1e-4) -> SourcePaths:
+                direction_tol: float = 1e-4, transfer_rtol: float | None = None) -> SourcePaths:
     """The paths of ``a`` plus those of ``b`` that ``a`` does not already hold.
 
     A path of ``b`` is dropped when a path of ``a`` (or an earlier one of ``b``) to the
@@ -448,6 +448,11 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
         Path length tolerance, metres.
     direction_tol : float
         Departure direction tolerance (unit-vector components).
+    transfer_rtol : float, optional
+        Also require the transfer matrices to agree within this fraction of the larger
+        one's largest entry (:func:`~propagation.sionna_paths.path_copies`), as the copies
+        of one trace are tested (1e-3): for ``b`` a second shoot-and-bounce trace, whose
+        paths can be distinct ones of equal length and directions. None: not compared.
 
     Returns
     -------
@@ -472,7 +477,7 @@ def merge_paths(a: SourcePaths, b: SourcePaths, length_tol_m: float = 1e-4,
     tag, from_b, tau, k_tx, k_rx, tr = tag[order], from_b[order], tau[order], k_tx[order], k_rx[order], tr[order]
     drop = path_copies(np.zeros(len(tau), np.int64), tag, tau * SPEED_OF_LIGHT, k_tx, k_rx, tr,
                    droppable=from_b, length_tol_m=length_tol_m, direction_tol=direction_tol,
-                   transfer_rtol=None)
+                   transfer_rtol=transfer_rtol)
     keep = ~drop
     tag, tau, k_tx, k_rx, tr = tag[keep], tau[keep], k_tx[keep], k_rx[keep], tr[keep]
     counts = np.bincount(tag, minlength=len(tags))

@@ -62,7 +62,7 @@ class RssiField:
     samples_per_tx, max_depth : int
         Solver settings.
     reader_pattern, reader_polarization : str
-        Reader antenna used.
+        Reader antenna used (a circular one's map is halved: :func:`rssi_field`).
     """
 
     antenna_pose: np.ndarray
@@ -193,7 +193,7 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
                plane_height_m: float = 1.0, samples_per_tx: int = 1_000_000, max_depth: int = 5,
                include_walls: bool = True, wall_samples_per_tx: int | None = None,
                wall_max_edge_m: float = 0.1, plane_bounds_m=None,
-               reader_pattern: str = "tr38901", reader_polarization: str = "V",
+               reader_pattern: str = "tr38901", reader_polarization: str = "RHCP",
                seed: int = 42, cache_dir=None) -> RssiField:
     """Radio maps of one reader-antenna pose: a horizontal plane and the wall surfaces.
 
@@ -220,7 +220,14 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     plane_bounds_m : array_like, optional
         (xmin, ymin, xmax, ymax) of the plane; default the scene bounds.
     reader_pattern, reader_polarization : str
-        Reader antenna (Sionna patterns; circular is not available in radio maps).
+        Reader antenna. A radio map's receiver takes the whole wave (Sionna's radio maps
+        have no receiver antenna): for a linear reader that is what a co-polar tag takes
+        on the direct path. A linear tag takes half of a circular wave whatever its
+        orientation (exactly, on the direct path), and a circular and a linear panel of
+        one pattern radiate the same power in every direction, so a circular reader's
+        map (``"RHCP"``, ``"LHCP"``; Sionna's arrays are linear) is the map of the ``"V"``
+        panel, halved: a local mean, blind to the depolarisation of reflections as
+        every radio map is to the tag's orientation.
     seed : int
         Sionna sampling seed.
     cache_dir : str or Path, optional
@@ -243,8 +250,9 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
         pose = np.concatenate([pose, [0.0, 0.0]])
     if reader_pattern not in PATTERNS:
         raise ValueError(f"unknown antenna pattern {reader_pattern!r}; known: {', '.join(PATTERNS)}")
-    if reader_polarization not in POLARIZATIONS[:2]:
-        raise ValueError(f"radio maps support reader_polarization 'V' or 'H', got {reader_polarization!r}")
+    if reader_polarization not in POLARIZATIONS:
+        raise ValueError(f"unknown reader_polarization {reader_polarization!r}; known: {', '.join(POLARIZATIONS)}")
+    circular = reader_polarization in ("RHCP", "LHCP")
     if not cell_size_m > 0:
         raise ValueError(f"cell_size_m must be > 0, got {cell_size_m!r}")
     check_antenna_positions(scene, pose[None, :3])
@@ -288,7 +296,7 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     # fast tracer's endpoint builder (propagation.sionna_internals)
     rt_scene = load_sionna_scene(scene, frequency_hz, public_api=True)
     rt_scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern=reader_pattern,
-                                       polarization=reader_polarization)
+                                       polarization="V" if circular else reader_polarization)
     rt_scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
     ori = sionna_orientation(pose[3], pose[4], pose[5])
     rt_scene.add(rt.Transmitter("reader", position=device_point(pose[:3]),
@@ -317,6 +325,8 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
         wall_centers = surf.triangles_center
         wall_normals = surf.face_normals
     clear_devices(rt_scene)
+    if circular:  # what a linear tag takes of a circular wave (the docstring)
+        plane_gain, wall_gain = 0.5 * plane_gain, 0.5 * wall_gain
     out = RssiField(
         antenna_pose=pose, frequency_hz=float(frequency_hz), plane_gain=plane_gain,
         plane_centers_m=plane_centers, wall_gain=wall_gain, wall_centers_m=wall_centers,

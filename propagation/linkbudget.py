@@ -49,8 +49,13 @@ class LinkBudget:
         Reader receive sensitivity, dBm. Default -80 dBm (docs/physics.md; the Impinj Speedway
         R420 datasheet gives -84 dBm, so -80 dBm is a conservative value).
     polarization_loss_db : float
-        Circular reader to linear tag mismatch per way, dB. Default 3 dB. Set 0 when the
-        trace used a circular reader (``trace_links(reader_polarization="RHCP")``).
+        Polarisation mismatch per way *not* in the traced gain, dB. Default 0: the tracer
+        applies the reader's polarisation (``TraceOptions.reader_polarization``, circular
+        by default) and the tag dipole's to every path, so the circular-to-linear
+        mismatch (3.01 dB on a line-of-sight path) is inside ``g`` (issue 37; before, a V
+        trace and a fixed 3 dB here stood for a circular reader, right on the direct path
+        only). Set 3 dB only for gains traced with a linear reader that stands for a
+        circular one.
     modulation_loss_db : float
         Backscatter modulation factor M, dB (negative). Default -6 dB (ideal ASK between
         open and short states; Nikitin & Rao 2008).
@@ -62,7 +67,7 @@ class LinkBudget:
     tag_antenna_gain_dbi: float = 2.15
     tag_sensitivity_dbm: float = -18.0
     reader_sensitivity_dbm: float = -80.0
-    polarization_loss_db: float = 3.0
+    polarization_loss_db: float = 0.0
     modulation_loss_db: float = -6.0
 
     def __post_init__(self) -> None:

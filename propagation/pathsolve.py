@@ -38,7 +38,7 @@ from propagation.completion import (
 )
 from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import PATTERNS, POLARIZATIONS, unit_vec_from_theta_phi
-from propagation.shared import sharing_neighbours, trace_shared
+from propagation.shared import own_ray_levels, sharing_neighbours, trace_shared
 from propagation.sionna_paths import to_source_paths
 from propagation.sionna_scene import load_sionna_scene
 
@@ -65,11 +65,12 @@ COMPLETION_MIN_AREA_M2 = 1.0
 #: their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
-SHARING_ALGORITHM = 6  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
+SHARING_ALGORITHM = 7  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
 # 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed);
 # 6: no padding receivers (the shooting loop, propagation.sionna_internals): they shared the shooting's per-source table of
-# specular chains with the tags, so a rare collision could drop a tag's chain
+# specular chains with the tags, so a rare collision could drop a tag's chain;
+# 7: a position whose neighbourhood shoots fewer than min_samples_per_position rays shoots the rest alone
 
 
 #: The tracers :func:`trace_paths` can run (:attr:`TraceOptions.method`).
@@ -97,10 +98,25 @@ class TraceOptions:
         ``bench/trace.py``.
     samples_per_src : int
         Rays per antenna position traced alone: every position of ``"direct"``, a
-        position of ``"shared"`` with no neighbour within ``share_radius_m``. Too few
-        rays miss paths silently.
+        position of ``"shared"`` with no neighbour within ``share_radius_m`` (or
+        ``min_samples_per_position`` rays where that is more). Too few rays miss paths
+        silently.
     shared_samples_per_src : int
         Rays per position that shares chains with a neighbour (``"shared"``).
+    min_samples_per_position : int or None
+        ``"shared"``: the least rays a position's chains come from, whatever its
+        neighbours. A position gets the chains of its own ``shared_samples_per_src`` rays
+        and of each neighbour's; one short of this many (few neighbours within
+        ``share_radius_m``: sparse poses, the ends of a path, a chunk's edge) also shoots
+        the rest alone (:func:`propagation.shared.own_ray_levels`: rounded up to a few
+        levels) and keeps the paths of both traces, copies removed. None (default):
+        ``samples_per_src``, the rays of a position without a neighbour, so no position
+        of the shared tracer draws from fewer rays than a lone one; 0: off (before
+        issue 37: a position with one neighbour drew from 6,000 rays; on 48 such
+        positions of ``corridor_lab`` the seed-to-seed p95 over readable links was
+        1.80 dB, 1.30 dB with the default, against 0.93 dB on the dense evaluation
+        path, whose positions have 12-50 neighbours; ``bench/seed_noise.py``,
+        docs/physics.md).
     share_radius_m : float
         Positions of one solver call within this distance share chains (``"shared"``),
         metres, > 0. A position is given every chain that was a valid path at a
@@ -114,9 +130,14 @@ class TraceOptions:
         hit by their Fresnel weights, so chains of weak reflections are rarely shot.
     reader_pattern, tag_pattern : str
         Pattern names (:data:`propagation.patterns.PATTERNS`), applied after tracing.
-    reader_polarization : {"V", "H", "RHCP", "LHCP"}
-        Reader polarisation. With a circular reader the 3 dB circular-to-linear
-        mismatch is inside the gain, so set ``LinkBudget.polarization_loss_db = 0``.
+    reader_polarization : {"RHCP", "LHCP", "V", "H"}
+        Reader polarisation, applied after tracing with the patterns
+        (:func:`propagation.patterns.pattern_field_world`, the per-path 2x2 transfer
+        matrices of the ``VH`` trace): default ``"RHCP"``, the circular panel of a UHF
+        RFID reader. The mismatch with the linear tag dipole is then in the gain, path by
+        path (1/2 = 3.01 dB on a line-of-sight path, other values after reflections, which
+        change the wave's polarisation), so ``LinkBudget.polarization_loss_db`` is 0 by
+        default; ``"V"`` / ``"H"``: a linear panel.
     seed : int
         Sionna's sampling seed.
     refraction : bool
@@ -133,11 +154,12 @@ class TraceOptions:
     max_depth: int = DEFAULT_MAX_DEPTH
     samples_per_src: int = DEFAULT_SAMPLES_PER_SRC
     shared_samples_per_src: int = 3000
+    min_samples_per_position: int | None = None
     share_radius_m: float = 1.0
     completion_order: int = 3
     reader_pattern: str = "tr38901"
     tag_pattern: str = "hw_dipole"
-    reader_polarization: str = "V"
+    reader_polarization: str = "RHCP"
     seed: int = 42
     refraction: bool = True
     memory_budget_bytes: int | None = 2 * 1024**3
@@ -148,6 +170,9 @@ class TraceOptions:
         if int(self.max_depth) < 0 or int(self.samples_per_src) < 1 or int(self.shared_samples_per_src) < 1:
             raise ValueError("need max_depth >= 0, samples_per_src >= 1 and shared_samples_per_src >= 1, "
                              f"got {self.max_depth}, {self.samples_per_src}, {self.shared_samples_per_src}")
+        if self.min_samples_per_position is not None and (
+                isinstance(self.min_samples_per_position, bool) or int(self.min_samples_per_position) < 0):
+            raise ValueError(f"min_samples_per_position must be >= 0 or None, got {self.min_samples_per_position!r}")
         if not (np.isfinite(self.share_radius_m) and self.share_radius_m > 0):
             raise ValueError(f"share_radius_m must be positive, got {self.share_radius_m!r}")
         if int(self.completion_order) not in (0, 1, 2, 3):
@@ -165,6 +190,12 @@ class TraceOptions:
                                      int(self.shared_samples_per_src), int(self.memory_budget_bytes))
             if short:
                 raise ValueError(short)
+
+    @property
+    def min_samples(self) -> int:
+        """:attr:`min_samples_per_position` resolved (None: ``samples_per_src``)."""
+        m = self.min_samples_per_position
+        return int(self.samples_per_src) if m is None else int(m)
 
     def replace(self, **changes) -> TraceOptions:
         """A copy with ``changes`` (validated again)."""
@@ -305,11 +336,15 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
 
 
 def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lone_samples, lone_per_call,
-                   max_depth, seed, refraction, completion=None, plane_ids=None) -> list[SourcePaths]:
+                   max_depth, seed, refraction, completion=None, plane_ids=None, min_samples=0,
+                   budget_bytes=None) -> list[SourcePaths]:
     """One chunk traced with chain sharing (:mod:`propagation.shared`): positions with a
     neighbour within ``radius_m`` shoot ``shared_samples`` rays and take their neighbours'
     valid chains (leaving the chains ``completion`` enumerates to it; chains named by
-    ``plane_ids``); a position with none shoots ``lone_samples`` as in direct tracing."""
+    ``plane_ids``); a position with none shoots ``lone_samples`` as in direct tracing. A
+    sharing position whose own and neighbours' rays fall short of ``min_samples`` also
+    shoots rays alone (:func:`propagation.shared.own_ray_levels`), in calls of at most
+    ``budget_bytes`` (default: ``lone_per_call`` positions), and keeps both traces' paths."""
     nbs = sharing_neighbours(positions, radius_m)
     lone = np.array([len(nb) == 0 for nb in nbs], bool)
     out: list = [None] * len(positions)
@@ -331,6 +366,25 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
                              max_depth, lone_samples, seed, refraction, None, plane_ids)
         for i, sp in zip(grp, fresh, strict=True):
             out[i] = sp
+    # a sharing position short of min_samples: the rest of its rays shot alone (leaving
+    # the completion's chains to it, as its shared rays do); a path both traces found is
+    # kept once (copies as to_source_paths tells them: length, directions and transfer
+    # matrix)
+    extra = own_ray_levels(nbs, shared_samples, min_samples)
+    if extra.any():
+        logger.info("%d of %d sharing positions short of %d rays: %s more rays each, shot alone",
+                    int((extra > 0).sum()), int((~lone).sum()), int(min_samples),
+                    "/".join(str(int(v)) for v in np.unique(extra[extra > 0])))
+    for level in np.unique(extra[extra > 0]):
+        grp_all = np.flatnonzero(extra == level)
+        per_call = lone_per_call if budget_bytes is None else max(
+            1, min(_MAX_SOURCES_PER_CALL, int(budget_bytes) // bytes_per_source(int(level), max_depth)))
+        for c0 in range(0, len(grp_all), per_call):
+            grp = grp_all[c0:c0 + per_call]
+            fresh = trace_shared(rt_scene, positions[grp], receivers, [np.zeros(0, np.int64)] * len(grp),
+                                 max_depth, int(level), seed, refraction, completion, plane_ids)
+            for i, sp in zip(grp, fresh, strict=True):
+                out[i] = merge_paths(out[i], sp, transfer_rtol=1e-3)
     return out
 
 
@@ -420,6 +474,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
     if shared:
         settings["share_radius_m"] = float(opt.share_radius_m)
         settings["shared_samples_per_src"] = int(opt.shared_samples_per_src)
+        settings["min_samples_per_position"] = opt.min_samples
         settings["sharing_algorithm"] = SHARING_ALGORITHM
     if completion_order > 0:  # absent at 0: the cache keys of earlier traces stay valid
         settings["completion_order"] = completion_order
@@ -441,7 +496,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
 
     budget = int(opt.memory_budget_bytes) if opt.memory_budget_bytes else _default_budget()
     per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
-    lone_per_chunk = per_chunk
+    lone_samples = max(samples_per_src, opt.min_samples) if shared else samples_per_src
+    lone_per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(lone_samples, max_depth)))
     if shared:  # chunks of positions that share: fewer rays each, but the candidate
         # buffer is held twice (candidates and their solved copy)
         per_chunk = max(1, min(_MAX_SOURCES_PER_CALL,
@@ -467,8 +523,9 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
             t0 = time.perf_counter()
             if shared:
                 fresh = _trace_sharing(rt_scene, uniq[chunk], tags[rec], float(opt.share_radius_m),
-                                       int(opt.shared_samples_per_src), samples_per_src, lone_per_chunk,
-                                       max_depth, seed, bool(opt.refraction), to_completion, plane_ids)
+                                       int(opt.shared_samples_per_src), lone_samples, lone_per_chunk,
+                                       max_depth, seed, bool(opt.refraction), to_completion, plane_ids,
+                                       opt.min_samples, budget)
             else:
                 fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
                                      bool(opt.refraction))

@@ -42,7 +42,7 @@ import pandas as pd
 from propagation.pathcache import SourcePaths
 from propagation.sionna_paths import points, to_source_paths
 
-__all__ = ["chain_ids", "shared_rows", "sharing_neighbours", "trace_shared"]
+__all__ = ["chain_ids", "own_ray_levels", "shared_rows", "sharing_neighbours", "trace_shared"]
 
 
 def sharing_neighbours(positions_m, radius_m: float) -> list[np.ndarray]:
@@ -68,6 +68,45 @@ def sharing_neighbours(positions_m, radius_m: float) -> list[np.ndarray]:
     pos = np.asarray(positions_m, dtype=float).reshape(-1, 3)
     near = cKDTree(pos).query_ball_point(pos, r=r) if len(pos) else []
     return [np.asarray(sorted(k for k in nb if k != i), np.int64) for i, nb in enumerate(near)]
+
+
+def own_ray_levels(neighbours, shared_samples: int, min_samples: int) -> np.ndarray:
+    """Rays each sharing position must shoot alone so that its chains come from at least
+    ``min_samples`` rays: 0 where its own and its neighbours' rays reach it.
+
+    A position of the shared tracer gets the chains of its own ``shared_samples`` rays and
+    of each neighbour's (:func:`trace_shared`): ``shared_samples * (1 + len(nb))`` rays. A
+    position short of ``min_samples`` shoots ``min_samples - shared_samples * len(nb)``
+    rays of its own in a call of their own (its share of the sharing is shot anyway, for
+    its neighbours), rounded up to ``shared_samples`` times a power of two (at least 2,
+    so that its lattice of directions is never the one its shared rays already shot) and
+    capped at ``min_samples``: a handful of ray counts, each compiling its own shooting
+    kernel once, instead of one per neighbour count.
+
+    Parameters
+    ----------
+    neighbours : list of array_like
+        Per position its neighbours' rows (:func:`sharing_neighbours`); a position with
+        none is traced alone and gets 0 here.
+    shared_samples : int
+        Rays each sharing position shoots (``TraceOptions.shared_samples_per_src``), >= 1.
+    min_samples : int
+        Least rays a position's chains come from; 0 turns the guarantee off.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n,) int64, rays to shoot alone per position (0 or a level above).
+    """
+    s, lo = int(shared_samples), int(min_samples)
+    if s < 1 or lo < 0:
+        raise ValueError(f"need shared_samples >= 1 and min_samples >= 0, got {shared_samples}, {min_samples}")
+    n_nb = np.array([len(nb) for nb in neighbours], np.int64)
+    short = (n_nb > 0) & (s * (1 + n_nb) < lo)
+    need = np.where(short, lo - s * n_nb, 0)
+    k = np.ceil(np.log2(np.maximum(need, 1) / s)).astype(np.int64)
+    level = np.minimum(s * np.left_shift(1, np.maximum(k, 1)), max(lo, 2 * s))
+    return np.where(short, level, 0).astype(np.int64)
 
 
 #: Largest (positions x chains) for which :func:`shared_rows` tests membership in a table

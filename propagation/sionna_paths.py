@@ -95,7 +95,7 @@ def path_copies(src, tg, length_m, k_tx, k_rx, transfer, droppable=None, length_
         same = ((np.abs(k_tx[i] - k_tx[j]).max(axis=1) <= direction_tol)
                 & (np.abs(k_rx[i] - k_rx[j]).max(axis=1) <= direction_tol))
         if transfer_rtol is not None:
-            same &= (np.abs(transfer[i] - transfer[j]).reshape(len(i), -1).max(axis=1)
+            same &= (np.abs(transfer[i] - transfer[j]).reshape(len(i), 4).max(axis=1, initial=0.0)
                      <= transfer_rtol * np.maximum(scale[i], scale[j]))
         i, j = i[same], j[same]
         drop[np.where(droppable[i], i, j)] = True

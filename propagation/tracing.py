@@ -100,7 +100,7 @@ class LinkSet:
     samples_per_src: int
     reader_pattern: str
     tag_pattern: str
-    reader_polarization: str = "V"
+    reader_polarization: str = "RHCP"
     n_traced_sources: int = 0
     n_solver_calls: int = 0
     trace_s: float = 0.0

@@ -125,7 +125,9 @@ class ReaderConfig:
         LinkBudget.reader_sensitivity_dbm, "Reader receiver sensitivity [dBm]."
     )
     polarization_loss_db: float = option(
-        LinkBudget.polarization_loss_db, "Polarisation mismatch loss per way [dB] (circular to linear)."
+        LinkBudget.polarization_loss_db,
+        "Polarisation mismatch per way not in the traced gain [dB] (default 0: "
+        "tracing.reader_polarization is traced, its mismatch with the tag dipole included)."
     )
     modulation_loss_db: float = option(LinkBudget.modulation_loss_db, "Backscatter modulation factor M [dB].")
     range_margin_db: float = option(

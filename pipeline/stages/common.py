@@ -52,7 +52,8 @@ log = logging.getLogger(__name__)
 TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
                 "tracing.reader_pattern", "tracing.tag_pattern", "tracing.reader_polarization",
                 "tracing.backend", "tracing.method", "tracing.completion_order",
-                "tracing.share_radius_m", "tracing.shared_samples_per_src")
+                "tracing.share_radius_m", "tracing.shared_samples_per_src",
+                "tracing.min_samples_per_position")
 
 #: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
 #: and heights are not those of any lattice the training tags or truth sites use.
@@ -238,6 +239,7 @@ def trace_options(cfg: StudyConfig):
         max_depth=t.max_depth,
         samples_per_src=t.samples_per_src,
         shared_samples_per_src=t.shared_samples_per_src,
+        min_samples_per_position=t.min_samples_per_position,
         share_radius_m=t.share_radius_m,
         completion_order=t.completion_order,
         reader_pattern=t.reader_pattern,

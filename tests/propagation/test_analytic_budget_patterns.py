@@ -52,15 +52,22 @@ def test_link_budget_defaults_and_thresholds_exact():
     b = LinkBudget()
     # 2 W ERP = 33 dBm ERP; EIRP = ERP + 2.15 dB = P_tx + 8 dBi
     assert b.tx_power_dbm + b.reader_antenna_gain_dbi - 2.15 == pytest.approx(33.0)
-    g = np.array([-50.0, -42.15, -42.150001, -30.0])
-    np.testing.assert_allclose(b.tag_power_dbm(g), 27.15 + g - 3.0)
-    np.testing.assert_allclose(b.reader_rssi_dbm(g), 27.15 + 2 * g - 6.0 - 6.0)
-    # tag threshold: -18 = 27.15 + G - 3  ->  G = -42.15 dB exactly (forward-link limited)
-    assert b.min_gain_db() == pytest.approx(-42.15)
+    # no polarisation loss by default: the traced gain holds the reader's polarisation
+    assert b.polarization_loss_db == 0.0
+    g = np.array([-50.0, -45.15, -45.150001, -30.0])
+    np.testing.assert_allclose(b.tag_power_dbm(g), 27.15 + g)
+    np.testing.assert_allclose(b.reader_rssi_dbm(g), 27.15 + 2 * g - 6.0)
+    # tag threshold: -18 = 27.15 + G  ->  G = -45.15 dB exactly (forward-link limited)
+    assert b.min_gain_db() == pytest.approx(-45.15)
     np.testing.assert_array_equal(b.detected(g), [False, True, False, True])
+    # a loss set explicitly counts once forward, twice in the RSSI
+    b3 = LinkBudget(polarization_loss_db=3.0)
+    np.testing.assert_allclose(b3.tag_power_dbm(g), 27.15 + g - 3.0)
+    np.testing.assert_allclose(b3.reader_rssi_dbm(g), 27.15 + 2 * g - 6.0 - 6.0)
+    assert b3.min_gain_db() == pytest.approx(-42.15)
     # reader-limited budget: a very sensitive tag makes the reader threshold bind
     b2 = LinkBudget(tag_sensitivity_dbm=-40.0)
-    g_r = (-80.0 - 27.15 + 6.0 + 6.0) / 2
+    g_r = (-80.0 - 27.15 + 6.0) / 2
     assert b2.min_gain_db() == pytest.approx(g_r)
     assert b2.detected(g_r + 1e-9) and not b2.detected(g_r - 1e-6)
 

@@ -19,7 +19,7 @@ F = 865e6
 def field(corridor_scene):
     return rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.3, 0.1, 0.0], cell_size_m=0.2,
                       plane_height_m=1.1, samples_per_tx=8_000_000, max_depth=2,
-                      wall_samples_per_tx=2_000_000, wall_max_edge_m=0.5)
+                      wall_samples_per_tx=2_000_000, wall_max_edge_m=0.5, reader_polarization="V")
 
 
 def test_radio_map_matches_incoherent_path_power(field, corridor_scene):
@@ -133,3 +133,19 @@ def test_wall_surface_is_a_regular_grid(corridor_scene):
     with pytest.raises(ValueError, match="wall_max_edge_m"):
         wall_surface_mesh(corridor_scene, max_edge_m=0.0)
 
+
+
+def test_circular_reader_field_is_the_linear_panels_halved(corridor_scene):
+    """A radio map's receiver takes the whole wave; a linear tag takes half of a circular
+    wave (|(1, -j) / sqrt(2) . e|^2 = 1/2 for any real unit e: 3.01 dB), and a circular and a
+    V panel of one pattern radiate the same power in every direction. So the circular
+    reader's map is the V panel's, halved: same seed and rays, so equal up to the float32
+    atomic accumulation order (1e-5, as above)."""
+    kw = dict(cell_size_m=0.5, samples_per_tx=100_000, max_depth=1, include_walls=False)
+    lin = rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], reader_polarization="V", **kw)
+    circ = rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], **kw)  # default: RHCP
+    assert circ.reader_polarization == "RHCP"
+    assert np.mean(lin.plane_gain > 0) > 0.5
+    np.testing.assert_allclose(circ.plane_gain, 0.5 * lin.plane_gain, rtol=1e-5)
+    with pytest.raises(ValueError, match="reader_polarization"):
+        rssi_field(corridor_scene, [3.0, 1.2, 1.0, 0.0], reader_polarization="X", **kw)

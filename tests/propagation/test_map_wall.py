@@ -35,7 +35,7 @@ def test_link_through_an_extracted_brick_wall_crosses_one_slab(two_rooms):
     assert t == pytest.approx(0.2, abs=RES)  # the drawn wall, within one map cell
     tx = np.array([[2.0, 2.7, 1.5, 0.0]])
     rx = np.array([[5.5, 2.7, 1.5]])
-    got = trace_links(two_rooms, tx, rx, TraceOptions(method="direct", max_depth=1, samples_per_src=10_000,
+    got = trace_links(two_rooms, tx, rx, TraceOptions(method="direct", max_depth=1, samples_per_src=10_000, reader_polarization="V",
                                                       reader_pattern="iso", tag_pattern="iso"))
     # max_depth = 1: every reflected path would need a second interaction (the crossing), so
     # the straight ray through the wall is the only path (as in test_radio_geometry.py)

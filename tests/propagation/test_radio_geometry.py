@@ -70,7 +70,8 @@ def test_one_wall_transmits_once(brick_box, case):
     rx, mat, thickness_m, theta = CASES[case]
     tx = np.array([[2.0, 1.2, 1.5, 0.0]])
     rx = np.array([rx])
-    iso = TraceOptions(method="direct", samples_per_src=10_000, reader_pattern="iso", tag_pattern="iso")
+    iso = TraceOptions(method="direct", samples_per_src=10_000, reader_pattern="iso", tag_pattern="iso",
+                       reader_polarization="V")
     fs = free_space_gain_db(np.linalg.norm(rx[0] - tx[0, :3]), F)
     closed = float(slab_transmission_db(*scenes.material(mat, F), thickness_m, F, theta, "TE"))
     new = trace_links(brick_box, tx, rx, iso.replace(max_depth=1))

@@ -6,7 +6,13 @@ import pytest
 from propagation import TraceOptions, trace_links, two_ray_gain_db
 from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathsolve import _trace_chunk
-from propagation.shared import chain_ids, shared_rows, sharing_neighbours, trace_shared
+from propagation.shared import (
+    chain_ids,
+    own_ray_levels,
+    shared_rows,
+    sharing_neighbours,
+    trace_shared,
+)
 from propagation.sionna_paths import path_copies
 from propagation.sionna_scene import load_sionna_scene
 from scenes import material
@@ -99,6 +105,25 @@ def test_sharing_neighbours_within_radius():
     assert [nb.tolist() for nb in nbs] == [[1], [0, 2], [1], []]
     with pytest.raises(ValueError, match="radius"):
         sharing_neighbours(pos, -1.0)
+
+
+def test_own_ray_levels_fill_a_short_neighbourhood_up_to_the_minimum():
+    # 3,000 rays each, minimum 30,000: a lone position (traced alone anyway) and one with
+    # 9 or more neighbours need nothing; one neighbour: 27,000 missing -> the cap (30,000);
+    # 5 neighbours: 15,000 -> 24,000 (3,000 x 8); 8 neighbours: 6,000 -> 6,000 (3,000 x 2)
+    nbs = [np.zeros(0, np.int64), np.arange(1), np.arange(5), np.arange(8), np.arange(9), np.arange(20)]
+    levels = own_ray_levels(nbs, 3000, 30000)
+    assert levels.tolist() == [0, 30000, 24000, 6000, 0, 0]
+    n_nb = np.array([len(nb) for nb in nbs])
+    short = levels > 0
+    assert np.all(levels[short] + 3000 * n_nb[short] >= 30000)  # the guarantee
+    assert np.all(levels[short] >= 6000)  # never the shared rays' own lattice again
+    assert own_ray_levels(nbs, 3000, 0).tolist() == [0] * 6  # off
+    # 7 neighbours: 9,000 missing -> 12,000; a minimum below two positions' rays: nothing
+    assert own_ray_levels([np.arange(7)], 3000, 30000).tolist() == [12000]
+    assert own_ray_levels([np.arange(1)], 3000, 5000).tolist() == [0]
+    with pytest.raises(ValueError, match="min_samples"):
+        own_ray_levels(nbs, 3000, -1)
 
 
 def _path_rows(sp):
@@ -275,7 +300,7 @@ def test_shared_floor_links_match_two_ray(floor_scene):
     heights = np.array([0.6, 0.7, 0.8])
     tags = np.stack([d, 0 * d, 0 * d + h_r], axis=1)
     poses = np.column_stack([np.zeros(3), np.zeros(3), heights, np.zeros(3)])
-    links = trace_links(floor_scene, poses, tags, TraceOptions(method="shared", completion_order=0, max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso", share_radius_m=0.25, shared_samples_per_src=2000))
+    links = trace_links(floor_scene, poses, tags, TraceOptions(method="shared", completion_order=0, max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso", share_radius_m=0.25, shared_samples_per_src=2000, reader_polarization="V"))
     assert links.settings["share_radius_m"] == 0.25
     for k, h_t in enumerate(heights):
         ref = two_ray_gain_db(d, h_t, h_r, F, eps, sigma, "V")
@@ -422,11 +447,13 @@ def test_sharing_trace_links_completes_in_its_own_kernels(corridor_scene, tmp_pa
     # Through trace_links (the study's path): a chunk of sharing positions with the
     # completion on builds two big kernels, its shooting and one image method for the
     # own rows, the shared rows and the completion's chains (the completion solved in
-    # buffers of the tracer's depth, not of its order)
+    # buffers of the tracer's depth, not of its order). The minimum ray budget is off: the
+    # path's two ends have 4 neighbours (2,500 rays < 3,000) and would shoot 1,000 more
+    # alone, in a shooting kernel of that ray count (propagation.shared.own_ray_levels)
     x = np.arange(3.0, 3.6, 0.1)
     poses = np.column_stack([x, np.full_like(x, 1.2), np.full_like(x, 0.7), np.zeros_like(x)])
     traced = []
-    big = launched_kernels(lambda: traced.append(trace_links(corridor_scene, poses, corridor_scene.tags.positions_m[:5], TraceOptions(method="shared", samples_per_src=3000, max_depth=3, seed=2, share_radius_m=0.5, shared_samples_per_src=500, completion_order=2), frequency_hz=F, cache_dir=tmp_path)), 3000)
+    big = launched_kernels(lambda: traced.append(trace_links(corridor_scene, poses, corridor_scene.tags.positions_m[:5], TraceOptions(method="shared", samples_per_src=3000, max_depth=3, seed=2, share_radius_m=0.5, shared_samples_per_src=500, completion_order=2, min_samples_per_position=0), frequency_hz=F, cache_dir=tmp_path)), 3000)
     links = traced[0]
     assert links.n_traced_sources == len(poses)
     ops = [e["operation_count"] for e in big]

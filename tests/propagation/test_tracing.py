@@ -6,6 +6,7 @@ import pytest
 import scenes
 from propagation import (
     CacheWarning,
+    LinkBudget,
     TraceOptions,
     free_space_gain_db,
     pattern_gain_db,
@@ -31,7 +32,7 @@ def test_free_space_matches_friis(far_floor_scene):
     # max_depth=0: line of sight only, the floor 500 m below only serves as scene geometry
     poses = np.array([[0.0, 0.0, 1.0, 0.6], [0.0, 0.0, 1.0, 0.0]])
     tags = np.array([[1.0, 0.0, 1.0], [3.0, 3.0, 1.0], [0.0, 5.0, 2.0], [30.0, -4.0, 0.2]])
-    links = trace_links(far_floor_scene, poses, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000))
+    links = trace_links(far_floor_scene, poses, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000, reader_polarization="V"))
     d = np.linalg.norm(tags - poses[0, :3], axis=1)
     az = np.arctan2(tags[:, 1], tags[:, 0])
     th = np.arccos((tags[:, 2] - 1.0) / d)
@@ -59,7 +60,7 @@ def test_floor_matches_two_ray_fresnel_v_and_h(floor_scene):
     h_t, h_r = 0.6, 1.0
     # V: reader V-polarised isotropic, vertical isotropic "dipole" tag (iso pattern, V pol)
     tags = np.stack([d, 0 * d, 0 * d + h_r], axis=1)
-    links = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, 0.0]]), tags, TraceOptions(method="direct", max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso"))
+    links = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, 0.0]]), tags, TraceOptions(method="direct", max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso", reader_polarization="V"))
     ref = two_ray_gain_db(d, h_t, h_r, F, eps, sigma, "V")
     ok = _away_from_nulls(ref, d, h_t, h_r)
     assert ok.sum() > 30
@@ -67,7 +68,7 @@ def test_floor_matches_two_ray_fresnel_v_and_h(floor_scene):
     # H: link along +y, reader rolled 90 deg about its boresight (E along x), flat tags
     # (normal +z) whose dipole axis is x: both horizontal, perpendicular to the plane of incidence
     tags_h = np.stack([0 * d, d, 0 * d + h_r], axis=1)
-    links_h = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, np.pi / 2, 0.0, np.pi / 2]]), tags_h, TraceOptions(method="direct", max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso"), tag_normals=np.tile([0.0, 0.0, 1.0], (len(d), 1)))
+    links_h = trace_links(floor_scene, np.array([[0.0, 0.0, h_t, np.pi / 2, 0.0, np.pi / 2]]), tags_h, TraceOptions(method="direct", max_depth=1, samples_per_src=20000, reader_pattern="iso", tag_pattern="iso", reader_polarization="V"), tag_normals=np.tile([0.0, 0.0, 1.0], (len(d), 1)))
     ref_h = two_ray_gain_db(d, h_t, h_r, F, eps, sigma, "H")
     ok_h = _away_from_nulls(ref_h, d, h_t, h_r)
     assert ok_h.sum() > 30
@@ -91,7 +92,7 @@ def test_pattern_reapplication_matches_patterned_sionna_trace(corridor_scene):
     # depth 1 and many rays so that both calls find the same path set (sampling differences
     # between two calls are the only other source of mismatch, see docs/physics.md)
     spp = 300_000
-    ours = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=spp))
+    ours = trace_links(corridor_scene, poses, tags, TraceOptions(method="direct", max_depth=1, samples_per_src=spp, reader_polarization="V"))
     s = load_sionna_scene(corridor_scene, F)
     s.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="tr38901", polarization="V")
     s.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="hw_dipole", polarization="V")
@@ -108,7 +109,7 @@ def test_pattern_reapplication_matches_patterned_sionna_trace(corridor_scene):
     # float32 field computation in Sionna vs float64 here: 0.01 dB
     np.testing.assert_allclose(ours.gain_db, direct, atol=0.01)
     # the orientations matter (the test could fail): rotated vs unrotated differ by dB
-    flat = trace_links(corridor_scene, poses[:, :4] * [1, 1, 1, 0], tags, TraceOptions(method="direct", max_depth=1, samples_per_src=spp))
+    flat = trace_links(corridor_scene, poses[:, :4] * [1, 1, 1, 0], tags, TraceOptions(method="direct", max_depth=1, samples_per_src=spp, reader_polarization="V"))
     assert np.max(np.abs(flat.gain_db - ours.gain_db)) > 3.0
 
 
@@ -153,7 +154,7 @@ def test_corridor_lab_path_loss_exponent_local_mean():
     local_mean_db = 10 * np.log10(links.gain[0].reshape(-1, 8).mean(axis=1))
     n = _ple(d, local_mean_db)
     assert 1.4 <= n <= 2.2, n
-    los_only = trace_links(lab, pose, rx, TraceOptions(method="direct", max_depth=0, samples_per_src=1000))
+    los_only = trace_links(lab, pose, rx, TraceOptions(method="direct", max_depth=0, samples_per_src=1000, reader_polarization="V"))
     n0 = _ple(d, 10 * np.log10(los_only.gain[0].reshape(-1, 8).mean(axis=1)))
     # LOS only equals Friis with both patterns (tested above), so its fit is that of the
     # closed form: 0.02 covers the +-lambda spread of the 8 points around each distance
@@ -258,10 +259,38 @@ def test_bad_inputs_raise_clear_errors(corridor_scene):
 def test_circular_reader_costs_3db_on_linear_tag(far_floor_scene):
     tags = np.array([[4.0, 0.0, 1.0], [6.0, 1.0, 1.5]])
     pose = np.array([[0.0, 0.0, 1.0, 0.0]])
-    lin = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000))
+    lin = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000,
+                                                                  reader_polarization="V"))
     circ = trace_links(far_floor_scene, pose, tags, TraceOptions(method="direct", max_depth=0, samples_per_src=1000, reader_polarization="RHCP"))
     # circular-to-linear polarisation mismatch is exactly 1/2 (3.01 dB) in line of sight
     np.testing.assert_allclose(lin.gain_db - circ.gain_db, 10 * np.log10(2), atol=1e-6)
+
+
+def test_default_reader_is_circular_and_loses_3db_to_a_linear_tag_in_free_space(far_floor_scene):
+    """The default TraceOptions (the study's) trace an RHCP reader. Closed form on a
+    line-of-sight link (max_depth 0: the floor's reflection is not traced): a circular
+    wave (1, -j)/sqrt(2) on a linear dipole couples |(1, -j)/sqrt(2) . e|^2 = 1/2 of the
+    co-polar power whatever the dipole's orientation in the transverse plane, so the
+    gain is the co-polar (V reader, vertical dipole) gain minus 10 log10 2 = 3.01 dB, and
+    that is Friis with both pattern gains. Tolerance 1e-4 dB: Sionna's paths are float32
+    (relative 1e-7 in the field, ~1e-6 dB); the link budget then adds no polarisation
+    loss (its default is 0)."""
+    from propagation.patterns import theta_phi_from_unit_vec
+
+    assert TraceOptions().reader_polarization == "RHCP" and LinkBudget().polarization_loss_db == 0.0
+    tags = np.array([[4.0, 0.0, 1.0], [6.0, 1.0, 1.5], [3.0, -2.0, 0.6]])
+    pose = np.array([[0.0, 0.0, 1.0, 0.0]])
+    circ = trace_links(far_floor_scene, pose, tags, TraceOptions(max_depth=0))
+    copolar = trace_links(far_floor_scene, pose, tags, TraceOptions(max_depth=0, reader_polarization="V"))
+    np.testing.assert_allclose(circ.gain_db, copolar.gain_db - 10 * np.log10(2), atol=1e-4)
+    # co-polar: Friis with the reader's tr38901 and the (vertical) dipole's gains
+    k = tags - pose[0, :3]
+    d = np.linalg.norm(k, axis=1)
+    th, ph = theta_phi_from_unit_vec(k / d[:, None])
+    th_tag, ph_tag = theta_phi_from_unit_vec(-k / d[:, None])
+    friis = (free_space_gain_db(d, 865e6) + pattern_gain_db("tr38901", th, ph)
+             + pattern_gain_db("hw_dipole", th_tag, ph_tag))
+    np.testing.assert_allclose(circ.gain_db[0], friis - 10 * np.log10(2), atol=1e-4)
 
 
 def test_make_corridor_tags_sit_in_free_space():

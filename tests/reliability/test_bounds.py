@@ -18,6 +18,7 @@ from pipeline.config import ConfigError, StudyConfig, replace_path
 ROOT = Path(__file__).resolve().parents[2]
 
 SIZES = ["tracing.max_depth", "tracing.samples_per_src", "tracing.shared_samples_per_src",
+         "tracing.min_samples_per_position",
          "tracing.field_samples_per_tx", "training.epochs", "localisation.n_particles",
          "tour.n_passes", "tour.n_eval_poses", "downstream.robot_particles",
          "downstream.robot_runs", "evaluation.n_sample_poses", "evaluation.grid_n_d",

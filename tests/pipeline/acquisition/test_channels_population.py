@@ -72,7 +72,7 @@ def test_tag_deviations_in_the_budget():
     # P_tag = 30 + g - 3, P_rx = 30 + 2 g - 6 - 2 * 3 (see test_reader.py), then the tag's own
     # deviations: a 4 dB detuning loss once forward and twice back, a -2 dB modulation offset.
     reader = ReaderConfig(tx_power_dbm=30.0, rssi_noise_db=0.0, rssi_resolution_db=0.0,
-                          anticollision_miss_probability=0.0)
+                          anticollision_miss_probability=0.0, polarization_loss_db=3.0)
     g = np.array([-40.0, -40.0, -40.0])
     resp = reader_response(g, reader, np.random.default_rng(0), sensitivity_offset_db=[0.0, 0.0, 2.0],
                            modulation_offset_db=[0.0, -2.0, 0.0], tag_loss_db=[0.0, 4.0, 4.0])

@@ -21,7 +21,8 @@ from propagation.constants import SPEED_OF_LIGHT
 TRACE = TraceOptions(method="direct", max_depth=2, samples_per_src=2000)
 # 8 dBm conducted: free-space maximum range with both maximum pattern gains and the
 # 6 dB margin is lambda / (4 pi) * 10^((8 + 8 + 2.15 - 3 + 18 + 6) / 20) = 2.5 m.
-SHORT_BUDGET = {"tx_power_dbm": 8.0}
+# 5 dBm: a 2.5 m range at a 6 dB margin (the polarisation mismatch is in the traced gain)
+SHORT_BUDGET = {"tx_power_dbm": 5.0}
 
 
 @pytest.fixture(scope="module")
