@@ -10,9 +10,10 @@ candidates run as independent cold studies, measured in one run.
    propagation cache: what a user running them as separate studies would pay.
 
 Both halves run one study at a time (``workers = 1``), so the ratio compares the work,
-not the parallelism. The Dr.Jit kernel cache in ``$HOME`` is warm for the second half
-(the first compiled the kernels), which favours the cold studies: the ratio printed is
-an upper bound on what reuse costs. Prints per candidate the time and the antenna
+not the parallelism. One untimed warm-up study (the first candidate's replicate 0, its
+own cache) runs first, so that neither half pays the process's first imports and the
+Dr.Jit kernels' compilation. Run it on an otherwise idle machine: a second job on the
+cores makes the two halves' times incomparable. Prints per candidate the time and the antenna
 positions traced afresh in each half, and the ratio of the totals.
 
     python bench/placement_reuse.py --placement configs/placement_example.toml --out /tmp/reuse
@@ -52,6 +53,13 @@ def main(argv=None) -> None:
     cands = candidates_of(spec)
     n = spec.settings.replicates
     print(f"{len(cands)} candidates x {n} replicates = {len(cands) * n} studies, one at a time")
+
+    warm = time.perf_counter()
+    row = run_point(config_to_dict(_replicate_config(spec, cands[0], 0, str(out / "warmup-cache"))),
+                    str(out / "warmup"), "bench")
+    if row.get("status") != "complete":
+        raise SystemExit(f"warm-up study failed: {row.get('error')}")
+    print(f"warm-up study (untimed in the ratio): {time.perf_counter() - warm:.1f} s")
 
     shared_s: dict[str, float] = {}
 
