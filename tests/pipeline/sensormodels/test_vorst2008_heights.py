@@ -12,6 +12,7 @@ from pipeline.evaluation.interface import detection_probability, uses_tag_height
 from pipeline.evaluation.truth import TruthGrid
 from pipeline.evaluation.units import detection_cells
 from pipeline.localisation import ModelLikelihood, Observations, localise_tags
+from pipeline.localisation.benchmark import DetectionOnly
 from pipeline.sensormodels import Attempts, fit_vorst2008
 
 D = 1.65  # a 3-D range where the two heights disagree: r = 1.65 (not read) or 1.38 (read)
@@ -53,27 +54,17 @@ def test_fT_at_height_is_the_ground_plane_table(two_heights):
     assert detection_probability(m, D, 0.0) == m.fT(D, 0.0)
 
 
-class _NoHeight:
-    """A model whose detection ignores the height (every model but Vorst & Zell's)."""
+class _Constant:
+    """A detection model that ignores the height (every model but Vorst & Zell's)."""
 
     rssi_range_dbm = (-80.0, -30.0)
-    predicts_rssi = False
 
     def fT(self, d, alpha):  # noqa: N802
         return np.full(np.broadcast(np.asarray(d), np.asarray(alpha)).shape, 0.4)
 
-    def fs_dbm(self, d, alpha):
-        return np.full(np.broadcast(np.asarray(d), np.asarray(alpha)).shape, np.nan)
-
-    def fs(self, d, alpha):
-        return np.ones(np.broadcast(np.asarray(d), np.asarray(alpha)).shape)
-
-    def rho(self, d, alpha):
-        return self.fT(d, alpha)
-
 
 def test_other_models_ignore_the_height():
-    m = _NoHeight()
+    m = DetectionOnly(_Constant())  # the project's detection-only wrapper
     assert not uses_tag_height(m)
     np.testing.assert_array_equal(detection_probability(m, [1.0, 2.0], 0.0, [0.0, 5.0]), 0.4)
     lik = ModelLikelihood(m, use_rssi=False)
