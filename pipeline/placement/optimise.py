@@ -105,7 +105,8 @@ def violations(estimates: dict, constraints) -> list[float]:
 
     out = []
     for c in constraints:
-        v = float(estimates.get(c.objective, float("nan")))
+        v = estimates.get(c.objective)
+        v = float("nan") if v is None else float(v)
         if not math.isfinite(v):
             out.append(float("nan"))
             continue

@@ -125,15 +125,10 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
 
 
 def _feasible(row: pd.Series, constraints) -> bool:
-    for c in constraints:
-        v = row.get(c.objective, float("nan"))
-        if v is None or not math.isfinite(float(v)):
-            return False
-        if c.min is not None and v < c.min:
-            return False
-        if c.max is not None and v > c.max:
-            return False
-    return True
+    """Every constraint met by the row's estimates (one not evaluated is not met)."""
+    from .optimise import violations
+
+    return all(math.isfinite(v) and v <= 0.0 for v in violations(row, constraints))
 
 
 def rank_candidates(df: pd.DataFrame, primary: str, constraints=()) -> pd.DataFrame:
