@@ -99,7 +99,8 @@ class DaskChunkRunner:
         try:
             while pending:
                 try:
-                    done, pending = wait(pending, timeout=_POLL_S, return_when="FIRST_COMPLETED")
+                    with self.client.as_current():  # wait() asks for the current client
+                        done, pending = wait(pending, timeout=_POLL_S, return_when="FIRST_COMPLETED")
                 except TimeoutError:
                     done = set()
                 except FuturesCancelledError:

@@ -50,7 +50,7 @@ def test_tracing_on_a_local_dask_cluster_gives_the_same_gains(cfg, deterministic
     assert here.n_solver_calls == 3
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+            distributed.Client(cluster, set_as_default=False) as client:  # as the stage's own
         with trace_tasks(cfg, client=client) as stats:
             there = _trace(cfg, tmp_path / "there")
             again = _trace(cfg, tmp_path / "there")  # from the cache the tasks filled
@@ -76,7 +76,7 @@ def test_a_dead_worker_fails_with_a_message_not_a_hang(cfg, deterministic, tmp_p
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
             distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                      dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+            distributed.Client(cluster, set_as_default=False) as client:
         stats = TraceTaskStats(cluster.scheduler_address)
         with chunk_runner(DaskChunkRunner(client, stats, task=_die)), \
                 pytest.raises(RuntimeError, match=r"tracing task \d/3 \(4 antenna positions from .*\) on "
