@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import logging
 import sys
 import time
@@ -160,6 +161,9 @@ def run(
         "--replicates", "-r", help="Independent replicates of the study (sets replicates.n): "
         "each its own seed stream, run into OUT/replicates/<k>/, pooled with 95 % intervals "
         "in OUT/metrics.json and OUT/report.html.")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Dask scheduler address (tcp://host:8786): the study's ray tracing runs there as "
+             "Dask tasks, chunks of antenna positions (sets tracing.scheduler).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
 ):
     """Run (or resume) the whole study into a run directory.
@@ -179,7 +183,8 @@ def run(
 
     try:
         cfg = resolve_target(target, [*(set_ or []), *(
-            [f"replicates.n={replicates}"] if replicates is not None else [])], backend)
+            [f"replicates.n={replicates}"] if replicates is not None else []), *(
+            [f"tracing.scheduler={json.dumps(scheduler)}"] if scheduler else [])], backend)
     except ConfigError as exc:
         _fail(str(exc))
     except KeyboardInterrupt:

@@ -190,6 +190,11 @@ class TracingConfig:
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
     )
+    scheduler: str = option(
+        "", "Dask scheduler address (tcp://host:8786) the study's ray tracing runs on: the "
+        "reads and truth_traces stages send their chunks of antenna positions there as Dask "
+        "tasks (pipeline.tracetasks; the same paths as traced here). '' = trace in this process. "
+        "Not part of any stage's inputs: where a study traces does not change its results.")
     field_cell_m: float = option(0.1, "Cell size of the planar RSSI field [m].")
     field_samples_per_tx: int = option(1_000_000, "Rays per transmitter for the RSSI field.", max=50_000_000)
     field_walls: bool = option(False, "Also map the RSSI field on the wall surfaces (Sionna's "

@@ -29,6 +29,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from propagation.backend import ensure_variant
+from propagation.chunkjobs import ChunkJob, current_chunk_runner
 from propagation.completion import (
     complete_specular,
     large_planes,
@@ -388,6 +389,46 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
     return out
 
 
+def tracer_state(scene, frequency_hz: float, shared: bool, completion_order: int) -> tuple:
+    """What every chunk of one scene traces with: the Sionna scene (cached by content), its
+    large planes and plane lookups (``None`` where not used)."""
+    rt_scene = load_sionna_scene(scene, frequency_hz, public_api=not shared)
+    planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2) if completion_order else None
+    # shared positions leave the chains the completion enumerates to it
+    to_completion = (plane_lookup(rt_scene, planes), completion_order) if completion_order else None
+    plane_ids = triangle_planes(rt_scene) if shared else None
+    return rt_scene, planes, to_completion, plane_ids
+
+
+def trace_one_chunk(state: tuple, positions_m: np.ndarray, receivers_m: np.ndarray, opt: TraceOptions,
+                    lone_samples: int, lone_per_chunk: int, budget: int,
+                    completion_order: int) -> list[SourcePaths]:
+    """One chunk of :func:`trace_paths`: fresh paths (one per position, all receivers).
+
+    ``state`` is :func:`tracer_state`'s; the chunk (its positions and the union of their
+    missing tags) is what :func:`trace_paths` cut, so a chunk traced here or in another
+    process (:mod:`propagation.chunkjobs`) gives the same paths.
+    """
+    rt_scene, planes, to_completion, plane_ids = state
+    max_depth, seed = int(opt.max_depth), int(opt.seed)
+    if opt.method == "shared":
+        fresh = _trace_sharing(rt_scene, positions_m, receivers_m, float(opt.share_radius_m),
+                               int(opt.shared_samples_per_src), lone_samples, lone_per_chunk,
+                               max_depth, seed, bool(opt.refraction), to_completion, plane_ids,
+                               opt.min_samples, budget)
+    else:
+        fresh = _trace_chunk(rt_scene, positions_m, receivers_m, max_depth, int(opt.samples_per_src), seed,
+                             bool(opt.refraction))
+    if completion_order:
+        # complete every link the chunk traced (and caches), each position against the
+        # union of the chunk's tags: the cache must never hold an uncompleted link; in
+        # buffers of the tracer's depth (its image-method kernels)
+        extra = complete_specular(rt_scene, positions_m, receivers_m, completion_order,
+                                  planes, buffer_depth=max_depth)
+        fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
+    return fresh
+
+
 @dataclass(frozen=True)
 class PathSet:
     """Traced paths from antenna positions to tags (what :func:`trace_paths` returns).
@@ -512,41 +553,39 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
             from propagation.sionna_internals import check_versions
 
             check_versions()  # before any work: one line naming the versions and the way out
-        rt_scene = load_sionna_scene(scene, frequency_hz, public_api=not shared)
         chunks = [todo[c0:c0 + per_chunk] for c0 in range(0, len(todo), per_chunk)]
-        planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2) if completion_order else None
-        # shared positions leave the chains the completion enumerates to it
-        to_completion = (plane_lookup(rt_scene, planes), completion_order) if completion_order else None
-        plane_ids = triangle_planes(rt_scene) if shared else None
-        for c, chunk in enumerate(chunks):
-            rec = np.unique(np.concatenate([missing[u] for u in chunk]))
-            t0 = time.perf_counter()
-            if shared:
-                fresh = _trace_sharing(rt_scene, uniq[chunk], tags[rec], float(opt.share_radius_m),
-                                       int(opt.shared_samples_per_src), lone_samples, lone_per_chunk,
-                                       max_depth, seed, bool(opt.refraction), to_completion, plane_ids,
-                                       opt.min_samples, budget)
-            else:
-                fresh = _trace_chunk(rt_scene, uniq[chunk], tags[rec], max_depth, samples_per_src, seed,
-                                     bool(opt.refraction))
-            if completion_order:
-                # complete every link the chunk traced (and caches), each position against
-                # the union of the chunk's tags: the cache must never hold an uncompleted
-                # link; in buffers of the tracer's depth (its image-method kernels)
-                extra = complete_specular(rt_scene, uniq[chunk], tags[rec], completion_order,
-                                          planes, buffer_depth=max_depth)
-                fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
-            t_trace += time.perf_counter() - t0
-            n_calls += 1
-            for u, sp in zip(chunk, fresh, strict=True):
+        recs = [np.unique(np.concatenate([missing[u] for u in chunk])) for chunk in chunks]
+        t0 = time.perf_counter()
+        n_done = 0
+
+        def finish(c: int, fresh: list) -> None:
+            """A chunk's fresh paths: merged, cached, reported (here, in the calling process)."""
+            nonlocal n_done
+            for u, sp in zip(chunks[c], fresh, strict=True):
                 src_paths[u] = src_paths[u].merged(sp)
             if cache is not None:
-                cache.save([src_paths[u] for u in chunk])
-            done = sum(len(x) for x in chunks[:c + 1])
+                cache.save([src_paths[u] for u in chunks[c]])
+            n_done += len(chunks[c])
             if progress is not None:
-                progress(done, len(todo))
+                progress(n_done, len(todo))
             logger.info("traced %d/%d antenna positions (%d tags) in %.1f s",
-                        done, len(todo), len(rec), t_trace)
+                        n_done, len(todo), len(recs[c]), time.perf_counter() - t0)
+
+        runner = current_chunk_runner()
+        if runner is None:
+            state = tracer_state(scene, frequency_hz, shared, completion_order)
+            for c, chunk in enumerate(chunks):
+                finish(c, trace_one_chunk(state, uniq[chunk], tags[recs[c]], opt, lone_samples,
+                                          lone_per_chunk, budget, completion_order))
+        else:  # each chunk a job of the runner (a Dask task): the same chunks, the same paths
+            from propagation.backend import backend_info
+
+            info = backend_info()
+            runner([ChunkJob(scene, uniq[chunk], tags[recs[c]], opt, float(frequency_hz), lone_samples,
+                             lone_per_chunk, budget, completion_order, str(info["variant"]),
+                             bool(info["deterministic"])) for c, chunk in enumerate(chunks)], finish)
+        n_calls = len(chunks)
+        t_trace = time.perf_counter() - t0
     elif progress is not None:
         progress(0, 0)
     return PathSet(

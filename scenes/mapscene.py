@@ -35,18 +35,19 @@ from pathlib import Path
 import numpy as np
 import shapely
 import trimesh
+from shapely.geometry.polygon import orient
 
 from scenes.geometry import box_mesh, merge_meshes
 from scenes.mapextract import MapObstacle, apply_override, extract_obstacles
 from scenes.mapspec import MapSpec, TagLayoutSpec, rules_of
 from scenes.materials import UnknownMaterialError, get_material, resolve_material_name
 from scenes.radio import RadioSurface
-from scenes.rosmap import OUTSIDE, RosMap, read_map, resolve_unknown
+from scenes.rosmap import FREE, OUTSIDE, RosMap, read_map, resolve_unknown
 from scenes.scene import Scene, TagSet
 from scenes.spec import SpecError, TagSpec
 from scenes.tags import make_tags, validate_tags
 
-__all__ = ["build_map_scene", "check_map_source", "load_map", "rack_frames", "shelf_tags"]
+__all__ = ["build_map_scene", "check_map_source", "load_map", "rack_frames", "shelf_tags", "wall_tags"]
 
 
 def _extrude(poly, z0: float, z1: float) -> trimesh.Trimesh:
@@ -164,8 +165,10 @@ def shelf_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, sp
     """
     bh = spec.beam_height_m
     heights = layout.heights_m or tuple(z + bh / 2 for z in spec.shelf_levels_m)
+    has_racks = any(o.kind == "rack" for o in obstacles)
     for h in heights:
-        if not any(z - 1e-9 <= h <= z + bh + 1e-9 for z in spec.shelf_levels_m):
+        if (has_racks or not layout.walls) and not any(
+                z - 1e-9 <= h <= z + bh + 1e-9 for z in spec.shelf_levels_m):
             raise SpecError(f"{where}: [tags] key 'heights_m': {h} m is on no front beam (beams at "
                             f"{list(spec.shelf_levels_m)} m, {bh} m high)")
     out = []
@@ -185,6 +188,75 @@ def shelf_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, sp
                     p = c + si * u + w * depth / 2 * v
                     out.append(TagSpec(f"R{k + 1:02d}-{side}{j + 1}-{i + 1:03d}", (float(p[0]), float(p[1]), float(h)),
                                        (float(w * v[0]), float(w * v[1]), 0.0), layout.offset_m))
+    return out
+
+
+def wall_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, spec: MapSpec,
+              layout: TagLayoutSpec, where: str) -> list[TagSpec]:
+    """Tags on the faces of wall obstacles that look onto free space (``[tags] walls = true``).
+
+    Every straight edge of a wall's outline (outer ring and holes: the outer wall's inner
+    face is the edge of its hole) is a candidate face, its normal pointing out of the wall.
+    Tags run along it as on a shelf front: from ``margin_m`` to the other end,
+    ``spacing_m`` apart (centred), at the shelf tags' heights; an edge shorter than
+    ``2 margin_m`` (a wall's end, a door jamb) carries none. A tag is kept only where
+    the map as given is free (not unknown, not occupied) at every half cell from one cell to
+    0.3 m along the normal, and no other obstacle's outline is within ``margin_m`` of it
+    (a partition abutting the wall, a rack in front of it). A door gap is free space, not a
+    wall face: no tag sits in it. Ids ``W<wall>-<face><level>-<k>`` (walls counted in the
+    obstacle order, faces along the outlines).
+
+    Raises
+    ------
+    SpecError
+        A tag height not strictly between the floor and ``height_m``.
+    """
+    bh = spec.beam_height_m
+    heights = layout.heights_m or tuple(z + bh / 2 for z in spec.shelf_levels_m)
+    for h in heights:
+        if not 0 < h < spec.height_m:
+            raise SpecError(f"{where}: [tags] key 'heights_m': {h} m is not between the floor and "
+                            f"the ceiling ([map] height_m {spec.height_m} m) for wall tags")
+    raw = rosmap.cell_class
+    res = rosmap.resolution_m
+    probe_d = np.arange(res, 0.3 + 1e-9, res / 2)
+    out = []
+    walls = [o for o in obstacles if o.kind == "wall"]
+    for k, o in enumerate(walls):
+        others = [x.polygon for x in obstacles if x is not o]
+        near = shapely.union_all(others) if others else None
+        poly = orient(o.polygon, 1.0)  # material on each ring's left
+        face = 0
+        for ring in (poly.exterior, *poly.interiors):
+            xy = np.asarray(ring.coords)[:, :2]
+            for a, b in zip(xy[:-1], xy[1:], strict=True):
+                length = float(np.linalg.norm(b - a))
+                usable = length - 2 * layout.margin_m
+                if usable < 0:
+                    continue
+                u = (b - a) / length
+                n = np.array([u[1], -u[0]])  # right of the edge: out of the wall
+                m = int(np.floor(usable / layout.spacing_m + 1e-9)) + 1
+                s = length / 2 + (np.arange(m) - (m - 1) / 2) * layout.spacing_m
+                pts = a + s[:, None] * u
+                probes = pts[:, None, :] + probe_d[None, :, None] * n
+                col, row = np.floor((probes - rosmap.origin_m) / res).astype(int).transpose(2, 0, 1)
+                inside = (row >= 0) & (row < raw.shape[0]) & (col >= 0) & (col < raw.shape[1])
+                free = np.zeros(row.shape, dtype=bool)
+                free[inside] = raw[row[inside], col[inside]] == FREE
+                keep = free.all(axis=1)
+                if near is not None:
+                    tag_xy = shapely.points(pts + layout.offset_m * n)
+                    keep &= shapely.distance(near, tag_xy) >= layout.margin_m
+                if not keep.any():
+                    continue
+                face += 1
+                for j, h in enumerate(heights):
+                    for i in np.flatnonzero(keep):
+                        p = pts[i]
+                        out.append(TagSpec(f"W{k + 1:02d}-{face:02d}{j + 1}-{i + 1:03d}",
+                                           (float(p[0]), float(p[1]), float(h)),
+                                           (float(n[0]), float(n[1]), 0.0), layout.offset_m))
     return out
 
 
@@ -309,6 +381,8 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
     specs = list(tags)
     if layout.layout == "shelves":
         specs += shelf_tags(obstacles, cls, rosmap, spec, layout, where)
+        if layout.walls:
+            specs += wall_tags(obstacles, cls, rosmap, spec, layout, where)
     elif layout.layout == "csv":
         p = Path(layout.csv) if Path(layout.csv).is_absolute() else base / layout.csv
         specs += csv_tags(p, layout.offset_m, where)

@@ -3,12 +3,16 @@
 An inventory robot drives the aisles; the route it follows here is planned, not drawn:
 
 1. tags are grouped into *faces* (:func:`tag_faces`): tags sharing a horizontal normal
-   and a plane, split where neighbours along the face are more than ``gap_m`` apart;
+   and a plane, split where neighbours along the face are more than ``gap_m`` apart or
+   an obstacle of the collision map stands between them (a partition meeting a wall);
 2. each face gets a *pass*: the face's span moved along its normal by an offset as close
    as it can be to ``min(standoff, half the free depth in front)`` (the aisle's middle in a
    narrow aisle: one pass then serves both sides), with every point of it in the free
    space inflated by the robot's turning radius plus a margin; a pass already within the
-   standoff of every tag of a face covers it too (no second pass);
+   standoff of every tag of a face covers it too (no second pass). Where no offset fits
+   the whole span (a wall face running into a room's corners, ``[tags] walls = true``),
+   the longest stretch of the pass that keeps the clearance serves the face if every tag
+   is still within the standoff of it;
 3. the passes are chained greedily (nearest free end next) by shortest paths on the
    8-connected grid of inflated free cells: scipy.sparse.csgraph's Dijkstra does the graph
    search, shapely simplifies the joined polyline within half a grid cell.
@@ -89,7 +93,8 @@ class CoverageRoute:
         return float(np.linalg.norm(np.diff(self.route_m, axis=0), axis=1).sum())
 
 
-def tag_faces(positions_m, normals, gap_m: float = 1.0, plane_tol_m: float = 0.02) -> list[TagFace]:
+def tag_faces(positions_m, normals, gap_m: float = 1.0, plane_tol_m: float = 0.02,
+              blocked=None) -> list[TagFace]:
     """Group tags into planar faces (see the module docstring).
 
     Parameters
@@ -102,6 +107,10 @@ def tag_faces(positions_m, normals, gap_m: float = 1.0, plane_tol_m: float = 0.0
         Neighbours along a face farther apart than this start a new face [m].
     plane_tol_m : float
         Tags whose planes differ by less than this share a face [m].
+    blocked : callable, optional
+        ``blocked(points (k, 2)) -> bool (k,)``: occupied points. Neighbours along a face
+        with an occupied point on the line between them, 0.1 m in front of the face (a
+        partition abutting a wall between them), start a new face too.
 
     Returns
     -------
@@ -126,7 +135,13 @@ def tag_faces(positions_m, normals, gap_m: float = 1.0, plane_tol_m: float = 0.0
         for plane in planes:
             s = p[plane, :2] @ tan
             o = np.argsort(s, kind="stable")
-            for run in np.split(plane[o], np.flatnonzero(np.diff(s[o]) > gap_m) + 1):
+            cut = np.diff(s[o]) > gap_m
+            if blocked is not None and len(o) > 1:
+                q = p[plane[o], :2] + 0.1 * nrm
+                f = np.linspace(0.0, 1.0, 9)[1:-1]
+                between = q[:-1, None, :] + f[None, :, None] * (q[1:] - q[:-1])[:, None, :]
+                cut |= np.asarray(blocked(between.reshape(-1, 2))).reshape(len(o) - 1, -1).any(axis=1)
+            for run in np.split(plane[o], np.flatnonzero(cut) + 1):
                 c = float(np.mean(p[run, :2] @ nrm))
                 ss = p[run, :2] @ tan
                 faces.append(TagFace(c * nrm + ss.min() * tan, c * nrm + ss.max() * tan, nrm,
@@ -189,8 +204,8 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
         raise ValueError(f"{label}: route standoff_m must be positive, got {standoff_m!r}")
     if len(scene.tags) == 0:
         raise ValueError(f"{label}: no tags to plan a coverage route past (give [tags] or a route)")
-    faces = tag_faces(scene.tags.positions_m, scene.tags.normals, gap_m)
     cmap = collision_map(scene, robot, route_m=np.zeros((0, 2)))
+    faces = tag_faces(scene.tags.positions_m, scene.tags.normals, gap_m, blocked=cmap.is_occupied)
     infl = float(robot.radius_m + margin_m)
     if infl > standoff_m:
         raise ValueError(f"{label}: route standoff_m {standoff_m} m is below the robot's radius "
@@ -234,12 +249,16 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
         depth = (hit[0] + 1) * cmap.resolution_m / 2 if len(hit) else np.inf
         target = min(standoff_m, depth / 2)
         offsets = np.arange(infl, standoff_m + 1e-9, resolution_m / 2)
-        chosen = None
+        chosen = trimmed = None
         for d in offsets[np.argsort(np.abs(offsets - target), kind="stable")]:
             a, b = f.start_m + d * f.normal, f.end_m + d * f.normal
             if line_ok(a, b):
                 chosen = np.stack([a, b])
                 break
+            if trimmed is None:
+                trimmed = _trimmed_pass(a, b, xy[f.tag_index], cmap, infl, standoff_m, resolution_m)
+        if chosen is None:
+            chosen = trimmed
         if chosen is None:
             front = (f.start_m + f.end_m) / 2 + infl * f.normal
             # free in the scene but not in the collision map's main region: cut off from it
@@ -324,6 +343,30 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     rank = np.empty(len(passes), dtype=int)
     rank[driven_order] = np.arange(len(passes))
     return CoverageRoute(route_m, np.array(driven), tuple(faces), rank[face_pass], float(standoff_m), infl)
+
+
+def _trimmed_pass(a: np.ndarray, b: np.ndarray, tags_xy: np.ndarray, cmap, infl: float,
+                  standoff_m: float, resolution_m: float) -> np.ndarray | None:
+    """The longest stretch of the pass a-b in the inflated free space, if it serves the face.
+
+    A face whose pass cannot run its whole length (a wall face ending in a room's corner:
+    the pass's ends come within the inflation of the perpendicular wall) is served by the
+    longest run of the pass, sampled every quarter planning cell, whose points all keep
+    ``infl`` from obstacles, when every tag (k, 2) of the face is within ``standoff_m`` of
+    it. Returns the pass (2, 2) [m] or None.
+    """
+    k = max(2, int(np.ceil(np.linalg.norm(b - a) / (resolution_m / 4))) + 1)
+    t = np.linspace(0.0, 1.0, k)
+    ok = cmap.clearance_m(a + t[:, None] * (b - a)) >= infl
+    if not ok.any():
+        return None
+    edges = np.diff(np.r_[0, ok.astype(np.int8), 0])
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    j = int(np.argmax(stops - starts))
+    seg = np.stack([a + t[starts[j]] * (b - a), a + t[stops[j]] * (b - a)])
+    if np.all(_segment_distance(tags_xy, seg[0], seg[1]) <= standoff_m + 1e-9):
+        return seg
+    return None
 
 
 def _simplify(route: np.ndarray, tol_m: float) -> np.ndarray:

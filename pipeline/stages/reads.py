@@ -16,6 +16,7 @@ from pipeline.stages.common import (
     trace_options,
 )
 from pipeline.study import Stage
+from pipeline.tracetasks import trace_tasks
 
 __all__ = ["STAGE", "stage_reads"]
 
@@ -37,18 +38,21 @@ def stage_reads(ctx) -> dict:
     cache.mkdir(parents=True, exist_ok=True)
     rng = stage_rng(cfg, "reads")
     info = {"variant": variant, "cache_dir": str(cache)}
-    for name, prefix in (("train", ""), ("eval", "eval_")):
-        track = read_track(ctx, name)
-        # held out: the training tour reads only the training tags, the evaluation tour
-        # only the held-out ones
-        tags = split_tags(ctx, name)
-        readlog = simulate_reads(sc, robot, track, cfg.reader, rng, trace=trace_options(cfg), cache_dir=cache,
-                                 progress=ctx.progress(f"tracing {name} links"),
-                                 tags=tags, frequency_hz=cfg.frequency_hz)
-        readlog.write(ctx.staging_dir, prefix=prefix)
-        info[name] = {"n_attempts": readlog.n_attempts, "n_reads": readlog.n_reads,
-                      "n_pairs_traced": readlog.metadata.get("n_pairs_traced"),
-                      "n_sources_traced": readlog.n_sources_traced}
+    with trace_tasks(cfg) as tasks:  # tracing.scheduler: chunks as Dask tasks
+        for name, prefix in (("train", ""), ("eval", "eval_")):
+            track = read_track(ctx, name)
+            # held out: the training tour reads only the training tags, the evaluation tour
+            # only the held-out ones
+            tags = split_tags(ctx, name)
+            readlog = simulate_reads(sc, robot, track, cfg.reader, rng, trace=trace_options(cfg), cache_dir=cache,
+                                     progress=ctx.progress(f"tracing {name} links"),
+                                     tags=tags, frequency_hz=cfg.frequency_hz)
+            readlog.write(ctx.staging_dir, prefix=prefix)
+            info[name] = {"n_attempts": readlog.n_attempts, "n_reads": readlog.n_reads,
+                          "n_pairs_traced": readlog.metadata.get("n_pairs_traced"),
+                          "n_sources_traced": readlog.n_sources_traced}
+    if tasks is not None:
+        info["trace_tasks"] = tasks.as_dict()
     return info
 
 

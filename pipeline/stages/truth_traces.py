@@ -26,6 +26,7 @@ from pipeline.stages.common import (
     trace_options,
 )
 from pipeline.study import Stage
+from pipeline.tracetasks import trace_tasks
 from scenes.fileio import atomic_save_npz
 
 __all__ = ["STAGE", "free_space_grid", "stage_truth_traces"]
@@ -55,8 +56,11 @@ def stage_truth_traces(ctx) -> dict:
     select_backend(ctx.config)
     # the evaluation path's poses without the tour's MCL: this stage starts beside the tour
     poses = attempt_poses(ctx, "eval", eval_track(ctx))
-    info = _trace_sites(ctx, poses)
-    info.update(_trace_free_space_view(ctx, poses))
+    with trace_tasks(ctx.config) as tasks:  # tracing.scheduler: chunks as Dask tasks
+        info = _trace_sites(ctx, poses)
+        info.update(_trace_free_space_view(ctx, poses))
+    if tasks is not None:
+        info["trace_tasks"] = tasks.as_dict()
     return info
 
 
