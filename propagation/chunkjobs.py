@@ -59,6 +59,8 @@ class ChunkJob:
         Dr.Jit variant of the calling process (the job selects it).
     deterministic : bool
         Whether the calling process traces on one Dr.Jit thread (the job does the same).
+    need : numpy.ndarray or None
+        (k, r) bool: the receivers each position misses (None: all).
     """
 
     scene: Any
@@ -72,6 +74,7 @@ class ChunkJob:
     completion_order: int
     variant: str
     deterministic: bool
+    need: np.ndarray | None = None
 
     def describe(self) -> str:
         """``"12 antenna positions from (x, y, z) m, 40 tags"``."""
@@ -132,4 +135,5 @@ def run_chunk_job(job: ChunkJob) -> list:
         _STATE["state"] = tracer_state(job.scene, job.frequency_hz, shared, job.completion_order)
         _STATE["key"] = key
     return trace_one_chunk(_STATE["state"], job.positions_m, job.receivers_m, job.options,
-                           job.lone_samples, job.lone_per_chunk, job.budget_bytes, job.completion_order)
+                           job.lone_samples, job.lone_per_chunk, job.budget_bytes, job.completion_order,
+                           job.need)

@@ -135,6 +135,18 @@ class SourcePaths:
         q = np.ascontiguousarray(np.asarray(tag_positions_m, dtype=np.float64).reshape(-1, 3))
         return np.array([lookup.get(row.tobytes(), -1) for row in q], dtype=np.int64)
 
+    def subset(self, rows) -> SourcePaths:
+        """The paths to the tags at ``rows`` (indices into ``tag_positions_m``), in that order."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        if len(rows) == len(self.tag_positions_m) and np.array_equal(rows, np.arange(len(rows))):
+            return self
+        counts = np.diff(self.offsets)[rows]
+        idx = np.concatenate([np.arange(self.offsets[i], self.offsets[i + 1]) for i in rows]
+                             + [np.zeros(0, np.int64)]).astype(np.int64)
+        return SourcePaths(self.source_m, self.tag_positions_m[rows],
+                           np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+                           self.transfer[idx], self.tau_s[idx], self.k_tx[idx], self.k_rx[idx])
+
     def merged(self, other: SourcePaths) -> SourcePaths:
         """This path set plus the tags of ``other`` not already here."""
         new = np.flatnonzero(self.index_of(other.tag_positions_m) < 0)

@@ -64,7 +64,7 @@ _MAX_SOURCES_PER_CALL = 128
 COMPLETION_MIN_AREA_M2 = 1.0
 #: Versions of the tracing algorithms, part of the cache key: a change that changes
 #: their paths must bump them so no cache serves the old results.
-COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
+COMPLETION_ALGORITHM = 3  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner); 3: planes need a 1 m^2 patch
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
 SHARING_ALGORITHM = 7  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
@@ -402,11 +402,10 @@ def tracer_state(scene, frequency_hz: float, shared: bool, completion_order: int
 
 def trace_one_chunk(state: tuple, positions_m: np.ndarray, receivers_m: np.ndarray, opt: TraceOptions,
                     lone_samples: int, lone_per_chunk: int, budget: int,
-                    completion_order: int) -> list[SourcePaths]:
-    """One chunk of :func:`trace_paths`: fresh paths (one per position, all receivers).
-
-    ``state`` is :func:`tracer_state`'s; the chunk (its positions and the union of their
-    missing tags) is what :func:`trace_paths` cut, so a chunk traced here or in another
+                    completion_order: int, need: np.ndarray | None = None) -> list[SourcePaths]:
+    """One chunk of :func:`trace_paths`: fresh paths, one per position, to the receivers
+    it needs (``need``, (k, r) bool; default all). ``state`` is :func:`tracer_state`'s;
+    the chunk is what :func:`trace_paths` cut, so a chunk traced here or in another
     process (:mod:`propagation.chunkjobs`) gives the same paths.
     """
     rt_scene, planes, to_completion, plane_ids = state
@@ -419,12 +418,16 @@ def trace_one_chunk(state: tuple, positions_m: np.ndarray, receivers_m: np.ndarr
     else:
         fresh = _trace_chunk(rt_scene, positions_m, receivers_m, max_depth, int(opt.samples_per_src), seed,
                              bool(opt.refraction))
+    if need is not None:
+        # each position keeps (and caches) its own links: completing the chunk's union
+        # for every position multiplies the completion's candidates and memory
+        need = np.asarray(need, bool).reshape(len(positions_m), len(receivers_m))
+        fresh = [f.subset(np.flatnonzero(w)) for f, w in zip(fresh, need, strict=True)]
     if completion_order:
-        # complete every link the chunk traced (and caches), each position against the
-        # union of the chunk's tags: the cache must never hold an uncompleted link; in
-        # buffers of the tracer's depth (its image-method kernels)
+        # complete every link the chunk keeps (and caches): the cache must never hold an
+        # uncompleted link; in buffers of the tracer's depth (its image-method kernels)
         extra = complete_specular(rt_scene, positions_m, receivers_m, completion_order,
-                                  planes, buffer_depth=max_depth)
+                                  planes, need=need, buffer_depth=max_depth)
         fresh = [merge_paths(f, e) for f, e in zip(fresh, extra, strict=True)]
     return fresh
 
@@ -555,6 +558,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
             check_versions()  # before any work: one line naming the versions and the way out
         chunks = [todo[c0:c0 + per_chunk] for c0 in range(0, len(todo), per_chunk)]
         recs = [np.unique(np.concatenate([missing[u] for u in chunk])) for chunk in chunks]
+        needs = [np.stack([np.isin(recs[c], missing[u]) for u in chunk]) for c, chunk in enumerate(chunks)]
         t0 = time.perf_counter()
         n_done = 0
 
@@ -576,14 +580,14 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
             state = tracer_state(scene, frequency_hz, shared, completion_order)
             for c, chunk in enumerate(chunks):
                 finish(c, trace_one_chunk(state, uniq[chunk], tags[recs[c]], opt, lone_samples,
-                                          lone_per_chunk, budget, completion_order))
+                                          lone_per_chunk, budget, completion_order, needs[c]))
         else:  # each chunk a job of the runner (a Dask task): the same chunks, the same paths
             from propagation.backend import backend_info
 
             info = backend_info()
             runner([ChunkJob(scene, uniq[chunk], tags[recs[c]], opt, float(frequency_hz), lone_samples,
                              lone_per_chunk, budget, completion_order, str(info["variant"]),
-                             bool(info["deterministic"])) for c, chunk in enumerate(chunks)], finish)
+                             bool(info["deterministic"]), needs[c]) for c, chunk in enumerate(chunks)], finish)
         n_calls = len(chunks)
         t_trace = time.perf_counter() - t0
     elif progress is not None:

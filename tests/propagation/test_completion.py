@@ -25,6 +25,24 @@ def _gain_db(sp: SourcePaths) -> np.ndarray:
                                 + 1j * np.bincount(tag, h.imag, len(sp.offsets) - 1)) ** 2)
 
 
+def test_a_plane_of_small_pieces_is_not_large():
+    # A row of 0.08 m x 2.2 m posts (0.18 m^2 faces, coplanar: 12 of them, 2.1 m^2 in
+    # all, like a shelving rack's uprights) is not a large plane however long the row;
+    # a 2 m x 2.2 m panel beside them is. Fails if planes are kept by their total area.
+    import trimesh
+
+    from scenes import Scene
+    from tests.helpers.scenes import _tags, box
+    posts = trimesh.util.concatenate([box([x, 0.0, 0.0], [x + 0.08, 0.08, 2.2]) for x in np.arange(12) * 1.0])
+    panel = box([0.0, 3.0, 0.0], [2.0, 3.05, 2.2])
+    rts = load_sionna_scene(Scene("posts", {"metal": posts, "concrete": panel}, _tags([[5.0, 1.5, 1.0]])), F)
+    pl = large_planes(rts, 1.0)
+    # the panel's two 4.4 m^2 faces only (its 0.11 m^2 edges are small too)
+    assert sorted(np.round(pl.area_m2, 2).tolist()) == [4.4, 4.4]
+    np.testing.assert_allclose(np.abs(pl.normal[:, 1]), 1.0)
+    assert len(large_planes(rts, 0.1)) > 2  # the posts' faces come back below their size
+
+
 def _duplicates(sp: SourcePaths) -> int:
     """Pairs of paths of one tag with lengths within 0.1 mm and departures within 1e-4."""
     n = 0
@@ -189,18 +207,24 @@ def test_trace_links_with_completion_adds_paths_and_keeps_its_own_cache(corridor
 
 
 def test_completed_cache_never_holds_an_uncompleted_link(corridor_scene, tmp_path):
-    """Positions needing disjoint tags share a solver call (each traced against the union):
-    every link that call caches is completed, so a later call needing the other pairs is
-    served exactly what a fresh completed trace gives, path for path."""
+    """Positions needing disjoint tags share a solver call (each shot against the union of
+    its tags): each keeps and caches its own links only, completed, so a later call
+    needing the other pairs traces them and is served what a fresh completed trace gives.
+    Fails if the cache holds the union's links (uncompleted, or completed for every
+    position: the candidates of a chunk's union, ~4x a warehouse's own links)."""
     from propagation import trace_links
+    from propagation.pathcache import PathCache
 
     poses = np.array([[3.0, 1.1, 0.8, 0.0], [3.4, 1.2, 0.9, 0.3]])
     tags = np.array([[8.0, 0.3, 1.0], [2.0, 2.0, 1.5]])
     opts = TraceOptions(samples_per_src=2000, shared_samples_per_src=2000, max_depth=3, seed=5,
                         completion_order=2)
     trace_links(corridor_scene, poses, tags, opts, pairs=np.eye(2, dtype=bool), cache_dir=tmp_path)
+    held = [sp for d in tmp_path.iterdir() if d.is_dir() for sp in PathCache(d).load(poses[:, :3])]
+    assert [len(sp.tag_positions_m) for sp in held] == [1, 1]  # each its own tag
+    np.testing.assert_array_equal(np.concatenate([sp.tag_positions_m for sp in held]), tags)
     cached = trace_links(corridor_scene, poses, tags, opts, cache_dir=tmp_path)
-    assert cached.n_traced_sources == 0  # the cross pairs came from the cache ...
+    assert cached.n_traced_sources == 2  # the cross pairs traced now, the others cached ...
     fresh = trace_links(corridor_scene, poses, tags, opts, cache_dir=tmp_path / "fresh")
     # ... and hold the completed reflections: same path count; gains agree except for
     # the few high-order paths two samplings of 2000 rays find differently
