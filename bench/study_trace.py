@@ -34,6 +34,9 @@ Takes about 20 minutes on 2 cores. Usage::
 
     .venv/bin/python bench/study_trace.py [--skip-study] [--skip-noise]
         [--config configs/paper_scale.toml] [--naive arrays]
+    # the warehouse-scale case, from a finished run; naive time scaled from 12 calls per tour
+    .venv/bin/python bench/study_trace.py --config configs/warehouse_large.toml --skip-study \
+        --run RUN_DIR --skip-noise --naive arrays --naive-calls 12
 """
 
 from __future__ import annotations
@@ -113,22 +116,30 @@ def study_links(run: Path) -> list[tuple[str, np.ndarray, np.ndarray, int]]:
     return groups
 
 
-def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "api") -> dict:
+def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "api",
+                max_calls: int | None = None) -> dict:
     """Bare Sionna PathSolver over the link groups; seconds and links per group name.
 
     ``placement="api"`` places devices as Sionna's documentation does (positions as
     lists of numbers, Sionna's own endpoint arrays: Dr.Jit compiles kernels per position
     and per device index on an empty kernel cache); ``"arrays"`` as the study does
     (:func:`propagation.sionna_scene.device_point`, endpoints built in one go), kinder
-    to the naive side."""
+    to the naive side.
+
+    ``max_calls``: trace at most this many calls of each tour group, spread evenly along
+    it, and scale its seconds by the positions of all its calls over those traced (a
+    warehouse-scale study's naive tracing takes hours on 2 cores; a call's time grows
+    with its positions, the receivers being the group's). The result says so:
+    ``{name: (seconds, links, calls traced, calls)}``."""
 
     from propagation.sionna_scene import load_sionna_scene
 
     rt_scene = load_sionna_scene(scene, 865e6, public_api=placement == "api")
-    return _naive_calls(rt_scene, groups, max_depth, samples, placement)
+    return _naive_calls(rt_scene, groups, max_depth, samples, placement, max_calls)
 
 
-def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str) -> dict:
+def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str,
+                 max_calls: int | None = None) -> dict:
     import sionna.rt as rt
 
     from propagation.sionna_scene import clear_devices, place_devices
@@ -148,8 +159,13 @@ def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str)
     solver = rt.PathSolver()
     out: dict = {}
     for name, pos, rx, per_call in groups:
+        starts = np.arange(0, len(pos), per_call)
+        picked = starts
+        if max_calls and per_call > 1 and len(starts) > max_calls:
+            picked = starts[np.unique(np.linspace(0, len(starts) - 1, max_calls).round().astype(int))]
+        scale = len(pos) / sum(len(pos[c0:c0 + per_call]) for c0 in picked)
         t0 = time.perf_counter()
-        for c0 in range(0, len(pos), per_call):
+        for c0 in picked:
             place(pos[c0:c0 + per_call], rx)
             paths = solver(rt_scene, max_depth=max_depth, samples_per_src=samples,
                            max_num_paths_per_src=samples * (max_depth + 1), synthetic_array=True,
@@ -157,8 +173,9 @@ def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str)
                            refraction=True, diffraction=False, seed=1)
             _ = paths.a[0].numpy()
         clear_devices(rt_scene)
-        s, n = out.get(name, (0.0, 0))
-        out[name] = (s + time.perf_counter() - t0, n + len(pos) * len(rx))
+        s, n, k, c = out.get(name, (0.0, 0, 0, 0))
+        out[name] = (s + (time.perf_counter() - t0) * scale, n + len(pos) * len(rx), k + len(picked),
+                     c + len(starts))
     return out
 
 
@@ -170,14 +187,16 @@ def _empty_kernel_cache(home: Path) -> dict:
     return {"HOME": str(home), "DRJIT_CACHE_DIR": str(home / ".drjit")}
 
 
-def naive_in_subprocess(run: Path, placement: str, home: Path | None, backend: str = "auto") -> dict:
+def naive_in_subprocess(run: Path, placement: str, home: Path | None, backend: str = "auto",
+                        max_calls: int | None = None) -> dict:
     """:func:`naive_trace` in a fresh process; ``home``: from an empty kernel cache there;
-    ``backend``: the Dr.Jit backend there (``--backend``)."""
+    ``backend``: the Dr.Jit backend there (``--backend``); ``max_calls``: see there."""
     env = dict(os.environ)
     if home is not None:
         env.update(_empty_kernel_cache(home))
     proc = subprocess.run([sys.executable, __file__, "--naive-only", placement, "--backend", backend,
-                           "--run", str(Path(run).resolve())],
+                           "--run", str(Path(run).resolve()),
+                           *(["--naive-calls", str(max_calls)] if max_calls else [])],
                           cwd=ROOT, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"naive tracing failed:\n{proc.stderr[-3000:]}")
@@ -243,6 +262,9 @@ def main() -> None:
     ap.add_argument("--backend", choices=("auto", "llvm", "cuda"), default="auto",
                     help="Dr.Jit backend of the studies and the naive tracing (auto: the CPU, "
                          "then the GPU in a section of its own where a CUDA device is usable)")
+    ap.add_argument("--naive-calls", type=int, default=None,
+                    help="trace at most this many naive calls per tour, spread along it, and "
+                         "scale their time to the whole tour (warehouse scale: hours otherwise)")
     ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
                     help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
@@ -259,7 +281,8 @@ def main() -> None:
         # the run's own scene, depth and lone-position rays (3e4 for the default study)
         cfg = load_config(args.run / "config.toml")
         out = naive_trace(scenes.load(cfg.scene), study_links(args.run), cfg.tracing.max_depth,
-                          cfg.tracing.samples_per_src, placement=args.naive_only)
+                          cfg.tracing.samples_per_src, placement=args.naive_only,
+                          max_calls=args.naive_calls)
         print(json.dumps(out))
         return
 
@@ -294,6 +317,11 @@ def main() -> None:
         run = tmp / "run_0"
     else:
         run = args.run or ROOT / "runs" / "default"
+        man = json.loads((run / "manifest.json").read_text())
+        if man.get("elapsed_s"):  # the finished run's own wall time (its cache and kernels as they were)
+            studies[f"the run in {run}, from its manifest"] = {"wall_s": float(man["elapsed_s"])}
+            print(f"study {run}: {man['elapsed_s']:.0f} s wall, peak {man.get('peak_rss_mib', 0) / 1024:.1f} GiB "
+                  "(its manifest)", flush=True)
     cfg = resolve_target(None if args.config is None else str(args.config))
     scene = scenes.load(cfg.scene)
     kernels = "this machine's kernel cache" if args.warm_kernels else "an empty kernel cache"
@@ -303,15 +331,16 @@ def main() -> None:
             continue
         naive = naive_in_subprocess(run, placement,
                                     None if args.warm_kernels else tmp / f"home_naive_{placement}",
-                                    args.backend)
-        t_naive = sum(s for s, _ in naive.values())
-        n_links = sum(n for _, n in naive.values())
+                                    args.backend, args.naive_calls)
+        t_naive = sum(v[0] for v in naive.values())
+        n_links = sum(v[1] for v in naive.values())
         print(f"naive bare Sionna ({how}, {kernels}):")
-        for name, (s, n) in naive.items():
-            print(f"  {name}: {n} links in {s:.1f} s ({n / s:.0f} links/s)")
+        for name, (s, n, k, c) in naive.items():
+            part = f", scaled from {k} of its {c} calls" if k < c else ""
+            print(f"  {name}: {n} links in {s:.1f} s ({n / s:.0f} links/s{part})")
         print(f"  all: {n_links} links in {t_naive:.1f} s ({n_links / t_naive:.0f} links/s)", flush=True)
         for label, s in studies.items():
-            print(f"RATIO cold study ({label}) / naive tracing of its links ({placement}): "
+            print(f"RATIO study ({label}) / naive tracing of its links ({placement}): "
                   f"{s['wall_s'] / t_naive:.2f} ({s['wall_s']:.0f} s / {t_naive:.0f} s)", flush=True)
     if not args.skip_noise:
         thr = cfg.reader.link_budget(cfg.frequency_hz).min_gain_db()

@@ -1,8 +1,8 @@
 """Draw the bundled example warehouse as a ROS map_server map (YAML + PGM).
 
     python scripts/make_warehouse_map.py                      # writes scenes/data/warehouse_small.*
-    python scripts/make_warehouse_map.py --out /tmp/wh --name warehouse_large \
-        --width-m 30 --length-m 50 --racks 8 --rack-length-m 40
+    python scripts/make_warehouse_map.py --name warehouse_large --format png \
+        --width-m 30 --length-m 50 --racks 8 --rack-length-m 40   # the warehouse-scale case
 
 The building (default 15 m x 20 m inside) has a 0.25 m outer wall, a row of shelving
 racks (0.8 m deep, 12 m long, 2.5 m aisles between them: three aisles between four
@@ -73,14 +73,16 @@ def main(argv=None) -> None:
     ap.add_argument("--racks", type=int, default=4)
     ap.add_argument("--rack-length-m", type=float, default=12.0)
     ap.add_argument("--seed", type=int, default=34)
+    ap.add_argument("--format", choices=("pgm", "png"), default="pgm",
+                    help="image format (map_server reads both; PNG is ~50x smaller here)")
     args = ap.parse_args(argv)
     img = draw(args.width_m, args.length_m, args.racks, np.random.default_rng(args.seed),
                args.rack_length_m)
     args.out.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img).save(args.out / f"{args.name}.pgm")
+    Image.fromarray(img).save(args.out / f"{args.name}.{args.format}")
     origin = -(WALL_M + PAD_M)
     (args.out / f"{args.name}.yaml").write_text(
-        f"image: {args.name}.pgm\nresolution: {RES_M}\norigin: [{origin}, {origin}, 0.0]\n"
+        f"image: {args.name}.{args.format}\nresolution: {RES_M}\norigin: [{origin}, {origin}, 0.0]\n"
         "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\nmode: trinary\n")
     print(f"{args.out / args.name}.yaml: {img.shape[1]} x {img.shape[0]} cells of {RES_M} m")
 
