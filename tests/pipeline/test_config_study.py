@@ -138,7 +138,8 @@ def test_replace_path_unknown_key():
         replace_path(StudyConfig(), "trainig.epochs", 3)
 
 
-@pytest.mark.parametrize("name", ["reference.toml", "paper_scale.toml", "tiny.toml", "warehouse.toml"])
+@pytest.mark.parametrize("name", ["reference.toml", "paper_scale.toml", "tiny.toml", "warehouse.toml",
+                                  "warehouse_large.toml"])
 def test_shipped_configs_load(name):
     p = ROOT / "configs" / name
     if not p.exists():

@@ -140,6 +140,18 @@ def test_bundled_warehouse_loads():
     assert len(raw.tags) == 4 * 2 * 4 * 24  # the map alone: every beam, 0.5 m apart
 
 
+def test_bundled_warehouse_scale_case_loads():
+    # issue 34's scale case: ~30 m x 50 m inside, >= 500 tags (8 racks x 2 faces x 40 per
+    # 40 m front at 1 m, one height), a PNG map image (map_server reads PNG too)
+    sc = scenes.load("warehouse_large")
+    kinds = [o["kind"] for o in sc.metadata["map"]["obstacles"]]
+    assert kinds.count("rack") == 8
+    assert len(sc.tags) == 8 * 2 * 40
+    lo, hi = sc.bounds_m
+    assert 29.0 < hi[0] - lo[0] < 32.0 and 49.0 < hi[1] - lo[1] < 52.0  # outer wall included
+    assert scenes.bundled_path("warehouse_large").with_suffix(".png").exists()
+
+
 def test_a_waypoint_list_is_kept(tmp_path):
     from pipeline.robot import Robot
     from pipeline.stages.common import map_route
