@@ -31,7 +31,6 @@ import time
 import warnings
 
 import numpy as np
-
 from seed_noise import sparse_poses  # bench/ is the script's own folder
 
 
@@ -87,8 +86,8 @@ def main() -> None:
     from pipeline.stages.common import trace_options
     from propagation.completion import complete_specular, large_planes
     from propagation.constants import SPEED_OF_LIGHT
-    from propagation.patterns import as_pose6
     from propagation.pathsolve import trace_paths
+    from propagation.patterns import as_pose6
     from propagation.sionna_scene import load_sionna_scene
     from propagation.tracing import tag_dipole_axes
 
@@ -139,7 +138,7 @@ def main() -> None:
             la, lb = A.tau_s[sl[sa]] * SPEED_OF_LIGHT, B.tau_s[sl[sb]] * SPEED_OF_LIGHT
             mab = match(la, A.k_tx[sl[sa]], A.k_rx[sl[sa]], lb, B.k_tx[sl[sb]], B.k_rx[sl[sb]])
             mba = match(lb, B.k_tx[sl[sb]], B.k_rx[sl[sb]], la, A.k_tx[sl[sa]], A.k_rx[sl[sa]])
-            for s, L, m_ in ((sa, la, mab), (sb, lb, mba)):
+            for s, L in ((sa, la), (sb, lb)):
                 K = (A if s == sa else B).k_tx[sl[s]]
                 for p in range(len(L)):
                     d = (np.abs(L - L[p]) < 1e-3) & np.all(np.abs(K - K[p]) < 1e-3, axis=1)
