@@ -99,12 +99,15 @@ def desc(key):
     return parts
 
 
-lookups = {A: plane_lookup(rt, large_planes(rt, A)) for A in (1.0, 0.4, 0.0)}
+lookups = {A: plane_lookup(rt, large_planes(rt, A)) for A in (1.0, 0.8, 0.5, 0.4, 0.0)}
 print({A: len(large_planes(rt, A)) for A in lookups})
 D = opts.max_depth
 preds = {
     "completion now: R<=3 on >=1 m2": lambda fl: fl["R3_1.0"],
+    "+ R<=3 on >=0.8 m2": lambda fl: fl["R3_0.8"],
+    "+ R<=3 on >=0.5 m2": lambda fl: fl["R3_0.5"],
     "+ R<=3 on >=0.4 m2": lambda fl: fl["R3_0.4"],
+    "+ R<=2 on >=0.4 m2, R3 on >=1 m2": lambda fl: fl["R3_1.0"] or fl["R2_0.4"],
     "+ R<=3 on all planes": lambda fl: fl["R3_0.0"],
     "+ R<=4 on all planes": lambda fl: fl["R4_0.0"],
     "+ R<=5 on all planes": lambda fl: fl["R5_0.0"],
@@ -116,12 +119,15 @@ preds = {
 cf_rows = []
 stats = Counter()
 wstats = Counter()  # (class) -> count of strong one-seed paths
-wlookups = {A: plane_lookup(rt, large_planes(rt, A)) for A in (1.0, 0.4, 0.0)}
+wlookups = {A: plane_lookup(rt, large_planes(rt, A)) for A in (1.0, 0.8, 0.5, 0.4, 0.0)}
 print({A: len(large_planes(rt, A)) for A in lookups})
 D = opts.max_depth
 preds = {
     "completion now: R<=3 on >=1 m2": lambda fl: fl["R3_1.0"],
+    "+ R<=3 on >=0.8 m2": lambda fl: fl["R3_0.8"],
+    "+ R<=3 on >=0.5 m2": lambda fl: fl["R3_0.5"],
     "+ R<=3 on >=0.4 m2": lambda fl: fl["R3_0.4"],
+    "+ R<=2 on >=0.4 m2, R3 on >=1 m2": lambda fl: fl["R3_1.0"] or fl["R2_0.4"],
     "+ R<=3 on all planes": lambda fl: fl["R3_0.0"],
     "+ R<=4 on all planes": lambda fl: fl["R4_0.0"],
     "+ R<=5 on all planes": lambda fl: fl["R5_0.0"],
@@ -161,7 +167,7 @@ for i in range(len(poses)):
                 rel = 10 * np.log10(abs(ax[p]) ** 2 / tot)
                 key = X["keys"][sx[p]][None]
                 ty, sh, pr = key[:, :D], key[:, D:2 * D], key[:, 2 * D:]
-                fl = {f"R{o}_{A}": bool(lookups[A].covered(ty, sh, pr, o)[0]) for A in lookups for o in (3, 4, 5)}
+                fl = {f"R{o}_{A}": bool(lookups[A].covered(ty, sh, pr, o)[0]) for A in lookups for o in (2, 3, 4, 5)}
                 fl["T"] = bool((ty == 4).any())
                 fl["nR"] = int((ty == 1).sum())
                 link_one.append((X is A, ax[p], fl))

@@ -60,10 +60,11 @@ DEFAULT_SAMPLES_PER_SRC = 30_000
 _MAX_SOURCES_PER_CALL = 128
 #: Planes of at least this area are completed by the image method (completion_order,
 #: TraceOptions.completion_min_area_m2's default): walls, floor, ceiling and furniture
-#: faces; 27 planes on corridor_lab (16 at 1 m^2, before issue 37: the cabinets' sides and
-#: tops were left to the rays, and chains over them were the largest part of the truth's
-#: seed-to-seed noise on sparse poses, bench/seed_noise_paths.py).
-COMPLETION_MIN_AREA_M2 = 0.4
+#: faces; 23 planes on corridor_lab (16 at 1 m^2, before issue 37: the metal cabinets'
+#: sides and tops were left to the rays, and chains over them were the largest part of the
+#: truth's seed-to-seed noise on sparse poses, bench/seed_noise_chains.py; 0.4 m^2, 27
+#: planes, removed no more of it and cost more).
+COMPLETION_MIN_AREA_M2 = 0.5
 #: Versions of the tracing algorithms, part of the cache key: a change that changes
 #: their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 2  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner)
