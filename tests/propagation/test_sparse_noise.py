@@ -9,7 +9,7 @@ for direct tracing at 3e4 rays). ``min_samples_per_position`` (default
 
 What noise remained was paths the rays find by chance (Sionna draws reflection or
 refraction at each hit by the seed): reflections off faces under the completion's 1 m^2
-(cabinet sides and tops), now enumerated from 0.4 m^2 (``completion_min_area_m2``), and
+(cabinet sides and tops), now enumerated from 0.5 m^2 (``completion_min_area_m2``), and
 chains through boxes and walls, still the rays' (``bench/seed_noise_chains.py``).
 """
 
@@ -73,7 +73,7 @@ def test_completion_covers_the_cabinets_sides_whatever_the_rays():
     # one the completion can enumerate (depth 2 = completion order 2, no refraction) and
     # the only faces under 1 m^2 are the cabinets' sides (0.45 x 1.2 = 0.54 m^2 each;
     # fronts and tops are coplanar across cabinets, >= 1 m^2). With the default minimum
-    # area (0.4 m^2) the completion holds every path: 10 rays per position give the truth
+    # area (0.5 m^2) the completion holds every path: 10 rays per position give the truth
     # of 20,000. At 1 m^2 the sides' reflections are the rays' to find, and 10 miss them.
     scene = box_corridor(12.0, cabinets=True, wall_tags=6)
     poses = np.array([[x, y, z, 0.0] for x in np.arange(1.5, 11.0, 2.0) for y in (0.9, 1.5)
