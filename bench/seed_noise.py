@@ -109,13 +109,36 @@ def seed_pair(scene, poses, tags, normals, opts, frequency_hz, seeds=(1, 2)) -> 
     return gains, float(np.mean(secs)), h.n // len(seeds)
 
 
+def setting_overrides(s: str) -> dict:
+    """A setting's ``[tracing]`` config keys: 'default' none, a count the
+    min_samples_per_position, 'key=value[,key=value]' those TraceOptions fields."""
+    if s == "default":
+        return {}
+    if "=" not in s:
+        return {"min_samples_per_position": s}
+    return dict(kv.split("=", 1) for kv in s.split(","))
+
+
+def setting_options(base, s: str):
+    """The TraceOptions of a setting (``--min``): 'direct' is Sionna's PathSolver alone,
+    samples_per_src rays, no completion."""
+    if s == "direct":
+        return base.replace(method="direct")
+    over = {}
+    for k, v in setting_overrides(s).items():
+        cur = getattr(base, k)
+        over[k] = int(v) if isinstance(cur, int) or cur is None else float(v)
+    return base.replace(**over)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", type=Path, default=None, help="a finished default run (dense evaluation path)")
     ap.add_argument("--config", type=Path, default=None, help="a study config instead of the default")
     ap.add_argument("--min", action="append", default=None,
                     help="tracing.min_samples_per_position to measure ('default' or a count; repeat); "
-                         "'direct': method 'direct' (every position samples_per_src rays alone)")
+                         "'direct': method 'direct' (every position samples_per_src rays alone); "
+                         "'key=value[,key=value]': those tracing options (e.g. completion_min_area_m2=1.0)")
     ap.add_argument("--skip-dense", action="store_true")
     ap.add_argument("--skip-sparse", action="store_true")
     ap.add_argument("--pairs", type=int, default=1,
@@ -145,22 +168,19 @@ def main() -> None:
     for name, poses, tags, normals in sets:
         n_pos = len(np.unique(poses[:, :3], axis=0))
         for s in settings:
-            if s == "direct":  # Sionna's PathSolver alone, samples_per_src rays, no completion
-                opts = base.replace(method="direct")
-            else:
-                opts = base if s == "default" else base.replace(min_samples_per_position=int(s))
+            opts = setting_options(base, s)
             p95 = []
             for k in range(args.pairs):
                 seeds = (2 * k + 1, 2 * k + 2)
                 g, secs, n_short = seed_pair(scene, poses, tags, normals, opts, cfg.frequency_hz, seeds)
                 r = noise(g[seeds[0]], g[seeds[1]], thr)
                 p95.append(r["p95"])
-                print(f"{name} ({len(poses)} poses, {n_pos} positions), min_samples_per_position "
-                      f"{s} (= {opts.min_samples}), seeds {seeds[0]} vs {seeds[1]}: readable n={r['n']}: "
+                print(f"{name} ({len(poses)} poses, {n_pos} positions), setting {s} (min_samples_per_position "
+                      f"{opts.min_samples}, completion_min_area_m2 {opts.completion_min_area_m2}), seeds {seeds[0]} vs {seeds[1]}: readable n={r['n']}: "
                       f"p50 {r['p50']:.2f} dB, p95 {r['p95']:.2f} dB; flipped read decisions {r['flips']}; "
                       f"{n_short} positions shot extra rays; {secs:.1f} s per trace", flush=True)
             if args.pairs > 1:
-                print(f"  {name}, min {s}: p95 over {args.pairs} seed pairs: mean {np.mean(p95):.2f} dB, "
+                print(f"  {name}, setting {s}: p95 over {args.pairs} seed pairs: mean {np.mean(p95):.2f} dB, "
                       f"range {min(p95):.2f}-{max(p95):.2f} dB", flush=True)
 
     if args.study:
@@ -178,16 +198,16 @@ def study_times(settings: list[str], repeats: int, config: Path | None) -> None:
     with tempfile.TemporaryDirectory(prefix="seed_noise_study_") as tmp:
         for k in range(repeats):
             for s in walls:
-                over = {} if s == "default" else {"tracing.min_samples_per_position": s}
+                over = {f"tracing.{k}": v for k, v in setting_overrides(s).items()}
                 out = Path(tmp) / f"run_{s}_{k}"
                 r = run_study(out, Path(tmp) / f"cache_{s}_{k}", over, config=config)
                 walls[s].append(r["wall_s"])
                 st = ", ".join(f"{n} {v:.0f}" for n, v in r["stages_s"].items() if v >= 1.0)
-                print(f"cold study, min_samples_per_position {s}, run {k + 1}: {r['wall_s']:.0f} s "
+                print(f"cold study, setting {s}, run {k + 1}: {r['wall_s']:.0f} s "
                       f"(stages [s]: {st})", flush=True)
     first = next(iter(walls))
     for s, w in walls.items():
-        print(f"RATIO cold study min {s} / min {first}: {np.median(w) / np.median(walls[first]):.3f} "
+        print(f"RATIO cold study {s} / {first}: {np.median(w) / np.median(walls[first]):.3f} "
               f"(medians {np.median(w):.0f} s / {np.median(walls[first]):.0f} s)", flush=True)
 
 

@@ -187,6 +187,12 @@ class TracingConfig:
         "sampling misses (propagation.completion; at 3 the truth's seed-to-seed p95 on readable "
         "links falls from 1.5 to 1.1 dB for ~10-25 % more tracing time, docs/physics.md).",
     )
+    completion_min_area_m2: float = option(
+        _TRACE.completion_min_area_m2,
+        "method 'shared': the completion's planes are those of at least this area [m^2] "
+        "(corridor_lab: 23 planes at 0.5, the metal cabinets' sides and tops among them; 16 at 1, before "
+        "issue 37, which left chains over those faces to the rays: most of the truth's "
+        "seed-to-seed noise on sparse poses, bench/seed_noise_paths.py).")
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
     )
@@ -218,6 +224,7 @@ class TracingConfig:
         if not (np.isfinite(self.share_radius_m) and 0.0 < self.share_radius_m <= 5.0):
             raise ConfigError(f"share_radius_m must be a radius in (0, 5] m, got {self.share_radius_m!r}")
         _positive(self, "shared_samples_per_src")
+        _nonneg(self, "completion_min_area_m2")
         if self.min_samples_per_position is not None:
             _nonneg(self, "min_samples_per_position")
         for key, name in (("reader_pattern", self.reader_pattern), ("tag_pattern", self.tag_pattern)):

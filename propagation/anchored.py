@@ -36,6 +36,12 @@ from propagation.constants import SPEED_OF_LIGHT
 from propagation.patterns import dipole_rotation, pattern_field_world, pose_rotation
 from propagation.tracing import tag_dipole_axes
 
+#: Planes of the specular model (:func:`specular_model_paths`): at least this area, m^2.
+#: The tracer's completion took 1 m^2 too until issue 37 lowered its own
+#: (``TraceOptions.completion_min_area_m2``); the model keeps its planes and its cache key.
+MODEL_MIN_AREA_M2 = 1.0
+
+
 __all__ = ["anchor_groups", "anchored_gains_db", "moved_antenna_local_mean_db", "specular_model_paths",
            "trace_anchor_paths", "window_gains_db"]
 
@@ -102,7 +108,7 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
     from propagation.backend import ensure_variant
     from propagation.completion import complete_specular, large_planes
     from propagation.pathcache import PathCache, SourcePaths, settings_key
-    from propagation.pathsolve import COMPLETION_ALGORITHM, COMPLETION_MIN_AREA_M2
+    from propagation.pathsolve import COMPLETION_ALGORITHM
     from propagation.sionna_scene import load_sionna_scene
 
     pos = np.asarray(positions_m, float).reshape(-1, 3)
@@ -111,7 +117,7 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
     if need.shape != (len(pos), len(anchors)):
         raise ValueError(f"need must have shape ({len(pos)}, {len(anchors)}), got {need.shape}")
     settings = {"model": "specular_image_method", "frequency_hz": float(frequency_hz),
-                "max_order": int(max_order), "min_area_m2": COMPLETION_MIN_AREA_M2,
+                "max_order": int(max_order), "min_area_m2": MODEL_MIN_AREA_M2,
                 "algorithm": COMPLETION_ALGORITHM}
     cache = PathCache(Path(cache_dir) / settings_key(scene.content_hash(), settings)) if cache_dir else None
     out = cache.load(pos) if cache is not None else [None] * len(pos)
@@ -124,7 +130,7 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
     if len(rows):
         ensure_variant()
         rt_scene = load_sionna_scene(scene, frequency_hz)
-        planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2)
+        planes = large_planes(rt_scene, MODEL_MIN_AREA_M2)
         # positions in groups of <= _MODEL_LINKS_PER_CALL links: the paths of a call are
         # held several times over while they are sorted into path sets (~1 KB per link)
         for grp in _groups(rows, todo[rows].sum(axis=1), _MODEL_LINKS_PER_CALL):

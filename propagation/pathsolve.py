@@ -59,12 +59,16 @@ DEFAULT_MAX_DEPTH = 5
 #: 260 links/s on 2 shared cores at these defaults.
 DEFAULT_SAMPLES_PER_SRC = 30_000
 _MAX_SOURCES_PER_CALL = 128
-#: Planes of at least this area are completed by the image method (completion_order):
-#: walls, floor, ceiling and large furniture faces; 16 planes on corridor_lab.
-COMPLETION_MIN_AREA_M2 = 1.0
+#: Planes of at least this area are completed by the image method (completion_order,
+#: TraceOptions.completion_min_area_m2's default): walls, floor, ceiling and furniture
+#: faces; 23 planes on corridor_lab (16 at 1 m^2, before issue 37: the metal cabinets'
+#: sides and tops were left to the rays, and chains over them were the largest part of the
+#: truth's seed-to-seed noise on sparse poses, bench/seed_noise_chains.py; 0.4 m^2, 27
+#: planes, removed no more of it and cost more).
+COMPLETION_MIN_AREA_M2 = 0.5
 #: Versions of the tracing algorithms, part of the cache key: a change that changes
 #: their paths must bump them so no cache serves the old results.
-COMPLETION_ALGORITHM = 3  # 2: float32 pre-test (may drop pairs within ~1e-5 m of a corner); 3: planes need a 1 m^2 patch
+COMPLETION_ALGORITHM = 3  # 2: float32 pre-test (drops pairs within ~1e-5 m of a corner); 3: a plane needs a patch of the area
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
 SHARING_ALGORITHM = 7  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
@@ -129,6 +133,11 @@ class TraceOptions:
         (:mod:`propagation.completion`) and merged without double counting
         (``"shared"``). The shoot-and-bounce samples reflection or refraction at each
         hit by their Fresnel weights, so chains of weak reflections are rarely shot.
+    completion_min_area_m2 : float
+        The completion's planes: those whose coplanar triangles cover at least this area,
+        m^2, >= 0 (default :data:`COMPLETION_MIN_AREA_M2`). A chain over a smaller face
+        (a cabinet's side) is found only by the rays, and by chance: on ``corridor_lab``'s
+        sparse poses such chains were most of the seed-to-seed noise at 1 m^2.
     reader_pattern, tag_pattern : str
         Pattern names (:data:`propagation.patterns.PATTERNS`), applied after tracing.
     reader_polarization : {"RHCP", "LHCP", "V", "H"}
@@ -158,6 +167,7 @@ class TraceOptions:
     min_samples_per_position: int | None = None
     share_radius_m: float = 1.0
     completion_order: int = 3
+    completion_min_area_m2: float = COMPLETION_MIN_AREA_M2
     reader_pattern: str = "tr38901"
     tag_pattern: str = "hw_dipole"
     reader_polarization: str = "RHCP"
@@ -176,6 +186,8 @@ class TraceOptions:
             raise ValueError(f"min_samples_per_position must be >= 0 or None, got {self.min_samples_per_position!r}")
         if not (np.isfinite(self.share_radius_m) and self.share_radius_m > 0):
             raise ValueError(f"share_radius_m must be positive, got {self.share_radius_m!r}")
+        if not (np.isfinite(self.completion_min_area_m2) and self.completion_min_area_m2 >= 0):
+            raise ValueError(f"completion_min_area_m2 must be >= 0, got {self.completion_min_area_m2!r}")
         if int(self.completion_order) not in (0, 1, 2, 3):
             raise ValueError(f"completion_order must be 0 (off) to 3, got {self.completion_order!r}")
         for name in (self.reader_pattern, self.tag_pattern):
@@ -389,11 +401,12 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
     return out
 
 
-def tracer_state(scene, frequency_hz: float, shared: bool, completion_order: int) -> tuple:
+def tracer_state(scene, frequency_hz: float, shared: bool, completion_order: int,
+                 min_area_m2: float = COMPLETION_MIN_AREA_M2) -> tuple:
     """What every chunk of one scene traces with: the Sionna scene (cached by content), its
-    large planes and plane lookups (``None`` where not used)."""
+    planes of ``min_area_m2`` and up and plane lookups (``None`` where not used)."""
     rt_scene = load_sionna_scene(scene, frequency_hz, public_api=not shared)
-    planes = large_planes(rt_scene, COMPLETION_MIN_AREA_M2) if completion_order else None
+    planes = large_planes(rt_scene, min_area_m2) if completion_order else None
     # shared positions leave the chains the completion enumerates to it
     to_completion = (plane_lookup(rt_scene, planes), completion_order) if completion_order else None
     plane_ids = triangle_planes(rt_scene) if shared else None
@@ -522,7 +535,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
         settings["sharing_algorithm"] = SHARING_ALGORITHM
     if completion_order > 0:  # absent at 0: the cache keys of earlier traces stay valid
         settings["completion_order"] = completion_order
-        settings["completion_min_area_m2"] = COMPLETION_MIN_AREA_M2
+        settings["completion_min_area_m2"] = float(opt.completion_min_area_m2)
         settings["completion_algorithm"] = COMPLETION_ALGORITHM
     if not shared:
         settings["direct_algorithm"] = DIRECT_ALGORITHM
@@ -577,7 +590,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
 
         runner = current_chunk_runner()
         if runner is None:
-            state = tracer_state(scene, frequency_hz, shared, completion_order)
+            state = tracer_state(scene, frequency_hz, shared, completion_order,
+                                 float(opt.completion_min_area_m2))
             for c, chunk in enumerate(chunks):
                 finish(c, trace_one_chunk(state, uniq[chunk], tags[recs[c]], opt, lone_samples,
                                           lone_per_chunk, budget, completion_order, needs[c]))
