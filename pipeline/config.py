@@ -190,7 +190,7 @@ class TracingConfig:
     completion_min_area_m2: float = option(
         _TRACE.completion_min_area_m2,
         "method 'shared': the completion's planes are those of at least this area [m^2] "
-        "(corridor_lab: 23 planes at 0.5, the metal cabinets' sides and tops among them; 16 at 1, before "
+        "(corridor_lab: 22 planes at 0.5, the metal cabinets' sides among them; 16 at 1, before "
         "issue 37, which left chains over those faces to the rays: most of the truth's "
         "seed-to-seed noise on sparse poses, bench/seed_noise_paths.py).")
     cache_dir: str = option(

@@ -127,7 +127,7 @@ class DaskChunkRunner:
                         raise RuntimeError(
                             f"the Dask cluster {self.stats.scheduler} has had no worker for "
                             f"{NO_WORKERS_S:.0f} s while {len(pending)} of {len(jobs)} tracing tasks "
-                            "wait: start workers (dask worker ADDRESS) and rerun to resume")
+                            "wait: start workers (dask worker ADDRESS --nthreads 1) and rerun to resume")
         finally:
             if pending:
                 self.client.cancel(list(pending))

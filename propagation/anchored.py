@@ -38,7 +38,8 @@ from propagation.tracing import tag_dipole_axes
 
 #: Planes of the specular model (:func:`specular_model_paths`): at least this area, m^2.
 #: The tracer's completion took 1 m^2 too until issue 37 lowered its own
-#: (``TraceOptions.completion_min_area_m2``); the model keeps its planes and its cache key.
+#: (``TraceOptions.completion_min_area_m2``); the model keeps 1 m^2 (its cache key follows
+#: ``COMPLETION_ALGORITHM``, so the patch rule of issue 34 re-traced it).
 MODEL_MIN_AREA_M2 = 1.0
 
 

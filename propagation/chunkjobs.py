@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +36,9 @@ ChunkRunner = Callable[[list, Callable[[int, list], None]], None]
 _RUNNER: contextvars.ContextVar[ChunkRunner | None] = contextvars.ContextVar("chunk_runner", default=None)
 # the last scene's tracer state in this (worker) process: (key, state)
 _STATE: dict[str, Any] = {}
+#: One job at a time per process: jobs share :data:`_STATE`'s Sionna scene, whose devices
+#: each job places (a Dask worker started with several threads would run two at once).
+_JOB_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -105,13 +109,19 @@ def run_chunk_job(job: ChunkJob) -> list:
     Selects the job's Dr.Jit variant (a process that already runs another one refuses
     the job, naming both) and thread mode, then traces as the local loop of
     :func:`propagation.pathsolve.trace_paths` does. The scene's tracer state (its Sionna
-    scene and planes) is kept for the next job of the same scene.
+    scene and planes) is kept for the next job of the same scene; jobs of one process
+    run one after the other (a worker's threads would share that scene).
 
     Raises
     ------
     propagation.BackendError
         This process already runs another Dr.Jit variant.
     """
+    with _JOB_LOCK:
+        return _run_chunk_job(job)
+
+
+def _run_chunk_job(job: ChunkJob) -> list:
     from propagation.backend import (
         CUDA_VARIANT,
         BackendError,

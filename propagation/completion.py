@@ -167,8 +167,10 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
 
 
 def _largest_patch_m2(tri: np.ndarray, area: np.ndarray) -> float:
-    """Area of the largest set of triangles (k, 3, 3) joined by shared vertices (within
-    0.1 mm), m^2 (scipy.sparse.csgraph's connected components of triangles and vertices)."""
+    """Area of the largest set of triangles (k, 3, 3) joined by shared vertices (equal
+    after rounding to 0.1 mm), m^2 (scipy.sparse.csgraph's connected components of
+    triangles and vertices). Pieces meeting only at a T-junction count apart: that can
+    only leave out a plane whose pieces are each under the area."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 

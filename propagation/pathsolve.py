@@ -61,10 +61,11 @@ DEFAULT_SAMPLES_PER_SRC = 30_000
 _MAX_SOURCES_PER_CALL = 128
 #: Planes of at least this area are completed by the image method (completion_order,
 #: TraceOptions.completion_min_area_m2's default): walls, floor, ceiling and furniture
-#: faces; 23 planes on corridor_lab (16 at 1 m^2, before issue 37: the metal cabinets'
+#: faces; 22 planes on corridor_lab (16 at 1 m^2, before issue 37: the metal cabinets'
 #: sides and tops were left to the rays, and chains over them were the largest part of the
-#: truth's seed-to-seed noise on sparse poses, bench/seed_noise_chains.py; 0.4 m^2, 27
-#: planes, removed no more of it and cost more).
+#: truth's seed-to-seed noise on sparse poses, bench/seed_noise_chains.py; 0.4 m^2, 25
+#: planes, removed little more of it and cost more; a plane counts where one connected
+#: patch reaches the area: :func:`propagation.completion.large_planes`).
 COMPLETION_MIN_AREA_M2 = 0.5
 #: Versions of the tracing algorithms, part of the cache key: a change that changes
 #: their paths must bump them so no cache serves the old results.
@@ -592,9 +593,13 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
         if runner is None:
             state = tracer_state(scene, frequency_hz, shared, completion_order,
                                  float(opt.completion_min_area_m2))
+            t_trace = 0.0
             for c, chunk in enumerate(chunks):
-                finish(c, trace_one_chunk(state, uniq[chunk], tags[recs[c]], opt, lone_samples,
-                                          lone_per_chunk, budget, completion_order, needs[c]))
+                t1 = time.perf_counter()
+                fresh = trace_one_chunk(state, uniq[chunk], tags[recs[c]], opt, lone_samples,
+                                        lone_per_chunk, budget, completion_order, needs[c])
+                t_trace += time.perf_counter() - t1  # the solver's part, as before the Dask runner
+                finish(c, fresh)
         else:  # each chunk a job of the runner (a Dask task): the same chunks, the same paths
             from propagation.backend import backend_info
 
@@ -603,7 +608,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
                              lone_per_chunk, budget, completion_order, str(info["variant"]),
                              bool(info["deterministic"]), needs[c]) for c, chunk in enumerate(chunks)], finish)
         n_calls = len(chunks)
-        t_trace = time.perf_counter() - t0
+        if runner is not None:  # the cluster's wall time
+            t_trace = time.perf_counter() - t0
     elif progress is not None:
         progress(0, 0)
     return PathSet(

@@ -71,8 +71,10 @@ def test_completion_covers_the_cabinets_sides_whatever_the_rays():
     # and draws reflection or refraction at each hit by the seed, so without refraction
     # the seed changes nothing; the rays' chance is then their count. Here every path is
     # one the completion can enumerate (depth 2 = completion order 2, no refraction) and
-    # the only faces under 1 m^2 are the cabinets' sides (0.45 x 1.2 = 0.54 m^2 each;
-    # fronts and tops are coplanar across cabinets, >= 1 m^2). With the default minimum
+    # the only faces under 1 m^2 that matter are the cabinets' sides (0.45 x 1.2 = 0.54 m^2
+    # each; the fronts are one patch >= 1 m^2; the tops, 0.405 m^2 pieces under the area,
+    # are not planes, but a top faces up at 1.2 m and no reflection off it reaches a tag
+    # below it, at 1.0 m). With the default minimum
     # area (0.5 m^2) the completion holds every path: 10 rays per position give the truth
     # of 20,000. At 1 m^2 the sides' reflections are the rays' to find, and 10 miss them.
     scene = box_corridor(12.0, cabinets=True, wall_tags=6)
