@@ -23,6 +23,8 @@ process per CPU).
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import logging
 import multiprocessing
 import os
@@ -158,6 +160,21 @@ def _call(i: int):
         raise
 
 
+def _before_fork() -> None:
+    """Collect garbage, freeze the survivors and give freed heap back to the OS before
+    forking: the children share the parent's pages copy-on-write, and the collector's
+    walks over inherited objects, or a heap full of freed blocks, make them copies. On the
+    warehouse-scale study the downstream stage's forked tasks followed a tracing stage that
+    left the parent at 3.9 GB resident; glibc's ``malloc_trim`` returns what is free there
+    (other C libraries: skipped). :func:`map_forked` unfreezes when its pool is done."""
+    gc.collect()
+    gc.freeze()
+    try:
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
 def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = None) -> list:
     """``[task(0), ..., task(n_tasks - 1)]``, computed in forked processes.
 
@@ -185,6 +202,7 @@ def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = N
     if _TASK is not None:  # a task that maps again: run its inner tasks in place
         return [task(i) for i in range(int(n_tasks))]
     _TASK = task
+    _before_fork()
     try:
         with ProcessPoolExecutor(max_workers=n,
                                  mp_context=multiprocessing.get_context("fork"),
@@ -201,3 +219,4 @@ def map_forked(task: Callable[[int], Any], n_tasks: int, workers: int | None = N
                 raise
     finally:
         _TASK = None
+        gc.unfreeze()
