@@ -155,9 +155,13 @@ def _call(i: int):
         try:
             pickle.loads(pickle.dumps(exc))
         except Exception:
-            raise _TaskError(f"task {i} raised (unpicklable exception):\n"
-                             + "".join(traceback.format_exception(exc))) from None
-        raise
+            text = f"task {i} raised (unpicklable exception):\n" + "".join(traceback.format_exception(exc))
+        else:
+            raise
+    # raised outside the handler, so it carries no __context__: where tblib's pickling
+    # support is installed (Dask's distributed installs it), an exception is pickled with
+    # its chain, and the unpicklable one in it killed the worker
+    raise _TaskError(text)
 
 
 def _before_fork() -> None:

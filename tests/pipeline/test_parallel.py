@@ -118,6 +118,30 @@ def test_an_unpicklable_task_error_comes_back_as_its_traceback():
         map_forked(task, 3, workers=2)
 
 
+def test_an_unpicklable_task_error_travels_where_tblib_pickles_exception_chains():
+    # Dask's distributed installs tblib's pickling support, which pickles an exception
+    # with its __context__: a _TaskError raised inside the handler carried the
+    # unpicklable exception along, and the worker died ("terminated abruptly"; the full
+    # suite, after tests/pipeline/test_trace_tasks.py). Fails if _TaskError has a context.
+    import copyreg
+
+    pickling = pytest.importorskip("tblib.pickling_support")
+
+    def task(i):
+        if i == 1:
+            raise _Unpicklable(threading.Lock())
+        return i
+
+    before = dict(copyreg.dispatch_table)
+    pickling.install()  # as distributed does: every exception class, tracebacks too
+    try:
+        with pytest.raises(RuntimeError, match="(?s)task 1 raised.*_Unpicklable: held a handle"):
+            map_forked(task, 3, workers=2)
+    finally:  # the registrations are the process's: restore the table in place
+        copyreg.dispatch_table.clear()
+        copyreg.dispatch_table.update(before)
+
+
 def _blas_threads() -> int:
     from threadpoolctl import threadpool_info
 
