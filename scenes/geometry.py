@@ -357,8 +357,10 @@ def raycast(scene, origins, directions, max_range_m: float = np.inf) -> np.ndarr
     origins : array_like, shape (n, 3), metres
     directions : array_like, shape (n, 3)
         Need not be normalised; distances are in metres along the unit direction.
-    max_range_m : float
-        Hits beyond this are ignored.
+    max_range_m : float or array_like, shape (n,)
+        Hits beyond this are ignored; one per ray, or one for all. Triangles are pruned by
+        the box of each chunk's ray segments, so a per-ray range (and rays in spatial
+        order) prunes more, with the same hits.
 
     Returns
     -------
@@ -371,15 +373,17 @@ def raycast(scene, origins, directions, max_range_m: float = np.inf) -> np.ndarr
     tris, _ = _scene_triangles(scene)
     v0_all, e1_all, e2_all = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     t_lo, t_hi = tris.min(axis=1), tris.max(axis=1)
+    rng_all = np.broadcast_to(np.asarray(max_range_m, dtype=float), (len(o),))
     out = np.full(len(o), np.inf)
     step = max(1, _CHUNK // max(len(tris), 1))
     for s in range(0, len(o), step):
         oo, dd = o[s:s + step, None, :], d[s:s + step, None, :]
         v0, e1, e2 = v0_all, e1_all, e2_all
-        if np.isfinite(max_range_m):
+        rng = rng_all[s:s + step]
+        if np.all(np.isfinite(rng)):
             # only triangles whose box meets the box of the chunk's ray segments can be hit
             # within range (1 mm of slack): the same hits, exactly, at a fraction of the pairs
-            ends = o[s:s + step] + float(max_range_m) * d[s:s + step]
+            ends = o[s:s + step] + rng[:, None] * d[s:s + step]
             lo = np.minimum(o[s:s + step].min(axis=0), ends.min(axis=0)) - 1e-3
             hi = np.maximum(o[s:s + step].max(axis=0), ends.max(axis=0)) + 1e-3
             near = np.flatnonzero(np.all((t_hi >= lo) & (t_lo <= hi), axis=1))
@@ -395,7 +399,7 @@ def raycast(scene, origins, directions, max_range_m: float = np.inf) -> np.ndarr
         q = np.cross(tvec, e1[None])
         v = np.einsum("...i,...i->...", dd, q) * inv
         t = np.einsum("...i,...i->...", e2[None], q) * inv
-        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9) & (t <= max_range_m)
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9) & (t <= rng[:, None])
         t = np.where(hit, t, np.inf)
         out[s:s + step] = t.min(axis=1)
     return out

@@ -121,7 +121,10 @@ def obstructed_pairs(scene, antenna_xyz: np.ndarray, sites_m: np.ndarray) -> np.
     o = np.repeat(a, len(s), axis=0)
     v = np.tile(s, (len(a), 1)) - o
     dist = np.linalg.norm(v, axis=1)
-    hit = raycast(scene, o, v, max_range_m=float(dist.max()) if len(dist) else 0.0)
+    # each ray only as far as its site: the chunks' boxes (one antenna, neighbouring sites)
+    # then prune the triangles, with the same decisions (a hit beyond the site is no
+    # obstruction either way)
+    hit = raycast(scene, o, v, max_range_m=dist)
     # 1 mm short of the site: the site itself is in free space, 5 mm off its surface
     return (hit < dist - 1e-3).reshape(len(a), len(s))
 

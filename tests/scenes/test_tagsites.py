@@ -67,3 +67,8 @@ def test_raycast_within_range_is_the_unlimited_cast_cut_at_the_range(lab):
         cut = raycast(lab, origins, directions, max_range_m=r)
         np.testing.assert_array_equal(cut, np.where(full <= r, full, np.inf))
         assert np.isfinite(cut).sum() > 100  # hits within range are exercised
+    # one range per ray (obstructed_pairs: each ray as far as its site), mixed short and long
+    r = rng.choice([0.3, 2.0, 12.0], len(origins))
+    cut = raycast(lab, origins, directions, max_range_m=r)
+    np.testing.assert_array_equal(cut, np.where(full <= r, full, np.inf))
+    assert np.isfinite(cut).sum() > 100
