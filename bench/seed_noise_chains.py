@@ -119,26 +119,6 @@ preds = {
 cf_rows = []
 stats = Counter()
 wstats = Counter()  # (class) -> count of strong one-seed paths
-wlookups = {A: plane_lookup(rt, large_planes(rt, A)) for A in (1.0, 0.8, 0.5, 0.4, 0.0)}
-print({A: len(large_planes(rt, A)) for A in lookups})
-D = opts.max_depth
-preds = {
-    "completion now: R<=3 on >=1 m2": lambda fl: fl["R3_1.0"],
-    "+ R<=3 on >=0.8 m2": lambda fl: fl["R3_0.8"],
-    "+ R<=3 on >=0.5 m2": lambda fl: fl["R3_0.5"],
-    "+ R<=3 on >=0.4 m2": lambda fl: fl["R3_0.4"],
-    "+ R<=2 on >=0.4 m2, R3 on >=1 m2": lambda fl: fl["R3_1.0"] or fl["R2_0.4"],
-    "+ R<=3 on all planes": lambda fl: fl["R3_0.0"],
-    "+ R<=4 on all planes": lambda fl: fl["R4_0.0"],
-    "+ R<=5 on all planes": lambda fl: fl["R5_0.0"],
-    "R<=3 >=1 m2 + any with T": lambda fl: fl["R3_1.0"] or fl["T"],
-    "R<=3 all planes + any with T": lambda fl: fl["R3_0.0"] or fl["T"],
-    "R<=3 all + T<=5 whose R-part<=3": lambda fl: fl["R3_0.0"] or (fl["T"] and fl["nR"] <= 3),
-    "everything": lambda fl: True,
-}
-cf_rows = []
-stats = Counter()
-wstats = Counter()
 d_all = []
 t0 = time.perf_counter()
 tr = {}

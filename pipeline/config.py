@@ -31,8 +31,8 @@ from pipeline.robot.kinematics import default_antennas
 from pipeline.robot.simulate import LocalisationConfig
 from pipeline.robot.trajectory import TourConfig
 from propagation.linkbudget import LinkBudget
-from propagation.pathsolve import memory_shortfall
 from propagation.patterns import PATTERNS, POLARIZATIONS
+from propagation.raybudget import memory_shortfall
 from propagation.tracing import METHODS, TraceMethod, TraceOptions
 
 #: The library's tracing defaults: the [tracing] section's defaults are these, so the

@@ -15,8 +15,9 @@ from propagation import (
 )
 from propagation.channels import link_channels
 from propagation.constants import SPEED_OF_LIGHT as C0
-from propagation.pathsolve import _trace_chunk, bytes_per_source
+from propagation.pathsolve import _trace_chunk
 from propagation.patterns import sionna_orientation
+from propagation.raybudget import bytes_per_source
 from propagation.sionna_scene import load_sionna_scene
 from propagation.tracing import tag_dipole_axes
 from scenes import Scene, TagSet, UnknownMaterialError, material
