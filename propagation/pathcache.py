@@ -141,8 +141,7 @@ class SourcePaths:
         if len(rows) == len(self.tag_positions_m) and np.array_equal(rows, np.arange(len(rows))):
             return self
         counts = np.diff(self.offsets)[rows]
-        idx = np.concatenate([np.arange(self.offsets[i], self.offsets[i + 1]) for i in rows]
-                             + [np.zeros(0, np.int64)]).astype(np.int64)
+        idx = _path_rows(self.offsets, rows)
         return SourcePaths(self.source_m, self.tag_positions_m[rows],
                            np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                            self.transfer[idx], self.tau_s[idx], self.k_tx[idx], self.k_rx[idx])
@@ -153,8 +152,7 @@ class SourcePaths:
         if len(new) == 0:
             return self
         counts = np.diff(other.offsets)[new]
-        idx = np.concatenate([np.arange(other.offsets[i], other.offsets[i + 1]) for i in new])
-        idx = idx.astype(np.int64)
+        idx = _path_rows(other.offsets, new)
         return SourcePaths(
             self.source_m,
             np.concatenate([self.tag_positions_m, other.tag_positions_m[new]]),
@@ -164,6 +162,16 @@ class SourcePaths:
             np.concatenate([self.k_tx, other.k_tx[idx]]),
             np.concatenate([self.k_rx, other.k_rx[idx]]),
         )
+
+
+def _path_rows(offsets: np.ndarray, tags: np.ndarray) -> np.ndarray:
+    """Path indices of the tags ``tags`` (in that order) of a path set with ``offsets``."""
+    tags = np.asarray(tags, dtype=np.int64)
+    counts = np.diff(offsets)[tags]
+    starts = np.asarray(offsets, dtype=np.int64)[tags]
+    # each tag's run start..start+count, in one go: a running index minus each run's shift
+    shift = np.repeat(starts - (np.cumsum(counts) - counts), counts)
+    return np.arange(int(counts.sum()), dtype=np.int64) + shift
 
 
 @functools.lru_cache(maxsize=1)
