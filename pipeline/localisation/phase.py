@@ -538,10 +538,19 @@ def _refine(res: np.ndarray, cand: np.ndarray, normals, args: tuple, cell_m: flo
     return top, sub
 
 
+#: Columns per block of :func:`_log_i0_sum` (float64 temporaries ~G x 16,384 x 8 bytes).
+_LOG_I0_COLUMNS = 1 << 14
+
+
 def _log_i0_sum(kappa: float, res: np.ndarray) -> np.ndarray:
-    """``sum_g log I0(kappa R_g)`` over the first axis of the resultants (G, ...)."""
-    x = kappa * res.astype(np.float64)
-    return np.sum(x + np.log(i0e(x)), axis=0)  # log I0(x) = x + log i0e(x)
+    """``sum_g log I0(kappa R_g)`` over the first axis of the resultants (G, ...), in blocks
+    of columns: the same sums in bounded memory (whole, a warehouse's tag made GBs)."""
+    flat, step = res.reshape(len(res), -1), _LOG_I0_COLUMNS
+    out = np.empty(flat.shape[1])
+    for c in range(0, flat.shape[1], step):
+        x = kappa * flat[:, c:c + step].astype(np.float64)
+        out[c:c + step] = np.sum(x + np.log(i0e(x)), axis=0)  # log I0(x) = x + log i0e(x)
+    return out.reshape(res.shape[1:])
 
 
 def _best_resultants(res: np.ndarray, sub: np.ndarray | None) -> np.ndarray:
