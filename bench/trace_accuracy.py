@@ -3,21 +3,24 @@
 ``bench/study_trace.py`` compares the study's time with bare Sionna tracing the same links
 at the config's ``tracing.samples_per_src``. This bench says what each is worth: on a
 sample of a finished run's training-tour antenna positions (``--groups`` runs of
-``--consecutive`` positions, so the study's positions share rays as on the tour) and all
-the run's tags, it traces
+``--consecutive`` positions, spread along the tour) and all the run's tags, it traces
 
 - a reference: bare Sionna (``tracing.method = "direct"``: the ``PathSolver`` alone, no
   completion) at ``--reference-rays``, twice (seeds 7 and 8): the reference's own noise;
-- the study's tracer with the run's ``[tracing]`` options (seeds 1 and 2);
+- the study's tracer with the run's ``[tracing]`` options (seeds 1 and 2), at the sampled
+  positions and every tour position within ``tracing.share_radius_m`` of them (the
+  neighbours whose rays it shares on the tour; its time is per position traced);
 - bare Sionna at each of ``--rays`` (seeds 1 and 2),
 
-each from an empty path cache, with the run's patterns and tag normals
-(``propagation.trace_links``), and prints per tracer the seconds per antenna position and,
-over the links readable in the reference (gain >= the reader's minimum readable gain),
-p50 / p95 |gain - reference| and the read decisions flipped against it (readable in one,
-not in the other). The reference is not the truth: rays miss what the study's image-method
-completion enumerates (a tag a few mm in front of a metal face and its image, which
-nearly cancel), and its own seed-to-seed flips are its floor.
+each from an empty path cache, after one untimed trace of two positions with the same
+settings (Dr.Jit bakes the ray count into its kernels), with the run's patterns and tag
+normals (``propagation.trace_links``). It prints per tracer the seconds per antenna
+position and, over the sampled positions' links: p50 / p95 |gain - reference| over the
+links readable in the reference (gain >= the reader's minimum readable gain), how many of
+those it finds more than 6 dB weaker / stronger, and the read decisions flipped against
+the reference over all links (readable in one and not in the other). The reference is not
+the truth: its own seed-to-seed flips are its floor, and rays miss what the study's
+image-method completion enumerates.
 
 Usage::
 
@@ -37,29 +40,38 @@ import numpy as np
 import pandas as pd
 
 
-def sample_poses(run: Path, groups: int, consecutive: int) -> np.ndarray:
-    """``groups`` runs of ``consecutive`` distinct training-tour antenna poses
-    (x, y, z, yaw), spread evenly along the tour, (groups * consecutive, 4)."""
+def tour_poses(run: Path) -> np.ndarray:
+    """The run's distinct training-tour antenna poses in tour order, (k, 4): x, y, z [m],
+    yaw [rad]."""
     r = pd.read_parquet(run / "reads.parquet")
     cols = ["true_ant_x_m", "true_ant_y_m", "true_ant_z_m", "true_ant_yaw_rad"]
-    poses = r.drop_duplicates(cols[:3])[cols].to_numpy(float)
-    if len(poses) < consecutive:
-        raise SystemExit(f"{run}: {len(poses)} antenna positions, fewer than --consecutive {consecutive}")
-    starts = np.linspace(0, len(poses) - consecutive, groups).round().astype(int)
-    return np.concatenate([poses[s:s + consecutive] for s in starts])
+    return r.drop_duplicates(cols[:3])[cols].to_numpy(float)
+
+
+def sample_rows(n_poses: int, groups: int, consecutive: int) -> np.ndarray:
+    """Rows of ``groups`` runs of ``consecutive`` poses spread evenly along a tour of
+    ``n_poses``, (groups * consecutive,) int."""
+    if n_poses < consecutive:
+        raise SystemExit(f"{n_poses} antenna positions, fewer than --consecutive {consecutive}")
+    starts = np.linspace(0, n_poses - consecutive, groups).round().astype(int)
+    return np.unique(np.concatenate([np.arange(s, s + consecutive) for s in starts]))
 
 
 def compare_row(gain_db: np.ndarray, ref_db: np.ndarray, threshold_db: float) -> str:
-    """p50 / p95 |gain - reference| over the reference's readable links, and the read
-    decisions flipped against the reference."""
+    """|gain - reference| [dB] over the reference's readable links (p50, p95, how many more
+    than 6 dB weaker / stronger) and the read decisions flipped against the reference over
+    all links."""
     readable = ref_db >= threshold_db
-    with np.errstate(invalid="ignore"):
-        d = np.abs(gain_db - ref_db)[readable]
     flips = int(((gain_db >= threshold_db) != readable).sum())
-    # "higher": an observed |delta|, inf where the tracer found no path for the link
+    if not readable.any():
+        return f"no link readable in the reference; flipped read decisions {flips}"
+    with np.errstate(invalid="ignore"):
+        delta = (gain_db - ref_db)[readable]  # -inf where the tracer found no path
+    d = np.abs(delta)
+    # "higher": an observed |delta| (inf where no path), never an interpolation with inf
     p50, p95 = (np.percentile(d, q, method="higher") for q in (50, 95))
-    return (f"p50 {p50:.2f} dB, p95 {p95:.2f} dB; "
-            f"flipped read decisions {flips}")
+    return (f"p50 {p50:.2f} dB, p95 {p95:.2f} dB, {int((delta < -6).sum())} weaker / "
+            f"{int((delta > 6).sum())} stronger by > 6 dB; flipped read decisions {flips}")
 
 
 def main() -> None:
@@ -74,44 +86,51 @@ def main() -> None:
     import propagation as P
     import scenes
     from pipeline.config import load_config
-    from pipeline.stages.common import trace_options
+    from pipeline.stages.common import preferred_backend, trace_options
 
     cfg = load_config(args.run / "config.toml")
-    P.select_variant(prefer="llvm" if cfg.tracing.deterministic else "auto")
+    P.select_variant(prefer=preferred_backend(cfg.tracing))
     sc = scenes.load(cfg.scene)
     tags = pd.read_parquet(args.run / "scene" / "tags.parquet")
     tpos = tags[["x_m", "y_m", "z_m"]].to_numpy(float)
     tnrm = tags[["nx", "ny", "nz"]].to_numpy(float)
-    poses = sample_poses(args.run, args.groups, args.consecutive)
+    tour = tour_poses(args.run)
+    rows = sample_rows(len(tour), args.groups, args.consecutive)
+    poses = tour[rows]
+    # the study's tracer shares rays with the tour's positions within its radius
+    near = np.linalg.norm(tour[:, None, :3] - poses[None, :, :3], axis=2).min(axis=1)
+    context = np.union1d(rows, np.flatnonzero(near <= cfg.tracing.share_radius_m))
+    at = np.searchsorted(context, rows)
     thr = cfg.reader.link_budget(cfg.frequency_hz).min_gain_db()
     base = trace_options(cfg)
+    direct = base.replace(method="direct")
 
-    def gains(opts) -> tuple[np.ndarray, float]:
+    def gains(opts, traced: np.ndarray, warm: bool = False) -> tuple[np.ndarray, float]:
+        if warm:  # kernels of these settings built outside the timing
+            gains(opts, traced[:2])
         with tempfile.TemporaryDirectory() as cd:
             t0 = time.perf_counter()
-            links = P.trace_links(sc, poses, tpos, opts, tag_normals=tnrm, cache_dir=cd,
+            links = P.trace_links(sc, traced, tpos, opts, tag_normals=tnrm, cache_dir=cd,
                                   frequency_hz=cfg.frequency_hz)
-            return np.asarray(links.gain_db, float), (time.perf_counter() - t0) / len(poses)
+            return np.asarray(links.gain_db, float), (time.perf_counter() - t0) / len(traced)
 
-    direct = base.replace(method="direct")
-    # kernels compiled outside the timings (two poses, each tracer)
-    for o in (base, direct):
-        with tempfile.TemporaryDirectory() as cd:
-            P.trace_links(sc, poses[:2], tpos, o, tag_normals=tnrm, cache_dir=cd, frequency_hz=cfg.frequency_hz)
-    ref, t_ref = gains(direct.replace(samples_per_src=args.reference_rays, seed=7))
-    ref2, _ = gains(direct.replace(samples_per_src=args.reference_rays, seed=8))
+    ref_opts = direct.replace(samples_per_src=args.reference_rays)
+    ref, t_ref = gains(ref_opts.replace(seed=7), poses, warm=True)
+    ref2, _ = gains(ref_opts.replace(seed=8), poses)
     print(f"{cfg.scene}: {len(poses)} antenna positions ({args.groups} runs of {args.consecutive}) x "
-          f"{len(tpos)} tags; readable: gain >= {thr:.2f} dB, {int((ref >= thr).sum())} links in the reference "
-          f"(bare Sionna, {args.reference_rays} rays, {t_ref:.2f} s per position)")
+          f"{len(tpos)} tags; readable: gain >= {thr:.2f} dB, {int((ref >= thr).sum())} links in the "
+          f"reference (bare Sionna, {args.reference_rays} rays, {t_ref:.2f} s per position)")
     print(f"  reference seed 8 vs seed 7: {compare_row(ref2, ref, thr)}", flush=True)
-    rows = [(f"study tracer ({base.method}, {base.shared_samples_per_src} rays per position shared, "
-             f"completion order {min(base.completion_order, base.max_depth)})", base)]
-    rows += [(f"bare Sionna, {int(n)} rays", direct.replace(samples_per_src=int(n)))
-             for n in args.rays.split(",")]
-    for name, opts in rows:
+    tracers = [(f"study tracer ({base.method}, {base.shared_samples_per_src} rays per position shared "
+                f"over {len(context)} positions, completion order "
+                f"{min(base.completion_order, base.max_depth)})", base, tour[context], at)]
+    tracers += [(f"bare Sionna, {int(n)} rays", direct.replace(samples_per_src=int(n)), poses,
+                 np.arange(len(poses))) for n in args.rays.split(",")]
+    for name, opts, traced, pick in tracers:
         for seed in (1, 2):
-            g, t = gains(opts.replace(seed=seed))
-            print(f"  {name}, seed {seed}: {t:.2f} s per position; {compare_row(g, ref, thr)}", flush=True)
+            g, t = gains(opts.replace(seed=seed), traced, warm=seed == 1)
+            print(f"  {name}, seed {seed}: {t:.2f} s per position; {compare_row(g[pick], ref, thr)}",
+                  flush=True)
 
 
 if __name__ == "__main__":

@@ -451,12 +451,10 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
 
     In two kernels: the image method alone over every candidate, for its validity, then
     the image method and field calculator over the valid ones. Most pre-tested chains are
-    not paths (occluded, or their reflection point off the plane's triangles: 91 % of
-    ``corridor_lab``'s at order 3, 98.6 % on a warehouse of racks), and one fused kernel
-    computed their fields too: 1.3x (corridor) to 1.6x (warehouse) slower, measured on
-    12 positions each. The paths are those of the fused kernel to float32 rounding
-    (Embree's coherent ray packets group different rays: 24 of 33,692 warehouse paths'
-    delays differed by <= 4e-7 relative, their powers by <= 6e-6 dB).
+    not paths (occluded, or their reflection point off the plane's triangles), and one
+    fused kernel computed their fields too (docs/physics.md, "One computation, one
+    kernel"). The paths are those of the fused kernel to float32 rounding: the same rays
+    traced in another batch.
     """
     from propagation.sionna_internals import collect_paths, image_method, solve_paths
 

@@ -382,15 +382,30 @@ def _segment_distance_field(
 ) -> np.ndarray:
     """Exact distance (ny, nx) from every cell centre to the nearest segment, capped [m].
 
-    Brute force over (cell, segment) pairs, tile by tile (``tile`` x ``tile`` cells): a
-    tile sees only the segments whose bounding box comes within the cap of its cells, the
-    others being farther than the cap from every cell of it. The value of each pair does not
-    depend on which others share its batch, so the tiling changes no value, only the work:
-    a building-sized map's field costs its walls' neighbourhoods, not cells x all segments
-    (the 30 m x 50 m warehouse's collision map, 1031 x 631 cells and 6,751 segments: 0.15x
-    the time of full-width strips, the same values). Written here rather than with a
-    KD-tree of segment samples because this is exact.
+    Brute force over (cell, segment) pairs, tile by tile: a tile sees only the segments
+    whose bounding box comes within the cap of its cells, the others being farther than the
+    cap from every cell of it. The value of each pair does not depend on which others share
+    its batch, so the tiling changes no value, only the work: a building-sized map's field
+    costs its walls' neighbourhoods, not cells x all segments. Written here rather than
+    with a KD-tree of segment samples because this is exact.
+
+    Parameters
+    ----------
+    segments : numpy.ndarray
+        (k, 2, 2) segment end points [m].
+    origin : numpy.ndarray
+        World (x, y) of the grid's lower-left corner (2,) [m].
+    res : float
+        Cell size [m].
+    shape : tuple of int
+        (ny, nx).
+    cap_m : float
+        Largest distance returned [m].
+    tile : int
+        Tile side in cells (>= 1).
     """
+    if int(tile) < 1:
+        raise ValueError(f"_segment_distance_field: tile must be >= 1, got {tile!r}")
     ny, nx = shape
     out = np.full(shape, cap_m)
     if len(segments) == 0:
