@@ -216,3 +216,48 @@ def test_the_study_refuses_an_untested_version_before_the_tour(monkeypatch):
         check_tracer_versions(ctx)
     check_tracer_versions(SimpleNamespace(config=replace_path(StudyConfig(), "tracing.method",
                                                                  "direct")))
+
+
+def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene):
+    # Sionna stores a chain once per target it sees and drops a source's candidates beyond
+    # max_num_paths_per_src silently: with 300 targets, 200 rays at depth 2 (cap 600)
+    # overflow. shoot_candidates shoots again with a larger cap: its candidates are those
+    # of a cap far above the count (same (source, target, chain) rows; the chain hashes'
+    # table grows with the cap, so a collision could differ: compared as sets)
+    from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
+    from propagation.sionna_internals import candidate_generator, shoot_candidates
+    from propagation.sionna_paths import points
+    from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
+
+    if ensure_variant() == CUDA_VARIANT:
+        pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
+    rts = load_sionna_scene(corridor_scene, 865e6)
+    rng = np.random.default_rng(3)
+    src = np.array([[3.0, 1.1, 0.9], [6.5, 0.7, 1.4]])
+    tgt = np.column_stack([rng.uniform(1, 10, 300), rng.uniform(0.2, 2.2, 300), rng.uniform(0.3, 2.7, 300)])
+    set_deterministic(True)
+    try:
+        capped = _candidates(candidate_generator(), rts, src, tgt, samples=200, depth=2)
+        place_devices(rts)
+        import drjit as dr
+
+        big = candidate_generator()(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
+                                    max_num_paths_per_src=200 * 3 * 4096, max_depth=2, los=True,
+                                    specular_reflection=True, diffuse_reflection=False,
+                                    refraction=True, diffraction=False, edge_diffraction=False, seed=5)
+        big.schedule()
+        dr.eval()
+        big.shrink()
+        ref = set(zip(big.source_indices.numpy().tolist(), big.target_indices.numpy().tolist(),
+                      map(tuple, np.concatenate([x.numpy().astype(np.int64) for x in
+                                                 (big.interaction_types, big.shapes, big.primitives)],
+                                                axis=1).tolist()), strict=True))
+        ours = shoot_candidates(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
+                                max_depth=2, refraction=True, seed=5)
+        clear_devices(rts)
+    finally:
+        set_deterministic(False)
+    assert np.bincount(capped["src"]).max() == 600  # Sionna's cap reached: rows dropped
+    assert len(ref) > 2 * 600  # a cap far above the count keeps far more
+    got = set(zip(ours.source.tolist(), ours.target.tolist(), map(tuple, ours.keys.tolist()), strict=True))
+    assert got == ref
