@@ -7,10 +7,14 @@ sample of a finished run's training-tour antenna positions (``--groups`` runs of
 
 - a reference: bare Sionna (``tracing.method = "direct"``: the ``PathSolver`` alone, no
   completion) at ``--reference-rays``, twice (seeds 7 and 8): the reference's own noise;
+  ``REFERENCE_TAGS`` tags per call, as ``PathSolver`` keeps at most ``rays * (depth + 1)``
+  candidates per source, one for every chain and target it sees (hundreds of tags overflow
+  it and lose paths without a word; the study's tracer shoots such a call again);
 - the study's tracer with the run's ``[tracing]`` options (seeds 1 and 2), at the sampled
   positions and every tour position within ``tracing.share_radius_m`` of them (the
   neighbours whose rays it shares on the tour; its time is per position traced);
-- bare Sionna at each of ``--rays`` (seeds 1 and 2),
+- bare Sionna at each of ``--rays`` (seeds 1 and 2), as ``bench/study_trace.py``'s naive
+  tracing calls it: all tags at once, within its cap,
 
 each from an empty path cache, after one untimed trace of two positions with the same
 settings (Dr.Jit bakes the ray count into its kernels), with the run's patterns and tag
@@ -38,6 +42,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+#: Tags per reference call (bare Sionna's candidate cap is per source, for all its targets).
+REFERENCE_TAGS = 32
 
 
 def tour_poses(run: Path) -> np.ndarray:
@@ -105,18 +112,25 @@ def main() -> None:
     base = trace_options(cfg)
     direct = base.replace(method="direct")
 
-    def gains(opts, traced: np.ndarray, warm: bool = False) -> tuple[np.ndarray, float]:
+    def gains(opts, traced: np.ndarray, warm: bool = False,
+              tags_per_call: int | None = None) -> tuple[np.ndarray, float]:
         if warm:  # kernels of these settings built outside the timing
-            gains(opts, traced[:2])
-        with tempfile.TemporaryDirectory() as cd:
-            t0 = time.perf_counter()
-            links = P.trace_links(sc, traced, tpos, opts, tag_normals=tnrm, cache_dir=cd,
-                                  frequency_hz=cfg.frequency_hz)
-            return np.asarray(links.gain_db, float), (time.perf_counter() - t0) / len(traced)
+            gains(opts, traced[:2], tags_per_call=tags_per_call)
+        step = tags_per_call or len(tpos)
+        out = []
+        t0 = time.perf_counter()
+        for c0 in range(0, len(tpos), step):
+            with tempfile.TemporaryDirectory() as cd:
+                links = P.trace_links(sc, traced, tpos[c0:c0 + step], opts, tag_normals=tnrm[c0:c0 + step],
+                                      cache_dir=cd, frequency_hz=cfg.frequency_hz)
+            out.append(np.asarray(links.gain_db, float))
+        return np.concatenate(out, axis=1), (time.perf_counter() - t0) / len(traced)
 
+    # the reference in calls of REFERENCE_TAGS tags: PathSolver keeps at most rays x
+    # (depth + 1) candidates per source, one per chain and target it sees
     ref_opts = direct.replace(samples_per_src=args.reference_rays)
-    ref, t_ref = gains(ref_opts.replace(seed=7), poses, warm=True)
-    ref2, _ = gains(ref_opts.replace(seed=8), poses)
+    ref, t_ref = gains(ref_opts.replace(seed=7), poses, warm=True, tags_per_call=REFERENCE_TAGS)
+    ref2, _ = gains(ref_opts.replace(seed=8), poses, tags_per_call=REFERENCE_TAGS)
     print(f"{cfg.scene}: {len(poses)} antenna positions ({args.groups} runs of {args.consecutive}) x "
           f"{len(tpos)} tags; readable: gain >= {thr:.2f} dB, {int((ref >= thr).sum())} links in the "
           f"reference (bare Sionna, {args.reference_rays} rays, {t_ref:.2f} s per position)")

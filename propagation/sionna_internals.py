@@ -427,6 +427,12 @@ class Candidates:
         self._buf = None
 
 
+#: Targets :func:`shoot_candidates`' first cap is ``PathSolver``'s for (then proportionally
+#: more): a corridor study's tens of tags (at most 7,968 candidates per source of the
+#: 18,000 allowed in the default study) keep its cap, and so its chain hash table.
+_TARGETS_PER_CAP = 64
+
+
 def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_depth: int,
                      refraction: bool, seed: int) -> Candidates:
     """Sionna's shoot-and-bounce candidates, as ``PathSolver`` collects them (LOS and
@@ -436,8 +442,9 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
     Sionna stores a chain once per target it sees and drops a source's candidates beyond
     ``max_num_paths_per_src`` without a word; ``PathSolver``'s ``samples_per_src *
     (max_depth + 1)`` is enough for a corridor's tens of tags, not for a warehouse's
-    hundreds (2,000 rays, depth 2, 656 tags: 38,628 candidates, 6,000 kept). So the call is
-    shot again with 4x the cap until no source reaches it.
+    hundreds (2,000 rays, depth 2, 656 tags: 38,628 candidates, 6,000 kept). So the first
+    cap grows with the targets beyond ``_TARGETS_PER_CAP``, and a call is shot again with
+    4x the cap until no source reaches it.
 
     Parameters
     ----------
@@ -454,7 +461,9 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
     """
     import drjit as dr
 
-    cap = int(samples_per_src) * (int(max_depth) + 1)
+    # a first cap that grows with the targets: shooting again costs a whole call
+    n_tgt = int(dr.width(tgt_mi))
+    cap = int(samples_per_src) * (int(max_depth) + 1) * max(1, -(-n_tgt // _TARGETS_PER_CAP))
     while True:
         cand = candidate_generator()(mi_scene, src_mi, tgt_mi, samples_per_src=int(samples_per_src),
                                       max_num_paths_per_src=cap, max_depth=int(max_depth), los=True,

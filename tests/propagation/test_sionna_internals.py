@@ -218,12 +218,14 @@ def test_the_study_refuses_an_untested_version_before_the_tour(monkeypatch):
                                                                  "direct")))
 
 
-def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene):
+@pytest.mark.parametrize("targets_per_cap", [64, 10**9])  # 10**9: PathSolver's cap first, shot again
+def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene, monkeypatch, targets_per_cap):
     # Sionna stores a chain once per target it sees and drops a source's candidates beyond
     # max_num_paths_per_src silently: with 300 targets, 200 rays at depth 2 (cap 600)
     # overflow. shoot_candidates shoots again with a larger cap: its candidates are those
     # of a cap far above the count (same (source, target, chain) rows; the chain hashes'
     # table grows with the cap, so a collision could differ: compared as sets)
+    import propagation.sionna_internals as internals
     from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
     from propagation.sionna_internals import candidate_generator, shoot_candidates
     from propagation.sionna_paths import points
@@ -252,6 +254,7 @@ def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene):
                       map(tuple, np.concatenate([x.numpy().astype(np.int64) for x in
                                                  (big.interaction_types, big.shapes, big.primitives)],
                                                 axis=1).tolist()), strict=True))
+        monkeypatch.setattr(internals, "_TARGETS_PER_CAP", targets_per_cap)
         ours = shoot_candidates(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
                                 max_depth=2, refraction=True, seed=5)
         clear_devices(rts)
