@@ -72,13 +72,14 @@ COMPLETION_MIN_AREA_M2 = 0.5
 #: their paths must bump them so no cache serves the old results.
 COMPLETION_ALGORITHM = 4  # 2: float32 pre-test (drops pairs within ~1e-5 m of a corner); 3: a plane needs a patch of the area; 4: validity before fields (float32 rounding)
 DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
-SHARING_ALGORITHM = 8  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
+SHARING_ALGORITHM = 9  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
 # 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
 # 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed);
 # 6: no padding receivers (the shooting loop, propagation.sionna_internals): they shared the shooting's per-source table of
 # specular chains with the tags, so a rare collision could drop a tag's chain;
 # 7: a position whose neighbourhood shoots fewer than min_samples_per_position rays shoots the rest alone;
-# 8: a shooting call whose candidates reach Sionna's per-source cap is shot again with a larger cap
+# 8: a shooting call whose candidates reach Sionna's per-source cap is shot again with a larger cap;
+# 9: its first cap grows with the targets beyond 64 (the chain hash table with it)
 
 
 #: The tracers :func:`trace_paths` can run (:attr:`TraceOptions.method`).
