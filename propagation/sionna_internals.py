@@ -429,7 +429,8 @@ class Candidates:
 
 #: Targets :func:`shoot_candidates`' first cap is ``PathSolver``'s for (then proportionally
 #: more): a corridor study's tens of tags (at most 7,968 candidates per source of the
-#: 18,000 allowed in the default study) keep its cap, and so its chain hash table.
+#: 18,000 allowed in the default study) keep its cap. Above 1e6 the cap also sizes Sionna's
+#: per-source table of chain hashes, whose collisions then vary with it.
 _TARGETS_PER_CAP = 64
 
 
@@ -461,10 +462,16 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
     """
     import drjit as dr
 
-    # a first cap that grows with the targets: shooting again costs a whole call
-    n_tgt = int(dr.width(tgt_mi))
+    # a first cap that grows with the targets (shooting again costs a whole call), never
+    # below the targets (every line of sight is stored, uncapped)
+    n_tgt, n_src = int(dr.width(tgt_mi)), int(dr.width(src_mi))
     cap = int(samples_per_src) * (int(max_depth) + 1) * max(1, -(-n_tgt // _TARGETS_PER_CAP))
+    cap = max(cap, n_tgt)
     while True:
+        if cap * n_src * (int(max_depth) + 1) >= 2**31:  # Sionna indexes its buffer in uint32
+            raise ValueError(f"shoot_candidates: {n_src} sources x {n_tgt} targets need more than "
+                             f"{cap:,} candidates per source, beyond Sionna's 32-bit buffer indices: "
+                             "trace fewer antenna positions per call (a lower tracing.memory_budget_mb)")
         cand = candidate_generator()(mi_scene, src_mi, tgt_mi, samples_per_src=int(samples_per_src),
                                       max_num_paths_per_src=cap, max_depth=int(max_depth), los=True,
                                       specular_reflection=True, diffuse_reflection=False,
@@ -477,7 +484,7 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
         out = Candidates(cand)
         if out.n_rows == 0 or int(np.bincount(out.source).max()) < cap:
             return out
-        out.release()
+        del cand, out  # the next call allocates its buffer at once: free this one first
         cap *= 4
 
 

@@ -57,7 +57,8 @@ def stage_reads(ctx) -> dict:
 
 
 STAGE = Stage("reads", stage_reads, ("seed", "robot", "reader") + TRACING_KEYS, ("scene", "tour"),
-              version=5,  # 3: channel hopping, phase, Doppler, tag population, Gen2 inventory; 4: Gen2 T4;
-              # 5: per-tag phase offsets and the chip's power-dependent phase
+              version=6,  # 3: channel hopping, phase, Doppler, tag population, Gen2 inventory; 4: Gen2 T4;
+              # 5: per-tag phase offsets and the chip's power-dependent phase; 6: the shooting's
+              # candidate cap no longer drops paths with many tags (SHARING_ALGORITHM 9)
               # (2: each tour reads its own tag layout; range-margin check in metadata)
               description="ray-traced reader simulation")
