@@ -41,6 +41,12 @@ import types
 import numpy as np
 
 from propagation.jitarrays import jit_array, jit_points
+from propagation.sionna_versions import (
+    TESTED_VERSIONS,
+    SionnaVersionError,
+    check_versions,
+    installed_versions,
+)
 
 __all__ = [
     "ENDPOINTS_SHA256",
@@ -64,10 +70,6 @@ __all__ = [
     "use_endpoints_at_once",
 ]
 
-#: The versions every internal use below was written against and tested with (the
-#: pins of ``constraints.txt``). Another version is refused by :func:`check_versions`.
-TESTED_VERSIONS = {"sionna-rt": "2.2.0", "mitsuba": "3.9.1", "drjit": "1.5.0"}
-
 #: sha256 of ``SBCandidateGenerator._shoot_and_bounce_loop``'s source (decorator to last
 #: line, dedented) in sionna-rt 2.2.0: the text :func:`candidate_generator` edits.
 SHOOTING_LOOP_SHA256 = "bb28e309428bebbf90ac30c7f3050f63af37d1f1d45955af2c5077206dcf24f6"
@@ -81,47 +83,6 @@ TARGET_COUNT_LINE = "num_targets = dr.shape(tgt_positions)[1]"
 OPAQUE_COUNT_LINE = "num_targets = dr.opaque(mi.UInt, dr.shape(tgt_positions)[1])"
 
 _CLASS: list = []  # the edited generator class, built once on first use (never at import)
-
-
-class SionnaVersionError(RuntimeError):
-    """The installed sionna-rt, mitsuba or drjit is not the tested one."""
-
-
-def installed_versions() -> dict[str, str]:
-    """The versions of the imported ``sionna.rt``, ``mitsuba`` and ``drjit`` modules.
-
-    Read from the modules themselves (``__version__``), i.e. the code that runs, not
-    the package metadata. Needs a Mitsuba variant (:func:`propagation.backend.ensure_variant`).
-
-    Returns
-    -------
-    dict
-        Keys of :data:`TESTED_VERSIONS`, version strings as values.
-    """
-    import drjit as dr
-    import mitsuba as mi
-    import sionna.rt as rt
-
-    return {"sionna-rt": str(rt.__version__), "mitsuba": str(mi.__version__),
-            "drjit": str(dr.__version__)}
-
-
-def check_versions() -> None:
-    """Refuse to run Sionna's internals on versions other than :data:`TESTED_VERSIONS`.
-
-    Raises
-    ------
-    SionnaVersionError
-        One line naming the installed and the tested versions and the two ways out.
-    """
-    got = installed_versions()
-    if got != TESTED_VERSIONS:
-        have = ", ".join(f"{k} {v}" for k, v in got.items())
-        want = ", ".join(f"{k} {v}" for k, v in TESTED_VERSIONS.items())
-        raise SionnaVersionError(
-            f"the fast tracer uses Sionna internals tested only with {want}, but {have} is "
-            f"installed: set tracing.method = \"direct\" (TraceOptions(method=\"direct\"), "
-            f"Sionna's public API only) or install the tested versions (constraints.txt)")
 
 
 def _checked_source(module, owner: str, name: str, expected_sha256: str) -> str:

@@ -112,7 +112,7 @@ def phase_posteriors(reads: pd.DataFrame, tag_ids, candidates, *, reach_m: float
     combine_with : TagPosteriors, optional
         A read / RSSI model's posteriors over the same tags and candidates (uniform
         prior): also returns their product with the phase posterior as
-        `combined_name` (:func:`~.phase.combine_posteriors`). Why: the range to a
+        `combined_name` (:func:`~.tags.combine_posteriors`). Why: the range to a
         straight track, all the phase measures, is the same on a circle about it, so
         phase alone can take a tag for a point on the opposite wall; which antenna read
         it and how strongly tell the walls apart, and the two are independent evidence.

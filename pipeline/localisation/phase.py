@@ -89,7 +89,7 @@ from scipy.special import i0e, logsumexp
 from propagation.constants import SPEED_OF_LIGHT
 
 from .phase_cells import _grid_step, cell_points
-from .tags import TagPosteriors, _check_candidates, _check_prior
+from .tags import TagPosteriors, _check_candidates, _check_prior, combine_posteriors
 
 __all__ = [
     "PHASE_COLUMNS",
@@ -571,33 +571,3 @@ def _within(cand: np.ndarray, xyz: np.ndarray, radius_m: float) -> np.ndarray:
 
     d, _ = cKDTree(np.unique(xyz, axis=0)).query(cand, distance_upper_bound=radius_m)
     return np.isfinite(d)
-
-
-def combine_posteriors(*posteriors: TagPosteriors, name: str) -> TagPosteriors:
-    """The posterior of independent evidence: the sum of log posteriors, renormalised.
-
-    Valid when every input has the same (uniform) prior over the same candidates and
-    their evidence is conditionally independent given the position (e.g. the reads'
-    phases and their read / miss outcomes with RSSI). A candidate one input excludes
-    (-inf) stays excluded; if the inputs exclude every candidate of a tag between them,
-    that tag falls back to the first input's posterior.
-    """
-    if not posteriors:
-        raise ValueError("combine_posteriors needs at least one posterior")
-    first = posteriors[0]
-    for p in posteriors[1:]:
-        if p.tag_ids != first.tag_ids:
-            raise ValueError(f"combine_posteriors: tags differ ({p.source!r} has {p.tag_ids}, "
-                             f"{first.source!r} has {first.tag_ids})")
-        if p.candidates_m.shape != first.candidates_m.shape or not np.array_equal(
-                p.candidates_m, first.candidates_m):
-            raise ValueError(f"combine_posteriors: {p.source!r} and {first.source!r} are over "
-                             "different candidates")
-    lp = np.sum([p.log_posterior for p in posteriors], axis=0)
-    z = logsumexp(lp, axis=1, keepdims=True)
-    bad = ~np.isfinite(z[:, 0])
-    lp = np.where(bad[:, None], first.log_posterior, lp - np.where(bad[:, None], 0.0, z))
-    return TagPosteriors(str(name), first.tag_ids, first.candidates_m, lp,
-                         np.maximum.reduce([p.n_attempts for p in posteriors]),
-                         np.maximum.reduce([p.n_reads for p in posteriors]),
-                         first.local_radius_m)

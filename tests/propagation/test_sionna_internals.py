@@ -21,8 +21,10 @@ def _shooting_kernels(fn) -> list:
     return [e["hash"] for e in launched_kernels(fn, 3000)]
 
 
-def _candidates(generator, rts, src, tgt, samples: int = 2000, depth: int = 3, seed: int = 5):
-    """The candidate buffer of one shooting call, as NumPy arrays."""
+def _candidates(generator, rts, src, tgt, samples: int = 2000, depth: int = 3, seed: int = 5,
+                cap: int | None = None):
+    """The candidate buffer of one shooting call, as NumPy arrays; ``cap``: its
+    ``max_num_paths_per_src`` (default ``PathSolver``'s, ``samples * (depth + 1)``)."""
     import drjit as dr
 
     from propagation.sionna_paths import points
@@ -30,7 +32,7 @@ def _candidates(generator, rts, src, tgt, samples: int = 2000, depth: int = 3, s
 
     place_devices(rts)
     cand = generator(rts.mi_scene, points(src), points(tgt), samples_per_src=samples,
-                     max_num_paths_per_src=samples * (depth + 1), max_depth=depth, los=True,
+                     max_num_paths_per_src=cap or samples * (depth + 1), max_depth=depth, los=True,
                      specular_reflection=True, diffuse_reflection=False, refraction=True,
                      diffraction=False, edge_diffraction=False, seed=seed)
     cand.schedule()
@@ -240,24 +242,13 @@ def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene, monk
     set_deterministic(True)
     try:
         capped = _candidates(candidate_generator(), rts, src, tgt, samples=200, depth=2)
-        place_devices(rts)
-        import drjit as dr
-
-        big = candidate_generator()(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
-                                    max_num_paths_per_src=600 * 1000, max_depth=2, los=True,
-                                    specular_reflection=True, diffuse_reflection=False,
-                                    refraction=True, diffraction=False, edge_diffraction=False, seed=5)
-        big.schedule()
-        dr.eval()
-        big.shrink()
-        ref = {"src": big.source_indices.numpy(), "tgt": big.target_indices.numpy(), "valid": big.valid.numpy(),
-               "keys": np.concatenate([x.numpy().astype(np.int64) for x in
-                                       (big.interaction_types, big.shapes, big.primitives)], axis=1)}
+        ref = _candidates(candidate_generator(), rts, src, tgt, samples=200, depth=2, cap=600 * 1000)
         monkeypatch.setattr(internals, "_TARGETS_PER_CAP", targets_per_cap)
         shots = []
         generator = internals.candidate_generator
         monkeypatch.setattr(internals, "candidate_generator",
                             lambda: (shots.append(1), generator())[1])
+        place_devices(rts)
         ours = shoot_candidates(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
                                 max_depth=2, refraction=True, seed=5)
         clear_devices(rts)
