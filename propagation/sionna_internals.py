@@ -148,6 +148,8 @@ def candidate_generator():
 
         _CLASS.append(type("OpaqueTargetsCandidateGenerator", (SBCandidateGenerator,),
                            {"_shoot_and_bounce_loop": _opaque_loop(),
+                            "_shoot_and_bounce": _counting_shoot_and_bounce,
+                            "paths_per_source": None,
                             "__module__": __name__,
                             "__doc__": "SBCandidateGenerator, target count opaque "
                                        "(propagation.sionna_internals)."}))
@@ -219,13 +221,10 @@ def field_calculator(paths, *, wavelength, samples_per_src: int, diffraction: bo
 def _opaque_buffer(buf) -> None:
     """Every candidate array of a paths buffer evaluated into memory of its own; in place.
 
-    Sionna's image method and field calculator then see the same kind of inputs whatever
-    made the buffer (rows gathered from the candidate generator's buffer, or a chain
-    enumeration's arrays with constant fields): one kernel of each serves all of them,
-    where a gather fused into the kernel or a constant folded into it makes another one
-    (~2 s of LLVM build each). The values are unchanged. Buffers with diffraction (never
-    made here) keep their wedges as they are.
-    """
+    Sionna's image method and field calculator then see one kind of input whatever made
+    the buffer (gathered rows, or a chain enumeration's constant fields): one kernel of
+    each serves all, where a fused gather or folded constant makes another (~2 s of LLVM
+    each). Values unchanged; wedges (diffraction, never made here) left as they are."""
     import drjit as dr
 
     dr.make_opaque(buf._valid, buf._src_indices, buf._tgt_indices,
@@ -245,13 +244,10 @@ def _solve_fields(buf, rt_scene, src_mi, tgt_mi, n: int, m: int, discard: bool) 
     """Sionna's field calculator on a buffer of ``n`` sources and ``m`` targets, then
     (``discard``) the invalid candidates dropped, else the whole buffer scheduled; in place.
 
-    Its ``samples_per_src`` is 1 for every buffer: it scales only diffuse ray tubes (the
-    buffers here never hold a diffuse path) and is a literal of the kernel, so another
-    value would be another kernel. Scheduled whole, a buffer whose validity is read next
-    is evaluated in one kernel: the validity evaluated alone leaves the image method's
-    points unevaluated, and the fields' kernel after it computes them again. Antennas are
-    unrotated at both ends (orientations are applied later, in NumPy).
-    """
+    ``samples_per_src`` is 1 for every buffer: it scales diffuse ray tubes only (none
+    here) and is a kernel literal. Scheduled whole, a buffer whose validity is read next is
+    one kernel (its validity alone would leave the image method's points to be computed
+    again). Antennas unrotated at both ends (orientations are applied later, in NumPy)."""
     field_calculator(buf, wavelength=rt_scene.wavelength, samples_per_src=1, diffraction=False,
                      src_positions=src_mi, tgt_positions=tgt_mi,
                      src_orientations=_points(np.zeros((n, 3))),
@@ -327,6 +323,15 @@ def collect_paths(buf, out: dict) -> None:
                                   axis=1))
 
 
+def _counting_shoot_and_bounce(self, *args, **kwargs):
+    """Sionna's ``_shoot_and_bounce``; its per-source counter kept (``paths_per_source``)."""
+    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
+
+    bound = inspect.signature(SBCandidateGenerator._shoot_and_bounce).bind(self, *args, **kwargs)
+    self.paths_per_source = bound.arguments["paths_counter_per_source"]
+    return SBCandidateGenerator._shoot_and_bounce(self, *args, **kwargs)
+
+
 class Candidates:
     """Candidate chains of Sionna's shoot-and-bounce (:func:`shoot_candidates`).
 
@@ -389,24 +394,32 @@ class Candidates:
 
 
 #: Targets :func:`shoot_candidates`' first cap is ``PathSolver``'s for (then proportionally
-#: more): a corridor study's tens of tags (at most 7,968 candidates per source of the
-#: 18,000 allowed in the default study) keep its cap. Above 1e6 the cap also sizes Sionna's
-#: per-source table of chain hashes, whose collisions then vary with it.
+#: more): a corridor's tens of tags keep it (default study: at most 7,968 of 18,000).
 _TARGETS_PER_CAP = 64
+#: Sionna's smallest table of chain hashes per source (``MIN_SPEC_COUNT_SIZE``): caps up to
+#: it leave the table, hence the candidates found, as they are; larger caps resize it.
+_MIN_HASH_TABLE = 1_000_000
+#: Headroom of a first cap learned from earlier calls (counts vary +-15 % between one
+#: warehouse tour's chunks; a cap 4x the count shoots 1.1-1.3x slower than one at it).
+_LEARNED_HEADROOM = 1.5
+#: Per (scene, rays, depth, refraction) the most candidates per source and target a call
+#: of this process needed: the next call's first cap (speed only, never the candidates).
+_NEEDED_PER_TARGET: dict = {}
 
 
 def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_depth: int,
                      refraction: bool, seed: int) -> Candidates:
     """Sionna's shoot-and-bounce candidates, as ``PathSolver`` collects them (LOS and
     specular chains, no diffuse reflection or diffraction), with the shooting kernel of
-    :func:`candidate_generator` (one kernel for any number of targets).
+    :func:`candidate_generator` (one kernel for any number of targets), none dropped.
 
-    Sionna stores a chain once per target it sees and drops a source's candidates beyond
-    ``max_num_paths_per_src`` without a word; ``PathSolver``'s ``samples_per_src *
-    (max_depth + 1)`` is enough for a corridor's tens of tags, not for a warehouse's
-    hundreds (2,000 rays, depth 2, 656 tags: 38,628 candidates, 6,000 kept). So the first
-    cap grows with the targets beyond ``_TARGETS_PER_CAP``, and a call is shot again with
-    4x the cap until no source reaches it.
+    Sionna stores a chain once per target it sees and silently drops a source's
+    candidates beyond ``max_num_paths_per_src`` (``PathSolver``'s ``samples_per_src *
+    (max_depth + 1)`` kept 6,000 of 38,628 with 656 tags, 2,000 rays, depth 2). Its own
+    per-source counter says how many a source would have stored: a call past its cap is
+    shot again at exactly that count (again while a count above 1e6 resizes the hash
+    table). The first cap grows with the targets beyond ``_TARGETS_PER_CAP`` and, within
+    Sionna's smallest hash table, with what earlier calls needed per target.
 
     Parameters
     ----------
@@ -416,37 +429,38 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
         Source and target positions [m].
     samples_per_src, max_depth, refraction, seed
         As for ``PathSolver``.
-
-    Returns
-    -------
-    Candidates
     """
     import drjit as dr
 
-    # a first cap that grows with the targets (shooting again costs a whole call), never
-    # below the targets (every line of sight is stored, uncapped)
     n_tgt, n_src = int(dr.width(tgt_mi)), int(dr.width(src_mi))
-    cap = int(samples_per_src) * (int(max_depth) + 1) * max(1, -(-n_tgt // _TARGETS_PER_CAP))
-    cap = max(cap, n_tgt)
+    depth = int(max_depth)
+    base = int(samples_per_src) * (depth + 1) * max(1, -(-n_tgt // _TARGETS_PER_CAP))
+    key = (id(mi_scene), int(samples_per_src), depth, bool(refraction))
+    learned = int(np.ceil(_LEARNED_HEADROOM * _NEEDED_PER_TARGET.get(key, 0.0) * n_tgt))
+    # >= the targets (lines of sight are uncapped); learned: within base's hash table
+    cap = max(base, min(learned, max(base, _MIN_HASH_TABLE)), n_tgt)
     while True:
-        if cap * n_src * (int(max_depth) + 1) >= 2**31:  # Sionna indexes its buffer in uint32
+        if cap * n_src * (depth + 1) >= 2**31:  # Sionna indexes its buffer in uint32
             raise ValueError(f"shoot_candidates: {n_src} sources x {n_tgt} targets need more than "
                              f"{cap:,} candidates per source, beyond Sionna's 32-bit buffer indices: "
                              "trace fewer antenna positions per call (a lower tracing.memory_budget_mb)")
-        cand = candidate_generator()(mi_scene, src_mi, tgt_mi, samples_per_src=int(samples_per_src),
-                                      max_num_paths_per_src=cap, max_depth=int(max_depth), los=True,
-                                      specular_reflection=True, diffuse_reflection=False,
-                                      refraction=bool(refraction), diffraction=False,
-                                      edge_diffraction=False, seed=int(seed))
+        generator = candidate_generator()
+        cand = generator(mi_scene, src_mi, tgt_mi, samples_per_src=int(samples_per_src),
+                         max_num_paths_per_src=cap, max_depth=depth, los=True,
+                         specular_reflection=True, diffuse_reflection=False,
+                         refraction=bool(refraction), diffraction=False,
+                         edge_diffraction=False, seed=int(seed))
         cand.schedule()
         dr.eval()
-        cand.shrink()
-        cand.detach_geometry()
-        out = Candidates(cand)
-        if out.n_rows == 0 or int(np.bincount(out.source).max()) < cap:
-            return out
-        del cand, out  # the next call allocates its buffer at once: free this one first
-        cap *= 4
+        counts = generator.paths_per_source  # None at depth 0: line of sight only, uncapped
+        needed = int(counts.numpy().max()) if counts is not None and n_src and n_tgt else 0
+        _NEEDED_PER_TARGET[key] = max(_NEEDED_PER_TARGET.get(key, 0.0), needed / max(n_tgt, 1))
+        if needed <= cap:
+            cand.shrink()
+            cand.detach_geometry()
+            return Candidates(cand)
+        del cand, generator, counts  # the next call allocates its buffer at once: free this one first
+        cap = needed
 
 
 def line_of_sight_candidates(rt_scene, src_mi, tgt_mi, n: int, m: int, out: dict) -> None:

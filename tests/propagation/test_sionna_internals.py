@@ -225,8 +225,9 @@ def test_the_study_refuses_an_untested_version_before_the_tour(monkeypatch):
 def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene, monkeypatch, targets_per_cap):
     # Sionna stores a chain once per target it sees and drops a source's candidates beyond
     # max_num_paths_per_src silently: with 300 targets, 200 rays at depth 2 (cap 600)
-    # overflow. shoot_candidates shoots again with a larger cap: its candidates are those
-    # of a cap far above the count (at most 1e6, so the same table of chain hashes: equal)
+    # overflow. shoot_candidates shoots again at the count Sionna's counter reports: its
+    # candidates are those of a cap far above the count (at most 1e6, so the same table
+    # of chain hashes: equal). A second call starts from the count the first needed.
     import propagation.sionna_internals as internals
     from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
     from propagation.sionna_internals import candidate_generator, shoot_candidates
@@ -244,18 +245,36 @@ def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene, monk
         capped = _candidates(candidate_generator(), rts, src, tgt, samples=200, depth=2)
         ref = _candidates(candidate_generator(), rts, src, tgt, samples=200, depth=2, cap=600 * 1000)
         monkeypatch.setattr(internals, "_TARGETS_PER_CAP", targets_per_cap)
-        shots = []
+        monkeypatch.setattr(internals, "_NEEDED_PER_TARGET", {})  # nothing learned yet
+        caps = []
         generator = internals.candidate_generator
-        monkeypatch.setattr(internals, "candidate_generator",
-                            lambda: (shots.append(1), generator())[1])
+
+        class Counted:  # the generator, its caps recorded
+            def __init__(self):
+                self.gen = generator()
+
+            def __call__(self, *a, **k):
+                caps.append(k["max_num_paths_per_src"])
+                return self.gen(*a, **k)
+
+            @property
+            def paths_per_source(self):
+                return self.gen.paths_per_source
+
+        monkeypatch.setattr(internals, "candidate_generator", Counted)
         place_devices(rts)
-        ours = shoot_candidates(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
-                                max_depth=2, refraction=True, seed=5)
+        calls = [shoot_candidates(rts.mi_scene, points(src), points(tgt), samples_per_src=200,
+                                  max_depth=2, refraction=True, seed=5) for _ in range(2)]
         clear_devices(rts)
     finally:
         set_deterministic(False)
+    needed = np.bincount(ref["src"]).max()
     assert np.bincount(capped["src"]).max() == 600  # Sionna's cap reached: rows dropped
-    assert len(ref["src"]) > 2 * 600  # a cap far above the count keeps far more
-    assert len(shots) == (1 if targets_per_cap == 32 else 3)  # caps 6,000 / 600, 2,400, 9,600
-    for k, v in (("src", ours.source), ("tgt", ours.target), ("valid", ours.valid), ("keys", ours.keys)):
-        np.testing.assert_array_equal(v, ref[k], err_msg=k)
+    assert needed > 2 * 600  # a cap far above the count keeps far more
+    if targets_per_cap == 32:  # caps 6,000 (10 x 600), then 1.5x the count learned
+        assert caps == [6000, max(6000, int(np.ceil(1.5 * needed)))]
+    else:  # PathSolver's 600, then exactly the count; the second call learned it
+        assert caps == [600, needed, int(np.ceil(1.5 * needed))]
+    for ours in calls:
+        for k, v in (("src", ours.source), ("tgt", ours.target), ("valid", ours.valid), ("keys", ours.keys)):
+            np.testing.assert_array_equal(v, ref[k], err_msg=k)
