@@ -36,7 +36,8 @@ Takes about 20 minutes on 2 cores. Usage::
         [--config configs/paper_scale.toml] [--naive arrays]
     # the warehouse-scale case, from a finished run; naive time scaled from 12 calls per tour
     .venv/bin/python bench/study_trace.py --config configs/warehouse_large.toml --skip-study \
-        --run RUN_DIR --skip-noise --naive arrays --naive-calls 12
+        --run RUN_DIR --skip-noise --naive arrays --naive-calls 12 [--naive-cap sionna] \
+        [--naive-rays 30000]
 """
 
 from __future__ import annotations
@@ -117,7 +118,7 @@ def study_links(run: Path) -> list[tuple[str, np.ndarray, np.ndarray, int]]:
 
 
 def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "api",
-                max_calls: int | None = None) -> dict:
+                max_calls: int | None = None, cap: str = "rays") -> dict:
     """Bare Sionna PathSolver over the link groups; seconds and links per group name.
 
     ``placement="api"`` places devices as Sionna's documentation does (positions as
@@ -130,16 +131,22 @@ def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "a
     it, and scale its seconds by the positions of all its calls over those traced (a
     warehouse-scale study's naive tracing takes hours on 2 cores; a call's time grows
     with its positions, the receivers being the group's). The result says so:
-    ``{name: (seconds, links, calls traced, calls)}``."""
+    ``{name: (seconds, links, calls traced, calls)}``.
+
+    ``cap``: ``PathSolver``'s ``max_num_paths_per_src``: ``"rays"`` ``samples * (max_depth
+    + 1)``, as the study's tracer had it until 2026-11-27 (a smaller buffer, kinder to the
+    naive side; with hundreds of receivers per call Sionna drops the candidates beyond it
+    without a word, docs/physics.md), or ``"sionna"`` PathSolver's documented default (1e6,
+    what a call that leaves it out gets)."""
 
     from propagation.sionna_scene import load_sionna_scene
 
     rt_scene = load_sionna_scene(scene, 865e6, public_api=placement == "api")
-    return _naive_calls(rt_scene, groups, max_depth, samples, placement, max_calls)
+    return _naive_calls(rt_scene, groups, max_depth, samples, placement, max_calls, cap)
 
 
 def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str,
-                 max_calls: int | None = None) -> dict:
+                 max_calls: int | None = None, cap: str = "rays") -> dict:
     import sionna.rt as rt
 
     from propagation.sionna_scene import clear_devices, place_devices
@@ -157,6 +164,7 @@ def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str,
             rt_scene.add(rt.Receiver(f"rx{k}", position=[float(v) for v in p]))
 
     solver = rt.PathSolver()
+    caps = {} if cap == "sionna" else {"max_num_paths_per_src": samples * (max_depth + 1)}
     out: dict = {}
     for name, pos, rx, per_call in groups:
         starts = np.arange(0, len(pos), per_call)
@@ -168,9 +176,8 @@ def _naive_calls(rt_scene, groups, max_depth: int, samples: int, placement: str,
         for c0 in picked:
             t0 = time.perf_counter()
             place(pos[c0:c0 + per_call], rx)
-            paths = solver(rt_scene, max_depth=max_depth, samples_per_src=samples,
-                           max_num_paths_per_src=samples * (max_depth + 1), synthetic_array=True,
-                           los=True, specular_reflection=True, diffuse_reflection=False,
+            paths = solver(rt_scene, max_depth=max_depth, samples_per_src=samples, **caps,
+                           synthetic_array=True, los=True, specular_reflection=True, diffuse_reflection=False,
                            refraction=True, diffraction=False, seed=1)
             _ = paths.a[0].numpy()
             times.append(time.perf_counter() - t0)
@@ -194,15 +201,18 @@ def _empty_kernel_cache(home: Path) -> dict:
 
 
 def naive_in_subprocess(run: Path, placement: str, home: Path | None, backend: str = "auto",
-                        max_calls: int | None = None) -> dict:
+                        max_calls: int | None = None, rays: int | None = None,
+                        cap: str = "rays") -> dict:
     """:func:`naive_trace` in a fresh process; ``home``: from an empty kernel cache there;
-    ``backend``: the Dr.Jit backend there (``--backend``); ``max_calls``: see there."""
+    ``backend``: the Dr.Jit backend there (``--backend``); ``max_calls``, ``cap``: see
+    there; ``rays``: rays per source (default: the run's ``tracing.samples_per_src``)."""
     env = dict(os.environ)
     if home is not None:
         env.update(_empty_kernel_cache(home))
     proc = subprocess.run([sys.executable, __file__, "--naive-only", placement, "--backend", backend,
                            "--run", str(Path(run).resolve()),
-                           *(["--naive-calls", str(max_calls)] if max_calls else [])],
+                           *(["--naive-calls", str(max_calls)] if max_calls else []),
+                           *(["--naive-rays", str(rays)] if rays else []), "--naive-cap", cap],
                           cwd=ROOT, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"naive tracing failed:\n{proc.stderr[-3000:]}")
@@ -271,6 +281,13 @@ def main() -> None:
     ap.add_argument("--naive-calls", type=int, default=None,
                     help="trace at most this many naive calls per tour, spread along it, and "
                          "scale their time to the whole tour (warehouse scale: hours otherwise)")
+    ap.add_argument("--naive-rays", type=int, default=None,
+                    help="rays per source of the naive tracing (default: the study's "
+                         "tracing.samples_per_src, 3e4 for the default study)")
+    ap.add_argument("--naive-cap", choices=("rays", "sionna"), default="rays",
+                    help="PathSolver's max_num_paths_per_src on the naive side: rays x "
+                         "(depth + 1) (default; drops paths with hundreds of tags per call) "
+                         "or Sionna's documented default, 1e6 (drops none at warehouse scale)")
     ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
                     help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
@@ -287,8 +304,8 @@ def main() -> None:
         # the run's own scene, depth and lone-position rays (3e4 for the default study)
         cfg = load_config(args.run / "config.toml")
         out = naive_trace(scenes.load(cfg.scene), study_links(args.run), cfg.tracing.max_depth,
-                          cfg.tracing.samples_per_src, placement=args.naive_only,
-                          max_calls=args.naive_calls)
+                          args.naive_rays or cfg.tracing.samples_per_src, placement=args.naive_only,
+                          max_calls=args.naive_calls, cap=args.naive_cap)
         print(json.dumps(out))
         return
 
@@ -345,10 +362,13 @@ def main() -> None:
             continue
         naive = naive_in_subprocess(run, placement,
                                     None if args.warm_kernels else tmp / f"home_naive_{placement}",
-                                    args.backend, args.naive_calls)
+                                    args.backend, args.naive_calls, args.naive_rays, args.naive_cap)
         t_naive = sum(v[0] for v in naive.values())
         n_links = sum(v[1] for v in naive.values())
-        print(f"naive bare Sionna ({how}, {kernels}):")
+        rays = args.naive_rays or cfg.tracing.samples_per_src
+        cap = ("Sionna's default cap, 1e6" if args.naive_cap == "sionna"
+               else f"cap {rays * (cfg.tracing.max_depth + 1):,} per source")
+        print(f"naive bare Sionna ({how}, {kernels}; {rays:,} rays, depth {cfg.tracing.max_depth}, {cap}):")
         for name, (s, n, k, c) in naive.items():
             part = f", scaled from {k} of its {c} calls" if k < c else ""
             print(f"  {name}: {n} links in {s:.1f} s ({n / s:.0f} links/s{part})")
