@@ -14,7 +14,8 @@ sample of a finished run's training-tour antenna positions (``--groups`` runs of
   positions and every tour position within ``tracing.share_radius_m`` of them (the
   neighbours whose rays it shares on the tour; its time is per position traced);
 - bare Sionna at each of ``--rays`` (seeds 1 and 2), as ``bench/study_trace.py``'s naive
-  tracing calls it: all tags at once, within its cap,
+  tracing calls it by default: all tags at once, within its cap of rays x (depth + 1)
+  (it then drops paths); ``--bare-tags-per-call 32``: as the reference, none dropped,
 
 each from an empty path cache, after one untimed trace of two positions with the same
 settings (Dr.Jit bakes the ray count into its kernels), with the run's patterns and tag
@@ -26,10 +27,17 @@ the reference over all links (readable in one and not in the other). The referen
 the truth: its own seed-to-seed flips are its floor, and rays miss what the study's
 image-method completion enumerates.
 
+The independent units are the runs of positions (``--groups``: tags of one position, and
+positions a few centimetres apart, are not independent). Per bare-Sionna ray count it
+prints the flipped read decisions per position, mean over both seeds, of the study's
+tracer and of bare Sionna, and their paired difference (bare - study) with a 95 % BCa
+bootstrap interval over the runs (``scipy.stats.bootstrap``, 9,999 resamples): bare
+Sionna flips more than the study's tracer only where the interval lies above 0.
+
 Usage::
 
     .venv/bin/python bench/trace_accuracy.py RUN_DIR [--groups 3] [--consecutive 4]
-        [--reference-rays 100000] [--rays 2000,8000,32000]
+        [--reference-rays 100000] [--rays 2000,8000,32000] [--bare-tags-per-call 32]
 """
 
 from __future__ import annotations
@@ -64,6 +72,26 @@ def sample_rows(n_poses: int, groups: int, consecutive: int) -> np.ndarray:
     return np.unique(np.concatenate([np.arange(s, s + consecutive) for s in starts]))
 
 
+def flips_per_group(gain_db: np.ndarray, ref_db: np.ndarray, threshold_db: float,
+                    groups: int) -> np.ndarray:
+    """Read decisions flipped against the reference per position, mean over each run of
+    positions, (groups,) float; rows of ``gain_db`` in run order, runs of equal length."""
+    flips = ((gain_db >= threshold_db) != (ref_db >= threshold_db)).sum(axis=1)
+    return flips.reshape(groups, -1).mean(axis=1)
+
+
+def paired_interval(diff: np.ndarray, seed: int = 0) -> tuple[float, float]:
+    """95 % BCa bootstrap interval of the mean of per-run differences (``scipy.stats``);
+    (nan, nan) where every difference is equal (no spread to resample)."""
+    from scipy.stats import bootstrap
+
+    if np.ptp(diff) == 0:
+        return float("nan"), float("nan")
+    res = bootstrap((diff,), np.mean, n_resamples=9999, confidence_level=0.95,
+                    method="BCa", random_state=np.random.default_rng(seed))
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
 def compare_row(gain_db: np.ndarray, ref_db: np.ndarray, threshold_db: float) -> str:
     """|gain - reference| [dB] over the reference's readable links (p50, p95, how many more
     than 6 dB weaker / stronger) and the read decisions flipped against the reference over
@@ -88,6 +116,9 @@ def main() -> None:
     ap.add_argument("--consecutive", type=int, default=4)
     ap.add_argument("--reference-rays", type=int, default=100_000)
     ap.add_argument("--rays", default="2000,8000,32000", help="bare Sionna's ray counts, comma-separated")
+    ap.add_argument("--bare-tags-per-call", type=int, default=0,
+                    help="tags per bare-Sionna call: 0 (default) all at once, as bench/study_trace.py's "
+                         f"naive side; {REFERENCE_TAGS}: within its cap, as the reference")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
@@ -103,6 +134,8 @@ def main() -> None:
     tnrm = tags[["nx", "ny", "nz"]].to_numpy(float)
     tour = tour_poses(args.run)
     rows = sample_rows(len(tour), args.groups, args.consecutive)
+    if len(rows) != args.groups * args.consecutive:
+        raise SystemExit(f"runs of positions overlap ({len(rows)} positions): fewer --groups")
     poses = tour[rows]
     # the study's tracer shares rays with the tour's positions within its radius
     near = np.linalg.norm(tour[:, None, :3] - poses[None, :, :3], axis=2).min(axis=1)
@@ -137,14 +170,27 @@ def main() -> None:
     print(f"  reference seed 8 vs seed 7: {compare_row(ref2, ref, thr)}", flush=True)
     tracers = [(f"study tracer ({base.method}, {base.shared_samples_per_src} rays per position shared "
                 f"over {len(context)} positions, completion order "
-                f"{min(base.completion_order, base.max_depth)})", base, tour[context], at)]
-    tracers += [(f"bare Sionna, {int(n)} rays", direct.replace(samples_per_src=int(n)), poses,
-                 np.arange(len(poses))) for n in args.rays.split(",")]
-    for name, opts, traced, pick in tracers:
+                f"{min(base.completion_order, base.max_depth)})", base, tour[context], at, None)]
+    bare = args.bare_tags_per_call or None
+    tracers += [(f"bare Sionna, {int(n)} rays{f', {bare} tags per call' if bare else ''}",
+                 direct.replace(samples_per_src=int(n)), poses, np.arange(len(poses)), bare)
+                for n in args.rays.split(",")]
+    per_group = {}
+    for name, opts, traced, pick, per_call in tracers:
+        per_group[name] = []
         for seed in (1, 2):
-            g, t = gains(opts.replace(seed=seed), traced, warm=seed == 1)
+            g, t = gains(opts.replace(seed=seed), traced, warm=seed == 1, tags_per_call=per_call)
+            per_group[name].append(flips_per_group(g[pick], ref, thr, args.groups))
             print(f"  {name}, seed {seed}: {t:.2f} s per position; {compare_row(g[pick], ref, thr)}",
                   flush=True)
+    study = np.mean(per_group[tracers[0][0]], axis=0)
+    print(f"flipped read decisions per position, mean of seeds 1 and 2; paired over the {args.groups} "
+          "runs of positions, 95 % BCa bootstrap interval of bare - study:")
+    for name, *_ in tracers[1:]:
+        other = np.mean(per_group[name], axis=0)
+        lo, hi = paired_interval(other - study)
+        print(f"  {name}: {other.mean():.2f} against the study tracer's {study.mean():.2f}; "
+              f"difference {np.mean(other - study):+.2f} [{lo:+.2f}, {hi:+.2f}]", flush=True)
 
 
 if __name__ == "__main__":
