@@ -13,9 +13,11 @@ sample of a finished run's training-tour antenna positions (``--groups`` runs of
 - the study's tracer with the run's ``[tracing]`` options (seeds 1 and 2), at the sampled
   positions and every tour position within ``tracing.share_radius_m`` of them (the
   neighbours whose rays it shares on the tour; its time is per position traced);
-- bare Sionna at each of ``--rays`` (seeds 1 and 2), as ``bench/study_trace.py``'s naive
-  tracing calls it by default: all tags at once, within its cap of rays x (depth + 1)
-  (it then drops paths); ``--bare-tags-per-call 32``: as the reference, none dropped,
+- bare Sionna at each of ``--rays`` (seeds 1 and 2), ``REFERENCE_TAGS`` tags per call as
+  the reference, so none of its candidates is dropped (what ``bench/study_trace.py
+  --naive-cap sionna`` traces in one call per batch); ``--bare-tags-per-call 0``: all tags
+  at once within a cap of rays x (depth + 1), as that bench's naive side calls it by
+  default, which drops paths with hundreds of tags,
 
 each from an empty path cache, after one untimed trace of two positions with the same
 settings (Dr.Jit bakes the ray count into its kernels), with the run's patterns and tag
@@ -37,7 +39,7 @@ Sionna flips more than the study's tracer only where the interval lies above 0.
 Usage::
 
     .venv/bin/python bench/trace_accuracy.py RUN_DIR [--groups 3] [--consecutive 4]
-        [--reference-rays 100000] [--rays 2000,8000,32000] [--bare-tags-per-call 32]
+        [--reference-rays 100000] [--rays 2000,8000,32000] [--bare-tags-per-call 0]
 """
 
 from __future__ import annotations
@@ -116,9 +118,10 @@ def main() -> None:
     ap.add_argument("--consecutive", type=int, default=4)
     ap.add_argument("--reference-rays", type=int, default=100_000)
     ap.add_argument("--rays", default="2000,8000,32000", help="bare Sionna's ray counts, comma-separated")
-    ap.add_argument("--bare-tags-per-call", type=int, default=0,
-                    help="tags per bare-Sionna call: 0 (default) all at once, as bench/study_trace.py's "
-                         f"naive side; {REFERENCE_TAGS}: within its cap, as the reference")
+    ap.add_argument("--bare-tags-per-call", type=int, default=REFERENCE_TAGS,
+                    help=f"tags per bare-Sionna call: {REFERENCE_TAGS} (default) within its cap, as the "
+                         "reference; 0: all at once, as bench/study_trace.py's naive side by default "
+                         "(drops paths with hundreds of tags)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import propagation as P
