@@ -291,6 +291,8 @@ def main() -> None:
     ap.add_argument("--naive-only", choices=("api", "arrays"), default=None,
                     help=argparse.SUPPRESS)  # internal: one naive trace, JSON on stdout
     args = ap.parse_args()
+    if args.naive_rays is not None and args.naive_rays < 1:
+        ap.error(f"--naive-rays must be >= 1, got {args.naive_rays}")
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
@@ -365,10 +367,11 @@ def main() -> None:
                                     args.backend, args.naive_calls, args.naive_rays, args.naive_cap)
         t_naive = sum(v[0] for v in naive.values())
         n_links = sum(v[1] for v in naive.values())
-        rays = args.naive_rays or cfg.tracing.samples_per_src
+        traced = load_config(Path(run) / "config.toml").tracing  # what the naive side read
+        rays = args.naive_rays or traced.samples_per_src
         cap = ("Sionna's default cap, 1e6" if args.naive_cap == "sionna"
-               else f"cap {rays * (cfg.tracing.max_depth + 1):,} per source")
-        print(f"naive bare Sionna ({how}, {kernels}; {rays:,} rays, depth {cfg.tracing.max_depth}, {cap}):")
+               else f"cap {rays * (traced.max_depth + 1):,} per source")
+        print(f"naive bare Sionna ({how}, {kernels}; {rays:,} rays, depth {traced.max_depth}, {cap}):")
         for name, (s, n, k, c) in naive.items():
             part = f", scaled from {k} of its {c} calls" if k < c else ""
             print(f"  {name}: {n} links in {s:.1f} s ({n / s:.0f} links/s{part})")

@@ -14,10 +14,11 @@ sample of a finished run's training-tour antenna positions (``--groups`` runs of
   positions and every tour position within ``tracing.share_radius_m`` of them (the
   neighbours whose rays it shares on the tour; its time is per position traced);
 - bare Sionna at each of ``--rays`` (seeds 1 and 2), ``REFERENCE_TAGS`` tags per call as
-  the reference, so none of its candidates is dropped (what ``bench/study_trace.py
-  --naive-cap sionna`` traces in one call per batch); ``--bare-tags-per-call 0``: all tags
-  at once within a cap of rays x (depth + 1), as that bench's naive side calls it by
-  default, which drops paths with hundreds of tags,
+  the reference, within its cap (``bench/study_trace.py --naive-cap sionna`` traces all
+  tags in one call with Sionna's default cap instead: the same rays, another batching of
+  the chain hashes); ``--bare-tags-per-call 0``: all tags at once within a cap of rays x
+  (depth + 1), as that bench's naive side calls it by default, which drops paths with
+  hundreds of tags,
 
 each from an empty path cache, after one untimed trace of two positions with the same
 settings (Dr.Jit bakes the ray count into its kernels), with the run's patterns and tag
@@ -137,8 +138,15 @@ def main() -> None:
     tnrm = tags[["nx", "ny", "nz"]].to_numpy(float)
     tour = tour_poses(args.run)
     rows = sample_rows(len(tour), args.groups, args.consecutive)
-    if len(rows) != args.groups * args.consecutive:
-        raise SystemExit(f"runs of positions overlap ({len(rows)} positions): fewer --groups")
+    starts = rows[::args.consecutive]
+    if len(rows) != args.groups * args.consecutive or np.any(np.diff(starts) <= args.consecutive):
+        raise SystemExit(f"runs of {args.consecutive} positions touch or overlap on a tour of "
+                         f"{len(tour)}: fewer --groups (the runs are the independent units)")
+    if args.groups < 8:
+        print(f"note: {args.groups} runs of positions are too few for a bootstrap interval worth "
+              "its name (--groups 8 or more)")
+    if args.bare_tags_per_call < 0:
+        raise SystemExit(f"--bare-tags-per-call must be >= 0, got {args.bare_tags_per_call}")
     poses = tour[rows]
     # the study's tracer shares rays with the tour's positions within its radius
     near = np.linalg.norm(tour[:, None, :3] - poses[None, :, :3], axis=2).min(axis=1)

@@ -5,7 +5,10 @@ config checks before a run starts."""
 
 from __future__ import annotations
 
-__all__ = ["bytes_per_source", "memory_shortfall"]
+import numpy as np
+
+__all__ = ["bytes_per_source", "candidate_cap_limit", "cap_on_grid", "first_candidate_cap",
+           "memory_shortfall"]
 
 
 def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
@@ -17,6 +20,44 @@ def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
     depth)`` bounds these with a margin.
     """
     return int(samples_per_src * (300 + 300 * max(1, max_depth)))
+
+
+def candidate_cap_limit(n_sources: int, max_depth: int) -> int:
+    """The largest candidate cap per source a shooting call of ``n_sources`` can take:
+    Sionna indexes its candidate buffer (cap x sources rows, depth + 1 steps) in uint32."""
+    return (2**31 - 1) // max(1, int(n_sources) * (int(max_depth) + 1))
+
+
+def cap_on_grid(count: int, table: int, limit: int) -> int:
+    """A candidate cap >= ``count`` on a quarter-octave grid (at most 25 % more: the cap
+    is a literal of Sionna's shooting kernel, so every new value compiles it again), never
+    across Sionna's smallest table of chain hashes ``table`` (a cap up to it keeps the
+    table, hence the candidates, as they are) nor past ``limit`` where ``count`` is not."""
+    c = max(1, int(count))
+    step = 1 << max(0, c.bit_length() - 3)
+    grid = -(-c // step) * step
+    if c <= table:
+        grid = min(grid, table)
+    return max(c, min(grid, limit))
+
+
+def first_candidate_cap(samples_per_src: int, max_depth: int, n_targets: int,
+                        needed_per_target: float, table: int, limit: int,
+                        targets_per_cap: int = 64, headroom: float = 1.5) -> int:
+    """The first candidate cap per source of a shooting call
+    (:func:`propagation.sionna_internals.shoot_candidates`).
+
+    ``PathSolver``'s ``samples_per_src * (max_depth + 1)``, once more per
+    ``targets_per_cap`` targets; at least ``n_targets`` (lines of sight are stored
+    uncapped); and ``headroom`` x what earlier calls needed per target x ``n_targets``,
+    kept on the grid within the hash table the base cap gives and within ``limit``
+    (:func:`cap_on_grid`), so it changes neither the candidates nor whether a call runs.
+    """
+    base = int(samples_per_src) * (int(max_depth) + 1) * max(1, -(-int(n_targets) // targets_per_cap))
+    learned = int(np.ceil(headroom * float(needed_per_target) * int(n_targets)))
+    keep = max(base, table)  # the hash table the base cap gives
+    grown = min(cap_on_grid(learned, keep, limit), keep, limit) if learned > base else 0
+    return max(base, grown, int(n_targets))
 
 
 def memory_shortfall(method: str, max_depth: int, samples_per_src: int, shared_samples_per_src: int,

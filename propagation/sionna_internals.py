@@ -21,7 +21,8 @@ upgrade of Sionna is reviewed here and nowhere else:
 - The two edits of Sionna's code (the shooting loop's target count made a kernel input,
   :func:`candidate_generator`; the scene's endpoint arrays built at once,
   :func:`use_endpoints_at_once`) check the sha256 of the exact source they replace
-  and refuse otherwise.
+  and refuse otherwise. The generator also wraps ``_shoot_and_bounce`` to keep its
+  per-source candidate counter (:func:`shoot_candidates`; pinned by the versions).
 
 Everything else in the project uses Sionna's documented API (``load_scene``,
 ``PathSolver``, ``RadioMapSolver``, ``Transmitter``, ``Receiver``, ``PlanarArray``,
@@ -41,6 +42,7 @@ import types
 import numpy as np
 
 from propagation.jitarrays import jit_array, jit_points
+from propagation.raybudget import candidate_cap_limit, cap_on_grid, first_candidate_cap
 from propagation.sionna_versions import (
     TESTED_VERSIONS,
     SionnaVersionError,
@@ -396,14 +398,10 @@ class Candidates:
 #: Targets :func:`shoot_candidates`' first cap is ``PathSolver``'s for (then proportionally
 #: more): a corridor's tens of tags keep it (default study: at most 7,968 of 18,000).
 _TARGETS_PER_CAP = 64
-#: Sionna's smallest table of chain hashes per source (``MIN_SPEC_COUNT_SIZE``): caps up to
-#: it leave the table, hence the candidates found, as they are; larger caps resize it.
-_MIN_HASH_TABLE = 1_000_000
-#: Headroom of a first cap learned from earlier calls (counts vary +-15 % between one
-#: warehouse tour's chunks; a cap 4x the count shoots 1.1-1.3x slower than one at it).
+#: Headroom of a learned first cap (counts vary +-15 % between a warehouse tour's chunks).
 _LEARNED_HEADROOM = 1.5
-#: Per (scene, rays, depth, refraction) the most candidates per source and target a call
-#: of this process needed: the next call's first cap (speed only, never the candidates).
+#: Per (scene id, rays, depth, refraction) the most candidates per source and target a call
+#: of this process needed (lifetime maximum): the next first cap, never the candidates.
 _NEEDED_PER_TARGET: dict = {}
 
 
@@ -411,15 +409,17 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
                      refraction: bool, seed: int) -> Candidates:
     """Sionna's shoot-and-bounce candidates, as ``PathSolver`` collects them (LOS and
     specular chains, no diffuse reflection or diffraction), with the shooting kernel of
-    :func:`candidate_generator` (one kernel for any number of targets), none dropped.
+    :func:`candidate_generator` (one kernel for any number of targets; caps on a grid,
+    :func:`propagation.raybudget.cap_on_grid`), none dropped.
 
     Sionna stores a chain once per target it sees and silently drops a source's
     candidates beyond ``max_num_paths_per_src`` (``PathSolver``'s ``samples_per_src *
     (max_depth + 1)`` kept 6,000 of 38,628 with 656 tags, 2,000 rays, depth 2). Its own
     per-source counter says how many a source would have stored: a call past its cap is
-    shot again at exactly that count (again while a count above 1e6 resizes the hash
-    table). The first cap grows with the targets beyond ``_TARGETS_PER_CAP`` and, within
-    Sionna's smallest hash table, with what earlier calls needed per target.
+    shot again at that count, rounded up on a quarter-octave grid within Sionna's smallest
+    hash table (again while a count above it resizes the table). The first cap grows with
+    the targets beyond ``_TARGETS_PER_CAP`` and, within that table, with what earlier
+    calls needed per target.
 
     Parameters
     ----------
@@ -431,16 +431,17 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
         As for ``PathSolver``.
     """
     import drjit as dr
+    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
     n_tgt, n_src = int(dr.width(tgt_mi)), int(dr.width(src_mi))
     depth = int(max_depth)
-    base = int(samples_per_src) * (depth + 1) * max(1, -(-n_tgt // _TARGETS_PER_CAP))
+    table = int(SBCandidateGenerator.MIN_SPEC_COUNT_SIZE)
+    limit = candidate_cap_limit(n_src, depth)
     key = (id(mi_scene), int(samples_per_src), depth, bool(refraction))
-    learned = int(np.ceil(_LEARNED_HEADROOM * _NEEDED_PER_TARGET.get(key, 0.0) * n_tgt))
-    # >= the targets (lines of sight are uncapped); learned: within base's hash table
-    cap = max(base, min(learned, max(base, _MIN_HASH_TABLE)), n_tgt)
+    cap = first_candidate_cap(int(samples_per_src), depth, n_tgt, _NEEDED_PER_TARGET.get(key, 0.0),
+                              table, limit, _TARGETS_PER_CAP, _LEARNED_HEADROOM)
     while True:
-        if cap * n_src * (depth + 1) >= 2**31:  # Sionna indexes its buffer in uint32
+        if cap > limit:
             raise ValueError(f"shoot_candidates: {n_src} sources x {n_tgt} targets need more than "
                              f"{cap:,} candidates per source, beyond Sionna's 32-bit buffer indices: "
                              "trace fewer antenna positions per call (a lower tracing.memory_budget_mb)")
@@ -459,8 +460,8 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
             cand.shrink()
             cand.detach_geometry()
             return Candidates(cand)
-        del cand, generator, counts  # the next call allocates its buffer at once: free this one first
-        cap = needed
+        del cand, generator, counts  # back to Dr.Jit's allocator before the larger buffer
+        cap = cap_on_grid(needed, table, limit)
 
 
 def line_of_sight_candidates(rt_scene, src_mi, tgt_mi, n: int, m: int, out: dict) -> None:

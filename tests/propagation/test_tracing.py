@@ -418,3 +418,19 @@ def test_copies_are_found_by_tolerance_not_by_grid():
     tg = np.array([0, 0, 0, 1])  # the last row is another tag: never a copy
     drop = _copies(src, tg, length, np.tile(k, (4, 1)), k_rx, t)
     np.testing.assert_array_equal(drop, [False, True, False, False])
+
+
+def test_candidate_caps_sit_on_a_coarse_grid_within_sionnas_hash_table():
+    # the cap is a literal of Sionna's shooting kernel: caps on a quarter-octave grid
+    # (<= 25 % above the count, 4 values per doubling) compile a handful of kernels, not
+    # one per count; a count within the smallest hash table never gets a cap past it
+    from propagation.raybudget import candidate_cap_limit, cap_on_grid
+
+    counts = np.arange(1, 200_001)
+    caps = np.array([cap_on_grid(c, 1_000_000, 10**9) for c in counts])
+    assert np.all(caps >= counts) and np.all(caps <= np.maximum(counts * 1.25, counts + 1))
+    assert len(np.unique(caps[(counts > 65_536) & (counts <= 131_072)])) == 4
+    assert cap_on_grid(999_999, 1_000_000, 10**9) == 1_000_000  # the grid would say 1,048,576
+    assert cap_on_grid(1_000_001, 1_000_000, 10**9) > 1_000_001  # past the table: the grid
+    assert cap_on_grid(5_000, 10**6, 4_000) == 5_000  # a count past the limit stays (and fails)
+    assert candidate_cap_limit(128, 2) * 128 * 3 < 2**31 <= (candidate_cap_limit(128, 2) + 1) * 128 * 3
