@@ -401,7 +401,7 @@ _TARGETS_PER_CAP = 64
 #: Headroom of a learned first cap (counts vary +-15 % between a warehouse tour's chunks).
 _LEARNED_HEADROOM = 1.5
 #: Per (scene id, rays, depth, refraction) the most candidates per source and target a call
-#: of this process needed (lifetime maximum): the next first cap, never the candidates.
+#: of this process that overflowed its cap needed: the next first caps, never the candidates.
 _NEEDED_PER_TARGET: dict = {}
 
 
@@ -419,7 +419,7 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
     shot again at that count, rounded up on a quarter-octave grid within Sionna's smallest
     hash table (again while a count above it resizes the table). The first cap grows with
     the targets beyond ``_TARGETS_PER_CAP`` and, within that table, with what earlier
-    calls needed per target.
+    calls that overflowed needed per target.
 
     Parameters
     ----------
@@ -436,8 +436,7 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
     n_tgt, n_src = int(dr.width(tgt_mi)), int(dr.width(src_mi))
     depth = int(max_depth)
     table = int(SBCandidateGenerator.MIN_SPEC_COUNT_SIZE)
-    limit = candidate_cap_limit(n_src, depth)
-    key = (id(mi_scene), int(samples_per_src), depth, bool(refraction))
+    limit, key = candidate_cap_limit(n_src, depth), (id(mi_scene), int(samples_per_src), depth, bool(refraction))
     cap = first_candidate_cap(int(samples_per_src), depth, n_tgt, _NEEDED_PER_TARGET.get(key, 0.0),
                               table, limit, _TARGETS_PER_CAP, _LEARNED_HEADROOM)
     while True:
@@ -455,11 +454,12 @@ def shoot_candidates(mi_scene, src_mi, tgt_mi, *, samples_per_src: int, max_dept
         dr.eval()
         counts = generator.paths_per_source  # None at depth 0: line of sight only, uncapped
         needed = int(counts.numpy().max()) if counts is not None and n_src and n_tgt else 0
-        _NEEDED_PER_TARGET[key] = max(_NEEDED_PER_TARGET.get(key, 0.0), needed / max(n_tgt, 1))
         if needed <= cap:
             cand.shrink()
             cand.detach_geometry()
             return Candidates(cand)
+        # learnt from overflows only: otherwise the base caps (and their kernels) stay
+        _NEEDED_PER_TARGET[key] = max(_NEEDED_PER_TARGET.get(key, 0.0), needed / max(n_tgt, 1))
         del cand, generator, counts  # back to Dr.Jit's allocator before the larger buffer
         cap = cap_on_grid(needed, table, limit)
 
