@@ -41,6 +41,7 @@ Usage::
 
     .venv/bin/python bench/trace_accuracy.py RUN_DIR [--groups 3] [--consecutive 4]
         [--reference-rays 100000] [--rays 2000,8000,32000] [--bare-tags-per-call 0]
+        [--study-option completion_min_area_m2=0.1]
 """
 
 from __future__ import annotations
@@ -119,6 +120,9 @@ def main() -> None:
     ap.add_argument("--consecutive", type=int, default=4)
     ap.add_argument("--reference-rays", type=int, default=100_000)
     ap.add_argument("--rays", default="2000,8000,32000", help="bare Sionna's ray counts, comma-separated")
+    ap.add_argument("--study-option", action="append", default=[], metavar="NAME=VALUE",
+                    help="a TraceOptions field of the study's tracer set to VALUE (its type), e.g. "
+                         "completion_min_area_m2=0.1; repeatable")
     ap.add_argument("--bare-tags-per-call", type=int, default=REFERENCE_TAGS,
                     help=f"tags per bare-Sionna call: {REFERENCE_TAGS} (default) within its cap, as the "
                          "reference; 0: all at once, as bench/study_trace.py's naive side by default "
@@ -154,7 +158,12 @@ def main() -> None:
     at = np.searchsorted(context, rows)
     thr = cfg.reader.link_budget(cfg.frequency_hz).min_gain_db()
     base = trace_options(cfg)
-    direct = base.replace(method="direct")
+    for item in args.study_option:
+        name, _, value = item.partition("=")
+        if not hasattr(base, name) or not value:
+            raise SystemExit(f"--study-option {item!r}: expected NAME=VALUE with a TraceOptions field")
+        base = base.replace(**{name: type(getattr(base, name))(value)})
+    direct = trace_options(cfg).replace(method="direct")
 
     def gains(opts, traced: np.ndarray, warm: bool = False,
               tags_per_call: int | None = None) -> tuple[np.ndarray, float]:
@@ -181,7 +190,8 @@ def main() -> None:
     print(f"  reference seed 8 vs seed 7: {compare_row(ref2, ref, thr)}", flush=True)
     tracers = [(f"study tracer ({base.method}, {base.shared_samples_per_src} rays per position shared "
                 f"over {len(context)} positions, completion order "
-                f"{min(base.completion_order, base.max_depth)})", base, tour[context], at, None)]
+                f"{min(base.completion_order, base.max_depth)}, planes >= "
+                f"{base.completion_min_area_m2:g} m^2)", base, tour[context], at, None)]
     bare = args.bare_tags_per_call or None
     tracers += [(f"bare Sionna, {int(n)} rays{f', {bare} tags per call' if bare else ''}",
                  direct.replace(samples_per_src=int(n)), poses, np.arange(len(poses)), bare)
