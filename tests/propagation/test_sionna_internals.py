@@ -21,6 +21,22 @@ def _shooting_kernels(fn) -> list:
     return [e["hash"] for e in launched_kernels(fn, 3000)]
 
 
+def _two_sources_and_targets(corridor_scene, n_targets: int, seed: int):
+    """corridor_lab's Sionna scene, two antenna positions and ``n_targets`` random tag
+    positions in the corridor (``seed``); skips on CUDA (bit-reproducible traces need the
+    CPU variant: set_deterministic refuses CUDA)."""
+    from propagation.backend import CUDA_VARIANT, ensure_variant
+    from propagation.sionna_scene import load_sionna_scene
+
+    if ensure_variant() == CUDA_VARIANT:
+        pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
+    rng = np.random.default_rng(seed)
+    src = np.array([[3.0, 1.1, 0.9], [6.5, 0.7, 1.4]])
+    tgt = np.column_stack([rng.uniform(1, 10, n_targets), rng.uniform(0.2, 2.2, n_targets),
+                           rng.uniform(0.3, 2.7, n_targets)])
+    return load_sionna_scene(corridor_scene, 865e6), src, tgt
+
+
 def _candidates(generator, rts, src, tgt, samples: int = 2000, depth: int = 3, seed: int = 5,
                 cap: int | None = None):
     """The candidate buffer of one shooting call, as NumPy arrays; ``cap``: its
@@ -51,16 +67,10 @@ def test_opaque_count_gives_sionnas_candidates(corridor_scene):
     # reproducible) every candidate, its source, target, validity and chain, is Sionna's
     from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
-    from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
+    from propagation.backend import set_deterministic
     from propagation.sionna_internals import candidate_generator
-    from propagation.sionna_scene import load_sionna_scene
 
-    if ensure_variant() == CUDA_VARIANT:
-        pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
-    rts = load_sionna_scene(corridor_scene, 865e6)
-    rng = np.random.default_rng(8)
-    src = np.array([[3.0, 1.1, 0.9], [6.5, 0.7, 1.4]])
-    tgt = np.column_stack([rng.uniform(1, 10, 11), rng.uniform(0.2, 2.2, 11), rng.uniform(0.3, 2.7, 11)])
+    rts, src, tgt = _two_sources_and_targets(corridor_scene, 11, seed=8)
     set_deterministic(True)
     try:
         ours = _candidates(candidate_generator(), rts, src, tgt)
@@ -229,17 +239,12 @@ def test_shoot_candidates_keeps_what_sionnas_cap_would_drop(corridor_scene, monk
     # candidates are those of a cap far above the count (at most 1e6, so the same table
     # of chain hashes: equal). A second call starts from the count the first needed.
     import propagation.sionna_internals as internals
-    from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
+    from propagation.backend import set_deterministic
     from propagation.sionna_internals import candidate_generator, shoot_candidates
     from propagation.sionna_paths import points
-    from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
+    from propagation.sionna_scene import clear_devices, place_devices
 
-    if ensure_variant() == CUDA_VARIANT:
-        pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
-    rts = load_sionna_scene(corridor_scene, 865e6)
-    rng = np.random.default_rng(3)
-    src = np.array([[3.0, 1.1, 0.9], [6.5, 0.7, 1.4]])
-    tgt = np.column_stack([rng.uniform(1, 10, 300), rng.uniform(0.2, 2.2, 300), rng.uniform(0.3, 2.7, 300)])
+    rts, src, tgt = _two_sources_and_targets(corridor_scene, 300, seed=3)
     set_deterministic(True)
     try:
         capped = _candidates(candidate_generator(), rts, src, tgt, samples=200, depth=2)
@@ -291,17 +296,12 @@ def test_a_learned_first_cap_leaves_the_candidates_as_they_are(corridor_scene, m
     from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
     import propagation.sionna_internals as internals
-    from propagation.backend import CUDA_VARIANT, ensure_variant, set_deterministic
+    from propagation.backend import set_deterministic
     from propagation.sionna_internals import shoot_candidates
     from propagation.sionna_paths import points
-    from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
+    from propagation.sionna_scene import clear_devices, place_devices
 
-    if ensure_variant() == CUDA_VARIANT:
-        pytest.skip("bit-reproducible traces need the CPU variant: set_deterministic refuses CUDA")
-    rts = load_sionna_scene(corridor_scene, 865e6)
-    rng = np.random.default_rng(3)
-    src = np.array([[3.0, 1.1, 0.9], [6.5, 0.7, 1.4]])
-    tgt = np.column_stack([rng.uniform(1, 10, 300), rng.uniform(0.2, 2.2, 300), rng.uniform(0.3, 2.7, 300)])
+    rts, src, tgt = _two_sources_and_targets(corridor_scene, 300, seed=3)
     monkeypatch.setattr(SBCandidateGenerator, "MIN_SPEC_COUNT_SIZE", 1000)
     monkeypatch.setattr(internals, "_TARGETS_PER_CAP", 10**9)
     key = None
