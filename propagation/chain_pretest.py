@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from propagation.plane_cover import covered
+
 if TYPE_CHECKING:
     from propagation.completion import Planes
 
@@ -120,8 +122,9 @@ def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.n
 
     Backtracks from the target toward the source images like Sionna's image method, on
     infinite planes: each segment must cross its plane (ends strictly on opposite sides)
-    at a point inside the plane's bounding box (with ``BOX_SLACK_M``). A necessary
-    condition only: Sionna then checks the triangles and occlusion.
+    at a point inside the plane's bounding box (with ``BOX_SLACK_M``) and, where the
+    planes carry a :class:`~propagation.plane_cover.PlaneCover`, in a cell its triangles
+    cover. A necessary condition only: Sionna then checks the triangles and occlusion.
 
     Dense over (link, chain), one plane after the other, in float32 (the images in
     float64): the pairs that fail early are not compacted away, which would cost more
@@ -172,6 +175,8 @@ def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.n
             x += pt[ax]
             ok &= (x >= lo[:, ax]) & (x <= hi[:, ax])
             new.append(x)
+        if planes.cover is not None:  # on the plane's triangles, not only in its box
+            ok &= covered(planes.cover, p, new, origin)
         pt = new
     li, ci = (v.astype(np.int64) for v in np.nonzero(ok))
     return li, ci

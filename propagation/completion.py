@@ -36,6 +36,7 @@ import numpy as np
 from propagation.chain_pretest import BOX_SLACK_M, iter_candidate_chains
 from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
+from propagation.plane_cover import PlaneCover, plane_cover
 from propagation.sionna_paths import path_copies, points, to_source_paths
 
 __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup",
@@ -74,6 +75,9 @@ class Planes:
         First vertex of the representative triangle (p, 3), float64, metres.
     shape_ids : tuple of tuple of str
         Per plane, the ids of the shapes whose triangles it holds.
+    cover : PlaneCover or None
+        Which cells of each plane its triangles cover (:mod:`propagation.plane_cover`),
+        for the pre-test; ``None``: the bounding boxes alone.
     """
 
     normal: np.ndarray
@@ -85,6 +89,7 @@ class Planes:
     primitive: np.ndarray
     point_m: np.ndarray
     shape_ids: tuple
+    cover: PlaneCover | None = None
 
     def __len__(self) -> int:
         return len(self.offset_m)
@@ -161,9 +166,24 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
         z = np.zeros(0)
         return Planes(empty, z, z, empty, empty, z.astype(np.int64), z.astype(np.int64), empty, ())
     cols = list(zip(*rows, strict=True))
-    return Planes(np.array(cols[0]), np.array(cols[1]), np.array(cols[2]), np.array(cols[3]),
-                  np.array(cols[4]), np.array(cols[5], np.int64), np.array(cols[6], np.int64),
-                  np.array(cols[7]), tuple(cols[8]))
+    normal, offset, lo, hi = np.array(cols[0]), np.array(cols[1]), np.array(cols[3]), np.array(cols[4])
+    # the cover holds every triangle plane_lookup may label with the plane (its criterion)
+    on = [tri[_on_plane(tri, nrm, normal[p], offset[p], lo[p], hi[p], normal_tol, offset_tol_m)]
+          for p in range(len(rows))]
+    return Planes(normal, offset, np.array(cols[2]), lo, hi, np.array(cols[5], np.int64),
+                  np.array(cols[6], np.int64), np.array(cols[7]), tuple(cols[8]),
+                  plane_cover(on, normal, lo, hi, BOX_SLACK_M))
+
+
+def _on_plane(tri, nrm, normal, offset_m, lo_m, hi_m, normal_tol: float, offset_tol_m: float) -> np.ndarray:
+    """Triangles (t, 3, 3) of unit normals ``nrm`` (t, 3) that lie on the plane
+    (``normal``, ``offset_m``) within the tolerances and inside its box (with the
+    pre-test's slack), (t,) bool."""
+    sign = np.sign(nrm @ normal)
+    return ((np.abs(nrm * sign[:, None] - normal).max(axis=1) <= normal_tol)
+            & (np.abs(tri @ normal - offset_m).max(axis=1) <= offset_tol_m)
+            & np.all(tri >= lo_m - BOX_SLACK_M, axis=(1, 2))
+            & np.all(tri <= hi_m + BOX_SLACK_M, axis=(1, 2)))
 
 
 def _largest_patch_m2(tri: np.ndarray, area: np.ndarray) -> float:
@@ -293,12 +313,8 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
         nrm = cr / np.maximum(np.linalg.norm(cr, axis=1), 1e-300)[:, None]
         lab = np.full(len(tri), -1, np.int64)
         for p in range(len(planes)):
-            n0 = planes.normal[p]
-            sign = np.sign(nrm @ n0)
-            on = ((np.abs(nrm * sign[:, None] - n0).max(axis=1) <= normal_tol)
-                  & (np.abs(tri @ n0 - planes.offset_m[p]).max(axis=1) <= offset_tol_m)
-                  & np.all(tri >= planes.lo_m[p] - BOX_SLACK_M, axis=(1, 2))
-                  & np.all(tri <= planes.hi_m[p] + BOX_SLACK_M, axis=(1, 2)))
+            on = _on_plane(tri, nrm, planes.normal[p], planes.offset_m[p], planes.lo_m[p], planes.hi_m[p],
+                           normal_tol, offset_tol_m)
             lab[on & (lab < 0)] = p
         labels.append(lab)
     order = np.argsort(ptr, kind="stable")

@@ -236,7 +236,8 @@ def test_completed_cache_never_holds_an_uncompleted_link(corridor_scene, tmp_pat
 
 def _pretest_reference(planes, src, tgt, link_src, link_tgt, chains):
     """The pre-test pair by pair in float64: backtrack from the target through the chain's
-    planes, each segment crossing its plane inside the plane's box (+1 mm slack).
+    planes, each segment crossing its plane inside the plane's box (+1 mm slack), in a
+    covered cell of the plane's raster.
 
     Returns ``{(link, chain): (kept, margin_m)}``, the margin being the smallest distance,
     over the tests made, of a point or image to its plane or of a reflection point to its
@@ -263,6 +264,16 @@ def _pretest_reference(planes, src, tgt, link_src, link_tgt, chains):
                 if np.any(pt < lo) or np.any(pt > hi):
                     ok = False
                     break
+                if planes.cover is not None:  # the cell of the plane's raster holding pt
+                    cv = planes.cover
+                    u = (pt - cv.lo_m[p]) * cv.inv_cell_per_m[p]
+                    on = cv.strides[p] > 0
+                    idx = np.clip(np.floor(u), 0, cv.dims[p] - 1).astype(np.int64)
+                    frac = (u - np.floor(u))[on]
+                    margin = min(margin, np.minimum(frac, 1.0 - frac).min() / cv.inv_cell_per_m[p])
+                    if not cv.cells[cv.offset[p] + int((idx * cv.strides[p]).sum())]:
+                        ok = False
+                        break
             out[(li, ci)] = (ok, margin)
     return out
 
@@ -272,7 +283,8 @@ def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift
     # The dense float32 pre-test against a pair-by-pair float64 recomputation, also with
     # the whole scene 1,000 km from the origin (float32 rounds there to 6 cm, far above
     # the 1 mm slack: the pre-test must centre its coordinates; fails if it does not).
-    # The answers may differ only for a pair within 1e-4 m of the other answer: float32
+    # The answers may differ only for a pair within 1e-4 m of the other answer (a plane,
+    # a box face or a raster cell's edge): float32
     # rounding of centred coordinates ~20 m across is ~1e-6 m, so 1e-4 m leaves room for
     # the few operations in between and is still 10x below the slack.
     import dataclasses
@@ -284,7 +296,8 @@ def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift
     planes = large_planes(rts, 1.0)
     shift = np.array([shift_m, -shift_m, 0.0])
     planes = dataclasses.replace(planes, offset_m=planes.offset_m + planes.normal @ shift,
-                                 lo_m=planes.lo_m + shift, hi_m=planes.hi_m + shift)
+                                 lo_m=planes.lo_m + shift, hi_m=planes.hi_m + shift,
+                                 cover=dataclasses.replace(planes.cover, lo_m=planes.cover.lo_m + shift))
     rng = np.random.default_rng(5)
     src = np.column_stack([rng.uniform(1, 19, 6), rng.uniform(0.3, 2.1, 6), rng.uniform(0.3, 2.2, 6)]) + shift
     tgt = corridor_scene.tags.positions_m[::3] + shift
