@@ -4,8 +4,8 @@ specular paths at all.
 :func:`propagation.completion.complete_specular` enumerates every chain of reflections
 over the scene's large planes (:func:`chains`); before Sionna's image method solves them
 exactly, :func:`candidate_chains` drops the (link, chain) pairs that cannot be paths even
-on the unbounded planes, clipped to their bounding boxes (:func:`_pretest`, dense in
-float32). Blocks of pairs run side by side in threads (NumPy releases the GIL in its
+on the unbounded planes, clipped to their bounding boxes and to the cells their
+triangles cover (:func:`_pretest`, in float32). Blocks of pairs run side by side in threads (NumPy releases the GIL in its
 array loops) and are joined in block order.
 """
 
@@ -174,7 +174,8 @@ def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.n
     li, ci = (v.astype(np.int64) for v in np.nonzero(ok))
     # the earlier reflections on the pairs still in, one plane after the other (same
     # float32 operations per pair as densely, so the same answers)
-    pt = [x[li, ci] for x in pt]
+    if k > 1:
+        pt = [x[li, ci] for x in pt]
     for j in range(k - 2, -1, -1):
         p = chains[:, j]
         n, o = planes.normal[p], off_all[p]

@@ -13,8 +13,9 @@ over large planes (with refraction off, 2 % of the second order). Over large pla
 2. :func:`complete_specular` enumerates every chain of 1..``max_order`` reflections over
    these planes (no plane twice in a row), drops in NumPy the (link, chain)
    pairs that cannot be paths even on the unbounded planes (each backtracked segment must
-   cross its plane, each reflection point must lie in the plane's bounding box:
-   :mod:`propagation.chain_pretest`), and gives the rest to Sionna's own ``ImageMethod``
+   cross its plane, each reflection point must lie in the plane's bounding box and in a
+   cell of it its triangles cover: :mod:`propagation.chain_pretest`,
+   :mod:`propagation.plane_cover`), and gives the rest to Sionna's own ``ImageMethod``
    (exact triangles, occlusion, float32) and ``FieldCalculator`` (materials), reached
    through :mod:`propagation.sionna_internals`.
 3. :func:`merge_paths` adds the completion to a ``PathSolver`` trace without counting a
@@ -42,6 +43,10 @@ from propagation.sionna_paths import path_copies, points, to_source_paths
 __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup",
            "triangle_planes"]
 
+#: Largest offset of a parallel triangle whose hit Sionna's image method takes for the
+#: expected plane's, m: ``ImageMethod._backtrack`` accepts another triangle where the two
+#: images of the image differ by under 1 cm (squared norm < 1e-4), i.e. twice the offset.
+SAME_IMAGE_OFFSET_M = 5e-3
 #: Candidate chains per call of Sionna's image method and field calculator: they hold
 #: ~330 B of Dr.Jit temporaries per candidate in buffers of depth 2-3 (measured on
 #: corridor_lab: 7.0 M order-2 candidates peaked at 2.3 GB, 2.9 M order-3 ones at
@@ -160,16 +165,22 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
         pts = tri[members].reshape(-1, 3)
         rows.append((nrm[rep], float(nrm[rep] @ tri[rep, 0]), float(area[members].sum()), pts.min(0),
                      pts.max(0), sid[rep], prim[rep], tri[rep, 0],
-                     tuple(sorted({str(shapes[k].id()) for k in sid[members]}))))
+                     tuple(sorted({str(shapes[k].id()) for k in sid[members]})), members))
     rows.sort(key=lambda r: -r[2])
     if not rows:
         z = np.zeros(0)
         return Planes(empty, z, z, empty, empty, z.astype(np.int64), z.astype(np.int64), empty, ())
     cols = list(zip(*rows, strict=True))
     normal, offset, lo, hi = np.array(cols[0]), np.array(cols[1]), np.array(cols[3]), np.array(cols[4])
-    # the cover holds every triangle plane_lookup may label with the plane (its criterion)
-    on = [tri[_on_plane(tri, nrm, normal[p], offset[p], lo[p], hi[p], normal_tol, offset_tol_m)]
-          for p in range(len(rows))]
+    # the cover holds the plane's own triangles and every triangle in its box a reflection
+    # off it may hit: parallel within Sionna's image test (which plane_lookup's labels are
+    # within too), so the raster never drops a point the box test kept and Sionna accepts
+    on = []
+    for p in range(len(rows)):
+        mask = _on_plane(tri, nrm, normal[p], offset[p], lo[p] - SAME_IMAGE_OFFSET_M,
+                         hi[p] + SAME_IMAGE_OFFSET_M, normal_tol, max(offset_tol_m, SAME_IMAGE_OFFSET_M))
+        mask[cols[9][p]] = True
+        on.append(tri[mask])
     return Planes(normal, offset, np.array(cols[2]), lo, hi, np.array(cols[5], np.int64),
                   np.array(cols[6], np.int64), np.array(cols[7]), tuple(cols[8]),
                   plane_cover(on, normal, lo, hi, BOX_SLACK_M))
@@ -292,8 +303,9 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
 
     A triangle gets a plane's label only when it also lies inside that plane's bounding
     box (with the pre-test's slack): the completion's pre-test drops reflection points
-    outside the box, so a chain labelled here is one the completion does not drop for
-    lying off its plane (a triangle coplanar with a large plane but grouped elsewhere,
+    outside the box (and off the plane's raster, which holds every triangle labelled
+    here), so a chain labelled here is one the completion does not drop for lying off
+    its plane (a triangle coplanar with a large plane but grouped elsewhere,
     as may happen in an imported mesh, stays unlabelled and its chains are traced).
     """
     from propagation.sionna_internals import shape_pointers

@@ -12,14 +12,17 @@ of the tracing time.
 
 :func:`plane_cover` rasters each plane, projected along its normal's largest axis, on a
 grid of cells of at least :data:`MIN_CELL_M`; a cell is *covered* where the bounding
-rectangle of one of the plane's triangles, widened by ``BOX_SLACK_M``, touches it.
-:func:`covered` tells, per reflection point, whether its cell is covered. The raster
-over-covers (a triangle's bounding rectangle, whole cells), never under-covers: a point
-on a triangle of the plane lies in a covered cell, so the test drops no path Sionna's
-image method would accept, only fewer of those it would reject.
+rectangle of one of the plane's triangles, widened by the box test's slack and one cell,
+touches it. :func:`covered` tells, per reflection point, whether its cell is covered.
+The raster over-covers (a triangle's bounding rectangle, whole cells, a cell more on
+each side), never under-covers: a point on a triangle of the plane lies in a covered
+cell. The triangles are the plane's own and every parallel one within Sionna's image
+test (``completion.SAME_IMAGE_OFFSET_M``, 5 mm), whose hit Sionna takes for the plane's;
+a ray meets such a triangle up to ``offset / tan(grazing angle)`` from the point on the
+plane, within the extra cell (>= 5 cm) down to grazing angles of ~6 degrees.
 
 Written here rather than with shapely or scikit-image: the test runs on hundreds of
-millions of points per chunk, as one NumPy gather; a polygon library's point-in-polygon
+millions of points per chunk (blocks of 2^18), as one NumPy gather per block; a polygon library's point-in-polygon
 does not vectorise over a dense (link, chain) grid and rasterising triangles exactly is
 not needed for a necessary condition.
 """
@@ -30,14 +33,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_CELLS_PER_PLANE", "MIN_CELL_M", "PlaneCover", "covered", "plane_cover"]
+__all__ = ["MAX_CELLS", "MAX_CELLS_PER_PLANE", "MIN_CELL_M", "PlaneCover", "covered", "plane_cover"]
 
 #: Smallest raster cell, m: rack uprights' faces are ~0.1 m wide; 5 cm cells keep their
 #: over-cover to a cell or two on each side.
 MIN_CELL_M = 0.05
-#: Most cells of one plane's raster (1 MiB of bool): a 30 m x 50 m floor at 5 cm is
-#: 0.6 M cells; a larger plane gets coarser cells.
+#: Cells of one plane's raster, about (1 MiB of bool; the rounding up of its two sides
+#: may add a row and a column): a 30 m x 50 m floor at 5 cm is 0.6 M cells; a larger
+#: plane gets coarser cells.
 MAX_CELLS_PER_PLANE = 1 << 20
+#: Most cells of all rasters (256 MiB; warehouse_large at planes >= 0.1 m^2 has 6 M): a
+#: plane past it gets one covered cell, i.e. its box alone, as before the rasters.
+MAX_CELLS = 1 << 28
 
 
 @dataclass(frozen=True)
@@ -73,7 +80,7 @@ class PlaneCover:
     def covered_fraction(self) -> np.ndarray:
         """Covered share of each plane's raster (p,): 1 for a plane its triangles fill."""
         ends = np.append(self.offset[1:], len(self.cells))
-        return np.array([self.cells[a:b].mean() if b > a else 1.0 for a, b in zip(self.offset, ends, strict=True)])
+        return np.array([self.cells[a:b].mean() for a, b in zip(self.offset, ends, strict=True)])
 
 
 def plane_cover(triangles: list[np.ndarray], normals, lo_m, hi_m, slack_m: float) -> PlaneCover:
@@ -90,7 +97,8 @@ def plane_cover(triangles: list[np.ndarray], normals, lo_m, hi_m, slack_m: float
         The planes' bounding boxes (p, 3), metres; the raster spans them plus ``slack_m``
         and a cell.
     slack_m : float
-        Widening of each triangle's bounding rectangle, m (the box test's slack).
+        Widening of each triangle's bounding rectangle, m (the box test's slack), besides
+        one cell.
 
     Returns
     -------
@@ -111,11 +119,17 @@ def plane_cover(triangles: list[np.ndarray], normals, lo_m, hi_m, slack_m: float
         cell = max(MIN_CELL_M, float(np.sqrt((ext[ab[0]] + MIN_CELL_M) * (ext[ab[1]] + MIN_CELL_M)
                                              / MAX_CELLS_PER_PLANE)))
         n = [int(np.floor(ext[a] / cell)) + 1 for a in ab]  # the box's far side included
+        offset[k], lo_out[k] = start, lo
+        if start + n[0] * n[1] > MAX_CELLS:  # one covered cell: the box test alone
+            cells.append(np.ones(1, bool))
+            start += 1
+            continue
         tri = np.asarray(triangles[k], float).reshape(-1, 3, 3)
         # per triangle the rows / columns of cells its widened bounding rectangle touches
-        i0 = [np.clip(np.floor((tri[:, :, a].min(1) - slack_m - lo[a]) / cell), 0, m - 1).astype(np.int64)
+        wide = slack_m + cell
+        i0 = [np.clip(np.floor((tri[:, :, a].min(1) - wide - lo[a]) / cell), 0, m - 1).astype(np.int64)
               for a, m in zip(ab, n, strict=True)]
-        i1 = [np.clip(np.floor((tri[:, :, a].max(1) + slack_m - lo[a]) / cell), 0, m - 1).astype(np.int64)
+        i1 = [np.clip(np.floor((tri[:, :, a].max(1) + wide - lo[a]) / cell), 0, m - 1).astype(np.int64)
               for a, m in zip(ab, n, strict=True)]
         # rectangles summed in a difference array, then integrated along both axes
         diff = np.zeros((n[0] + 1, n[1] + 1), np.int64)
@@ -125,12 +139,10 @@ def plane_cover(triangles: list[np.ndarray], normals, lo_m, hi_m, slack_m: float
         np.add.at(diff, (i1[0] + 1, i1[1] + 1), 1)
         grid = diff.cumsum(0).cumsum(1)[:n[0], :n[1]] > 0
         cells.append(grid.reshape(-1))
-        offset[k], lo_out[k], inv[k] = start, lo, 1.0 / cell
+        inv[k] = 1.0 / cell
         dims[k, ab] = n
         strides[k, ab] = (n[1], 1)
         start += grid.size
-    if start >= np.iinfo(np.int32).max:  # covered() indexes in int32
-        raise ValueError(f"{start:,} raster cells over {p} planes: more than int32 indexes")
     return PlaneCover(np.concatenate(cells) if cells else np.zeros(0, bool), offset, lo_out, inv, dims, strides)
 
 
@@ -140,24 +152,26 @@ def covered(cover: PlaneCover, plane: np.ndarray, point, origin_m) -> np.ndarray
     Parameters
     ----------
     cover : PlaneCover
+        The planes' rasters.
     plane : numpy.ndarray
-        Plane of each column (c,), int64.
+        Plane of each point along the last axis (c,), int64: per column of (r, c)
+        points, or per point of (c,) points.
     point : sequence of numpy.ndarray
-        The points' x, y, z relative to ``origin_m``, each (r, c) (float32 in the
-        pre-test): column j on plane ``plane[j]``.
+        The points' x, y, z relative to ``origin_m``, each (..., c) (float32 in the
+        pre-test).
     origin_m : array_like
         (3,), metres: what ``point`` is relative to.
 
     Returns
     -------
     numpy.ndarray
-        (r, c) bool. A point outside its raster is looked up in the nearest edge cell:
+        (..., c) bool. A point outside its raster is looked up in the nearest edge cell:
         callers test the box first.
     """
     dtype = np.asarray(point[0]).dtype
     lo = (cover.lo_m[plane] - np.asarray(origin_m, float)).astype(dtype)
     inv = cover.inv_cell_per_m[plane].astype(dtype)
-    # int32 indices (plane_cover keeps the rasters under 2^31 cells): half the traffic
+    # int32 indices (MAX_CELLS keeps the rasters under 2^31 cells): half the traffic
     flat = np.broadcast_to(cover.offset[plane].astype(np.int32), np.shape(point[0])).copy()
     for ax in range(3):
         stride = cover.strides[plane, ax].astype(np.int32)

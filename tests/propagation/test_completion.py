@@ -241,7 +241,7 @@ def _pretest_reference(planes, src, tgt, link_src, link_tgt, chains):
 
     Returns ``{(link, chain): (kept, margin_m)}``, the margin being the smallest distance,
     over the tests made, of a point or image to its plane or of a reflection point to its
-    box's faces: how far the pair is from the other answer."""
+    box's faces or its raster cell's edges: how far the pair is from the other answer."""
     out = {}
     for li, (s, t) in enumerate(zip(link_src, link_tgt, strict=True)):
         for ci, chain in enumerate(chains):
@@ -278,8 +278,9 @@ def _pretest_reference(planes, src, tgt, link_src, link_tgt, chains):
     return out
 
 
+@pytest.mark.parametrize("punched", [False, True])
 @pytest.mark.parametrize("shift_m", [0.0, 1_000_000.0])
-def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift_m):
+def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift_m, punched):
     # The dense float32 pre-test against a pair-by-pair float64 recomputation, also with
     # the whole scene 1,000 km from the origin (float32 rounds there to 6 cm, far above
     # the 1 mm slack: the pre-test must centre its coordinates; fails if it does not).
@@ -295,10 +296,14 @@ def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift
     rts = load_sionna_scene(corridor_scene, F)
     planes = large_planes(rts, 1.0)
     shift = np.array([shift_m, -shift_m, 0.0])
+    rng = np.random.default_rng(5)
+    # the corridor's planes fill their rasters: punched, half their cells at random are
+    # not covered, so the reference's raster test and the sparse pre-test's drop pairs
+    cells = rng.random(len(planes.cover.cells)) < 0.5 if punched else planes.cover.cells
     planes = dataclasses.replace(planes, offset_m=planes.offset_m + planes.normal @ shift,
                                  lo_m=planes.lo_m + shift, hi_m=planes.hi_m + shift,
-                                 cover=dataclasses.replace(planes.cover, lo_m=planes.cover.lo_m + shift))
-    rng = np.random.default_rng(5)
+                                 cover=dataclasses.replace(planes.cover, lo_m=planes.cover.lo_m + shift,
+                                                           cells=cells))
     src = np.column_stack([rng.uniform(1, 19, 6), rng.uniform(0.3, 2.1, 6), rng.uniform(0.3, 2.2, 6)]) + shift
     tgt = corridor_scene.tags.positions_m[::3] + shift
     need = rng.random((len(src), len(tgt))) < 0.7
