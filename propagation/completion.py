@@ -175,11 +175,11 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
     # the cover holds the plane's own triangles and every triangle in its box a reflection
     # off it may hit: parallel within Sionna's image test (which plane_lookup's labels are
     # within too), so the raster never drops a point the box test kept and Sionna accepts
-    on = []
+    members, on = cols[9], []
     for p in range(len(rows)):
         mask = _on_plane(tri, nrm, normal[p], offset[p], lo[p] - SAME_IMAGE_OFFSET_M,
                          hi[p] + SAME_IMAGE_OFFSET_M, normal_tol, max(offset_tol_m, SAME_IMAGE_OFFSET_M))
-        mask[cols[9][p]] = True
+        mask[members[p]] = True
         on.append(tri[mask])
     return Planes(normal, offset, np.array(cols[2]), lo, hi, np.array(cols[5], np.int64),
                   np.array(cols[6], np.int64), np.array(cols[7]), tuple(cols[8]),

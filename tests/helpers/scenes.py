@@ -6,7 +6,8 @@ import trimesh
 
 from scenes import Scene, TagSet
 
-__all__ = ["box", "box_corridor", "box_room", "make_corridor", "make_far_floor_scene", "make_floor_scene"]
+__all__ = ["box", "box_corridor", "box_room", "corridor_links", "make_corridor", "make_far_floor_scene",
+           "make_floor_scene"]
 
 
 def box(lo, hi):
@@ -21,6 +22,17 @@ def box(lo, hi):
 def _tags(pos):
     pos = np.asarray(pos, float)
     return TagSet([f"t{i}" for i in range(len(pos))], pos, np.tile([0.0, -1.0, 0.0], (len(pos), 1)))
+
+
+def corridor_links(scene, rng, n_sources=5, tag_step=2, p_need=0.8):
+    """Random antenna positions in a 20 m corridor, every ``tag_step``-th tag of ``scene``
+    and a random ``p_need`` share of their links: (src (n, 3), tgt (m, 3), link_src,
+    link_tgt), the sources drawn from ``rng`` before the links."""
+    src = np.column_stack([rng.uniform(1, 19, n_sources), rng.uniform(0.3, 2.1, n_sources),
+                           rng.uniform(0.3, 2.2, n_sources)])
+    tgt = scene.tags.positions_m[::tag_step]
+    link_src, link_tgt = np.nonzero(rng.random((len(src), len(tgt))) < p_need)
+    return src, tgt, link_src, link_tgt
 
 
 def make_floor_scene(material="concrete", size=60.0):

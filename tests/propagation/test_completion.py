@@ -10,6 +10,7 @@ from propagation.pathcache import SourcePaths
 from propagation.pathsolve import _trace_chunk
 from propagation.sionna_scene import load_sionna_scene
 from scenes import material
+from tests.helpers.scenes import corridor_links
 
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 
@@ -304,10 +305,8 @@ def test_pretest_keeps_the_pairs_a_float64_backtrack_keeps(corridor_scene, shift
                                  lo_m=planes.lo_m + shift, hi_m=planes.hi_m + shift,
                                  cover=dataclasses.replace(planes.cover, lo_m=planes.cover.lo_m + shift,
                                                            cells=cells))
-    src = np.column_stack([rng.uniform(1, 19, 6), rng.uniform(0.3, 2.1, 6), rng.uniform(0.3, 2.2, 6)]) + shift
-    tgt = corridor_scene.tags.positions_m[::3] + shift
-    need = rng.random((len(src), len(tgt))) < 0.7
-    link_src, link_tgt = np.nonzero(need)
+    src, tgt, link_src, link_tgt = corridor_links(corridor_scene, rng, n_sources=6, tag_step=3, p_need=0.7)
+    src, tgt = src + shift, tgt + shift
     n_kept = 0
     for order in (1, 2, 3):
         chains = _chains(len(planes), order)[:: 7 if order == 3 else 1]
@@ -335,10 +334,7 @@ def test_candidates_in_threads_are_the_blocks_one_after_the_other(corridor_scene
 
     rts = load_sionna_scene(corridor_scene, F)
     planes = large_planes(rts, 1.0)
-    rng = np.random.default_rng(11)
-    src = np.column_stack([rng.uniform(1, 19, 5), rng.uniform(0.3, 2.1, 5), rng.uniform(0.3, 2.2, 5)])
-    tgt = corridor_scene.tags.positions_m[::2]
-    link_src, link_tgt = np.nonzero(rng.random((len(src), len(tgt))) < 0.8)
+    src, tgt, link_src, link_tgt = corridor_links(corridor_scene, np.random.default_rng(11))
     want_l, want_c = [], []
     for order in (1, 2, 3):
         chains = _chains(len(planes), order)

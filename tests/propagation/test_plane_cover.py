@@ -10,6 +10,7 @@ from propagation.chain_pretest import BOX_SLACK_M, candidate_chains
 from propagation.completion import complete_specular, large_planes
 from propagation.plane_cover import MIN_CELL_M, covered, plane_cover
 from propagation.sionna_scene import load_sionna_scene
+from tests.helpers.scenes import corridor_links
 
 pytestmark = pytest.mark.filterwarnings("ignore::scenes.materials.FrequencyRangeWarning")
 
@@ -143,9 +144,7 @@ def test_the_pretest_with_a_cover_keeps_a_subsequence_of_the_box_pretest(corrido
     rts = load_sionna_scene(corridor_scene, F)
     planes = large_planes(rts, 1.0)
     rng = np.random.default_rng(17)
-    src = np.column_stack([rng.uniform(1, 19, 5), rng.uniform(0.3, 2.1, 5), rng.uniform(0.3, 2.2, 5)])
-    tgt = corridor_scene.tags.positions_m[::2]
-    link_src, link_tgt = np.nonzero(rng.random((len(src), len(tgt))) < 0.8)
+    src, tgt, link_src, link_tgt = corridor_links(corridor_scene, rng)
     full = dataclasses.replace(planes, cover=dataclasses.replace(
         planes.cover, cells=np.ones_like(planes.cover.cells)))
     punched = dataclasses.replace(planes, cover=dataclasses.replace(
