@@ -39,7 +39,7 @@ from shapely.geometry import Point, Polygon
 from scenes.radio import default_construction
 from scenes.rosmap import OBSTACLE, OUTSIDE, RosMap, resolve_unknown
 
-__all__ = ["KINDS", "ExtractionRules", "MapObstacle", "extract_obstacles", "apply_override"]
+__all__ = ["KINDS", "ExtractionRules", "MapObstacle", "apply_override", "extract_obstacles", "map_cells"]
 
 #: What an obstacle is: a wall (its material and construction decide the radio surfaces),
 #: a shelving rack (shelf boards and uprights) or a pillar (a closed shell).
@@ -70,6 +70,14 @@ class ExtractionRules:
         Smallest short and long side of a rack's rectangle [m].
     min_area_m2 : float
         Obstacles of less area are noise: no geometry [m^2].
+    gap_close_m : float
+        Outline gaps up to this wide are closed before extraction [m]
+        (:mod:`scenes.mapclean`); 0: none.
+    fill_max_width_m : float
+        Enclosed regions, mostly unknown, at most this wide become obstacle (the unseen
+        inside of a rack's or pallet's outline) [m] (:mod:`scenes.mapclean`); 0: none.
+    fill_free_max_width_m : float
+        Enclosed regions at most this wide become obstacle whatever they hold [m]; 0: none.
     """
 
     outer_material: str = "concrete"
@@ -82,6 +90,37 @@ class ExtractionRules:
     rack_min_depth_m: float = 0.35
     rack_min_length_m: float = 1.0
     min_area_m2: float = 0.02
+    # a real map's outline gaps are a cell or two (3-5 cm maps: up to 0.1 m); door gaps are
+    # 0.7 m and up, so they stay open
+    gap_close_m: float = 0.1
+    # racks are 0.8-1.2 m deep, back-to-back rows up to 2.5 m (two 1.1 m rows and a flue); an
+    # enclosed region is one the robot cannot enter, so a narrow closed room is lost, not a
+    # route
+    fill_max_width_m: float = 2.5
+    # a free enclosed region narrower than the robot (0.8 m) is laser seen between shelves
+    fill_free_max_width_m: float = 0.8
+
+
+def map_cells(rosmap: RosMap, rules: ExtractionRules | None = None):
+    """The map's cell classes as the extraction reads them, and what cleaning changed.
+
+    :func:`scenes.mapclean.clean_cell_class` (gaps closed, enclosed outlines filled), then
+    :func:`scenes.rosmap.resolve_unknown`.
+
+    Returns
+    -------
+    cells : numpy.ndarray
+        Shape (ny, nx), int8: ``OBSTACLE`` / ``FREE`` / ``OUTSIDE``.
+    report : scenes.mapclean.CleaningReport
+    """
+    from scenes.mapclean import clean_cell_class
+
+    rules = ExtractionRules() if rules is None else rules
+    cleaned, report = clean_cell_class(rosmap.cell_class, rosmap.resolution_m, rosmap.origin_m,
+                                       gap_close_m=rules.gap_close_m,
+                                       fill_max_width_m=rules.fill_max_width_m,
+                                       fill_free_max_width_m=rules.fill_free_max_width_m)
+    return resolve_unknown(cleaned), report
 
 
 @dataclass(frozen=True)
@@ -302,8 +341,79 @@ def _classify(area: float, thickness: float, long_side: float, short_side: float
     return "wall", rules.thick_material, "solid", "thick wall"
 
 
+#: Square sides [m] of the openings that look for a rack inside a larger obstacle, after
+#: ``rack_min_depth_m``: a rack touching a wall or another unit is found at the first
+#: side that cuts the thinner part off it (walls 0.1-0.5 m, racks 0.35-2.5 m deep).
+_SPLIT_SIDES_M = (0.5, 0.8, 1.2, 1.8)
+
+
+def _cell_rectangle(mask: np.ndarray, res: float) -> tuple[float, float, float]:
+    """(fill, long side, short side) [1, m, m] of a cell mask's minimum rotated rectangle."""
+    r, c = np.nonzero(mask)
+    corners = np.concatenate([np.stack([c + dx, r + dy], 1) for dx in (0, 1) for dy in (0, 1)])
+    hull = shapely.MultiPoint(corners.astype(float)).convex_hull
+    rect = np.asarray(hull.minimum_rotated_rectangle.exterior.coords)[:4]
+    e = np.linalg.norm(np.diff(np.vstack([rect, rect[:1]]), axis=0), axis=1)
+    long_c, short_c = float(max(e[0], e[1])), float(min(e[0], e[1]))
+    return min(1.0, len(r) / max(long_c * short_c, 1.0)), long_c * res, short_c * res
+
+
+def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) -> np.ndarray:
+    """Labels with rack-shaped rectangles cut out of the obstacles they touch.
+
+    A rack standing against a wall, or two pallets touching, are one connected obstacle
+    whose outline is no rectangle, so no rule would call it a rack. For every obstacle that
+    is not itself a rectangle (fill below ``rack_min_fill``), openings with squares of
+    ``rack_min_depth_m`` and then :data:`_SPLIT_SIDES_M` keep its parts at least that thick;
+    a part that is a rack-sized rectangle (fill, depth, length as the rack rule asks, depth
+    at most ``fill_max_width_m`` or 2.5 m) becomes an obstacle of its own, the rest of the
+    obstacle another. scipy.ndimage openings, shapely rectangles.
+    """
+    out = labels.copy()
+    nxt = int(labels.max()) + 1
+    max_depth = max(rules.fill_max_width_m, 2.5)
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        sl = tuple(slice(max(s.start - 1, 0), s.stop + 1) for s in sl)
+        mask = labels[sl] == k
+        if mask.sum() * res * res < rules.rack_min_depth_m * rules.rack_min_length_m:
+            continue
+        fill, _, _ = _cell_rectangle(mask, res)
+        if fill >= rules.rack_min_fill:
+            continue
+        rest = mask.copy()
+        for side in (rules.rack_min_depth_m, *_SPLIT_SIDES_M):
+            n = max(1, int(round(side / res)))
+            if n > min(rest.shape):
+                break
+            opened = ndimage.binary_opening(rest, structure=np.ones((n, n), bool))
+            parts, n_parts = ndimage.label(opened, structure=np.ones((3, 3)))
+            for j in range(1, n_parts + 1):
+                piece = parts == j
+                if piece.sum() == rest.sum():
+                    continue  # the whole obstacle: not a split
+                f, long_m, short_m = _cell_rectangle(piece, res)
+                if (f >= rules.rack_min_fill and rules.rack_min_depth_m <= short_m <= max_depth
+                        and long_m >= rules.rack_min_length_m):
+                    out[sl][piece] = nxt
+                    nxt += 1
+                    rest &= ~piece
+            if not rest.any():
+                break
+        if rest.sum() < mask.sum():  # what is left of the obstacle, one label per piece
+            pieces, n_pieces = ndimage.label(rest, structure=np.ones((3, 3)))
+            view = out[sl]
+            view[rest] = 0
+            for j in range(1, n_pieces + 1):
+                view[pieces == j] = nxt
+                nxt += 1
+    return out
+
+
 def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
-                      rules: ExtractionRules | None = None) -> list[MapObstacle]:
+                      rules: ExtractionRules | None = None, cells: np.ndarray | None = None
+                      ) -> list[MapObstacle]:
     """The connected obstacles of a map, outlined, thinned and classified.
 
     Parameters
@@ -314,6 +424,8 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
         (outlines then stay within one cell of the map's cell edges).
     rules : ExtractionRules, optional
         Construction rules (default :class:`ExtractionRules`).
+    cells : numpy.ndarray, optional
+        The cell classes of :func:`map_cells` (computed when not given).
 
     Returns
     -------
@@ -327,7 +439,7 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
     tol = 0.5 * res if tolerance_m is None else float(tolerance_m)
     if not tol >= 0:
         raise ValueError(f"{rosmap.path}: tolerance_m must be >= 0, got {tolerance_m!r}")
-    cls = resolve_unknown(rosmap.cell_class)
+    cls = map_cells(rosmap, rules)[0] if cells is None else cells
     obstacle = cls == OBSTACLE
     outside = np.pad(cls == OUTSIDE, 1, constant_values=True)
     near_outside = ndimage.binary_dilation(outside, structure=np.ones((3, 3)))[1:-1, 1:-1]
@@ -336,7 +448,7 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
     # (rectangles exactly) and removes thinner lines, which become obstacles of their own.
     k = max(1, int(np.ceil(rules.thin_wall_max_m / res - 1e-9)))
     thick = ndimage.binary_opening(obstacle, structure=np.ones((k, k), bool))
-    labels = measure.label(thick, connectivity=2)
+    labels = _split_rectangles(measure.label(thick, connectivity=2), res, rules)
     thin_labels = measure.label(obstacle & ~thick, connectivity=2)
     labels = np.where(thin_labels > 0, thin_labels + labels.max(), labels)
     out = []

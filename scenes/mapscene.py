@@ -38,11 +38,11 @@ import trimesh
 from shapely.geometry.polygon import orient
 
 from scenes.geometry import box_mesh, merge_meshes
-from scenes.mapextract import MapObstacle, apply_override, extract_obstacles
+from scenes.mapextract import MapObstacle, apply_override, extract_obstacles, map_cells
 from scenes.mapspec import MapSpec, TagLayoutSpec, rules_of
 from scenes.materials import UnknownMaterialError, get_material, resolve_material_name
 from scenes.radio import RadioSurface
-from scenes.rosmap import FREE, OUTSIDE, RosMap, read_map, resolve_unknown
+from scenes.rosmap import FREE, OUTSIDE, RosMap, read_map
 from scenes.scene import Scene, TagSet
 from scenes.spec import SpecError, TagSpec
 from scenes.tags import make_tags, validate_tags
@@ -154,11 +154,18 @@ def _free_boxes(cls: np.ndarray, rosmap: RosMap, height_m: float) -> np.ndarray:
                      for r0, r1, c0, c1 in sorted(rects)], dtype=float).reshape(-1, 2, 3)
 
 
+def _is_free_cell(cls: np.ndarray, rosmap: RosMap, xy) -> bool:
+    """Whether the map cell holding the point (2,) [m] is free."""
+    col, row = np.floor((np.asarray(xy) - rosmap.origin_m) / rosmap.resolution_m).astype(int)
+    return bool(0 <= row < cls.shape[0] and 0 <= col < cls.shape[1] and cls[row, col] == FREE)
+
+
 def shelf_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, spec: MapSpec,
                layout: TagLayoutSpec, where: str) -> list[TagSpec]:
     """Tags on the front beams of every rack face that looks onto free space.
 
-    A face looks onto free space when the map cell 0.3 m in front of its middle is free.
+    A tag is placed where the map cells in front of it are free (just beyond a cell, 0.15 m
+    and 0.3 m out): a face against a wall or another rack keeps its open part.
     Tags run along the face from ``margin_m`` to the other end, ``spacing_m`` apart
     (centred), at ``heights_m`` (default: the middle of every beam). Ids
     ``R<rack>-<side><level>-<k>`` (side A: +v, B: -v of :func:`rack_frames`).
@@ -178,13 +185,16 @@ def shelf_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, sp
         n = max(1, int(np.floor(usable / layout.spacing_m)) + 1) if usable > 0 else 1
         s = (np.arange(n) - (n - 1) / 2) * layout.spacing_m
         for side, w in (("A", 1.0), ("B", -1.0)):
-            probe = c + w * (depth / 2 + 0.3) * v
-            col, row = np.floor((probe - rosmap.origin_m) / rosmap.resolution_m).astype(int)
-            inside = 0 <= row < cls.shape[0] and 0 <= col < cls.shape[1]
-            if not inside or cls[row, col] != 0:
+            # each tag's own front: free from just beyond a cell to 0.3 m out (a rack whose
+            # face is partly against a wall or another rack keeps the tags of the open part)
+            front = np.array([[_is_free_cell(cls, rosmap, c + si * u + w * (depth / 2 + d) * v)
+                               for d in (1.5 * rosmap.resolution_m, 0.15, 0.3)] for si in s]).all(axis=1)
+            if not front.any():
                 continue
             for j, h in enumerate(heights):
                 for i, si in enumerate(s):
+                    if not front[i]:
+                        continue
                     p = c + si * u + w * depth / 2 * v
                     out.append(TagSpec(f"R{k + 1:02d}-{side}{j + 1}-{i + 1:03d}", (float(p[0]), float(p[1]), float(h)),
                                        (float(w * v[0]), float(w * v[1]), 0.0), layout.offset_m))
@@ -325,7 +335,8 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
             resolve_material_name(getattr(spec, key))
         except UnknownMaterialError as exc:
             raise UnknownMaterialError(f"{where}: [map] key {key!r}: {exc}") from None
-    obstacles = extract_obstacles(rosmap, spec.tolerance_m, rules_of(spec))
+    cls, cleaning = map_cells(rosmap, rules_of(spec))
+    obstacles = extract_obstacles(rosmap, spec.tolerance_m, rules_of(spec), cells=cls)
     for i, ov in enumerate(spec.override):
         label = f"{where}: [[map.override]] #{i + 1}" + (f" (id {ov.id!r})" if ov.id else "")
         obstacles = apply_override(obstacles, label, point_m=ov.point_m, polygon_m=ov.polygon_m,
@@ -333,7 +344,6 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
                                    snap_m=rosmap.resolution_m)
     obstacles = [o if o.kind != "wall" or o.construction else
                  _with_construction(o) for o in obstacles]
-    cls = resolve_unknown(rosmap.cell_class)
     H = spec.height_m
     parts: dict[str, list] = {}
     radio: list[RadioSurface] = []

@@ -88,6 +88,15 @@ class MapSpec:
         Materials of the rules (:class:`scenes.mapextract.ExtractionRules`).
     thin_wall_max_m, pillar_max_m, rack_min_fill, rack_min_depth_m, rack_min_length_m, min_area_m2 : float
         Rule thresholds (:class:`scenes.mapextract.ExtractionRules`).
+    gap_close_m : float
+        Outline gaps up to this wide are closed before extraction [m]; 0: none
+        (:mod:`scenes.mapclean`).
+    fill_max_width_m : float
+        Enclosed regions at most this wide (largest inscribed disc) become obstacle: the
+        inside of a rack's or pallet's outline, when mostly unknown [m]; 0: none
+        (:mod:`scenes.mapclean`).
+    fill_free_max_width_m : float
+        Enclosed regions at most this wide become obstacle whatever they hold [m]; 0: none.
     rack_height_m : float
         Height of a rack's uprights [m].
     shelf_levels_m : tuple of float
@@ -121,6 +130,9 @@ class MapSpec:
     rack_min_depth_m: float = 0.35
     rack_min_length_m: float = 1.0
     min_area_m2: float = 0.02
+    gap_close_m: float = 0.1
+    fill_max_width_m: float = 2.5
+    fill_free_max_width_m: float = 0.8
     rack_height_m: float = 2.2
     shelf_levels_m: tuple[float, ...] = (0.3, 0.8, 1.3, 1.8)
     beam_height_m: float = 0.1
@@ -220,6 +232,9 @@ def parse_map_table(data, where: str) -> MapSpec:
                         f"{spec.height_m} (the ceiling)")
     if spec.tolerance_m is not None and spec.tolerance_m < 0:
         raise SpecError(f"{where}: key 'tolerance_m' must not be negative, got {spec.tolerance_m!r}")
+    for key in ("gap_close_m", "fill_max_width_m", "fill_free_max_width_m"):
+        if not getattr(spec, key) >= 0:
+            raise SpecError(f"{where}: key {key!r} must not be negative, got {getattr(spec, key)!r}")
     if not 0 < spec.rack_min_fill <= 1:
         raise SpecError(f"{where}: key 'rack_min_fill' must be in (0, 1], got {spec.rack_min_fill!r}")
     return replace(spec, override=tuple(overrides))
@@ -251,4 +266,6 @@ def rules_of(spec: MapSpec) -> ExtractionRules:
         thin_material=spec.thin_material, thin_wall_max_m=spec.thin_wall_max_m,
         pillar_max_m=spec.pillar_max_m, pillar_material=spec.pillar_material,
         rack_min_fill=spec.rack_min_fill, rack_min_depth_m=spec.rack_min_depth_m,
-        rack_min_length_m=spec.rack_min_length_m, min_area_m2=spec.min_area_m2)
+        rack_min_length_m=spec.rack_min_length_m, min_area_m2=spec.min_area_m2,
+        gap_close_m=spec.gap_close_m, fill_max_width_m=spec.fill_max_width_m,
+        fill_free_max_width_m=spec.fill_free_max_width_m)

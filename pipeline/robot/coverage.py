@@ -19,8 +19,13 @@ An inventory robot drives the aisles; the route it follows here is planned, not 
 
 The collision map (:func:`pipeline.robot.trajectory.collision_map`: the scene's meshes
 sliced over the robot's height, racks' shelves and uprights included; its largest
-enclosed free region, the building's main floor) is what "free" means. A face no pass can serve, or a pass the others cannot reach, stops the planning
-with a message naming the map and the region.
+enclosed free region, the building's main floor) is what "free" means. A real map's
+noise leaves faces no pass can serve (a rack corner in a 0.9 m gap, a face in a room the
+robot cannot enter): such a face is *skipped*, not fatal. The route serves the others, and
+:attr:`CoverageRoute.skipped` names each skipped face with its reason; passes in several
+unconnected free regions keep the region holding the most tags and skip the rest. Only a
+map where no face can be served stops the planning, with a message naming the map and
+the reasons.
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-__all__ = ["CoverageRoute", "TagFace", "plan_coverage_route", "route_clearance_m", "tag_faces"]
+__all__ = ["CoverageRoute", "SkippedFace", "TagFace", "plan_coverage_route", "route_clearance_m", "tag_faces"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,28 @@ class TagFace:
 
 
 @dataclass(frozen=True)
+class SkippedFace:
+    """A tag face the route does not serve, and why.
+
+    Attributes
+    ----------
+    face : TagFace
+        The face.
+    reason : str
+        One line: ``"no pass fits"`` (no offset within the standoff keeps the robot's
+        clearance), ``"cut off"`` (its free space is not connected to the main free space)
+        or ``"other region"`` (its pass lies in a free region other than the route's).
+    """
+
+    face: TagFace
+    reason: str
+
+    def describe(self) -> str:
+        """``"<face>: <reason>"``."""
+        return f"{self.face.describe()}: {self.reason}"
+
+
+@dataclass(frozen=True)
 class CoverageRoute:
     """A planned coverage route.
 
@@ -73,11 +100,13 @@ class CoverageRoute:
     faces : tuple of TagFace
         The tag faces.
     face_pass : numpy.ndarray
-        (n_faces,) int: the pass that covers each face.
+        (n_faces,) int: the pass that covers each face; -1 for a skipped face.
     standoff_m : float
-        Every tag lies within this of the route (horizontal distance) [m].
+        Every tag of a served face lies within this of the route (horizontal distance) [m].
     inflation_m : float
         Clearance every route point keeps from obstacles (robot radius + margin) [m].
+    skipped : tuple of SkippedFace
+        The faces no pass serves, with the reason (empty when every face is served).
     """
 
     route_m: np.ndarray
@@ -86,6 +115,14 @@ class CoverageRoute:
     face_pass: np.ndarray
     standoff_m: float
     inflation_m: float
+    skipped: tuple[SkippedFace, ...] = ()
+
+    @property
+    def skipped_tag_index(self) -> np.ndarray:
+        """Indices (k,) int of the tags on skipped faces, sorted."""
+        if not self.skipped:
+            return np.zeros(0, dtype=int)
+        return np.sort(np.concatenate([s.face.tag_index for s in self.skipped]))
 
     @property
     def length_m(self) -> float:
@@ -193,8 +230,7 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     Raises
     ------
     ValueError
-        No tags; a face no pass within ``standoff_m`` fits in front of (the face is named);
-        passes in free space the first pass cannot reach (the region is named).
+        No tags; no face any pass can serve (the map and the reasons are named).
     """
     from pipeline.robot.trajectory import collision_map
     from scenes import is_free as scene_is_free
@@ -230,6 +266,7 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
         return bool(np.all(cmap.clearance_m(pts) >= infl))
 
     passes: list[np.ndarray] = []
+    skipped: list[SkippedFace] = []
     face_pass = np.full(len(faces), -1)
     xy = scene.tags.positions_m[:, :2]
     order = np.argsort([-np.linalg.norm(f.end_m - f.start_m) for f in faces], kind="stable")
@@ -263,13 +300,14 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
             front = (f.start_m + f.end_m) / 2 + infl * f.normal
             # free in the scene but not in the collision map's main region: cut off from it
             if scene_is_free(scene, [[front[0], front[1], 0.35]])[0] and cmap.is_occupied(front[None])[0]:
-                raise ValueError(
-                    f"{label}: unreachable region around ({front[0]:.2f}, {front[1]:.2f}) m: the "
-                    f"free space in front of the {f.describe()} is not connected to the "
-                    "building's main free space")
-            raise ValueError(
-                f"{label}: unreachable region: no robot pass fits within standoff_m = {standoff_m} m "
-                f"of the {f.describe()} (robot radius {robot.radius_m:.2f} m + margin {margin_m} m)")
+                skipped.append(SkippedFace(f, f"cut off: the free space in front of it, around "
+                                              f"({front[0]:.2f}, {front[1]:.2f}) m, is not connected to "
+                                              "the building's main free space"))
+            else:
+                skipped.append(SkippedFace(f, f"no pass fits: no robot pass within standoff_m = "
+                                              f"{standoff_m} m keeps the robot's radius "
+                                              f"{robot.radius_m:.2f} m + margin {margin_m} m"))
+            continue
         passes.append(chosen)
         face_pass[fi] = len(passes) - 1
 
@@ -298,18 +336,42 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
         if len(rr):
             j = int(np.argmin((rr + max(r0 - 2, 0) - r0) ** 2 + (cc + max(c0 - 2, 0) - c0) ** 2))
             end_node[k] = win[rr[j], cc[j]]
-    if np.any(end_node < 0):
-        k = int(np.flatnonzero(end_node < 0)[0])
-        raise ValueError(f"{label}: pass end ({ends[k][0]:.2f}, {ends[k][1]:.2f}) m lies off the "
-                         "planning grid's free cells")
-    home = comp[end_node[0]]
-    far = np.flatnonzero(comp[end_node] != home)
-    if len(far):
-        p = ends[far[0]]
-        fi = int(np.flatnonzero(face_pass == far[0] // 2)[0])
-        raise ValueError(f"{label}: unreachable region around ({p[0]:.2f}, {p[1]:.2f}) m: the "
-                         f"{faces[fi].describe()} cannot be reached from the first aisle in the "
-                         f"free space inflated by {infl:.2f} m")
+    # a pass in a free region other than the one with the most tags is skipped (map noise
+    # pinches an aisle shut; a room behind a door narrower than the robot)
+    n_pass = len(passes)
+    pass_comp = np.full(n_pass, -1)
+    for pi in range(n_pass):
+        e0, e1 = end_node[2 * pi], end_node[2 * pi + 1]
+        if e0 >= 0 and e1 >= 0 and comp[e0] == comp[e1]:
+            pass_comp[pi] = comp[e0]
+    tags_of_pass = np.zeros(n_pass)
+    for fi, pi in enumerate(face_pass):
+        if pi >= 0:
+            tags_of_pass[pi] += len(faces[fi].tag_index)
+    valid = pass_comp >= 0
+    if valid.any():
+        comps = np.unique(pass_comp[valid])
+        weight = [tags_of_pass[pass_comp == c].sum() for c in comps]
+        home = comps[int(np.argmax(weight))]
+    else:
+        home = -2
+    keep = pass_comp == home
+    for fi, pi in enumerate(face_pass):
+        if pi < 0 or keep[pi]:
+            continue
+        p = passes[pi].mean(axis=0)
+        why = ("its pass ends off the planning grid's free cells" if pass_comp[pi] < 0 else
+               "its pass cannot be reached from the route's free region")
+        skipped.append(SkippedFace(faces[fi], f"other region: {why} (around ({p[0]:.2f}, {p[1]:.2f}) m, "
+                                              f"free space inflated by {infl:.2f} m)"))
+    if not keep.any():
+        reasons = sorted({s_.reason.split(":")[0] for s_ in skipped})
+        raise ValueError(f"{label}: no route: none of the {len(faces)} tag faces can be served "
+                         f"({', '.join(reasons)}); first: {skipped[0].describe() if skipped else '-'}")
+    new_index = np.cumsum(keep) - 1
+    face_pass = np.where((face_pass >= 0) & keep[np.maximum(face_pass, 0)], new_index[np.maximum(face_pass, 0)], -1)
+    passes = [q for q, k_ in zip(passes, keep, strict=True) if k_]
+    end_node = end_node.reshape(-1, 2)[keep].reshape(-1)
 
     centres = np.stack([cx[ok], cy[ok]], 1)
     todo = set(range(len(passes)))
@@ -342,7 +404,10 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
                          f"{clear.min():.3f} m < robot radius {robot.radius_m:.3f} m)")
     rank = np.empty(len(passes), dtype=int)
     rank[driven_order] = np.arange(len(passes))
-    return CoverageRoute(route_m, np.array(driven), tuple(faces), rank[face_pass], float(standoff_m), infl)
+    face_rank = np.where(face_pass >= 0, rank[np.maximum(face_pass, 0)], -1)
+    order = sorted(range(len(skipped)), key=lambda i: tuple(skipped[i].face.tag_index[:1]))
+    return CoverageRoute(route_m, np.array(driven), tuple(faces), face_rank, float(standoff_m), infl,
+                         tuple(skipped[i] for i in order))
 
 
 def _trimmed_pass(a: np.ndarray, b: np.ndarray, tags_xy: np.ndarray, cmap, infl: float,

@@ -152,8 +152,13 @@ def map_route(scene, robot):
     A scene from an occupancy-grid map (``scene.rosmap``) without ``route_m`` gets
     :func:`pipeline.robot.plan_coverage_route` past its tags, within the map's
     ``route_standoff_m`` (``[map]``, default 1 m); every other scene is returned as is.
+    Tags on faces the route cannot serve (:attr:`pipeline.robot.CoverageRoute.skipped`)
+    are removed from the scene, each face logged at WARNING with its reason and listed in
+    ``scene.metadata["route"]["skipped"]``: a tag the robot never passes would only be
+    a tag never read.
     """
     import dataclasses
+    import logging
 
     if scene.route_m is not None or getattr(scene, "rosmap", None) is None:
         return scene
@@ -161,7 +166,20 @@ def map_route(scene, robot):
 
     standoff = float(scene.metadata.get("map", {}).get("route_standoff_m", 1.0))
     plan = plan_coverage_route(scene, robot, standoff)
-    return dataclasses.replace(scene, route_m=plan.route_m)
+    meta = dict(scene.metadata)
+    meta["route"] = {"length_m": round(plan.length_m, 3), "passes": int(len(plan.passes_m)),
+                     "skipped": [{"tags": [str(t) for t in scene.tags.ids[s.face.tag_index]],
+                                  "reason": s.reason} for s in plan.skipped]}
+    tags = scene.tags
+    if plan.skipped:
+        log = logging.getLogger("pipeline.stages")
+        gone = plan.skipped_tag_index
+        log.warning("%s: the planned route skips %d of %d tag faces (%d of %d tags removed from the "
+                    "scene)", scene.name, len(plan.skipped), len(plan.faces), len(gone), len(tags))
+        for s in plan.skipped:
+            log.warning("  skipped %s", s.describe())
+        tags = tags.subset(~np.isin(np.arange(len(tags)), gone))
+    return dataclasses.replace(scene, route_m=plan.route_m, tags=tags, metadata=meta)
 
 
 def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:

@@ -59,12 +59,38 @@ def test_route_passes_every_tag_face_within_the_standoff(aisle_scene):
     assert plan.inflation_m == pytest.approx(robot.radius_m + 0.25)
 
 
-def test_unreachable_aisle_names_the_map_and_region(tmp_path):
+def test_unreachable_faces_are_skipped_and_named(tmp_path):
+    """The closed room's rack faces are skipped with their reason; the others are served,
+    and map_route drops the skipped faces' tags from the scene and lists them."""
     sc = scenes.load(_aisles(tmp_path, closed=True))
-    with pytest.raises(ValueError, match=r"aisles\.yaml: unreachable region around \(.* is not "
-                                         r"connected to the building's main free space") as err:
-        plan_coverage_route(sc, Robot(), standoff_m=1.3)
-    assert "\n" not in str(err.value) and "aisles.yaml" in str(err.value)
+    plan = plan_coverage_route(sc, Robot(), standoff_m=1.3)
+    assert len(plan.skipped) >= 2  # the room's rack (its faces split where the room is cut off)
+    assert all(s.reason.startswith(("cut off", "other region")) for s in plan.skipped)
+    assert all("\n" not in s.describe() for s in plan.skipped)
+    # the skipped faces are the third rack's, at x in [10.1, 10.9]
+    in_room = (sc.tags.positions_m[:, 0] > 10.0) & (sc.tags.positions_m[:, 0] < 11.0)
+    assert np.array_equal(plan.skipped_tag_index, np.flatnonzero(in_room))
+    served = np.setdiff1d(np.arange(len(sc.tags)), plan.skipped_tag_index)
+    xy = sc.tags.positions_m[served, :2]
+    route = plan.route_m
+    d = np.min([_segment_distance(xy, a, b) for a, b in zip(route[:-1], route[1:], strict=True)], axis=0)
+    assert np.all(d <= 1.3 + 1e-9)
+    skipped_faces = [i for i, f in enumerate(plan.faces) if any(f is s.face for s in plan.skipped)]
+    assert np.all((plan.face_pass >= 0) == ~np.isin(np.arange(len(plan.faces)), skipped_faces))
+    routed = map_route(sc, Robot())
+    assert len(routed.tags) == len(sc.tags) - len(plan.skipped_tag_index)
+    assert len(routed.metadata["route"]["skipped"]) == len(plan.skipped)
+
+
+def test_no_servable_face_names_the_map(tmp_path):
+    g = building(width_m=4.0, length_m=4.0, wall_m=0.25, pad_m=0.5)
+    paint(g, 1.3, 1.0, 3.7, 1.9, OCC)  # a rack in a room too small to pass it
+    paint(g, 1.3, 2.8, 3.7, 3.7, OCC)
+    sc = scenes.load(write_map(tmp_path, g, name="cramped"))
+    with pytest.raises(ValueError, match=r"cramped\.yaml: no route: none of the \d+ tag faces can be "
+                                         r"served") as err:
+        plan_coverage_route(sc, Robot(), standoff_m=1.0)
+    assert "\n" not in str(err.value)
 
 
 def test_standoff_too_small_for_the_robot(aisle_scene):
