@@ -96,6 +96,7 @@ class OccupancyMap:
         n_slices: int = 5,
         route_m: np.ndarray | None = None,
         margin_m: float = 0.5,
+        extra_segments: np.ndarray | None = None,
     ) -> OccupancyMap:
         """Build the map from the scene meshes.
 
@@ -115,6 +116,8 @@ class OccupancyMap:
             the largest free component not touching the grid border is used.
         margin_m : float
             Extra border around the scene bounds [m].
+        extra_segments : numpy.ndarray, optional
+            Further obstacle outlines (k, 2, 2) [m] (a map scene's building edge).
 
         Raises
         ------
@@ -131,7 +134,9 @@ class OccupancyMap:
             )
         heights = slice_heights((z0, z1), n_slices)
         origin, shape = cls.scene_grid(scene, resolution_m, margin_m)
-        cut = np.concatenate([floor_plan_segments(scene, h) for h in heights])
+        cut = np.concatenate([floor_plan_segments(scene, h) for h in heights]
+                             + ([] if extra_segments is None else
+                                [np.asarray(extra_segments, dtype=float).reshape(-1, 2, 2)]))
         route = scene.route_m if route_m is None else route_m
         return cls.from_segments(cut, origin, shape, resolution_m, route_m=route,
                                  z_range=(z0, z1), name=scene.name)

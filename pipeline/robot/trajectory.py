@@ -181,8 +181,32 @@ _COLLISION_MAPS_KEPT = 4
 _COLLISION_MAPS_LOCK = threading.Lock()  # a Dask worker runs studies in threads
 
 
+def map_boundary_segments(scene) -> np.ndarray:
+    """Edges (k, 2, 2) [m] of a map scene's building: where its cells meet the outside.
+
+    A real map's outer wall has gaps (a window, a missed return, an unmapped doorway):
+    the robot may not drive through them into the unmapped outside, so its collision map
+    closes them. Empty for a scene that is not from a map.
+    """
+    rm = getattr(scene, "rosmap", None)
+    boxes = getattr(scene, "free_space_m", None)
+    if rm is None or boxes is None or not len(boxes):
+        return np.zeros((0, 2, 2))
+    from scenes.rosmap import boundary_segments
+
+    inside = np.zeros(rm.shape, dtype=bool)
+    res = rm.resolution_m
+    for lo, hi in np.asarray(boxes)[:, :, :2]:
+        c0, r0 = np.round((lo - rm.origin_m) / res).astype(int)
+        c1, r1 = np.round((hi - rm.origin_m) / res).astype(int)
+        inside[max(r0, 0):r1, max(c0, 0):c1] = True
+    return boundary_segments(inside, rm.origin_m, res)
+
+
 def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None) -> OccupancyMap:
     """Occupancy map of everything the robot (body and antenna mast) could hit.
+
+    For a map scene the building's edge (:func:`map_boundary_segments`) is an obstacle too.
 
     Slices from 5 cm above the floor up to 10 cm above the highest antenna or body top.
     The map is shared between calls with the same scene content and settings (its
@@ -197,7 +221,8 @@ def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None)
     with _COLLISION_MAPS_LOCK:
         occ = _COLLISION_MAPS.get(key)
     if occ is None:
-        occ = OccupancyMap.from_scene(scene, resolution_m, (0.05, top), n_slices=6, route_m=route_m)
+        occ = OccupancyMap.from_scene(scene, resolution_m, (0.05, top), n_slices=6, route_m=route_m,
+                                      extra_segments=map_boundary_segments(scene))
         for arr in (occ.origin_m, occ.occupied, occ.distance_m, occ.boundary_distance_m):
             arr.flags.writeable = False
         with _COLLISION_MAPS_LOCK:
