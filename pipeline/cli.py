@@ -577,6 +577,10 @@ def scenes_show(
         typer.echo(f"  route: {len(sc.route_m)} points")
     elif route_note:
         typer.echo(route_note)
+    from scenes.mapscene import describe_map_scene
+
+    for line in describe_map_scene(sc):
+        typer.echo(line)
     typer.echo(f"  content hash: {sc.content_hash()[:16]}")
     if png is not None:
         from pipeline.stages import draw_scene_top_view

@@ -412,8 +412,8 @@ def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) ->
 
 
 def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
-                      rules: ExtractionRules | None = None, cells: np.ndarray | None = None
-                      ) -> list[MapObstacle]:
+                      rules: ExtractionRules | None = None, cells: np.ndarray | None = None,
+                      dropped: list | None = None) -> list[MapObstacle]:
     """The connected obstacles of a map, outlined, thinned and classified.
 
     Parameters
@@ -426,6 +426,8 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
         Construction rules (default :class:`ExtractionRules`).
     cells : numpy.ndarray, optional
         The cell classes of :func:`map_cells` (computed when not given).
+    dropped : list, optional
+        Receives ``(x, y, area_m2)`` of every obstacle dropped as noise (under ``min_area_m2``).
 
     Returns
     -------
@@ -457,6 +459,11 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
             continue
         mask = labels[sl] == k
         if float(mask.sum()) * res * res < rules.min_area_m2:
+            if dropped is not None:
+                r, c = np.nonzero(mask)
+                xy = rosmap.cell_centres(r.mean() + sl[0].start, c.mean() + sl[1].start)
+                dropped.append((round(float(xy[0]), 3), round(float(xy[1]), 3),
+                                round(float(mask.sum()) * res * res, 5)))
             continue
         r0, c0 = sl[0].start, sl[1].start
         poly = _polygon(mask, rosmap, r0, c0, tol)

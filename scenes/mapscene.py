@@ -30,6 +30,7 @@ with the scene (``Scene.rosmap``): the robot localises in it as it is
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -154,6 +155,13 @@ def _free_boxes(cls: np.ndarray, rosmap: RosMap, height_m: float) -> np.ndarray:
                      for r0, r1, c0, c1 in sorted(rects)], dtype=float).reshape(-1, 2, 3)
 
 
+def _walls_tagged(layout: TagLayoutSpec, obstacles: list[MapObstacle]) -> bool:
+    """``[tags] walls``, its default (None) decided: walls are tagged where no rack is."""
+    if layout.walls is None:
+        return not any(o.kind == "rack" for o in obstacles)
+    return bool(layout.walls)
+
+
 def _is_free_cell(cls: np.ndarray, rosmap: RosMap, xy) -> bool:
     """Whether the map cell holding the point (2,) [m] is free."""
     col, row = np.floor((np.asarray(xy) - rosmap.origin_m) / rosmap.resolution_m).astype(int)
@@ -174,7 +182,7 @@ def shelf_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, sp
     heights = layout.heights_m or tuple(z + bh / 2 for z in spec.shelf_levels_m)
     has_racks = any(o.kind == "rack" for o in obstacles)
     for h in heights:
-        if (has_racks or not layout.walls) and not any(
+        if (has_racks or not _walls_tagged(layout, obstacles)) and not any(
                 z - 1e-9 <= h <= z + bh + 1e-9 for z in spec.shelf_levels_m):
             raise SpecError(f"{where}: [tags] key 'heights_m': {h} m is on no front beam (beams at "
                             f"{list(spec.shelf_levels_m)} m, {bh} m high)")
@@ -255,6 +263,11 @@ def wall_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, spe
                 free = np.zeros(row.shape, dtype=bool)
                 free[inside] = raw[row[inside], col[inside]] == FREE
                 keep = free.all(axis=1)
+                # the tag itself inside the building (a simplified outline may cut a corner
+                # of the outside)
+                tc, tr = np.floor((pts + layout.offset_m * n - rosmap.origin_m) / res).astype(int).T
+                ok = (tr >= 0) & (tr < cls.shape[0]) & (tc >= 0) & (tc < cls.shape[1])
+                keep &= ok & (cls[np.clip(tr, 0, cls.shape[0] - 1), np.clip(tc, 0, cls.shape[1] - 1)] != OUTSIDE)
                 if near is not None:
                     tag_xy = shapely.points(pts + layout.offset_m * n)
                     keep &= shapely.distance(near, tag_xy) >= layout.margin_m
@@ -336,7 +349,8 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
         except UnknownMaterialError as exc:
             raise UnknownMaterialError(f"{where}: [map] key {key!r}: {exc}") from None
     cls, cleaning = map_cells(rosmap, rules_of(spec))
-    obstacles = extract_obstacles(rosmap, spec.tolerance_m, rules_of(spec), cells=cls)
+    noise: list = []
+    obstacles = extract_obstacles(rosmap, spec.tolerance_m, rules_of(spec), cells=cls, dropped=noise)
     for i, ov in enumerate(spec.override):
         label = f"{where}: [[map.override]] #{i + 1}" + (f" (id {ov.id!r})" if ov.id else "")
         obstacles = apply_override(obstacles, label, point_m=ov.point_m, polygon_m=ov.polygon_m,
@@ -379,7 +393,11 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
     metadata = {"generator": "scenes.mapscene.build_map_scene",
                 "map": {"yaml": str(yaml_path), "image": rosmap.image_path, "digest": rosmap.digest(),
                         "resolution_m": rosmap.resolution_m, "mode": rosmap.mode,
-                        "route_standoff_m": spec.route_standoff_m, "obstacles": summary}}
+                        "route_standoff_m": spec.route_standoff_m, "obstacles": summary,
+                        "cleaning": {"gap_cells": cleaning.gap_cells, "kept_enclosed": cleaning.kept_enclosed,
+                                     "filled": [dataclasses.asdict(f) for f in cleaning.filled]},
+                        "noise_dropped": len(noise),
+                        "noise_dropped_m2": round(sum(a for _, _, a in noise), 4)}}
     if material_overrides:
         metadata["material_overrides"] = material_overrides
     route = None if route_m is None else np.asarray(route_m, dtype=float).reshape(-1, 2)
@@ -391,7 +409,13 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
     specs = list(tags)
     if layout.layout == "shelves":
         specs += shelf_tags(obstacles, cls, rosmap, spec, layout, where)
-        if layout.walls:
+        if _walls_tagged(layout, obstacles):
+            if layout.walls is None:
+                import logging
+
+                logging.getLogger("scenes").warning(
+                    "%s: no rack recognised in the map: tags go on the walls ([tags] walls = true; "
+                    "set walls = false, or override an obstacle's kind to 'rack', to change it)", where)
             specs += wall_tags(obstacles, cls, rosmap, spec, layout, where)
     elif layout.layout == "csv":
         p = Path(layout.csv) if Path(layout.csv).is_absolute() else base / layout.csv
@@ -407,6 +431,42 @@ def _with_construction(o: MapObstacle) -> MapObstacle:
     from scenes.radio import default_construction
 
     return replace(o, construction=default_construction(o.material))
+
+
+def describe_map_scene(scene: Scene) -> list[str]:
+    """Lines saying what was recognised in a map scene and what was dropped, and why.
+
+    For ``rfidstudy scenes show``: obstacles by rule, the cleaning of the map
+    (:mod:`scenes.mapclean`), the noise dropped, the radio surfaces, the planned route
+    and the tag faces it skips (when ``scene.metadata["route"]`` is set by
+    :func:`pipeline.stages.common.map_route`). Empty for a scene not from a map.
+    """
+    m = scene.metadata.get("map")
+    if not m:
+        return []
+    from collections import Counter
+
+    rules = Counter(o["rule"] for o in m["obstacles"])
+    out = ["  map: " + ", ".join(f"{n} {r}" + ("s" if n != 1 and not r.endswith("s") else "")
+                                 for r, n in sorted(rules.items())) if rules else "  map: no obstacle"]
+    c = m.get("cleaning")
+    if c:
+        area = sum(f["area_m2"] for f in c["filled"])
+        out.append(f"  cleaning: {c['gap_cells']} gap cells closed; {len(c['filled'])} enclosed outlines "
+                   f"filled ({area:.1f} m^2); {c['kept_enclosed']} wider enclosed regions kept as rooms")
+    if m.get("noise_dropped"):
+        out.append(f"  dropped as noise (under min_area_m2): {m['noise_dropped']} specks, "
+                   f"{m['noise_dropped_m2']:.3f} m^2 in all")
+    if not rules.get("rack"):
+        out.append("  no rack recognised: a rack is a filled rectangle (rack_min_fill, rack_min_depth_m, "
+                   "rack_min_length_m); override an obstacle with kind = \"rack\" where one is missed")
+    out.append(f"  radio surfaces: {len(scene.radio_surfaces)}")
+    r = scene.metadata.get("route")
+    if r:
+        out.append(f"  planned route: {r['length_m']:.0f} m, {r['passes']} passes")
+        for sk in r["skipped"]:
+            out.append(f"  skipped {len(sk['tags'])} tags ({sk['tags'][0]}...): {sk['reason']}")
+    return out
 
 
 def load_map(path: str | Path, **kwargs) -> Scene:

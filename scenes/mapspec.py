@@ -163,11 +163,12 @@ class TagLayoutSpec:
         the point on the surface and the normal into free space.
     offset_m : float
         Tag centre offset from the surface along the normal [m].
-    walls : bool
+    walls : bool or None
         ``layout = "shelves"`` only: also tag the faces of wall obstacles (the outer
         wall's inner face, partitions, thick walls) that look onto free space, at the
         same heights, spacing, margin and offset
-        (:func:`scenes.mapscene.wall_tags`).
+        (:func:`scenes.mapscene.wall_tags`). None (the default): only where the map has
+        no rack, so an office or arena gets tags too.
     """
 
     layout: str = "shelves"
@@ -176,7 +177,7 @@ class TagLayoutSpec:
     margin_m: float = 0.2
     csv: str = ""
     offset_m: float = 0.005
-    walls: bool = False
+    walls: bool | None = None
 
 
 _POSITIVE = ("height_m", "floor_thickness_m", "ceiling_thickness_m", "thin_wall_max_m", "pillar_max_m",
@@ -252,7 +253,7 @@ def parse_tags_table(data, where: str) -> TagLayoutSpec:
         raise SpecError(f"{where}: key 'csv' needs layout = 'csv', got layout {spec.layout!r}")
     if not spec.spacing_m > 0 or spec.margin_m < 0 or spec.offset_m < 0:
         raise SpecError(f"{where}: spacing_m must be > 0, margin_m and offset_m >= 0")
-    if not isinstance(spec.walls, bool):
+    if spec.walls is not None and not isinstance(spec.walls, bool):
         raise SpecError(f"{where}: key 'walls' must be true or false, got {spec.walls!r}")
     if spec.walls and spec.layout != "shelves":
         raise SpecError(f"{where}: key 'walls' needs layout = 'shelves', got layout {spec.layout!r}")

@@ -270,7 +270,10 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     face_pass = np.full(len(faces), -1)
     xy = scene.tags.positions_m[:, :2]
     order = np.argsort([-np.linalg.norm(f.end_m - f.start_m) for f in faces], kind="stable")
-    for fi in order:
+    faces = list(faces)
+    work = [int(i) for i in order]
+    while work:
+        fi = work.pop(0)
         f = faces[fi]
         for pi, (a, b) in enumerate(passes):
             if np.all(_segment_distance(xy[f.tag_index], a, b) <= standoff_m + 1e-9):
@@ -286,16 +289,26 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
         depth = (hit[0] + 1) * cmap.resolution_m / 2 if len(hit) else np.inf
         target = min(standoff_m, depth / 2)
         offsets = np.arange(infl, standoff_m + 1e-9, resolution_m / 2)
-        chosen = trimmed = None
+        chosen = best = None
         for d in offsets[np.argsort(np.abs(offsets - target), kind="stable")]:
             a, b = f.start_m + d * f.normal, f.end_m + d * f.normal
             if line_ok(a, b):
                 chosen = np.stack([a, b])
                 break
-            if trimmed is None:
-                trimmed = _trimmed_pass(a, b, xy[f.tag_index], cmap, infl, standoff_m, resolution_m)
-        if chosen is None:
-            chosen = trimmed
+            run = _trimmed_pass(a, b, xy[f.tag_index], cmap, infl, standoff_m, resolution_m)
+            if run is not None and (best is None or run[1].sum() > best[1].sum()):
+                best = run
+        if chosen is None and best is not None and best[1].any():
+            chosen, covered = best
+            if not covered.all():
+                # an obstacle (a pillar in the aisle) blocks part of the pass: the tags the
+                # longest clear stretch serves become a face of their own, the others go
+                # back to the work list as the contiguous faces they form
+                faces[fi] = _sub_face(f, f.tag_index[covered], xy)
+                for part in _contiguous(f, f.tag_index[~covered], xy):
+                    faces.append(_sub_face(f, part, xy))
+                    face_pass = np.append(face_pass, -1)
+                    work.append(len(faces) - 1)
         if chosen is None:
             front = (f.start_m + f.end_m) / 2 + infl * f.normal
             # free in the scene but not in the collision map's main region: cut off from it
@@ -411,14 +424,14 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
 
 
 def _trimmed_pass(a: np.ndarray, b: np.ndarray, tags_xy: np.ndarray, cmap, infl: float,
-                  standoff_m: float, resolution_m: float) -> np.ndarray | None:
-    """The longest stretch of the pass a-b in the inflated free space, if it serves the face.
+                  standoff_m: float, resolution_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The longest stretch of the pass a-b in the inflated free space, and the tags it serves.
 
-    A face whose pass cannot run its whole length (a wall face ending in a room's corner:
-    the pass's ends come within the inflation of the perpendicular wall) is served by the
-    longest run of the pass, sampled every quarter planning cell, whose points all keep
-    ``infl`` from obstacles, when every tag (k, 2) of the face is within ``standoff_m`` of
-    it. Returns the pass (2, 2) [m] or None.
+    A face whose pass cannot run its whole length (a wall face running into a room's
+    corner, a pillar standing in the aisle) is served by the longest run of the pass,
+    sampled every quarter planning cell, whose points all keep ``infl`` from obstacles.
+    Returns the stretch (2, 2) [m] and which tags (k, 2) of the face lie within
+    ``standoff_m`` of it (k,) bool, or None when no point of the pass is clear.
     """
     k = max(2, int(np.ceil(np.linalg.norm(b - a) / (resolution_m / 4))) + 1)
     t = np.linspace(0.0, 1.0, k)
@@ -429,9 +442,26 @@ def _trimmed_pass(a: np.ndarray, b: np.ndarray, tags_xy: np.ndarray, cmap, infl:
     starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
     j = int(np.argmax(stops - starts))
     seg = np.stack([a + t[starts[j]] * (b - a), a + t[stops[j]] * (b - a)])
-    if np.all(_segment_distance(tags_xy, seg[0], seg[1]) <= standoff_m + 1e-9):
-        return seg
-    return None
+    return seg, _segment_distance(tags_xy, seg[0], seg[1]) <= standoff_m + 1e-9
+
+
+def _sub_face(face: TagFace, tag_index: np.ndarray, xy: np.ndarray) -> TagFace:
+    """The part of ``face`` holding the tags ``tag_index`` (same plane and normal)."""
+    tan = np.array([-face.normal[1], face.normal[0]])
+    s = xy[tag_index] @ tan
+    base = face.start_m - (face.start_m @ tan) * tan
+    return TagFace(base + s.min() * tan, base + s.max() * tan, face.normal, np.sort(tag_index))
+
+
+def _contiguous(face: TagFace, tag_index: np.ndarray, xy: np.ndarray) -> list[np.ndarray]:
+    """``tag_index`` split into the runs that are contiguous along ``face`` (by its tag order)."""
+    tan = np.array([-face.normal[1], face.normal[0]])
+    all_s = xy[face.tag_index] @ tan
+    rank = {int(t): r for r, t in enumerate(face.tag_index[np.argsort(all_s, kind="stable")])}
+    ranks = np.array(sorted(rank[int(t)] for t in tag_index))
+    by_rank = {r: t for t, r in rank.items()}
+    groups = np.split(ranks, np.flatnonzero(np.diff(ranks) > 1) + 1)
+    return [np.array([by_rank[int(r)] for r in g]) for g in groups if len(g)]
 
 
 def _simplify(route: np.ndarray, tol_m: float) -> np.ndarray:

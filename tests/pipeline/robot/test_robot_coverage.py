@@ -129,8 +129,14 @@ def test_cli_shows_a_map_and_refuses_a_bad_one_before_writing(tmp_path):
     assert res.exit_code == 0, res.output
     assert "tags: 288" in res.output and "route: " in res.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    bare = write_map(tmp_path / "bare", building(4.0, 3.0))  # no racks: no tags, no route
+    bare = write_map(tmp_path / "bare", building(4.0, 3.0))  # no racks: tags on the walls
     res = runner.invoke(app, ["scenes", "show", str(bare)])
+    assert res.exit_code == 0, res.output
+    assert "no rack recognised" in res.output and "route: " in res.output
+    assert "tags: 0" not in res.output and "planned route: " in res.output
+    empty = tmp_path / "empty.toml"  # tags switched off: the route says why there is none
+    empty.write_text(f'[map]\npath = "{bare}"\n[tags]\nlayout = "none"\n')
+    res = runner.invoke(app, ["scenes", "show", str(empty)])
     assert res.exit_code == 0, res.output
     assert "tags: 0" in res.output and "route: none planned" in res.output and "no tags" in res.output
     bad = write_map(tmp_path / "bad", building(2.0, 2.0), resolution=0)
