@@ -200,6 +200,11 @@ def _polygon(mask: np.ndarray, rosmap: RosMap, r0: int, c0: int, tol: float) -> 
     return poly.simplify(tol, preserve_topology=True)
 
 
+#: Default simplification tolerance of outlines and centre lines [m], at least half a cell:
+#: a SLAM map draws a wall as the band its laser returns fell in, two or three cells of
+#: 2-5 cm wide, so a straight wall's cells zigzag by about this much.
+LASER_BAND_M = 0.05
+
 #: Rectangles within this of the map's axes are snapped to them [rad] (about 2 degrees: the
 #: tilt a one-cell step over 30 cells gives a rectangle fitted to chamfered corners).
 _SNAP_RAD = 0.035
@@ -438,7 +443,7 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
 
     rules = ExtractionRules() if rules is None else rules
     res = rosmap.resolution_m
-    tol = 0.5 * res if tolerance_m is None else float(tolerance_m)
+    tol = max(0.5 * res, LASER_BAND_M) if tolerance_m is None else float(tolerance_m)
     if not tol >= 0:
         raise ValueError(f"{rosmap.path}: tolerance_m must be >= 0, got {tolerance_m!r}")
     cls = map_cells(rosmap, rules)[0] if cells is None else cells
