@@ -150,7 +150,7 @@ def clean_cell_class(cell_class: np.ndarray, resolution_m: float, origin_m, *,
             for k in np.flatnonzero(fill):
                 r, c = centres[k]
                 filled.append(FilledRegion(
-                    (round(ox + (c + 0.5) * resolution_m, 4), round(oy + (r + 0.5) * resolution_m, 4)),
+                    (round(float(ox + (c + 0.5) * resolution_m), 4), round(float(oy + (r + 0.5) * resolution_m), 4)),
                     round(float(sizes[k]) * resolution_m ** 2, 4), round(float(width[k]), 4),
                     round(float(unknown[k] / sizes[k]), 4)))
             obstacle = obstacle | take

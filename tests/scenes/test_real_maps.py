@@ -1,0 +1,150 @@
+"""Maps made by robots of public projects (data/real_maps), read as given.
+
+Each map is committed with its licence and hand labels of its racks (rectangles read off
+the image, data/real_maps/*/labels.toml). The extraction is scored against those labels
+cell by cell; tags must sit on rack faces; the planned route must serve the tags.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+
+import scenes
+from pipeline.robot import Robot, collision_map
+from pipeline.robot.coverage import _segment_distance, route_clearance_m
+from pipeline.stages.common import map_route
+from scenes.mapextract import extract_obstacles, map_cells
+from scenes.rosmap import FREE, read_map
+
+REAL = Path(__file__).resolve().parents[2] / "data" / "real_maps"
+WAREHOUSE = REAL / "nav2_warehouse" / "warehouse.yaml"
+LAB = REAL / "neobotix_lab" / "new_better2.yaml"
+OFFICE = REAL / "willow_office" / "willow-2010-02-18-0.10.yaml"
+
+
+def _label_mask(rosmap, folder: Path) -> np.ndarray:
+    ny, nx = rosmap.shape
+    rr, cc = np.mgrid[0:ny, 0:nx]
+    xy = rosmap.cell_centres(rr, cc)
+    mask = np.zeros((ny, nx), dtype=bool)
+    for x0, y0, x1, y1 in tomllib.loads((folder / "labels.toml").read_text())["racks"]:
+        mask |= (xy[..., 0] >= x0) & (xy[..., 0] <= x1) & (xy[..., 1] >= y0) & (xy[..., 1] <= y1)
+    return mask
+
+
+def _rack_mask(rosmap, obstacles) -> np.ndarray:
+    ny, nx = rosmap.shape
+    rr, cc = np.mgrid[0:ny, 0:nx]
+    xy = rosmap.cell_centres(rr, cc)
+    racks = [o.polygon for o in obstacles if o.kind == "rack"]
+    if not racks:
+        return np.zeros((ny, nx), dtype=bool)
+    return shapely.contains_xy(shapely.union_all(racks), xy[..., 0], xy[..., 1])
+
+
+@pytest.fixture(scope="module")
+def warehouse():
+    return scenes.load(WAREHOUSE)
+
+
+def test_every_real_map_has_its_licence_and_source():
+    folders = sorted(p for p in REAL.iterdir() if p.is_dir())
+    assert len(folders) >= 3
+    for f in folders:
+        assert (f / "LICENSE").stat().st_size > 200 and "licence" in (f / "SOURCE.txt").read_text()
+        assert len(list(f.glob("*.yaml"))) == 1 and "racks" in tomllib.loads((f / "labels.toml").read_text())
+
+
+@pytest.mark.parametrize("folder", ["nav2_warehouse", "neobotix_lab", "willow_office"])
+def test_racks_match_the_hand_labels(folder):
+    """Precision and recall of rack cells against the hand-labelled rectangles.
+
+    Measured: the warehouse 0.997 / 0.959 (recall is lost at the notches the racks'
+    uprights leave in their outlines and the rack ends, a cell or two each); the lab and
+    the office have no rack and none is found. Bounds: 0.95 and 0.90, a few cells of
+    margin under the measurement, far above what the map as given reached (no rack).
+    """
+    rm = read_map(next((REAL / folder).glob("*.yaml")))
+    labels = _label_mask(rm, REAL / folder)
+    found = _rack_mask(rm, extract_obstacles(rm))
+    if labels.any():
+        tp = (labels & found).sum()
+        assert tp / found.sum() >= 0.95 and tp / labels.sum() >= 0.90
+    else:
+        assert found.sum() * rm.resolution_m ** 2 < 0.5  # no rack invented (under 0.5 m^2)
+
+
+def test_rack_outlines_with_unknown_inside_become_solid():
+    """Without the cleaning the warehouse's racks are thin partitions (the README's promise
+    failed); with it, every labelled rack is one rack obstacle."""
+    from scenes.mapextract import ExtractionRules
+
+    rm = read_map(WAREHOUSE)
+    raw = extract_obstacles(rm, rules=ExtractionRules(gap_close_m=0.0, fill_max_width_m=0.0,
+                                                      fill_free_max_width_m=0.0))
+    assert sum(o.kind == "rack" for o in raw) <= 1
+    cells, report = map_cells(rm)
+    assert len(report.filled) >= 7 and report.gap_cells > 0
+    racks = [o for o in extract_obstacles(rm, cells=cells) if o.kind == "rack"]
+    boxes = tomllib.loads((REAL / "nav2_warehouse" / "labels.toml").read_text())["racks"]
+    for x0, y0, x1, y1 in boxes:  # one rack per labelled box, its rectangle within 0.1 m
+        hit = [o for o in racks if o.polygon.contains(shapely.Point((x0 + x1) / 2, (y0 + y1) / 2))]
+        assert len(hit) == 1
+        bx = np.array(hit[0].polygon.bounds)
+        assert np.allclose(bx, [x0, y0, x1, y1], atol=0.1), (bx, (x0, y0, x1, y1))
+
+
+def test_warehouse_tags_sit_on_rack_faces_looking_onto_free_space(warehouse):
+    rm = warehouse.rosmap
+    cells, _ = map_cells(rm)
+    racks = shapely.union_all([shapely.box(*b) for b in
+                               tomllib.loads((REAL / "nav2_warehouse" / "labels.toml").read_text())["racks"]])
+    xy = warehouse.tags.positions_m[:, :2]
+    assert len(xy) > 500
+    # on a labelled rack's outline, within the outline's band and the 5 mm offset
+    assert np.all(shapely.distance(racks.boundary, shapely.points(xy)) <= 0.1)
+    front = xy + 0.3 * warehouse.tags.normals[:, :2]
+    col, row = np.floor((front - rm.origin_m) / rm.resolution_m).astype(int).T
+    assert np.all(cells[row, col] == FREE)
+
+
+def test_warehouse_route_serves_its_tags_through_the_noise(warehouse):
+    robot = Robot()
+    sc = map_route(warehouse, robot)
+    skipped = sc.metadata["route"]["skipped"]
+    # the north rack's west corner, 0.5 m from a wall unit: one tag per level, named
+    assert sum(len(s["tags"]) for s in skipped) <= 0.01 * len(warehouse.tags)
+    xy = sc.tags.positions_m[:, :2]
+    route = sc.route_m
+    d = np.min([_segment_distance(xy, a, b) for a, b in zip(route[:-1], route[1:], strict=True)], axis=0)
+    assert np.all(d <= 1.0 + 1e-9)
+    cmap = collision_map(sc, robot, route_m=np.zeros((0, 2)))
+    # the route keeps the robot's radius (the clearance lookup is accurate to a cell)
+    assert route_clearance_m(cmap, route).min() >= robot.radius_m - cmap.resolution_m
+
+
+def test_lab_partitions_are_filled_and_its_walls_carry_tags():
+    """The Neobotix lab: the U- and L-shaped structures drawn as double outlines (0.35 m
+    apart) are solid thick walls, not pairs of partitions; no rack, so the walls are tagged
+    and a route planned past them."""
+    rm = read_map(LAB)
+    cells, report = map_cells(rm)
+    assert len(report.filled) >= 3 and sum(f.area_m2 for f in report.filled) > 2.5
+    thick = [o for o in extract_obstacles(rm, cells=cells) if o.rule == "thick wall"]
+    assert len(thick) >= 3 and all(0.25 <= o.thickness_m <= 0.6 for o in thick)
+    sc = map_route(scenes.load(LAB), Robot())
+    assert len(sc.tags) > 50 and all(t.startswith("W") for t in sc.tags.ids)
+    assert sc.route_m is not None and len(sc.radio_surfaces) < 500
+
+
+def test_office_reads_without_walls_it_does_not_have():
+    """The Willow Garage map draws its walls in grey between its own thresholds: map_server
+    reads them as unknown, and so does the extraction; it must not crash or invent racks."""
+    sc = scenes.load(OFFICE)
+    assert not any(o["kind"] == "rack" for o in sc.metadata["map"]["obstacles"])
+    assert sc.metadata["map"]["noise_dropped"] > 0
