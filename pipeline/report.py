@@ -52,7 +52,7 @@ log = logging.getLogger(__name__)
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
 padding:0 1em;color:#222;line-height:1.45}
-h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+h1{font-size:1.6em}.smoke{border:2px solid #b00020;color:#b00020;padding:.6em;margin:1em 0}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
 h3{font-size:1.05em;margin-bottom:.3em}
 .tw{max-width:100%;overflow-x:auto}
 table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em;max-width:100%}
@@ -282,6 +282,14 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         f"<p class='muted'>Run directory <code>{html.escape(str(run.resolve()))}</code>; "
         f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}.</p>",
     ]
+    from pipeline.smokescale import smoke_scale_reasons
+
+    smoke = smoke_scale_reasons(cfg)
+    if smoke:
+        parts.append("<div class='smoke'><strong>Smoke-scale settings: these numbers measure what "
+                     "the study costs, not how good the models are.</strong> "
+                     + "; ".join(html.escape(r) for r in smoke)
+                     + ". Rerun with the default settings before drawing a conclusion.</div>")
     pngs = _figure_files(run)
     captions = figure_captions(run)
     body = (metrics or {}).get("evaluation", metrics or {})

@@ -77,6 +77,8 @@ class FigureOutput:
     """File formats, each one of :data:`FORMATS`, in the order written."""
     dpi: int = DPI
     """Resolution of raster output (PNG; rasterised parts of PDF and SVG) [dots per inch]."""
+    banner: str = ""
+    """A line written across the top of every figure (a smoke-scale run's warning), or ""."""
 
     def __post_init__(self):
         fmts = tuple(self.formats)
@@ -167,6 +169,10 @@ def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
     """
     output = _OUTPUT.get()
     _solve_layout(fig, output.dpi)
+    if output.banner:  # after the layout: the banner sits over the top edge, in red
+        fig.text(0.5, 0.998, output.banner, ha="center", va="top", fontsize=6.5, color="#b00020",
+                 wrap=True, bbox={"facecolor": "white", "edgecolor": "#b00020", "alpha": 0.85,
+                                  "pad": 1.5})
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []

@@ -49,6 +49,22 @@ def _draw_one(name: str, run_dir: Path, out_dir: Path) -> tuple[list[Path], str 
         return [], str(exc)
 
 
+def _run_banner(run_dir: Path) -> str:
+    """The smoke-scale banner of a run (:mod:`pipeline.smokescale`) from its config.toml."""
+    import tomllib
+
+    from pipeline.runstore import regular_file
+    from pipeline.smokescale import smoke_banner
+
+    path = run_dir / "config.toml"
+    if not regular_file(path):
+        return ""
+    try:
+        return smoke_banner(tomllib.loads(path.read_text(encoding="utf-8")))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return ""
+
+
 def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
              output: FigureOutput | None = None) -> list[Path]:
     """Draw every figure (or those in `names`) from the run directory's files.
@@ -84,6 +100,11 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
     unknown = sorted(set(names) - set(FIGURES))
     if unknown:
         raise ValueError(f"unknown figure(s) {unknown}; known {sorted(FIGURES)}")
+    banner = _run_banner(run_dir)
+    if banner:
+        import dataclasses
+
+        output = dataclasses.replace(output or FigureOutput(), banner=banner)
     with figure_output(output):
         results = map_forked(lambda i: _draw_one(names[i], run_dir, out_dir), len(names),
                              workers)

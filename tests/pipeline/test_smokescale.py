@@ -1,0 +1,54 @@
+"""A smoke-scale run says so on its report and on every figure; a full-scale config does not."""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+from PIL import Image
+
+from pipeline.config import load_config
+from pipeline.smokescale import smoke_banner, smoke_scale_reasons
+from tests.conftest import ROOT, copy_run
+
+
+def _as_dict(path):
+    return tomllib.loads(path.read_text())
+
+
+def test_bundled_smoke_configs_are_smoke_scale_and_the_default_is_not(tmp_path):
+    tiny = _as_dict(ROOT / "configs" / "tiny.toml")
+    reasons = smoke_scale_reasons(tiny)
+    assert any(r.startswith("tracing.samples_per_src = 2000") for r in reasons)
+    assert any(r.startswith("training.epochs = 3") for r in reasons)
+    # the default study (every key at its default) is full scale
+    from pipeline.config import StudyConfig, config_to_toml
+
+    default = tomllib.loads(config_to_toml(StudyConfig()))
+    assert smoke_scale_reasons(default) == [] and smoke_banner(default) == ""
+    assert load_config(ROOT / "configs" / "warehouse.toml") is not None
+
+
+def test_report_and_figures_of_a_smoke_run_carry_the_banner(tiny_study, tmp_path):
+    from pipeline.figures import draw_all
+    from pipeline.report import write_report
+
+    run = copy_run(tiny_study, tmp_path / "run")
+    html = write_report(run, embed=False).read_text()
+    assert "Smoke-scale settings" in html and "tracing.samples_per_src = 2000" in html
+    # a figure drawn with the banner differs from the same figure drawn without it only in
+    # a red band at its top
+    out_b, out_n = tmp_path / "b", tmp_path / "n"
+    draw_all(run, out_b, names=["scene_top_view"], workers=1)
+    cfg = run / "config.toml"
+    text = cfg.read_text()
+    cfg.write_text(text.replace("samples_per_src = 2000", "samples_per_src = 30000")
+                   .replace("max_depth = 2", "max_depth = 5").replace("epochs = 3", "epochs = 100"))
+    draw_all(run, out_n, names=["scene_top_view"], workers=1)
+    a = np.asarray(Image.open(next(out_b.glob("*.png"))).convert("RGB")).astype(int)
+    b = np.asarray(Image.open(next(out_n.glob("*.png"))).convert("RGB")).astype(int)
+    assert a.shape == b.shape
+    diff_rows = np.flatnonzero(np.abs(a - b).sum(axis=(1, 2)) > 0)
+    assert len(diff_rows) and diff_rows.max() < 0.15 * a.shape[0]
+    red = (a[..., 0] > 150) & (a[..., 1] < 80) & (a[..., 2] < 80)
+    assert red[: int(0.15 * a.shape[0])].sum() > 50
