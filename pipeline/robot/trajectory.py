@@ -13,6 +13,7 @@ footprint is checked against the map (:func:`check_trajectory`).
 
 from __future__ import annotations
 
+import logging
 import threading
 from dataclasses import dataclass
 
@@ -22,6 +23,8 @@ from scipy import ndimage
 from pipeline.configschema import ConfigError, option, section
 from pipeline.robot.kinematics import Robot, footprint_points, wrap_angle
 from pipeline.robot.occupancy import OccupancyMap, _densify
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "held_out_lane",
@@ -104,12 +107,16 @@ class TourConfig:
         0.0, "Drive only the first max_length_m metres of the scene's route (0 = whole route) [m]."
     )
     n_eval_poses: int = option(200, "Robot poses on the held-out evaluation path (chapter Fig. 7: 200).", max=100_000)
+    eval_max_spacing_m: float = option(
+        0.3, "Largest distance between evaluation poses [m]: a longer path gets more than n_eval_poses "
+        "(MCL tracks between poses; on a 30 x 50 m map 200 poses are over 1 m apart and it loses "
+        "track). 0 = n_eval_poses exactly.")
 
     def __post_init__(self):
         for k in ("n_passes", "speed_m_per_s", "dt_s", "n_eval_poses"):
             if not getattr(self, k) > 0:
                 raise ConfigError(f"{k} must be > 0, got {getattr(self, k)!r}")
-        for k in ("max_length_m", "lane_changes_per_pass", "stops_per_pass"):
+        for k in ("max_length_m", "lane_changes_per_pass", "stops_per_pass", "eval_max_spacing_m"):
             if not getattr(self, k) >= 0:
                 raise ConfigError(f"{k} must be >= 0, got {getattr(self, k)!r}")
         if not self.lane_fractions or any(abs(f) > 1 for f in self.lane_fractions):
@@ -580,7 +587,8 @@ def evaluation_path(
     Returns
     -------
     Trajectory
-        ``n_poses`` poses of one forward pass without stops or lane changes.
+        ``n_poses`` poses of one forward pass without stops or lane changes, or more where
+        they would be over ``config.eval_max_spacing_m`` apart.
     """
     cfg = TourConfig() if config is None else config
     prof = DriveProfile() if profile is None else profile
@@ -597,6 +605,14 @@ def evaluation_path(
     n_st = band.i1 - band.i0 + 1
     path = _pass_path(band, np.full(n_st, lane_fraction), True)
     dur, at = _drive(path, cfg, prof)
+    if cfg.eval_max_spacing_m > 0:  # a long path: poses no farther apart than the bound
+        length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        need = int(np.ceil(length / cfg.eval_max_spacing_m)) + 1
+        if need > int(n_poses):
+            logger.info("evaluation path of %.0f m: %d poses (n_eval_poses = %d would be %.2f m apart; "
+                        "tour.eval_max_spacing_m = %.2f m)", length, need, int(n_poses),
+                        length / (int(n_poses) - 1), cfg.eval_max_spacing_m)
+            n_poses = min(need, 100_000)
     times = np.linspace(0.0, dur, int(n_poses))
     traj = _sample([(dur, at, 0)], times)
     check_trajectory(cmap, traj, robot, clearance_m=prof.clearance_m - cmap.resolution_m)

@@ -146,3 +146,18 @@ def test_cli_shows_a_map_and_refuses_a_bad_one_before_writing(tmp_path):
     assert res.exit_code == 2 and len(errors) == 1
     assert "map.yaml: key 'resolution' must be positive" in errors[0]
     assert not out.exists()  # nothing half-written
+
+
+def test_a_long_evaluation_path_keeps_its_poses_close(aisle_scene):
+    """n_eval_poses on a long path would space the poses too far for MCL to track between
+    them: tour.eval_max_spacing_m bounds the spacing; 0 keeps n_eval_poses exactly."""
+    from pipeline.robot import TourConfig, evaluation_path
+
+    sc = map_route(aisle_scene, Robot())
+    bounded = evaluation_path(sc, Robot(), np.random.default_rng(3), n_poses=20,
+                              config=TourConfig(eval_max_spacing_m=0.3))
+    step = np.linalg.norm(np.diff(bounded.poses[:, :2], axis=0), axis=1)
+    assert len(bounded.poses) > 20 and step.max() <= 0.3 + 0.02  # speed ramps: equal times
+    exact = evaluation_path(sc, Robot(), np.random.default_rng(3), n_poses=20,
+                            config=TourConfig(eval_max_spacing_m=0.0))
+    assert len(exact.poses) == 20
