@@ -472,13 +472,33 @@ def describe_map_scene(scene: Scene) -> list[str]:
 def load_map(path: str | Path, **kwargs) -> Scene:
     """``scenes.load("site.yaml")``: the scene of a map_server YAML with default rules.
 
-    ``kwargs`` go to :class:`MapSpec` (``height_m=4.0``, ``rack_height_m=...``).
+    ``kwargs`` go to :class:`MapSpec` (``height_m=4.0``, ``rack_height_m=...``). The tags
+    are one row (:func:`bare_map_tags`): a scene TOML's ``[tags]`` sets more.
     """
     from scenes.mapspec import parse_map_table
 
     p = Path(path)
     spec = parse_map_table({"path": str(p.resolve()), **kwargs}, f"{p}: [map]")
-    return build_map_scene(spec, name=p.stem, source=str(p))
+    return build_map_scene(spec, name=p.stem, source=str(p), tag_layout=bare_map_tags(spec))
+
+
+#: Tag spacing along a face of a map given without a scene TOML [m]: one tag per bay-sized
+#: metre, as on the bundled warehouse_large.
+BARE_MAP_TAG_SPACING_M = 1.0
+
+
+def bare_map_tags(spec: MapSpec) -> TagLayoutSpec:
+    """The tag layout of a map given as a bare YAML: one row, 1 m apart.
+
+    One tag per metre of every rack face (or wall face, where the map has no rack), at
+    the middle of the front beam nearest 1 m above the floor (0.85 m with the default
+    shelf levels): a building of 30 x 50 m gets a few hundred tags, which a study traces
+    in minutes; four rows 0.5 m apart (the ``[tags]`` table's default) are eight times as
+    many links.
+    """
+    mids = np.asarray(spec.shelf_levels_m, dtype=float) + spec.beam_height_m / 2
+    h = float(mids[int(np.argmin(np.abs(mids - 1.0)))])
+    return TagLayoutSpec(heights_m=(h,), spacing_m=BARE_MAP_TAG_SPACING_M)
 
 
 def check_map_source(name_or_path: str | Path) -> None:

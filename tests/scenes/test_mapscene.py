@@ -81,7 +81,13 @@ def test_radio_surfaces_one_per_layer(tmp_path):
 
 
 def test_shelf_tags_on_the_fronts(tmp_path):
-    sc = scenes.load(_map(tmp_path))
+    yaml = _map(tmp_path)
+    # a bare map: one row at the beam nearest 1 m (0.85 m), 1 m apart: (5 - 2 x 0.2) / 1 + 1 = 5
+    bare = scenes.load(yaml).tags
+    assert len(bare) == 2 * 5 and set(np.round(bare.positions_m[:, 2], 3)) == {0.85}
+    # a scene TOML's [tags] defaults: every beam, 0.5 m apart
+    (tmp_path / "site.toml").write_text(f'[map]\npath = "{yaml.name}"\n')
+    sc = scenes.load(tmp_path / "site.toml")
     tags = sc.tags
     # both long faces of the one rack look onto free space; 4 beams; (5 - 2 x 0.2) / 0.5 + 1 = 10
     assert len(tags) == 2 * 4 * 10
@@ -137,7 +143,7 @@ def test_bundled_warehouse_loads():
     assert kinds.count("rack") == 4 and kinds.count("pillar") == 2
     assert len(sc.tags) == 4 * 2 * 2 * 12  # racks x faces x heights x tags per 12 m front
     raw = scenes.load(scenes.bundled_path("warehouse_small").with_suffix(".yaml"))
-    assert len(raw.tags) == 4 * 2 * 4 * 24  # the map alone: every beam, 0.5 m apart
+    assert len(raw.tags) == 4 * 2 * 1 * 12  # the map alone: one row, 1 m apart
 
 
 def test_bundled_warehouse_scale_case_loads():

@@ -105,7 +105,7 @@ def test_warehouse_tags_sit_on_rack_faces_looking_onto_free_space(warehouse):
     racks = shapely.union_all([shapely.box(*b) for b in
                                tomllib.loads((REAL / "nav2_warehouse" / "labels.toml").read_text())["racks"]])
     xy = warehouse.tags.positions_m[:, :2]
-    assert len(xy) > 500
+    assert len(xy) > 150  # one row, 1 m apart, on 7 racks' faces
     # on a labelled rack's outline, within the outline's band and the 5 mm offset
     assert np.all(shapely.distance(racks.boundary, shapely.points(xy)) <= 0.1)
     front = xy + 0.3 * warehouse.tags.normals[:, :2]
@@ -138,7 +138,7 @@ def test_lab_partitions_are_filled_and_its_walls_carry_tags():
     thick = [o for o in extract_obstacles(rm, cells=cells) if o.rule == "thick wall"]
     assert len(thick) >= 3 and all(0.25 <= o.thickness_m <= 0.6 for o in thick)
     sc = map_route(scenes.load(LAB), Robot())
-    assert len(sc.tags) > 50 and all(t.startswith("W") for t in sc.tags.ids)
+    assert len(sc.tags) > 15 and all(t.startswith("W") for t in sc.tags.ids)
     assert sc.route_m is not None and len(sc.radio_surfaces) < 500
 
 
