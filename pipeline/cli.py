@@ -93,6 +93,14 @@ def _parse_value(text: str):
         return text
 
 
+def map_scale_profile() -> dict:
+    """The study keys ``rfidstudy run MAP.yaml`` sets for a map given alone
+    (``pipeline/profiles/map_scale.toml``: a building of 30 x 50 m in minutes)."""
+    from importlib.resources import files
+
+    return tomllib.loads(files("pipeline").joinpath("profiles/map_scale.toml").read_text("utf-8"))
+
+
 def resolve_target(target: str | None, overrides: list[str] | None = None,
                    backend: str | None = None) -> StudyConfig:
     """Turn ``run``'s argument into a study config.
@@ -101,7 +109,8 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
     ----------
     target : str or None
         ``None``: the default study; a study TOML (a file whose top-level keys are study
-        keys); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
+        keys); a map_server YAML (the default study with :func:`map_scale_profile` on
+        top); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
     overrides : list of str
         ``KEY=VALUE`` with dotted study keys (``training.epochs=10``); VALUE in TOML syntax.
     backend : str, optional
@@ -122,6 +131,9 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
                 data = {"scene": str(p.resolve())}
         elif p.suffix in (".toml", ".xml", ".yaml", ".yml") and not p.exists():
             raise ConfigError(f"{p}: no such file")
+        elif p.suffix.lower() in (".yaml", ".yml"):  # a map alone: the map-scale profile
+            data = {**map_scale_profile(), "scene": str(p.resolve())}
+            source = f"{p} with the map-scale profile (pipeline/profiles/map_scale.toml)"
         else:
             data = {"scene": str(p.resolve()) if p.exists() else target}
     for ov in overrides or []:
