@@ -348,7 +348,8 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
     for level in np.unique(extra[extra > 0]):
         grp_all = np.flatnonzero(extra == level)
         per_call = lone_per_call if budget_bytes is None else max(
-            1, min(_MAX_SOURCES_PER_CALL, int(budget_bytes) // bytes_per_source(int(level), max_depth)))
+            1, min(_MAX_SOURCES_PER_CALL, int(budget_bytes) // bytes_per_source(int(level), max_depth,
+                                                                                 len(receivers))))
         for c0 in range(0, len(grp_all), per_call):
             grp = grp_all[c0:c0 + per_call]
             fresh = trace_shared(rt_scene, positions[grp], receivers, [np.zeros(0, np.int64)] * len(grp),
@@ -509,16 +510,19 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
     todo = [u for u in range(len(uniq)) if len(missing[u])]
 
     budget = int(opt.memory_budget_bytes) if opt.memory_budget_bytes else _default_budget()
-    per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth)))
+    # a call's candidate buffer grows with its tags (at most every tag of this trace)
+    n_tgt = len(np.unique(np.concatenate(missing))) if todo else 1
+    per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth, n_tgt)))
     lone_samples = max(samples_per_src, opt.min_samples) if shared else samples_per_src
-    lone_per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(lone_samples, max_depth)))
+    lone_per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(lone_samples, max_depth, n_tgt)))
     if shared:  # chunks of positions that share: fewer rays each, but the candidate
         # buffer is held twice (candidates and their solved copy)
-        per_chunk = max(1, min(_MAX_SOURCES_PER_CALL,
-                               budget // (2 * bytes_per_source(int(opt.shared_samples_per_src), max_depth))))
+        per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // (
+            2 * bytes_per_source(int(opt.shared_samples_per_src), max_depth, n_tgt))))
     n_calls, t_trace = 0, 0.0
     if todo:
-        short = memory_shortfall(opt.method, max_depth, samples_per_src, int(opt.shared_samples_per_src), budget)
+        short = memory_shortfall(opt.method, max_depth, samples_per_src, int(opt.shared_samples_per_src), budget,
+                                 n_targets=n_tgt)
         if short:  # before anything is traced: one source is the smallest chunk
             raise ValueError(short)
         ensure_variant()

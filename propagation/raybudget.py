@@ -7,19 +7,28 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bytes_per_source", "candidate_cap_limit", "cap_on_grid", "first_candidate_cap",
+__all__ = ["TARGETS_PER_CAP", "bytes_per_source", "candidate_cap_limit", "cap_on_grid", "first_candidate_cap",
            "memory_shortfall"]
 
 
-def bytes_per_source(samples_per_src: int, max_depth: int) -> int:
+#: Targets per base candidate cap (:func:`first_candidate_cap`'s ``targets_per_cap``).
+TARGETS_PER_CAP = 64
+
+
+def bytes_per_source(samples_per_src: int, max_depth: int, n_targets: int = 1) -> int:
     """Estimated peak memory of one source in a ``PathSolver`` call, bytes.
 
     Measured on the LLVM backend (sionna-rt 2.2) with ``max_num_paths_per_src = samples *
     (depth + 1)``: 40 sources x 1e5 rays took 2.0 GB at depth 3 and 4.1 GB at depth 5;
     17 sources x 3e5 rays at depth 6 took 8.7 GB. The estimate ``samples * (300 + 300 *
-    depth)`` bounds these with a margin.
+    depth)`` bounds these with a margin. The candidate buffer is the cap, which grows by one
+    base cap per :data:`TARGETS_PER_CAP` targets of the call (:func:`first_candidate_cap`),
+    so the estimate is multiplied by ``ceil(n_targets / 64)``: without it a call with
+    1,476 tags (a real warehouse map at the default settings) took 23 GB where 1 GB was
+    planned, and the kernel killed the run.
     """
-    return int(samples_per_src * (300 + 300 * max(1, max_depth)))
+    per_cap = int(samples_per_src * (300 + 300 * max(1, max_depth)))
+    return per_cap * max(1, -(-int(n_targets) // TARGETS_PER_CAP))
 
 
 def candidate_cap_limit(n_sources: int, max_depth: int) -> int:
@@ -62,21 +71,23 @@ def first_candidate_cap(samples_per_src: int, max_depth: int, n_targets: int,
 
 def memory_shortfall(method: str, max_depth: int, samples_per_src: int, shared_samples_per_src: int,
                      budget_bytes: int, budget_key: str = "memory_budget_bytes",
-                     prefix: str = "") -> str | None:
+                     prefix: str = "", n_targets: int = 1) -> str | None:
     """Why one antenna position cannot be traced within ``budget_bytes``, or None.
 
     The tracer chunks sources to fit its memory budget, but one source is the smallest
     chunk: a depth or ray count whose single source exceeds the budget would be traced
     anyway and could take all the memory (``max_depth = 1000`` once took 20.5 GB). The
     message gives the memory one position would need (:func:`bytes_per_source`; with
-    ``"shared"`` the candidate buffer of a sharing position is held twice) and the keys
-    to change (named with ``prefix``, e.g. ``"tracing."``).
+    ``"shared"`` the candidate buffer of a sharing position is held twice; ``n_targets``
+    tags in the call) and the keys to change (named with ``prefix``, e.g. ``"tracing."``).
     """
-    need = bytes_per_source(samples_per_src, max_depth)
+    need = bytes_per_source(samples_per_src, max_depth, n_targets)
     what = f"{prefix}samples_per_src = {samples_per_src:,}"
-    if method == "shared" and 2 * bytes_per_source(shared_samples_per_src, max_depth) > need:
-        need = 2 * bytes_per_source(shared_samples_per_src, max_depth)
+    if method == "shared" and 2 * bytes_per_source(shared_samples_per_src, max_depth, n_targets) > need:
+        need = 2 * bytes_per_source(shared_samples_per_src, max_depth, n_targets)
         what = f"{prefix}shared_samples_per_src = {shared_samples_per_src:,}"
+    if n_targets > TARGETS_PER_CAP:
+        what += f" with {n_targets:,} tags"
     if need <= budget_bytes:
         return None
     mib = 2.0**20

@@ -218,6 +218,23 @@ def test_memory_budget_chunks_sources(corridor_scene):
     assert links.n_solver_calls == 3 and links.settings["sources_per_call"] == 1
 
 
+def test_memory_budget_counts_the_tags_of_a_call(corridor_scene):
+    """The candidate buffer grows one base cap per 64 targets: a call with 65-128 tags is
+    planned at twice a single tag's memory, so a budget for two one-tag sources holds one
+    source with 70 tags (without the factor a 1,476-tag real map took 23 GB, not 1)."""
+    assert bytes_per_source(2000, 1, 64) == bytes_per_source(2000, 1)
+    assert bytes_per_source(2000, 1, 65) == 2 * bytes_per_source(2000, 1)
+    assert bytes_per_source(30000, 5, 1476) == 24 * bytes_per_source(30000, 5)
+    poses = np.array([[x, 1.2, 1.0, 0.0] for x in (2.0, 5.0, 8.0)])
+    tags = np.array([[x, 0.05, 1.0] for x in np.linspace(1.0, 9.0, 70)])  # 5 cm off the wall
+    budget = 2 * bytes_per_source(2000, 1) + 1
+    opt = TraceOptions(method="direct", max_depth=1, samples_per_src=2000, memory_budget_bytes=budget)
+    few = trace_links(corridor_scene, poses, tags[:2], opt)
+    many = trace_links(corridor_scene, poses, tags, opt)
+    assert few.settings["sources_per_call"] == 2 and many.settings["sources_per_call"] == 1
+    assert many.n_solver_calls == 3
+
+
 @pytest.mark.parametrize("method", ["direct", "shared"])
 def test_a_source_larger_than_the_memory_budget_stops_before_tracing(method):
     # one source is the smallest chunk: it used to be traced whatever the budget
