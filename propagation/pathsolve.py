@@ -535,6 +535,10 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
         needs = [np.stack([np.isin(recs[c], missing[u]) for u in chunk]) for c, chunk in enumerate(chunks)]
         t0 = time.perf_counter()
         n_done = 0
+        if progress is not None:  # the total is known before the first chunk: "0/N", not "0/?"
+            progress(0, len(todo))
+        logger.info("tracing %d antenna positions x %d tags in %d calls of up to %d positions",
+                    len(todo), n_tgt, len(chunks), per_chunk)
 
         def finish(c: int, fresh: list) -> None:
             """A chunk's fresh paths: merged, cached, reported (here, in the calling process)."""
@@ -546,8 +550,11 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
             n_done += len(chunks[c])
             if progress is not None:
                 progress(n_done, len(todo))
-            logger.info("traced %d/%d antenna positions (%d tags) in %.1f s",
-                        n_done, len(todo), len(recs[c]), time.perf_counter() - t0)
+            took = time.perf_counter() - t0
+            left = took / n_done * (len(todo) - n_done)
+            logger.info("traced %d/%d antenna positions (%d tags) in %.1f s%s",
+                        n_done, len(todo), len(recs[c]), took,
+                        f"; about {left / 60:.1f} min left at this pace" if n_done < len(todo) else "")
 
         runner = current_chunk_runner()
         if runner is None:

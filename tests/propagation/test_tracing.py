@@ -180,7 +180,7 @@ def test_pairs_mask_and_cache(corridor_scene, tmp_path):
     calls = []
     first = trace_links(corridor_scene, poses, tags, pairs=pairs, progress=lambda d, t: calls.append((d, t)), **kw)
     assert first.n_solver_calls >= 1 and first.n_traced_sources == 2  # two distinct positions
-    assert calls[-1] == (2, 2)
+    assert calls[0] == (0, 2) and calls[-1] == (2, 2)  # the total from the start: no "0/?"
     np.testing.assert_array_equal(first.traced, pairs)
     assert np.all(first.gain[~pairs] == 0) and np.all(np.isneginf(first.gain_db[~pairs]))
     assert np.all(np.isfinite(first.gain_db[pairs]))
