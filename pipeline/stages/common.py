@@ -108,7 +108,9 @@ def study_scene(cfg: StudyConfig):
     """The scene with the study's two tag layouts, and which tag belongs to which.
 
     The scene's own tags are the training layout; ``evaluation.n_eval_tags`` held-out
-    tags are drawn on its walls, boxes and cabinets (:func:`scenes.tagsites.draw_tags`,
+    tags are drawn on its racks' front beams where it is a map with racks
+    (:func:`scenes.mapscene.shelf_sites`), else on its walls, boxes and cabinets
+    (:func:`scenes.tagsites.draw_tags`,
     stream ``stage_rng(cfg, "eval_tags")``), at least ``eval_tag_min_separation_m`` from
     every other tag and at heights in ``eval_tag_heights_m``, so the evaluation tour
     reads tags at positions and heights the training tour never read.
@@ -129,7 +131,13 @@ def study_scene(cfg: StudyConfig):
     sc = map_route(scenes.load(cfg.scene), build_robot(cfg))
     ev = cfg.evaluation
     train = sc.tags
-    sites = tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
+    # a map with racks: the held-out tags are shelf tags too (on the front beams, at every
+    # beam height in range), not tags on its walls and pillars
+    from scenes.mapscene import shelf_sites
+
+    sites = shelf_sites(sc, EVAL_TAG_SPACING_M, tuple(ev.eval_tag_heights_m))
+    if len(sites) < ev.n_eval_tags:
+        sites = tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
     route = study_route(sc, cfg)
     if route is not None:  # only where the evaluation tour passes within the models' domain
         sites = sites.subset(_route_distance_m(sites.positions_m[:, :2], route) <= cfg.training.d_max_m)
