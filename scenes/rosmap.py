@@ -29,12 +29,15 @@ A rotated map (``origin`` yaw other than 0) is refused: the robot's grid is axis
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "MAP_KEYS",
@@ -193,6 +196,22 @@ def _check_agrees(x: np.ndarray, res: float, mode: str, where: str, image_path: 
                               f"({mode!r}) its walls would be unknown: use mode 'raw'")
 
 
+#: The pixel value map_saver writes for an unknown cell in trinary mode.
+_SAVED_UNKNOWN = 205
+
+
+def _saved_trinary_unknown_read_free(x: np.ndarray, free_t: float) -> bool:
+    """Whether ``x`` (after negate) is a map_saver trinary image whose unknown pixel the
+    thresholds would read as free: its values are 0, 205 and 254 (255 allowed: edited
+    images), 205 makes up over 1 % of it, and ``free_thresh`` lets p = 50/255 through."""
+    if not (255.0 - _SAVED_UNKNOWN) / 255.0 < free_t:
+        return False
+    values, counts = np.unique(np.round(x).astype(int), return_counts=True)
+    if not set(values.tolist()) <= {0, _SAVED_UNKNOWN, 254, 255}:
+        return False
+    return counts[values == _SAVED_UNKNOWN].sum() > 0.01 * x.size
+
+
 def read_map(path: str | Path) -> RosMap:
     """Read a map_server YAML and its image.
 
@@ -271,6 +290,15 @@ def read_map(path: str | Path) -> RosMap:
     alpha = None if alpha is None else np.flipud(alpha)
     p = (255.0 - x) / 255.0
     occ_cell, free_cell = p > occ_t, p < free_t
+    if mode == "trinary" and _saved_trinary_unknown_read_free(x, free_t):
+        # map_saver's trinary image: 254 free, 0 occupied, 205 unknown; a YAML saved with
+        # ROS 2's free_thresh default 0.25 reads 205 (p = 0.196) as free, so the unmapped
+        # outside becomes floor (slam_toolbox #587; navigation2 #5278 fixes the thresholds
+        # map_saver writes). The saved pixels mean unknown: they are read as such.
+        log.warning("%s: a map_saver trinary image (pixels 0/205/254) with free_thresh %s: "
+                    "pixel 205 is map_saver's unknown and is read as unknown, not free "
+                    "(navigation2 PR 5278; slam_toolbox issue 587)", where, free_t)
+        free_cell &= np.round(x) != _SAVED_UNKNOWN
     if mode == "raw":
         raw = np.round(x).astype(int)
         occupancy = np.where(raw <= 100, raw, -1)

@@ -30,12 +30,20 @@ COLOURS = {"concrete": "tab:gray", "brick": "tab:red", "plasterboard": "tab:oliv
            "glass": "tab:cyan", "wood": "tab:brown"}
 
 
+KIND_FILL = {"rack": "tab:blue", "pillar": "tab:purple"}
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene")
     ap.add_argument("out", type=Path)
     args = ap.parse_args(argv)
-    sc = map_route(scenes.load(args.scene), Robot())
+    sc = scenes.load(args.scene)
+    note = ""
+    try:
+        sc = map_route(sc, Robot())
+    except ValueError as exc:  # shown, not fatal: the extraction is worth seeing anyway
+        note = f"no route: {exc}"
     rm = sc.rosmap
     if rm is None:
         raise SystemExit(f"{args.scene}: not a map scene")
@@ -44,34 +52,51 @@ def main(argv=None) -> None:
     shown = {0: 0.93, 1: 0.1, -1: 0.6}
     img = np.vectorize(shown.get)(rm.cell_class)
     (x0, y0), (x1, y1) = rm.extent_m
-    fig, ax = plt.subplots(figsize=(7, 7 * (y1 - y0) / (x1 - x0) + 0.6))
-    ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap="gray", vmin=0, vmax=1,
-              interpolation="nearest")
+    aspect = (y1 - y0) / (x1 - x0)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6 * aspect + 1.2), sharex=True, sharey=True)
+    for ax in axes:
+        ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap="gray", vmin=0, vmax=1,
+                  interpolation="nearest", alpha=1.0 if ax is axes[0] else 0.45)
+        ax.set_xlabel("x [m]")
+        ax.set_aspect("equal")
+    axes[0].set_ylabel("y [m]")
+    axes[0].set_title("the map as given")
     kinds = {o["index"]: o for o in sc.metadata["map"]["obstacles"]}
     for o in extract_obstacles(rm, None, rules):
-        k = kinds.get(o.index, {"material": o.material})
+        k = kinds.get(o.index, {"material": o.material, "kind": o.kind})
+        colour = KIND_FILL.get(k["kind"], COLOURS.get(k["material"], "k"))
         x, y = o.polygon.exterior.xy
-        ax.plot(x, y, color=COLOURS.get(k["material"], "k"), lw=0.8)
+        if k["kind"] in KIND_FILL:
+            axes[1].fill(x, y, color=colour, alpha=0.5, lw=0)
+        axes[1].plot(x, y, color=colour, lw=0.8)
     for s in sc.radio_surfaces:
         if s.kind in ("wall", "leaf"):
             v = s.mesh.vertices
-            ax.plot(v[:2, 0], v[:2, 1], color=COLOURS.get(s.material, "k"), lw=2.0, alpha=0.8)
+            axes[1].plot(v[:2, 0], v[:2, 1], color=COLOURS.get(s.material, "k"), lw=2.0, alpha=0.8)
     t = sc.tags.positions_m
-    ax.plot(t[:, 0], t[:, 1], ".", color="tab:orange", ms=3, label=f"{len(t)} tags")
+    axes[1].plot(t[:, 0], t[:, 1], ".", color="tab:orange", ms=3, label=f"{len(t)} tags")
+    skipped = sc.metadata.get("route", {}).get("skipped", [])
+    if skipped:
+        ids = {str(i) for sk in skipped for i in sk["tags"]}
+        raw = scenes.load(args.scene).tags
+        xy = raw.positions_m[np.isin(raw.ids.astype(str), sorted(ids))]
+        axes[1].plot(xy[:, 0], xy[:, 1], "x", color="tab:red", ms=5, label=f"{len(xy)} tags skipped")
     r = sc.route_m
-    length = float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
-    ax.plot(r[:, 0], r[:, 1], "--", color="tab:green", lw=1.2, label=f"route {length:.0f} m")
+    if r is not None:
+        length = float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
+        axes[1].plot(r[:, 0], r[:, 1], "--", color="tab:green", lw=1.2, label=f"route {length:.0f} m")
+    for kind, c in KIND_FILL.items():
+        axes[1].fill([], [], color=c, alpha=0.5, label=kind)
     for mat, c in COLOURS.items():
-        if mat in sc.materials:
-            ax.plot([], [], color=c, lw=2, label=mat)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_aspect("equal")
-    ax.set_title(f"{sc.name}: map, extracted walls and racks, tags, route")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=8, frameon=False)
+        if mat in sc.materials and mat != "metal":
+            axes[1].plot([], [], color=c, lw=2, label=mat)
+    axes[1].set_title("recognised: racks, pillars, walls by material, tags, route" + (f"\n{note[:90]}" if note else ""),
+                      fontsize=9)
+    axes[1].legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=8, frameon=False)
+    fig.suptitle(sc.name)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=130)
+    fig.savefig(args.out, dpi=110)
     print(args.out)
 
 
