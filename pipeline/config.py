@@ -193,6 +193,11 @@ class TracingConfig:
         "(corridor_lab: 22 planes at 0.5, the metal cabinets' sides among them; 16 at 1, before "
         "issue 37, which left chains over those faces to the rays: most of the truth's "
         "seed-to-seed noise on sparse poses, bench/seed_noise_paths.py).")
+    completion_max_planes: int = option(
+        0, "method 'shared': at most this many completion planes, the largest (0 = every plane of "
+        "completion_min_area_m2 and up). Its cost grows with the square of the planes: a real SLAM "
+        "map's jagged walls gave 609 planes where the bundled 30 x 50 m warehouse has 115; the "
+        "map-scale profile sets 150.", max=100_000)
     cache_dir: str = option(
         "", "Shared propagation cache directory ('' = $RFIDSTUDY_CACHE or ~/.cache/rfidstudy)."
     )
@@ -224,7 +229,7 @@ class TracingConfig:
         if not (np.isfinite(self.share_radius_m) and 0.0 < self.share_radius_m <= 5.0):
             raise ConfigError(f"share_radius_m must be a radius in (0, 5] m, got {self.share_radius_m!r}")
         _positive(self, "shared_samples_per_src")
-        _nonneg(self, "completion_min_area_m2")
+        _nonneg(self, "completion_min_area_m2", "completion_max_planes")
         if self.min_samples_per_position is not None:
             _nonneg(self, "min_samples_per_position")
         for key, name in (("reader_pattern", self.reader_pattern), ("tag_pattern", self.tag_pattern)):

@@ -140,10 +140,11 @@ def _run_chunk_job(job: ChunkJob) -> list:
     set_deterministic(job.deterministic)
     shared = job.options.method == "shared"
     area = float(job.options.completion_min_area_m2)
-    key = f"{job.scene.content_hash()}|{job.frequency_hz!r}|{shared}|{job.completion_order}|{area!r}"
+    most = int(job.options.completion_max_planes)
+    key = f"{job.scene.content_hash()}|{job.frequency_hz!r}|{shared}|{job.completion_order}|{area!r}|{most}"
     if _STATE.get("key") != key:
         _STATE.clear()
-        _STATE["state"] = tracer_state(job.scene, job.frequency_hz, shared, job.completion_order, area)
+        _STATE["state"] = tracer_state(job.scene, job.frequency_hz, shared, job.completion_order, area, most)
         _STATE["key"] = key
     return trace_one_chunk(_STATE["state"], job.positions_m, job.receivers_m, job.options,
                            job.lone_samples, job.lone_per_chunk, job.budget_bytes, job.completion_order,

@@ -30,6 +30,7 @@ therefore enough, whatever the materials of its coplanar shapes.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,8 @@ from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
 from propagation.plane_cover import PlaneCover, plane_cover
 from propagation.sionna_paths import path_copies, points, to_source_paths
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Planes", "PlaneLookup", "complete_specular", "large_planes", "merge_paths", "plane_lookup",
            "triangle_planes"]
@@ -101,7 +104,7 @@ class Planes:
 
 
 def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
-                 offset_tol_m: float = 1e-3) -> Planes:
+                 offset_tol_m: float = 1e-3, max_planes: int = 0) -> Planes:
     """Group the scene's triangles into planes and keep the large ones.
 
     Parameters
@@ -120,6 +123,11 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
         Largest per-component difference of two unit normals (up to sign) in one plane.
     offset_tol_m : float
         Largest distance of a triangle's vertices from the plane of its group, metres.
+    max_planes : int
+        Keep at most this many planes, the largest; 0: all. The completion enumerates
+        chains over pairs and triples of planes, so its cost grows with their square or
+        cube: a real SLAM map's jagged walls gave 609 planes of 0.1 m^2 and up against 115
+        on the bundled 30 m x 50 m warehouse, and about 7x its time per position.
 
     Returns
     -------
@@ -167,6 +175,10 @@ def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,
                      pts.max(0), sid[rep], prim[rep], tri[rep, 0],
                      tuple(sorted({str(shapes[k].id()) for k in sid[members]})), members))
     rows.sort(key=lambda r: -r[2])
+    if max_planes and len(rows) > max_planes:
+        logger.info("completion: %d planes of %g m^2 and up, the %d largest kept (%.2f m^2 and up)",
+                    len(rows), min_area_m2, max_planes, rows[max_planes - 1][2])
+        rows = rows[:max_planes]
     if not rows:
         z = np.zeros(0)
         return Planes(empty, z, z, empty, empty, z.astype(np.int64), z.astype(np.int64), empty, ())

@@ -142,6 +142,9 @@ class TraceOptions:
         m^2, >= 0 (default :data:`COMPLETION_MIN_AREA_M2`). A chain over a smaller face
         (a cabinet's side) is found only by the rays, and by chance: on ``corridor_lab``'s
         sparse poses such chains were most of the seed-to-seed noise at 1 m^2.
+    completion_max_planes : int
+        At most this many completion planes, the largest (``large_planes``'s
+        ``max_planes``); 0 (default): every plane of ``completion_min_area_m2`` and up.
     reader_pattern, tag_pattern : str
         Pattern names (:data:`propagation.patterns.PATTERNS`), applied after tracing.
     reader_polarization : {"RHCP", "LHCP", "V", "H"}
@@ -172,6 +175,7 @@ class TraceOptions:
     share_radius_m: float = 1.0
     completion_order: int = 3
     completion_min_area_m2: float = COMPLETION_MIN_AREA_M2
+    completion_max_planes: int = 0
     reader_pattern: str = "tr38901"
     tag_pattern: str = "hw_dipole"
     reader_polarization: str = "RHCP"
@@ -192,6 +196,8 @@ class TraceOptions:
             raise ValueError(f"share_radius_m must be positive, got {self.share_radius_m!r}")
         if not (np.isfinite(self.completion_min_area_m2) and self.completion_min_area_m2 >= 0):
             raise ValueError(f"completion_min_area_m2 must be >= 0, got {self.completion_min_area_m2!r}")
+        if isinstance(self.completion_max_planes, bool) or int(self.completion_max_planes) < 0:
+            raise ValueError(f"completion_max_planes must be >= 0, got {self.completion_max_planes!r}")
         if int(self.completion_order) not in (0, 1, 2, 3):
             raise ValueError(f"completion_order must be 0 (off) to 3, got {self.completion_order!r}")
         for name in (self.reader_pattern, self.tag_pattern):
@@ -360,11 +366,12 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
 
 
 def tracer_state(scene, frequency_hz: float, shared: bool, completion_order: int,
-                 min_area_m2: float = COMPLETION_MIN_AREA_M2) -> tuple:
+                 min_area_m2: float = COMPLETION_MIN_AREA_M2, max_planes: int = 0) -> tuple:
     """What every chunk of one scene traces with: the Sionna scene (cached by content), its
-    planes of ``min_area_m2`` and up and plane lookups (``None`` where not used)."""
+    planes of ``min_area_m2`` and up (at most ``max_planes``, the largest; 0: all) and
+    plane lookups (``None`` where not used)."""
     rt_scene = load_sionna_scene(scene, frequency_hz, public_api=not shared)
-    planes = large_planes(rt_scene, min_area_m2) if completion_order else None
+    planes = large_planes(rt_scene, min_area_m2, max_planes=int(max_planes)) if completion_order else None
     # shared positions leave the chains the completion enumerates to it
     to_completion = (plane_lookup(rt_scene, planes), completion_order) if completion_order else None
     plane_ids = triangle_planes(rt_scene) if shared else None
@@ -494,6 +501,8 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
     if completion_order > 0:  # absent at 0: the cache keys of earlier traces stay valid
         settings["completion_order"] = completion_order
         settings["completion_min_area_m2"] = float(opt.completion_min_area_m2)
+        if opt.completion_max_planes:  # absent at 0: earlier traces' keys stay valid
+            settings["completion_max_planes"] = int(opt.completion_max_planes)
         settings["completion_algorithm"] = COMPLETION_ALGORITHM
     if not shared:
         settings["direct_algorithm"] = DIRECT_ALGORITHM
@@ -559,7 +568,7 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
         runner = current_chunk_runner()
         if runner is None:
             state = tracer_state(scene, frequency_hz, shared, completion_order,
-                                 float(opt.completion_min_area_m2))
+                                 float(opt.completion_min_area_m2), int(opt.completion_max_planes))
             t_trace = 0.0
             for c, chunk in enumerate(chunks):
                 t1 = time.perf_counter()

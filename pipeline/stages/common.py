@@ -53,7 +53,8 @@ TRACING_KEYS = ("frequency_hz", "tracing.max_depth", "tracing.samples_per_src",
                 "tracing.reader_pattern", "tracing.tag_pattern", "tracing.reader_polarization",
                 "tracing.backend", "tracing.method", "tracing.completion_order",
                 "tracing.share_radius_m", "tracing.shared_samples_per_src",
-                "tracing.min_samples_per_position", "tracing.completion_min_area_m2")
+                "tracing.min_samples_per_position", "tracing.completion_min_area_m2",
+                "tracing.completion_max_planes")
 
 #: Grid of candidate sites the held-out tags are drawn from [m]: fine, so their positions
 #: and heights are not those of any lattice the training tags or truth sites use.
@@ -284,6 +285,7 @@ def trace_options(cfg: StudyConfig):
         share_radius_m=t.share_radius_m,
         completion_order=t.completion_order,
         completion_min_area_m2=t.completion_min_area_m2,
+        completion_max_planes=t.completion_max_planes,
         reader_pattern=t.reader_pattern,
         tag_pattern=t.tag_pattern,
         reader_polarization=t.reader_polarization,

@@ -25,12 +25,16 @@ def test_a_bare_map_takes_the_map_scale_profile():
 
 def test_the_profile_is_the_bundled_scale_case_and_ships_with_the_package():
     """The profile is configs/warehouse_large.toml's study settings (the measured 30 x 50 m
-    case), less its scene, seed and evaluation-pose count (tour.eval_max_spacing_m decides)."""
+    case), less its scene, seed and evaluation-pose count (tour.eval_max_spacing_m decides),
+    plus a cap on the completion's planes that warehouse_large (115 planes) is under."""
     text = files("pipeline").joinpath("profiles/map_scale.toml").read_text("utf-8")
     profile = tomllib.loads(text)
     large = tomllib.loads((ROOT / "configs" / "warehouse_large.toml").read_text())
     for section, keys in profile.items():
         for key, value in keys.items():
+            if (section, key) == ("tracing", "completion_max_planes"):
+                assert value >= 115  # binds on real maps' jagged walls, not on warehouse_large
+                continue
             assert large[section][key] == value, (section, key)
     # a scene TOML or a bundled scene is not a bare map: the default study
     assert resolve_target("warehouse_small").tracing.max_depth == 5
