@@ -64,6 +64,10 @@ def test_large_planes_of_a_slab(floor_scene):
     top = np.flatnonzero(np.isclose(np.abs(pl.normal[:, 2]), 1) & np.isclose(np.abs(pl.offset_m), 0))
     assert len(top) == 1
     assert len(large_planes(rts, min_area_m2=100.0)) == 2
+    # max_planes keeps the largest: the two 70 x 60 m faces, then the 70 x 0.2 m sides
+    top3 = large_planes(rts, max_planes=3)
+    np.testing.assert_allclose(top3.area_m2, [4200, 4200, 14], rtol=1e-6)
+    np.testing.assert_allclose(top3.offset_m, pl.offset_m[:3])
 
 
 def test_floor_reflection_is_exact_and_two_ray(floor_scene):
