@@ -354,13 +354,15 @@ _SPLIT_SIDES_M = (0.5, 0.8, 1.2, 1.8)
 
 def _cell_rectangle(mask: np.ndarray, res: float) -> tuple[float, float, float]:
     """(fill, long side, short side) [1, m, m] of a cell mask's minimum rotated rectangle."""
-    r, c = np.nonzero(mask)
+    n_cells = int(mask.sum())
+    edge = mask & ~ndimage.binary_erosion(mask)  # the hull is the edge cells' corners' hull
+    r, c = np.nonzero(edge)
     corners = np.concatenate([np.stack([c + dx, r + dy], 1) for dx in (0, 1) for dy in (0, 1)])
-    hull = shapely.MultiPoint(corners.astype(float)).convex_hull
+    hull = shapely.multipoints(corners.astype(float)).convex_hull
     rect = np.asarray(hull.minimum_rotated_rectangle.exterior.coords)[:4]
     e = np.linalg.norm(np.diff(np.vstack([rect, rect[:1]]), axis=0), axis=1)
     long_c, short_c = float(max(e[0], e[1])), float(min(e[0], e[1]))
-    return min(1.0, len(r) / max(long_c * short_c, 1.0)), long_c * res, short_c * res
+    return min(1.0, n_cells / max(long_c * short_c, 1.0)), long_c * res, short_c * res
 
 
 def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) -> np.ndarray:
@@ -369,7 +371,8 @@ def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) ->
     A rack standing against a wall, or two pallets touching, are one connected obstacle
     whose outline is no rectangle, so no rule would call it a rack. For every obstacle that
     is not itself a rectangle (fill below ``rack_min_fill``), openings with squares of
-    ``rack_min_depth_m`` and then :data:`_SPLIT_SIDES_M` keep its parts at least that thick;
+    ``rack_min_depth_m`` and then :data:`_SPLIT_SIDES_M` (odd cell counts) keep its parts at
+    least that thick;
     a part that is a rack-sized rectangle (fill, depth, length as the rack rule asks, depth
     at most ``fill_max_width_m`` or 2.5 m) becomes an obstacle of its own, the rest of the
     obstacle another. scipy.ndimage openings, shapely rectangles.
@@ -389,10 +392,13 @@ def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) ->
             continue
         rest = mask.copy()
         for side in (rules.rack_min_depth_m, *_SPLIT_SIDES_M):
-            n = max(1, int(round(side / res)))
+            n = max(1, int(round(side / res))) | 1  # odd: min and max filters share a centre
             if n > min(rest.shape):
                 break
-            opened = ndimage.binary_opening(rest, structure=np.ones((n, n), bool))
+            # an opening with an n x n square, as separable minimum and maximum filters (the
+            # outer wall's box is the whole map: a 2-D structure of 60 x 60 cells took seconds)
+            opened = ndimage.maximum_filter(ndimage.minimum_filter(rest, size=n, mode="constant", cval=0),
+                                            size=n, mode="constant", cval=0)
             parts, n_parts = ndimage.label(opened, structure=np.ones((3, 3)))
             for j in range(1, n_parts + 1):
                 piece = parts == j
