@@ -169,10 +169,8 @@ def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
     """
     output = _OUTPUT.get()
     _solve_layout(fig, output.dpi)
-    if output.banner:  # after the layout: the banner sits over the top edge, in red
-        fig.text(0.5, 0.998, output.banner, ha="center", va="top", fontsize=6.5, color="#b00020",
-                 wrap=True, bbox={"facecolor": "white", "edgecolor": "#b00020", "alpha": 0.85,
-                                  "pad": 1.5})
+    if output.banner:
+        _add_banner(fig, output.banner)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -184,6 +182,30 @@ def save_figure(fig: Figure, out_dir, name: str) -> list[Path]:
                 fig.savefig(tmp, format=ext, dpi=output.dpi)
             paths.append(path)
     return paths
+
+
+#: Height of the band a banner adds above a figure [inch].
+BANNER_IN = 0.22
+
+
+def _add_banner(fig: Figure, text: str) -> None:
+    """A red line of text in a band added above the laid-out figure (a smoke-scale run's
+    warning): the figure grows by :data:`BANNER_IN` and its axes and texts keep their
+    sizes in inches, so nothing of the figure is covered."""
+    w, h = fig.get_size_inches()
+    scale = h / (h + BANNER_IN)
+    fig.set_size_inches(w, h + BANNER_IN)
+    for ax in fig.axes:
+        x0, y0, ww, hh = ax.get_position().bounds
+        ax.set_position([x0, y0 * scale, ww, hh * scale])
+    for t in fig.texts:
+        x, y = t.get_position()
+        t.set_position((x, y * scale))
+    for leg in fig.legends:
+        box = leg.get_bbox_to_anchor().transformed(fig.transFigure.inverted())
+        leg.set_bbox_to_anchor((box.x0, box.y0 * scale, box.width, box.height * scale), fig.transFigure)
+    fig.text(0.5, 1.0 - 0.5 * BANNER_IN / (h + BANNER_IN), text, ha="center", va="center",
+             fontsize=6.5, color="#b00020")
 
 
 def _solve_layout(fig: Figure, dpi_out: int = DPI) -> None:

@@ -47,8 +47,9 @@ def test_report_and_figures_of_a_smoke_run_carry_the_banner(tiny_study, tmp_path
     draw_all(run, out_n, names=["scene_top_view"], workers=1)
     a = np.asarray(Image.open(next(out_b.glob("*.png"))).convert("RGB")).astype(int)
     b = np.asarray(Image.open(next(out_n.glob("*.png"))).convert("RGB")).astype(int)
-    assert a.shape == b.shape
-    diff_rows = np.flatnonzero(np.abs(a - b).sum(axis=(1, 2)) > 0)
-    assert len(diff_rows) and diff_rows.max() < 0.15 * a.shape[0]
-    red = (a[..., 0] > 150) & (a[..., 1] < 80) & (a[..., 2] < 80)
-    assert red[: int(0.15 * a.shape[0])].sum() > 50
+    # the banner adds a band above the figure (0.22 in at the PNG's dpi) holding red text,
+    # where the figure without it has its title: no red
+    band = a.shape[0] - b.shape[0]
+    assert a.shape[1] == b.shape[1] and 20 <= band <= 40
+    red = lambda img: (img[..., 0] > 150) & (img[..., 1] < 80) & (img[..., 2] < 80)  # noqa: E731
+    assert red(a[:band]).sum() > 50 and red(b[:band]).sum() < 10  # b: a title, no red
