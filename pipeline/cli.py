@@ -93,14 +93,6 @@ def _parse_value(text: str):
         return text
 
 
-def map_scale_profile() -> dict:
-    """The study keys ``rfidstudy run MAP.yaml`` sets for a map given alone
-    (``pipeline/profiles/map_scale.toml``: a building of 30 x 50 m in minutes)."""
-    from importlib.resources import files
-
-    return tomllib.loads(files("pipeline").joinpath("profiles/map_scale.toml").read_text("utf-8"))
-
-
 def resolve_target(target: str | None, overrides: list[str] | None = None,
                    backend: str | None = None) -> StudyConfig:
     """Turn ``run``'s argument into a study config.
@@ -109,8 +101,8 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
     ----------
     target : str or None
         ``None``: the default study; a study TOML (a file whose top-level keys are study
-        keys); a map_server YAML (the default study with :func:`map_scale_profile` on
-        top); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
+        keys); a map_server YAML (the default study with
+        :func:`pipeline.profiles.map_scale_profile` on top); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
     overrides : list of str
         ``KEY=VALUE`` with dotted study keys (``training.epochs=10``); VALUE in TOML syntax.
     backend : str, optional
@@ -132,6 +124,8 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
         elif p.suffix in (".toml", ".xml", ".yaml", ".yml") and not p.exists():
             raise ConfigError(f"{p}: no such file")
         elif p.suffix.lower() in (".yaml", ".yml"):  # a map alone: the map-scale profile
+            from pipeline.profiles import map_scale_profile
+
             data = {**map_scale_profile(), "scene": str(p.resolve())}
             source = f"{p} with the map-scale profile (pipeline/profiles/map_scale.toml)"
         else:
@@ -155,8 +149,9 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
 @app.command()
 def run(
     target: Annotated[str | None, typer.Argument(
-        help="Study TOML, or a scene (bundled name, scene.toml, Mitsuba XML). "
-             "Default: the default study on the bundled 'corridor_lab' scene.")] = None,
+        help="Study TOML, or a scene (bundled name, scene.toml, Mitsuba XML, or a ROS map "
+             "YAML: run with the map-scale profile). Default: the default study on the "
+             "bundled 'corridor_lab' scene.")] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Run directory.")] = Path("runs/default"),
     set_: Annotated[list[str] | None, typer.Option(
         "--set", "-s", help="Override a config key, e.g. --set training.epochs=10 (repeatable).")] = None,
@@ -589,7 +584,7 @@ def scenes_show(
         typer.echo(f"  route: {len(sc.route_m)} points")
     elif route_note:
         typer.echo(route_note)
-    from scenes.mapscene import describe_map_scene
+    from scenes.mapsites import describe_map_scene
 
     for line in describe_map_scene(sc):
         typer.echo(line)

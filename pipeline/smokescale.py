@@ -7,8 +7,8 @@ reader looks: :func:`smoke_scale_reasons` names each setting below its limit, th
 opens with them (:func:`pipeline.report.write_report`) and every figure carries a banner
 (:func:`pipeline.figures.drawall.draw_all`).
 
-The limits are a third of the default study's values or less (30,000 rays, depth 5, 100
-epochs): ray counts under 10,000 flip read decisions of links near the threshold
+The limits sit well below the default study's values (10,000 of 30,000 rays, depth 3 of
+5, 20 of 100 epochs): ray counts under 10,000 flip read decisions of links near the threshold
 (docs/maps.md, "What each tracer is worth": 2,000 rays flip 1.6 per position against
 0.2-0.3 with 32,000), depth under 3 drops the twice-reflected paths shelf tags see, and
 ANFIS under 20 epochs has not left its initial partition (bench/anfis.py).

@@ -20,7 +20,8 @@ the solid it stands for:
 
 Both are reported (:class:`CleaningReport`): the cells each changed and every filled
 region, with its centre, area and width, so ``rfidstudy scenes show`` can say what was
-decided. ``gap_close_m = 0`` and ``fill_max_width_m = 0`` turn them off. Speckle (an
+decided. ``gap_close_m = 0`` turns the closing off; ``fill_max_width_m = 0`` and
+``fill_free_max_width_m = 0`` together turn the filling off. Speckle (an
 obstacle under ``min_area_m2``) is dropped later, by the extraction
 (:mod:`scenes.mapextract`).
 """
@@ -70,7 +71,8 @@ class CleaningReport:
     filled : tuple of FilledRegion
         Enclosed regions made obstacle, largest first.
     kept_enclosed : int
-        Enclosed regions wider than ``fill_max_width_m``, left as they were (rooms).
+        Enclosed regions left as they were: wider than ``fill_max_width_m``, or mostly
+        free and wider than ``fill_free_max_width_m`` (rooms, free pockets).
     """
 
     gap_cells: int
@@ -78,10 +80,10 @@ class CleaningReport:
     kept_enclosed: int
 
     def describe(self) -> str:
-        """One line: ``"closed 12 gap cells; filled 5 enclosed regions (41.3 m^2); kept 2"``."""
+        """One line: ``"closed 12 gap cells; filled 5 enclosed regions (41.3 m^2); kept 2 ..."``."""
         area = sum(f.area_m2 for f in self.filled)
         return (f"closed {self.gap_cells} gap cells; filled {len(self.filled)} enclosed regions "
-                f"({area:.1f} m^2); kept {self.kept_enclosed} wider enclosed regions")
+                f"({area:.1f} m^2); kept {self.kept_enclosed} enclosed regions")
 
 
 def _disc(radius_cells: float) -> np.ndarray:

@@ -39,7 +39,8 @@ from shapely.geometry import Point, Polygon
 from scenes.radio import default_construction
 from scenes.rosmap import OBSTACLE, OUTSIDE, RosMap, resolve_unknown
 
-__all__ = ["KINDS", "ExtractionRules", "MapObstacle", "apply_override", "extract_obstacles", "map_cells"]
+__all__ = ["KINDS", "LASER_BAND_M", "ExtractionRules", "MapObstacle", "apply_override", "extract_obstacles",
+           "map_cells"]
 
 #: What an obstacle is: a wall (its material and construction decide the radio surfaces),
 #: a shelving rack (shelf boards and uprights) or a pillar (a closed shell).
@@ -365,7 +366,8 @@ def _cell_rectangle(mask: np.ndarray, res: float) -> tuple[float, float, float]:
     return min(1.0, n_cells / max(long_c * short_c, 1.0)), long_c * res, short_c * res
 
 
-def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) -> np.ndarray:
+def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules,
+                      drawn: np.ndarray) -> np.ndarray:
     """Labels with rack-shaped rectangles cut out of the obstacles they touch.
 
     A rack standing against a wall, or two pallets touching, are one connected obstacle
@@ -374,8 +376,12 @@ def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) ->
     ``rack_min_depth_m`` and then :data:`_SPLIT_SIDES_M` (odd cell counts) keep its parts at
     least that thick;
     a part that is a rack-sized rectangle (fill, depth, length as the rack rule asks, depth
-    at most ``fill_max_width_m`` or 2.5 m) becomes an obstacle of its own, the rest of the
-    obstacle another. scipy.ndimage openings, shapely rectangles.
+    at most ``fill_max_width_m`` or 2.5 m) and an outline the map drew (at least half its
+    cells were not occupied in the map as given, ``drawn`` (ny, nx) bool being the occupied
+    cells: the inside the cleaning filled) becomes an obstacle of its own, the rest of the
+    obstacle another. The last condition keeps a solid thick wall joined to thinner ones a
+    wall: a SLAM map draws a rack as the outline its laser saw, a wall as a solid band.
+    scipy.ndimage openings, shapely rectangles.
     """
     out = labels.copy()
     nxt = int(labels.max()) + 1
@@ -406,7 +412,8 @@ def _split_rectangles(labels: np.ndarray, res: float, rules: ExtractionRules) ->
                     continue  # the whole obstacle: not a split
                 f, long_m, short_m = _cell_rectangle(piece, res)
                 if (f >= rules.rack_min_fill and rules.rack_min_depth_m <= short_m <= max_depth
-                        and long_m >= rules.rack_min_length_m):
+                        and long_m >= rules.rack_min_length_m
+                        and not drawn[sl][piece].mean() > 0.5):
                     out[sl][piece] = nxt
                     nxt += 1
                     rest &= ~piece
@@ -431,8 +438,8 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
     ----------
     rosmap : RosMap
     tolerance_m : float, optional
-        Simplification tolerance of outlines and centre lines [m]; default half a cell
-        (outlines then stay within one cell of the map's cell edges).
+        Simplification tolerance of outlines and centre lines [m]; default
+        :data:`LASER_BAND_M` (0.05 m) or half a cell, whichever is larger.
     rules : ExtractionRules, optional
         Construction rules (default :class:`ExtractionRules`).
     cells : numpy.ndarray, optional
@@ -461,7 +468,8 @@ def extract_obstacles(rosmap: RosMap, tolerance_m: float | None = None,
     # (rectangles exactly) and removes thinner lines, which become obstacles of their own.
     k = max(1, int(np.ceil(rules.thin_wall_max_m / res - 1e-9)))
     thick = ndimage.binary_opening(obstacle, structure=np.ones((k, k), bool))
-    labels = _split_rectangles(measure.label(thick, connectivity=2), res, rules)
+    labels = _split_rectangles(measure.label(thick, connectivity=2), res, rules,
+                               rosmap.cell_class == OBSTACLE)
     thin_labels = measure.label(obstacle & ~thick, connectivity=2)
     labels = np.where(thin_labels > 0, thin_labels + labels.max(), labels)
     out = []

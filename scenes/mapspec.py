@@ -83,7 +83,8 @@ class MapSpec:
     floor_thickness_m, ceiling_thickness_m : float
         Slab thicknesses [m].
     tolerance_m : float or None
-        Outline and centre-line simplification tolerance [m]; None: half a map cell.
+        Outline and centre-line simplification tolerance [m]; None: 0.05 m (a SLAM map's
+        laser band) or half a map cell, whichever is larger.
     outer_material, thick_material, thin_material, pillar_material : str
         Materials of the rules (:class:`scenes.mapextract.ExtractionRules`).
     thin_wall_max_m, pillar_max_m, rack_min_fill, rack_min_depth_m, rack_min_length_m, min_area_m2 : float
@@ -93,8 +94,8 @@ class MapSpec:
         (:mod:`scenes.mapclean`).
     fill_max_width_m : float
         Enclosed regions at most this wide (largest inscribed disc) become obstacle: the
-        inside of a rack's or pallet's outline, when mostly unknown [m]; 0: none
-        (:mod:`scenes.mapclean`).
+        inside of a rack's or pallet's outline, when mostly unknown [m]; 0 (with
+        ``fill_free_max_width_m = 0``): none (:mod:`scenes.mapclean`).
     fill_free_max_width_m : float
         Enclosed regions at most this wide become obstacle whatever they hold [m]; 0: none.
     rack_height_m : float

@@ -7,7 +7,13 @@ record, in a map of the building whose walls are off by a few centimetres
 (:mod:`pipeline.robot.robotmap`) (Thrun, Burgard & Fox, *Probabilistic Robotics*, 2005).
 """
 
-from pipeline.robot.coverage import CoverageRoute, TagFace, plan_coverage_route, tag_faces
+from pipeline.robot.coverage import (
+    CoverageRoute,
+    SkippedFace,
+    TagFace,
+    plan_coverage_route,
+    tag_faces,
+)
 from pipeline.robot.kinematics import (
     AntennaMount,
     Robot,
@@ -56,6 +62,7 @@ __all__ = [
     "CoverageRoute",
     "TagFace",
     "plan_coverage_route",
+    "SkippedFace",
     "tag_faces",
     "AntennaMount",
     "DriveProfile",

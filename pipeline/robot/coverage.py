@@ -74,9 +74,10 @@ class SkippedFace:
     face : TagFace
         The face.
     reason : str
-        One line: ``"no pass fits"`` (no offset within the standoff keeps the robot's
-        clearance), ``"cut off"`` (its free space is not connected to the main free space)
-        or ``"other region"`` (its pass lies in a free region other than the route's).
+        One line starting ``"no pass fits: "`` (no offset within the standoff keeps the
+        robot's clearance), ``"cut off: "`` (its free space is not connected to the main
+        free space) or ``"other region: "`` (its pass lies in a free region other than the
+        route's), then the details.
     """
 
     face: TagFace
@@ -372,8 +373,16 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     for fi, pi in enumerate(face_pass):
         if pi < 0 or keep[pi]:
             continue
+        # a face that took the first pass near it may be served by a kept one too
+        other = [q for q in np.flatnonzero(keep) if np.all(
+            _segment_distance(xy[faces[fi].tag_index], *passes[q]) <= standoff_m + 1e-9)]
+        if other:
+            face_pass[fi] = other[0]
+            continue
         p = passes[pi].mean(axis=0)
-        why = ("its pass ends off the planning grid's free cells" if pass_comp[pi] < 0 else
+        e0, e1 = end_node[2 * pi], end_node[2 * pi + 1]
+        why = ("its pass ends off the planning grid's free cells" if min(e0, e1) < 0 else
+               "its pass's two ends lie in unconnected free regions" if comp[e0] != comp[e1] else
                "its pass cannot be reached from the route's free region")
         skipped.append(SkippedFace(faces[fi], f"other region: {why} (around ({p[0]:.2f}, {p[1]:.2f}) m, "
                                               f"free space inflated by {infl:.2f} m)"))
@@ -388,7 +397,7 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
 
     centres = np.stack([cx[ok], cy[ok]], 1)
     todo = set(range(len(passes)))
-    # start at the first pass (the longest face's), at its first end
+    # start at the first kept pass (the longest face's served), at its first end
     route = [passes[0][0], passes[0][1]]
     driven = [passes[0]]
     driven_order = [0]

@@ -18,7 +18,7 @@ from scipy import ndimage
 
 from scenes import floor_plan_segments
 
-__all__ = ["OccupancyMap", "slice_heights"]
+__all__ = ["OccupancyMap", "map_boundary_segments", "slice_heights"]
 
 logger = logging.getLogger(__name__)
 
@@ -453,3 +453,25 @@ def _densify(polyline: np.ndarray, step_m: float) -> np.ndarray:
         t = np.arange(1, n + 1)[:, None] / n
         out.append(a + t * (b - a))
     return np.concatenate(out)
+
+
+def map_boundary_segments(scene) -> np.ndarray:
+    """Edges (k, 2, 2) [m] of a map scene's building: where its cells meet the outside.
+
+    A real map's outer wall has gaps (a window, a missed return, an unmapped doorway):
+    the robot may not drive through them into the unmapped outside, so its collision map
+    closes them. Empty for a scene that is not from a map.
+    """
+    rm = getattr(scene, "rosmap", None)
+    boxes = getattr(scene, "free_space_m", None)
+    if rm is None or boxes is None or not len(boxes):
+        return np.zeros((0, 2, 2))
+    from scenes.rosmap import boundary_segments
+
+    inside = np.zeros(rm.shape, dtype=bool)
+    res = rm.resolution_m
+    for lo, hi in np.asarray(boxes)[:, :, :2]:
+        c0, r0 = np.round((lo - rm.origin_m) / res).astype(int)
+        c1, r1 = np.round((hi - rm.origin_m) / res).astype(int)
+        inside[max(r0, 0):r1, max(c0, 0):c1] = True
+    return boundary_segments(inside, rm.origin_m, res)

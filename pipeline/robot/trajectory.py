@@ -22,7 +22,7 @@ from scipy import ndimage
 
 from pipeline.configschema import ConfigError, option, section
 from pipeline.robot.kinematics import Robot, footprint_points, wrap_angle
-from pipeline.robot.occupancy import OccupancyMap, _densify
+from pipeline.robot.occupancy import OccupancyMap, _densify, map_boundary_segments
 
 logger = logging.getLogger(__name__)
 
@@ -186,28 +186,6 @@ class DriveProfile:
 _COLLISION_MAPS: dict = {}
 _COLLISION_MAPS_KEPT = 4
 _COLLISION_MAPS_LOCK = threading.Lock()  # a Dask worker runs studies in threads
-
-
-def map_boundary_segments(scene) -> np.ndarray:
-    """Edges (k, 2, 2) [m] of a map scene's building: where its cells meet the outside.
-
-    A real map's outer wall has gaps (a window, a missed return, an unmapped doorway):
-    the robot may not drive through them into the unmapped outside, so its collision map
-    closes them. Empty for a scene that is not from a map.
-    """
-    rm = getattr(scene, "rosmap", None)
-    boxes = getattr(scene, "free_space_m", None)
-    if rm is None or boxes is None or not len(boxes):
-        return np.zeros((0, 2, 2))
-    from scenes.rosmap import boundary_segments
-
-    inside = np.zeros(rm.shape, dtype=bool)
-    res = rm.resolution_m
-    for lo, hi in np.asarray(boxes)[:, :, :2]:
-        c0, r0 = np.round((lo - rm.origin_m) / res).astype(int)
-        c1, r1 = np.round((hi - rm.origin_m) / res).astype(int)
-        inside[max(r0, 0):r1, max(c0, 0):c1] = True
-    return boundary_segments(inside, rm.origin_m, res)
 
 
 def collision_map(scene, robot: Robot, resolution_m: float = 0.05, route_m=None) -> OccupancyMap:
@@ -611,7 +589,7 @@ def evaluation_path(
         if need > int(n_poses):
             logger.info("evaluation path of %.0f m: %d poses (n_eval_poses = %d would be %.2f m apart; "
                         "tour.eval_max_spacing_m = %.2f m)", length, need, int(n_poses),
-                        length / (int(n_poses) - 1), cfg.eval_max_spacing_m)
+                        length / max(int(n_poses) - 1, 1), cfg.eval_max_spacing_m)
             n_poses = min(need, 100_000)
     times = np.linspace(0.0, dur, int(n_poses))
     traj = _sample([(dur, at, 0)], times)

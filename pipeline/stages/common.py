@@ -110,7 +110,7 @@ def study_scene(cfg: StudyConfig):
 
     The scene's own tags are the training layout; ``evaluation.n_eval_tags`` held-out
     tags are drawn on its racks' front beams where it is a map with racks
-    (:func:`scenes.mapscene.shelf_sites`), else on its walls, boxes and cabinets
+    (:func:`scenes.mapsites.shelf_sites`), else on its walls, boxes and cabinets
     (:func:`scenes.tagsites.draw_tags`,
     stream ``stage_rng(cfg, "eval_tags")``), at least ``eval_tag_min_separation_m`` from
     every other tag and at heights in ``eval_tag_heights_m``, so the evaluation tour
@@ -134,14 +134,19 @@ def study_scene(cfg: StudyConfig):
     train = sc.tags
     # a map with racks: the held-out tags are shelf tags too (on the front beams, at every
     # beam height in range), not tags on its walls and pillars
-    from scenes.mapscene import shelf_sites
+    from scenes.mapsites import shelf_sites
 
-    sites = shelf_sites(sc, EVAL_TAG_SPACING_M, tuple(ev.eval_tag_heights_m))
-    if len(sites) < ev.n_eval_tags:
-        sites = tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M, z_range_m=tuple(ev.eval_tag_heights_m))
     route = study_route(sc, cfg)
-    if route is not None:  # only where the evaluation tour passes within the models' domain
-        sites = sites.subset(_route_distance_m(sites.positions_m[:, :2], route) <= cfg.training.d_max_m)
+
+    def near_route(sites):  # only where the evaluation tour passes within the models' domain
+        if route is None:
+            return sites
+        return sites.subset(_route_distance_m(sites.positions_m[:, :2], route) <= cfg.training.d_max_m)
+
+    sites = near_route(shelf_sites(sc, EVAL_TAG_SPACING_M, tuple(ev.eval_tag_heights_m)))
+    if len(sites) < 4 * ev.n_eval_tags:  # too few shelf sites to draw from, spread out
+        sites = near_route(tag_sites(sc, spacing_m=EVAL_TAG_SPACING_M,
+                                     z_range_m=tuple(ev.eval_tag_heights_m)))
     held = draw_tags(sites, ev.n_eval_tags, stage_rng(cfg, "eval_tags"), avoid_m=train.positions_m,
                      min_separation_m=ev.eval_tag_min_separation_m, prefix="E",
                      where=f"{sc.name}: evaluation.n_eval_tags = {ev.n_eval_tags}")
@@ -179,17 +184,27 @@ def map_route(scene, robot):
     from pipeline.robot import plan_coverage_route
 
     standoff = float(scene.metadata.get("map", {}).get("route_standoff_m", 1.0))
-    plan = plan_coverage_route(scene, robot, standoff)
-    if plan.skipped:
+    try:
+        plan, failure = plan_coverage_route(scene, robot, standoff), None
+    except ValueError as exc:
+        plan, failure = None, exc
+    if plan is None or plan.skipped:
         # a real map's clutter pinches aisles under the robot's width plus 0.5 m: with the
         # margin narrowed to what the tour itself keeps (0.10 m beyond the footprint, plus half
         # a planning cell) the robot may still pass; the plan serving more tags is kept
-        narrow = plan_coverage_route(scene, robot, standoff, margin_m=NARROW_ROUTE_MARGIN_M)
-        if len(narrow.skipped_tag_index) < len(plan.skipped_tag_index):
+        try:
+            narrow = plan_coverage_route(scene, robot, standoff, margin_m=NARROW_ROUTE_MARGIN_M)
+        except ValueError:
+            narrow = None
+        if narrow is not None and (plan is None or
+                                   len(narrow.skipped_tag_index) < len(plan.skipped_tag_index)):
             logging.getLogger("pipeline.stages").info(
-                "%s: route margin narrowed to %.2f m: %d instead of %d tags skipped", scene.name,
-                NARROW_ROUTE_MARGIN_M, len(narrow.skipped_tag_index), len(plan.skipped_tag_index))
+                "%s: route margin narrowed to %.2f m: %d tags skipped (%s with 0.25 m)", scene.name,
+                NARROW_ROUTE_MARGIN_M, len(narrow.skipped_tag_index),
+                "no route" if plan is None else len(plan.skipped_tag_index))
             plan = narrow
+    if plan is None:
+        raise failure
     meta = dict(scene.metadata)
     meta["route"] = {"length_m": round(plan.length_m, 3), "passes": int(len(plan.passes_m)),
                      "skipped": [{"tags": [str(t) for t in scene.tags.ids[s.face.tag_index]],

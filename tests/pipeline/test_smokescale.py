@@ -7,7 +7,6 @@ import tomllib
 import numpy as np
 from PIL import Image
 
-from pipeline.config import load_config
 from pipeline.smokescale import smoke_banner, smoke_scale_reasons
 from tests.conftest import ROOT, copy_run
 
@@ -26,7 +25,9 @@ def test_bundled_smoke_configs_are_smoke_scale_and_the_default_is_not(tmp_path):
 
     default = tomllib.loads(config_to_toml(StudyConfig()))
     assert smoke_scale_reasons(default) == [] and smoke_banner(default) == ""
-    assert load_config(ROOT / "configs" / "warehouse.toml") is not None
+    # the bundled warehouse configs are smoke-scale too (2,000 rays, depth 2, 3 epochs)
+    for name in ("warehouse.toml", "warehouse_large.toml"):
+        assert len(smoke_scale_reasons(_as_dict(ROOT / "configs" / name))) == 3
 
 
 def test_report_and_figures_of_a_smoke_run_carry_the_banner(tiny_study, tmp_path):
