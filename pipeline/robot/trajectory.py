@@ -160,6 +160,11 @@ class DriveProfile:
         Minimum clearance between the robot's turning disc and obstacles [m].
     resolution_m : float
         Cell size of the collision map [m].
+    map_band_half_width_m : float
+        On a map scene (``scene.rosmap``) the route is where the robot drives (the
+        coverage planner placed it at the standoff from the tags): its lanes lie within
+        this of it [m], not across the whole free space beside it (up to 6 m, a corridor's
+        width, where the route is a corridor's centre line).
     """
 
     lane_change_length_m: float = 2.0
@@ -170,10 +175,11 @@ class DriveProfile:
     stop_duration_s: float = 2.0
     clearance_m: float = 0.10
     resolution_m: float = 0.05
+    map_band_half_width_m: float = 0.3
 
     def __post_init__(self) -> None:
         for k in ("lane_change_length_m", "accel_m_per_s2", "turn_rate_rad_per_s",
-                  "turn_accel_rad_per_s2", "resolution_m"):
+                  "turn_accel_rad_per_s2", "resolution_m", "map_band_half_width_m"):
             if not getattr(self, k) > 0:
                 raise ValueError(f"DriveProfile: {k}={getattr(self, k)} must be > 0")
         for k in ("stop_duration_s", "clearance_m", "lane_jitter"):
@@ -293,7 +299,8 @@ def _route_band(scene, robot: Robot, cfg: DriveProfile, cmap: OccupancyMap, rout
     tan = np.gradient(pts, axis=0)
     tan /= np.linalg.norm(tan, axis=1, keepdims=True)
     normals = np.stack([-tan[:, 1], tan[:, 0]], 1)
-    q = np.arange(-6.0, 6.0 + 1e-9, ds)
+    half = cfg.map_band_half_width_m if getattr(scene, "rosmap", None) is not None else 6.0
+    q = np.arange(-half, half + 1e-9, ds)
     cand = pts[:, None, :] + q[None, :, None] * normals[:, None, :]
     ok = cmap.clearance_m(cand) >= robot.radius_m + cfg.clearance_m
     lo = np.full(len(s), np.nan)

@@ -165,3 +165,19 @@ def test_held_out_tags_of_a_map_with_racks_are_shelf_tags():
     assert np.all(shapely.distance(racks.boundary, shapely.points(held.positions_m[:, :2])) <= 0.1)
     beams = np.asarray(sc.metadata["map"]["shelf_levels_m"]) + sc.metadata["map"]["beam_height_m"] / 2
     assert np.all(np.isin(np.round(held.positions_m[:, 2], 6), np.round(beams, 6)))
+
+
+@pytest.mark.slow
+def test_the_default_study_completes_on_a_real_robot_map(tmp_path):
+    """`rfidstudy run MAP.yaml` on the Neobotix lab (a real robot's slam_toolbox map) runs
+    every stage with the map-scale profile, the first 12 m of the route (about 2 min on
+    two cores; the whole nav2 warehouse took 14.5 min, bench/real_maps.py)."""
+    from pipeline.cli import resolve_target
+    from pipeline.stages import run_full_study
+
+    cfg = resolve_target(str(LAB), ["tour.max_length_m=12", "localisation.n_particles=100",
+                                    f"tracing.cache_dir={str(tmp_path / 'cache')!r}"])
+    res = run_full_study(cfg, tmp_path / "run", command_line=["pytest"])
+    assert (tmp_path / "run" / "report.html").is_file() and res is not None
+    html = (tmp_path / "run" / "report.html").read_text()
+    assert "Smoke-scale settings" in html
