@@ -100,10 +100,34 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     return save_figure(fig, out_dir or run_dir / "figures", "scene_top_view")
 
 
+def _draw_map_recognition(ax, scene) -> None:
+    """Under a map scene's plan: the map as given (grey levels), the racks and pillars the
+    extraction recognised (filled), and the tags the planned route skips (red crosses)."""
+    rm, m = scene.rosmap, scene.metadata["map"]
+    shade = np.array([0.6, 0.93, 0.1])  # unknown, free, occupied (cell classes -1, 0, 1)
+    img = shade[np.clip(np.asarray(rm.cell_class, int), -1, 1) + 1]
+    (x0, y0), (x1, y1) = rm.extent_m
+    ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap="gray", vmin=0, vmax=1,
+              interpolation="nearest", alpha=0.45, zorder=0)
+    for kind, colour in (("rack", "tab:blue"), ("pillar", "tab:purple")):
+        rects = [np.asarray(o["rectangle_m"]) for o in m["obstacles"]
+                 if o["kind"] == kind and "rectangle_m" in o]
+        for i, r in enumerate(rects):
+            ax.fill(r[:, 0], r[:, 1], color=colour, alpha=0.35, lw=0, zorder=1,
+                    label=f"{len(rects)} {kind}s recognised" if i == 0 else None)
+    skipped = [xy for sk in scene.metadata.get("route", {}).get("skipped", []) for xy in sk.get("xy_m", [])]
+    if skipped:
+        xy = np.asarray(skipped, float)
+        ax.plot(xy[:, 0], xy[:, 1], "x", color="tab:red", ms=5, zorder=4,
+                label=f"{len(xy)} tags the route skips")
+
+
 def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
     """Top view of a ``scenes.Scene`` (walls cut at `z_m`, tags, route) written to `png`.
 
-    Used by ``rfidstudy scenes show``; writes the PNG (and a PDF beside it).
+    Used by ``rfidstudy scenes show``; writes the PNG (and a PDF beside it). A map scene
+    shows the map as given under it, the racks and pillars recognised and the tags the
+    planned route skips.
     """
     from scenes.geometry import floor_plan_segments
 
@@ -111,6 +135,8 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
     segs = floor_plan_segments(scene, z_m)
     fig = new_figure(10.0, _plan_height_in(segs, 10.0))
     ax = fig.subplots()
+    if getattr(scene, "rosmap", None) is not None and scene.metadata.get("map"):
+        _draw_map_recognition(ax, scene)
     _draw_plan(ax, segs, np.asarray(scene.tags.positions_m)[:, :2], list(scene.tags.ids),
                None if scene.route_m is None else np.asarray(scene.route_m)[:, :2])
     fig.legend(fontsize=7, loc="outside lower center", ncol=4, frameon=False)

@@ -208,6 +208,7 @@ def map_route(scene, robot):
     meta = dict(scene.metadata)
     meta["route"] = {"length_m": round(plan.length_m, 3), "passes": int(len(plan.passes_m)),
                      "skipped": [{"tags": [str(t) for t in scene.tags.ids[s.face.tag_index]],
+                                  "xy_m": np.round(scene.tags.positions_m[s.face.tag_index, :2], 4).tolist(),
                                   "reason": s.reason} for s in plan.skipped]}
     tags = scene.tags
     if plan.skipped:
