@@ -260,8 +260,12 @@ def test_partial_refinement_mixes_cell_means_and_centre_values():
     # likelihoods up to each posterior's normalising constant
     d_full = part.log_posterior[0, ref] - full.log_posterior[0, ref]
     d_none = part.log_posterior[0, ~ref] - none.log_posterior[0, ~ref]
-    np.testing.assert_allclose(d_full, d_full[0], atol=1e-9)
-    np.testing.assert_allclose(d_none, d_none[0], atol=1e-9)
+    # the resultants are float32 sums by BLAS, whose blocking (hence rounding) depends on
+    # the batch's shape: 10 refined cells here, 49 there. With numpy 2.4.6 / its OpenBLAS
+    # the two differ by up to 2.4e-4 in log-likelihood (1e-9 held with earlier builds);
+    # 1e-3 is 4x that and 100x below the gap between the two approximations checked below
+    np.testing.assert_allclose(d_full, d_full[0], atol=1e-3)
+    np.testing.assert_allclose(d_none, d_none[0], atol=1e-3)
     # and the two quantities differ (else the test could not tell them apart)
     gap = full.log_posterior[0] - none.log_posterior[0]
     assert np.ptp(gap) > 0.1
