@@ -92,8 +92,8 @@ def main(argv=None) -> None:
         folder = MAPS / name
         yaml = next(folder.glob("*.yaml"))
         rc, wall, peak, text = timed([exe, "scenes", "show", str(yaml)])
-        field = {k: re.search(rf"{k}: ([^\n]*)", text) for k in ("tags", "radio surfaces", "map",
-                                                                 "planned route")}
+        field = {k: re.search(rf"^  {k}: ([^\n]*)", text, re.MULTILINE)
+                 for k in ("tags", "radio surfaces", "map", "planned route")}
         skipped = sum(int(m) for m in re.findall(r"skipped (\d+) tags", text))
         print(f"{name}: scenes show rc {rc}, {wall:.1f} s, peak {peak / 2**20:,.0f} MiB")
         for k, m in field.items():

@@ -161,10 +161,8 @@ class DriveProfile:
     resolution_m : float
         Cell size of the collision map [m].
     map_band_half_width_m : float
-        On a map scene (``scene.rosmap``) the route is where the robot drives (the
-        coverage planner placed it at the standoff from the tags): its lanes lie within
-        this of it [m], not across the whole free space beside it (up to 6 m, a corridor's
-        width, where the route is a corridor's centre line).
+        On a map scene the planned route is where the robot drives: its lanes lie within
+        this of it [m] (a corridor's route is its centre line: lanes span up to 6 m).
     """
 
     lane_change_length_m: float = 2.0
@@ -590,14 +588,12 @@ def evaluation_path(
     n_st = band.i1 - band.i0 + 1
     path = _pass_path(band, np.full(n_st, lane_fraction), True)
     dur, at = _drive(path, cfg, prof)
-    if cfg.eval_max_spacing_m > 0:  # a long path: poses no farther apart than the bound
-        length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
-        need = int(np.ceil(length / cfg.eval_max_spacing_m)) + 1
-        if need > int(n_poses):
-            logger.info("evaluation path of %.0f m: %d poses (n_eval_poses = %d would be %.2f m apart; "
-                        "tour.eval_max_spacing_m = %.2f m)", length, need, int(n_poses),
-                        length / max(int(n_poses) - 1, 1), cfg.eval_max_spacing_m)
-            n_poses = min(need, 100_000)
+    length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    need = int(np.ceil(length / cfg.eval_max_spacing_m)) + 1 if cfg.eval_max_spacing_m > 0 else 0
+    if need > int(n_poses):  # a long path: poses no farther apart than the bound
+        logger.info("evaluation path of %.0f m: %d poses, not n_eval_poses = %d (tour.eval_max_spacing_m "
+                    "= %.2f m)", length, need, int(n_poses), cfg.eval_max_spacing_m)
+        n_poses = min(need, 100_000)
     times = np.linspace(0.0, dur, int(n_poses))
     traj = _sample([(dur, at, 0)], times)
     check_trajectory(cmap, traj, robot, clearance_m=prof.clearance_m - cmap.resolution_m)
