@@ -89,9 +89,13 @@ def _wall_surfaces(o: MapObstacle, height_m: float) -> list[RadioSurface]:
     return out
 
 
-def rack_frames(o: MapObstacle) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-    """A rack's frame: centre (2,), long axis u (2,), depth axis v (2,), length and depth [m]."""
-    r = o.rectangle_m
+def rack_frames(o) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """A rack's frame: centre (2,), long axis u (2,), depth axis v (2,), length and depth [m].
+
+    ``o`` is a :class:`MapObstacle`, or the corners (4, 2) [m] of its rectangle (as a
+    scene's ``metadata["map"]["obstacles"][i]["rectangle_m"]`` holds them).
+    """
+    r = np.asarray(getattr(o, "rectangle_m", o), dtype=float)
     e0, e1 = r[1] - r[0], r[2] - r[1]
     long_e, short_e = (e0, e1) if np.linalg.norm(e0) >= np.linalg.norm(e1) else (e1, e0)
     u = long_e / np.linalg.norm(long_e)

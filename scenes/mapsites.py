@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scenes.mapscene import rack_frames
 from scenes.scene import Scene
 
 __all__ = ["describe_map_scene", "shelf_sites"]
@@ -42,13 +43,7 @@ def shelf_sites(scene: Scene, spacing_m: float, z_range_m: tuple[float, float] |
         mids = mids[(mids >= z_range_m[0]) & (mids <= z_range_m[1])]
     pos, nrm = [], []
     for o in racks:
-        r = np.asarray(o["rectangle_m"], dtype=float)
-        e0, e1 = r[1] - r[0], r[2] - r[1]
-        long_e, short_e = (e0, e1) if np.linalg.norm(e0) >= np.linalg.norm(e1) else (e1, e0)
-        length, depth = float(np.linalg.norm(long_e)), float(np.linalg.norm(short_e))
-        u = long_e / length
-        v = np.array([-u[1], u[0]])
-        c = r.mean(axis=0)
+        c, u, v, length, depth = rack_frames(o["rectangle_m"])
         usable = length - 0.4
         if usable <= 0:
             continue
