@@ -509,11 +509,14 @@ def placement(
         spec = load_placement(placement_file)
     except ConfigError as exc:
         _fail(str(exc))
+    from pipeline.placement.objectives import needed_stage
+
     n = len(candidates_of(spec))
     s = spec.settings
+    upto = needed_stage([s.primary, *(c.objective for c in s.constraint), *s.pareto])
     typer.echo(f"{n} candidates x {s.replicates} replicates"
                + (f" + {s.optimise.n_trials} optimiser trials" if s.optimise.n_trials else "")
-               + f"; ranked by {s.primary}")
+               + f"; ranked by {s.primary}; each study runs up to its {upto} stage")
 
     def progress(ev):
         what = ("done before, nothing computed" if ev.n_stages_run == 0 and not ev.failed else
@@ -526,16 +529,13 @@ def placement(
         res = run_placement(spec, out, workers=workers, scheduler=scheduler, progress=progress)
     except (ConfigError, RunDirError) as exc:
         _fail(str(exc))
+    from pipeline.placement.report import answer_lines
+
     table = ranking_table(res.summary, s)
     cols = ["rank", "candidate", "feasible", s.primary, f"{s.primary} minus best", "verdict"]
     typer.echo(table[cols].head(10).to_string(index=False, max_colwidth=34))
-    a = res.answer
-    if a.get("recommended"):
-        verdict = (a.get("margin") or {}).get("verdict")
-        lead = ("its lead over the runner-up exceeds the 95 % interval" if verdict == "worse" else
-                "the runner-up is ahead on the units both share: run more replicates"
-                if verdict == "better" else "not distinguishable from the runner-up at 95 %")
-        typer.echo(f"recommended: {a['recommended']} ({lead})")
+    for line in answer_lines(res.summary, res.answer):
+        typer.echo(line)
     typer.echo(f"report: {res.out_dir / 'placement' / 'report.html'}")
 
 

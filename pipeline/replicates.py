@@ -85,10 +85,10 @@ def stage_replicates(ctx) -> dict:
     dirs = [inside(ctx.store.root, f"replicates/{k}") for k in range(rep.n)]
     dirs[0].parent.mkdir(exist_ok=True)
     update = ctx.progress("replicates", total=rep.n)
-    args = [(config_to_dict(c), str(d), "run --replicates") for c, d in
-            zip(configs, dirs, strict=True)]
+    args = [(config_to_dict(c), str(d)) for c, d in zip(configs, dirs, strict=True)]
     rows = run_studies(args, scheduler=rep.scheduler or None, workers=rep.workers or None,
-                       on_done=lambda i, row: update(advance=1))
+                       on_done=lambda i, row: update(advance=1) and False,
+                       command="run --replicates")
     entries = []
     for k, (c, d, row) in enumerate(zip(configs, dirs, rows, strict=True)):
         ok = row.get("status") == "complete"

@@ -25,7 +25,20 @@ __all__ = [
 
 
 class StageError(RuntimeError):
-    """A stage failed; earlier stages' outputs are intact and the run is resumable."""
+    """A stage failed; earlier stages' outputs are intact and the run is resumable.
+
+    Attributes
+    ----------
+    stage : str or None
+        The stage that failed (None where the failure belongs to no one stage).
+    kind : str or None
+        The failure's exception type name (``"FuzzyModelError"``): with ``stage``, what
+        makes two failures "of the same kind" (:mod:`pipeline.placement.runner`).
+    """
+
+    def __init__(self, message: str, *, stage: str | None = None, kind: str | None = None):
+        super().__init__(message)
+        self.stage, self.kind = stage, kind
 
 
 class StageInputError(StageError):

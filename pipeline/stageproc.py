@@ -310,7 +310,8 @@ def finish_side(side: Side, store, result, prog, failed):
         failed({"stage": st.name, "error": f"{exc.kind}: {exc.detail}"})
         raise StageError(f"stage {st.name!r} failed: {exc.kind}: {exc.detail} "
                          f"(earlier stages' outputs in {store.root} are intact; "
-                         "fix the cause and rerun to resume)") from (exc.cause or exc)
+                         "fix the cause and rerun to resume)",
+                         stage=st.name, kind=exc.kind) from (exc.cause or exc)
     if prog is not None and side.task is not None:
         prog.update(side.task, completed=1)
     rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, utc_now(), info)

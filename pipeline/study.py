@@ -338,7 +338,8 @@ def _run_locked(store, config, stages, progress, force, command_line, manifest_e
                         _safe(manifest, "failed", st.name, failure, manifest_extra)
                         raise StageError(f"stage {st.name!r} failed: {type(exc).__name__}: {exc} "
                                          f"(earlier stages' outputs in {store.root} are intact; "
-                                         "fix the cause and rerun to resume)") from exc
+                                         "fix the cause and rerun to resume)",
+                                         stage=st.name, kind=type(exc).__name__) from exc
                     prev = store.read_record(st.name) if st.always else None
                     rec = store.commit(st.name, inputs_hash, staged, time.perf_counter() - ts,
                                        peak_rss_mib(), utc_now(), info)

@@ -255,7 +255,7 @@ def load_sweep(path: str | Path) -> SweepPlan:
     return expand_sweep(base, params, mode=data.get("mode", "grid"), source=str(path))
 
 
-def run_point(config: dict, run_dir: str, command: str = "sweep") -> dict:
+def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | None = None) -> dict:
     """Run one sweep point (in a worker process) and return its summary row.
 
     Parameters
@@ -264,24 +264,33 @@ def run_point(config: dict, run_dir: str, command: str = "sweep") -> dict:
         The point's study config as a nested dict (:func:`config_to_dict`).
     run_dir : str
         Its run directory.
+    command : str
+        The command named in the point's manifest.
+    upto : str, optional
+        The last stage to run (:func:`pipeline.stages.stages_upto`; None: all of them).
 
     Returns
     -------
     dict
         ``status`` ("complete" or "failed"), ``error``, ``elapsed_s`` and the summary
-        numbers of :func:`pipeline.stages.run_summary`.
+        numbers of :func:`pipeline.stages.run_summary`; a failed point's ``stage`` and
+        ``kind`` (the exception's type) where a stage failed.
     """
     from pipeline.stages import run_full_study, run_summary
 
     cfg = from_dict(StudyConfig, config, source=f"sweep point {run_dir}")
     try:
-        res = run_full_study(cfg, run_dir, progress=False,
+        res = run_full_study(cfg, run_dir, progress=False, upto=upto,
                              command_line=["rfidstudy", command, "(point)"])
     except Exception as exc:  # one failed point must not sink the sweep
         log.error("sweep point %s failed: %s", run_dir, exc)
-        return {"status": "failed", "error": str(exc), "elapsed_s": float("nan")}
+        return {"status": "failed", "error": str(exc), "elapsed_s": float("nan"),
+                "stage": getattr(exc, "stage", None),
+                "kind": getattr(exc, "kind", None) or type(exc).__name__}
     row = {"status": "complete", "error": "", "elapsed_s": res.elapsed_s,
            "stages_ran": len(res.ran)}
+    if upto is not None:  # a partial study: the summary reads what it has
+        return row
     try:
         row.update(run_summary(run_dir))
     except Exception as exc:  # a summary that cannot be read fails its point, not the sweep
@@ -378,14 +387,17 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
 
 
 def run_studies(args: list, *, scheduler: str | None = None, workers: int | None = None,
-                client=None, on_done: Callable[[int, dict], None] | None = None) -> list[dict]:
+                client=None, on_done: Callable[[int, dict], bool | None] | None = None,
+                command: str = "sweep", upto: str | None = None) -> list[dict | None]:
     """Run studies side by side: :func:`run_point` on each ``(config dict, run dir)`` of
     ``args``, in local spawned worker processes (``workers``, default min(len, 2); the
     CPUs shared between them) or on a Dask cluster (``client`` or ``scheduler``).
-    Returns :func:`run_point`'s rows in the order of ``args``; ``on_done(i, row)``
-    after each."""
+
+    Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
+    called after each; when it returns True the studies not yet started are cancelled
+    (their rows stay None) and those under way finish."""
     if client is not None or scheduler:
-        return _run_dask(args, scheduler, client, on_done)
+        return _run_dask(args, scheduler, client, on_done, command, upto)
     rows: list = [None] * len(args)
     n_workers = workers or min(len(args), 2)
     ctx = multiprocessing.get_context("spawn")
@@ -394,12 +406,15 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
                                 initializer=_cap_nested_workers,
                                 initargs=(nested,)) as ex:
-        futs = {ex.submit(run_point, *a): i for i, a in enumerate(args)}
+        futs = {ex.submit(run_point, *a, command, upto): i for i, a in enumerate(args)}
         for fut in cf.as_completed(futs):
+            if fut.cancelled():
+                continue
             i = futs[fut]
             rows[i] = fut.result()
-            if on_done:
-                on_done(i, rows[i])
+            if on_done and on_done(i, rows[i]):
+                for f in futs:
+                    f.cancel()  # not started: never run; under way: finishes
     return rows
 
 
@@ -418,22 +433,27 @@ def _shared_cache(cfg: StudyConfig, out: Path) -> StudyConfig:
     return replace_path(cfg, "tracing.cache_dir", str(resolve_cache_dir(cfg)))
 
 
-def _run_dask(args, scheduler, client, on_done):
+def _run_dask(args, scheduler, client, on_done, command="sweep", upto=None):
     from distributed import Client, as_completed
 
     own = client is None
     if own:
         client = Client(scheduler)
     try:
-        futs = [client.submit(run_point, *a, pure=False, key=f"rfidstudy-point-{i}-{Path(a[1]).name}")
+        futs = [client.submit(run_point, *a, command, upto, pure=False,
+                              key=f"rfidstudy-point-{i}-{Path(a[1]).name}")
                 for i, a in enumerate(args)]
         index = {f.key: i for i, f in enumerate(futs)}
         rows: list = [None] * len(args)
-        for fut in as_completed(futs):
+        pending = as_completed(futs)
+        for fut in pending:
+            if fut.cancelled():
+                continue
             i = index[fut.key]
             rows[i] = fut.result()
-            if on_done:
-                on_done(i, rows[i])
+            if on_done and on_done(i, rows[i]):
+                client.cancel([f for f in futs if not f.done()])
+                break
         return rows
     finally:
         if own:

@@ -16,7 +16,11 @@ walls at their own heights), not on a free-space plane. From a tour's read log
   (:func:`link_closed`: tag powered and backscatter above the reader's sensitivity, for
   the nominal tag, from the ray-traced gain on the attempt's hopped channel, which holds
   the multipath but no reader noise or tag-to-tag spread): the share of the tour's
-  *time* (stops and slow stretches weigh more) along which the tag can be read.
+  *time* (stops and slow stretches weigh more) along which the tag can be read;
+- ``best_margin_db``: the pass's best link margin, max over its in-range attempts of
+  ``gain_db - budget.min_gain_db()`` (:func:`link_margin_db`) [dB]: how many dB the
+  nominal tag's best moment of the pass has to spare (negative: short of a read);
+  NaN where no attempt of the pass was in range.
 
 Turn-arounds (``pass_index`` -1) belong to no pass and are left out.
 
@@ -27,7 +31,17 @@ The statistics (:data:`INVENTORY_METRICS`), each over (tag, pass) rows pooled pe
 - ``completeness``: share of (tag, pass) with at least ``min_reads`` reads: the share
   of tags an inventory pass finds ``min_reads`` times;
 - ``surface_coverage``: sum of closed cycles / sum of cycles: the share of the route,
-  tag by tag, along which the link closes.
+  tag by tag, along which the link closes;
+- ``reads_per_pass``: sum of reads / number of (tag, pass): how often an inventory
+  pass reads a tag, on average;
+- ``link_margin_db``: median over (tag, pass) of ``best_margin_db`` (passes never in
+  range left out; they count in ``never_read``) [dB];
+- ``never_read``: share of tags with no read in the whole tour (all passes) [share];
+  a tag is one unit whatever its number of passes.
+
+The last three are the engineer's units (issue 51: a read rate of 0.05 says nothing a
+mount can be changed by; "3.2 reads a pass", "6 dB to spare" and "4 tags never read"
+do).
 """
 
 from __future__ import annotations
@@ -48,15 +62,35 @@ __all__ = [
 
 #: Columns of :func:`tour_tag_table`.
 INVENTORY_COLUMNS = ("unit", "pass", "z_m", "n_attempts", "n_in_range", "n_reads", "n_cycles",
-                     "n_cycles_closed")
+                     "n_cycles_closed", "best_margin_db")
 
 
 #: The statistics :func:`inventory_statistic` computes.
-INVENTORY_METRICS = ("read_rate", "completeness", "surface_coverage")
+INVENTORY_METRICS = ("read_rate", "completeness", "surface_coverage", "reads_per_pass",
+                     "link_margin_db", "never_read")
+
+
+def link_margin_db(gain_db, budget) -> np.ndarray:
+    """Link margin of the nominal tag, ``gain_db - budget.min_gain_db()`` [dB].
+
+    Parameters
+    ----------
+    gain_db : array_like, float64
+        One-way reader-to-tag channel gain (as the read log's ``gain_db``) [dB].
+    budget : propagation.LinkBudget
+
+    Returns
+    -------
+    numpy.ndarray, float64, same shape
+        dB above the smallest gain that still reads (both thresholds,
+        :meth:`propagation.LinkBudget.min_gain_db`); NaN where ``gain_db`` is.
+    """
+    return np.asarray(gain_db, dtype=np.float64) - float(budget.min_gain_db())
 
 
 def link_closed(gain_db, budget) -> np.ndarray:
-    """Whether the local-mean backscatter link closes, per gain.
+    """Whether the backscatter link closes, per coherent gain (the attempt's ray-traced
+    gain on its hopped channel, multipath included; not a local mean).
 
     Parameters
     ----------
@@ -124,12 +158,17 @@ def tour_tag_table(reads: pd.DataFrame, t_s, pass_index, tags: pd.DataFrame, bud
         "read": reads["read"].to_numpy(bool),
         "closed": link_closed(reads["gain_db"].to_numpy(np.float64), budget)
         & reads["in_range"].to_numpy(bool),
+        "margin": np.where(reads["in_range"].to_numpy(bool),
+                           link_margin_db(reads["gain_db"].to_numpy(np.float64), budget), np.nan),
     })
+    # a gain of -inf (no path) is no margin at all, not an infinitely short one: -inf
+    # stays (the median takes it), NaN only where no attempt was in range
     df = df[df["pass"] >= 0]
     per_cycle = df.groupby(["unit", "pass", "cycle"], sort=True)["closed"].any()
     cyc = per_cycle.groupby(level=["unit", "pass"]).agg(["size", "sum"])
     att = df.groupby(["unit", "pass"], sort=True).agg(
-        n_attempts=("read", "size"), n_in_range=("in_range", "sum"), n_reads=("read", "sum"))
+        n_attempts=("read", "size"), n_in_range=("in_range", "sum"), n_reads=("read", "sum"),
+        best_margin_db=("margin", "max"))
     out = att.join(cyc.rename(columns={"size": "n_cycles", "sum": "n_cycles_closed"})).reset_index()
     out["z_m"] = z.reindex(out["unit"]).to_numpy()
     out = out.astype({"n_attempts": np.int64, "n_in_range": np.int64, "n_reads": np.int64,
@@ -162,7 +201,8 @@ def inventory_statistic(key: str, rows: pd.DataFrame, codes: np.ndarray, n_units
 
     Parameters
     ----------
-    key : {"read_rate", "completeness", "surface_coverage"}
+    key : str
+        One of :data:`INVENTORY_METRICS`.
     rows : pandas.DataFrame
         :func:`tour_tag_table` rows (of any number of replicates and tags).
     codes : numpy.ndarray, int, (len(rows),)
@@ -186,6 +226,21 @@ def inventory_statistic(key: str, rows: pd.DataFrame, codes: np.ndarray, n_units
         num, den = sums(rows["n_reads"] >= int(min_reads)), sums(np.ones(len(rows)))
     elif key == "surface_coverage":
         num, den = sums(rows["n_cycles_closed"]), sums(rows["n_cycles"])
+    elif key == "reads_per_pass":
+        num, den = sums(rows["n_reads"]), sums(np.ones(len(rows)))
+    elif key == "link_margin_db":
+        from pipeline.evaluation.intervals import weighted_quantile
+
+        m = rows["best_margin_db"].to_numpy(np.float64)
+        keep = ~np.isnan(m)
+        v, c = m[keep], np.asarray(codes)[keep]
+        if v.size == 0:  # no pass in range at all: no margin to take a median of
+            return lambda w: np.full(np.shape(w)[:-1], np.nan)
+        return lambda w: weighted_quantile(v, np.asarray(w, np.float64)[..., c], 0.5)
+    elif key == "never_read":
+        # one indicator per unit (a tag of one replicate): no read in any pass
+        num = (sums(rows["n_reads"]) == 0).astype(np.float64)
+        den = (np.bincount(codes, minlength=n_units) > 0).astype(np.float64)
     else:
         raise KeyError(f"unknown inventory metric {key!r}; known: "
                        f"{', '.join(INVENTORY_METRICS)}")

@@ -8,8 +8,10 @@
   value of the other fields (the legend says which): no silent averaging;
 - ``pareto.png``: the two ``pareto`` objectives with their intervals, the front marked;
 - ``completeness_by_height.png``: completeness per tag-height band with intervals;
-- ``readmap_<candidate>.png`` (recommended and runner-up): where along the route each
-  tag is read (replicate 0's training tour), one row per tag, by antenna.
+- ``readmap_<candidate>.png`` (recommended and runner-up): reads per metre of route
+  against the distance driven, one row per tag (replicate 0's training tour);
+- ``never_read_<candidate>.png`` (recommended and runner-up): a top view of the tags
+  the tour never read.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pipeline.runstore import atomic_write_bytes
 
 from .objectives import OBJECTIVES
 
-__all__ = ["draw_figures"]
+__all__ = ["draw_figures", "route_distance_m"]
 
 
 def _save(fig, path: Path) -> Path:
@@ -162,36 +164,125 @@ def draw_figures(spec, out: Path, df: pd.DataFrame, datas: dict, answer: dict) -
         if name:
             from .runner import candidate_dir
 
-            p = _read_map(candidate_dir(out, name, 0), fdir / f"readmap_{name}.png", name)
-            if p:
-                files.append(p)
+            run = candidate_dir(out, name, 0)
+            for p in (_read_map(run, fdir / f"readmap_{name}.png", name),
+                      _never_read_map(run, fdir / f"never_read_{name}.png", name)):
+                if p:
+                    files.append(p)
     return files
 
 
+def route_distance_m(track_xy_m, t_s, at_s) -> np.ndarray:
+    """Distance driven along a track up to each time of ``at_s`` [m].
+
+    Parameters
+    ----------
+    track_xy_m : numpy.ndarray, float64, (n, 2)
+        The robot's true positions [m].
+    t_s : numpy.ndarray, float64, (n,)
+        Their times, increasing [s].
+    at_s : array_like, float64
+        Times to evaluate at (clamped to the track's span) [s].
+
+    Returns
+    -------
+    numpy.ndarray, float64, same shape as ``at_s``
+        Cumulative path length, linearly interpolated between poses [m].
+    """
+    xy = np.asarray(track_xy_m, np.float64)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    return np.interp(np.asarray(at_s, np.float64), np.asarray(t_s, np.float64), s)
+
+
 def _read_map(run: Path, path: Path, name: str) -> Path | None:
+    """Reads per metre of route, one row per tag, tags ordered by where along the route
+    the robot passes them closest; drawn as an image so that a warehouse's hundreds of
+    tags and a long route stay one readable page (tick labels only for a few tags)."""
     import matplotlib.pyplot as plt
 
     from pipeline.runstore import inside
+    from scenes.fileio import read_npz
 
     try:
-        reads = pd.read_parquet(inside(run, "reads.parquet"),
-                                columns=["tag_id", "read", "antenna", "true_ant_x_m"])
-        tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "x_m", "z_m"])
-    except (OSError, ValueError):
+        reads = pd.read_parquet(inside(run, "reads.parquet"), columns=["time_s", "tag_id", "read"])
+        tags = pd.read_parquet(inside(run, "scene/tags.parquet"),
+                               columns=["tag_id", "x_m", "y_m", "z_m"])
+        with read_npz(inside(run, "tour/train_track.npz")) as z:
+            t_s, true = z["t_s"], z["true"]
+    except (OSError, ValueError, KeyError):
         return None
-    tags = tags[tags["tag_id"].isin(reads["tag_id"].astype(str).unique())].sort_values("x_m")
-    row = {t: i for i, t in enumerate(tags["tag_id"])}
-    r = reads[reads["read"]]
-    fig, ax = plt.subplots(figsize=(7.0, 0.22 * len(tags) + 1.5))
-    for a, part in r.groupby("antenna"):
-        ax.scatter(part["true_ant_x_m"], part["tag_id"].astype(str).map(row), s=3, alpha=0.5,
-                   label=f"antenna {a}")
-    ax.scatter(tags["x_m"], np.arange(len(tags)), marker="|", c="k", s=40, label="tag position")
-    ax.set_yticks(np.arange(len(tags)), [f"{t} ({z:g} m)" for t, z in zip(tags["tag_id"], tags["z_m"],
-                                                                              strict=True)],
-                  fontsize=6)
-    ax.set_xlabel("antenna x along the route [m]")
-    ax.set_title(f"{name}: where each tag is read (replicate 0, training tour)", fontsize=9)
-    ax.legend(fontsize=7, markerscale=3)
-    ax.grid(alpha=0.3)
+    ids = reads["tag_id"].astype(str)
+    tags = tags[tags["tag_id"].astype(str).isin(ids.unique())].reset_index(drop=True)
+    if tags.empty or len(t_s) < 2:
+        return None
+    dist = route_distance_m(true[:, :2], t_s, t_s)
+    # where along the route each tag is passed closest: the rows' order
+    d2 = ((true[None, :, :2] - tags[["x_m", "y_m"]].to_numpy()[:, None, :]) ** 2).sum(-1)
+    tags["s_closest_m"] = dist[np.argmin(d2, axis=1)]
+    tags = tags.sort_values("s_closest_m", kind="stable").reset_index(drop=True)
+    row = pd.Series(np.arange(len(tags)), index=tags["tag_id"].astype(str))
+    hit = reads["read"].to_numpy(bool)
+    s_read = route_distance_m(true[:, :2], t_s, reads["time_s"].to_numpy(np.float64)[hit])
+    bins = np.arange(0.0, dist[-1] + 1.0, 1.0)  # 1 m of route per column
+    img, _, _ = np.histogram2d(row.loc[ids[hit]].to_numpy(), s_read,
+                               bins=[np.arange(len(tags) + 1) - 0.5, bins])
+    never = img.sum(axis=1) == 0
+    fig, ax = plt.subplots(figsize=(8.0, min(9.0, 1.8 + 0.05 * len(tags))))
+    shown = np.where(img > 0, img, np.nan)
+    im = ax.imshow(shown, aspect="auto", origin="lower", interpolation="nearest", cmap="viridis",
+                   extent=(bins[0], bins[-1], -0.5, len(tags) - 0.5))
+    ax.scatter(tags["s_closest_m"], np.arange(len(tags)), marker="|", c="k", s=12,
+               label="closest approach")
+    if never.any():
+        ax.scatter(tags["s_closest_m"][never], np.flatnonzero(never), marker="x", c="C3", s=20,
+                   label=f"never read ({int(never.sum())})")
+    if len(tags) <= 40:
+        ax.set_yticks(np.arange(len(tags)), [f"{t} ({z:g} m)" for t, z in
+                                             zip(tags["tag_id"], tags["z_m"], strict=True)],
+                      fontsize=6)
+    else:
+        ax.set_ylabel(f"tag ({len(tags)}), ordered by where the route passes it")
+    ax.set_xlabel("distance driven along the training tour [m]")
+    fig.colorbar(im, ax=ax, label="reads per metre of route")
+    ax.set_title(f"{name}: where along the route each tag is read (replicate 0)", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    return _save(fig, path)
+
+
+def _never_read_map(run: Path, path: Path, name: str) -> Path | None:
+    """Top view: the building's walls, the driven tour, every tag, the tags the tour
+    never read marked (replicate 0)."""
+    import matplotlib.pyplot as plt
+
+    from pipeline.runstore import inside
+    from scenes.fileio import read_npz
+
+    try:
+        reads = pd.read_parquet(inside(run, "reads.parquet"), columns=["tag_id", "read"])
+        tags = pd.read_parquet(inside(run, "scene/tags.parquet"),
+                               columns=["tag_id", "x_m", "y_m", "z_m"])
+        with read_npz(inside(run, "tour/train_track.npz")) as z:
+            true = z["true"]
+        with read_npz(inside(run, "scene/floorplan.npz")) as z:
+            walls = [z[k] for k in z.files if k.startswith("segments_")][:1]
+    except (OSError, ValueError, KeyError):
+        return None
+    n_reads = reads.groupby(reads["tag_id"].astype(str))["read"].sum()
+    tags = tags[tags["tag_id"].astype(str).isin(n_reads.index)]
+    if tags.empty:
+        return None
+    never = (n_reads.reindex(tags["tag_id"].astype(str)) == 0).to_numpy()
+    fig, ax = plt.subplots(figsize=(7.0, 6.0))
+    for seg in walls:
+        for a, b in seg:
+            ax.plot([a[0], b[0]], [a[1], b[1]], c="0.35", lw=0.8)
+    ax.plot(true[:, 0], true[:, 1], c="C0", lw=0.8, alpha=0.6, label="driven tour")
+    ax.scatter(tags["x_m"][~never], tags["y_m"][~never], s=10, c="0.5", label="read")
+    ax.scatter(tags["x_m"][never], tags["y_m"][never], s=40, marker="x", c="C3",
+               label=f"never read ({int(never.sum())} of {len(tags)})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{name}: tags the training tour never read (replicate 0)", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return _save(fig, path)

@@ -12,8 +12,12 @@ read_rate                    reads / in-range attempts on the training    replic
 completeness                 share of (tag, pass) read >= ``min_reads``   replicate x tag
                              times in that pass
 surface_coverage             share of the route's read rounds in which    replicate x tag
-                             the tag's local-mean link closes, at the
+                             the tag's coherent-gain link closes, at the
                              tag's own position and height
+reads_per_pass               mean reads of a tag in one inventory pass    replicate x tag
+link_margin_db               median over (tag, pass) of the pass's best   replicate x tag
+                             link margin, gain - min gain [dB]
+never_read                   share of tags no pass of the tour read       replicate x tag
 tag_localisation_median_m    median MAP error of the held-out tags' posi- replicate x held-out
                              tions with the learned ANFIS model [m]       tag
 rssi_rmse_db                 held-out RSSI RMSE of the learned ANFIS      replicate x held-out
@@ -30,6 +34,12 @@ interval from the same resampled units. The inventory objectives count the train
 tags (the same physical tags in every replicate); the (replicate, tag) units are
 resampled as independent, so their intervals leave out the tag-to-tag variation of a
 building's other tags and are narrower than a new building's would be.
+
+The inventory objectives need the tour and its reads only: a placement ranked and
+constrained by them runs each candidate's study up to the ``reads`` stage
+(:attr:`Objective.stage`, :func:`needed_stage`), never fitting a model it does not
+use. ``reads_per_pass``, ``link_margin_db`` and ``never_read`` are the engineer's units
+(:mod:`pipeline.evaluation.inventory`).
 
 ``surface_coverage`` replaces the sweeps' former "corridor coverage", the covered
 share of one horizontal field plane at ``evaluation.field_height_m`` from one antenna
@@ -65,6 +75,7 @@ __all__ = [
     "Objective",
     "compare_objective",
     "load_candidate_data",
+    "needed_stage",
     "objective_estimate",
     "objective_interval",
 ]
@@ -98,12 +109,23 @@ class Objective:
     source: str = "inventory"
     table: str = ""
 
+    @property
+    def stage(self) -> str:
+        """The last study stage the objective reads: ``reads`` for the inventory
+        objectives (the tour's read log), ``evaluation`` for the model-based ones (its
+        unit tables)."""
+        return "reads" if self.source == "inventory" else "evaluation"
+
 
 OBJECTIVES: dict[str, Objective] = {o.key: o for o in (
     Objective("read_rate", "read rate (reads / in-range attempts)", False, "replicate x tag"),
     Objective("completeness", "tags read >= k times per pass (share)", False, "replicate x tag"),
     Objective("surface_coverage", "route share with a closing link, at the tags", False,
               "replicate x tag"),
+    Objective("reads_per_pass", "reads per tag per pass", False, "replicate x tag"),
+    Objective("link_margin_db", "link margin, median over tags and passes [dB]", False,
+              "replicate x tag"),
+    Objective("never_read", "tags never read in the tour (share)", True, "replicate x tag"),
     Objective("tag_localisation_median_m", "tag localisation median, ANFIS [m]", True,
               "replicate x held-out tag", "tag_localisation.median_m", "tag_errors"),
     Objective("rssi_rmse_db", "held-out RSSI RMSE, ANFIS [dB]", True, "replicate x held-out tag",
@@ -111,6 +133,15 @@ OBJECTIVES: dict[str, Objective] = {o.key: o for o in (
     Objective("robot_median_m", "robot localisation median, all steps [m]", True,
               "replicate x filter run", "robot_localisation.median_m", "robot_steps"),
 )}
+
+
+def needed_stage(keys) -> str:
+    """The last study stage the objectives ``keys`` need (:attr:`Objective.stage`):
+    ``reads`` when all are inventory objectives, else ``evaluation``."""
+    from pipeline.stages import stage_names
+
+    order = stage_names()
+    return max((OBJECTIVES[k].stage for k in keys), key=order.index, default="reads")
 
 
 @dataclass
@@ -163,6 +194,8 @@ def load_candidate_data(run_dirs: dict, budget) -> CandidateData:
                              "older version): rerun the study")
         rows["unit"] = f"r{k}/" + rows["unit"].astype(str)
         inv.append(rows)
+        if not _stage_done(run, "evaluation"):  # a study run up to its reads only
+            continue
         ut = UnitTables.load(run)
         for name in ("rssi_links", "tag_errors", "robot_steps"):
             df = getattr(ut, name)
@@ -175,6 +208,12 @@ def load_candidate_data(run_dirs: dict, budget) -> CandidateData:
         inventory=pd.concat(inv, ignore_index=True) if inv else pd.DataFrame(),
         tables={k: pd.concat(v, ignore_index=True) for k, v in tabs.items()},
         replicates=sorted(int(k) for k in run_dirs))
+
+
+def _stage_done(run: Path, stage: str) -> bool:
+    from pipeline.runstore import inside, regular_file
+
+    return regular_file(inside(run, f"stages/{stage}.json"))
 
 
 def _rows(data: CandidateData, key: str, band: tuple[float, float] | None = None) -> pd.DataFrame:

@@ -13,7 +13,7 @@ from pipeline.runstore import atomic_write_bytes
 from .objectives import OBJECTIVES
 from .summary import ranking_table
 
-__all__ = ["margin_sentence", "write_report"]
+__all__ = ["answer_lines", "engineering_sentence", "margin_sentence", "write_report"]
 
 _TEMPLATE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>Antenna placement: {{ title }}</title>
@@ -29,11 +29,16 @@ figure { margin: 1em 0; } img { max-width: 100%; }
 {% if recommended %}
 <p><b>Recommended: {{ recommended }}</b> ({{ antennas }}){% if not feasible %}, although it misses a constraint: no candidate meets them all{% endif %}.</p>
 <p>{{ sentence }}</p>
+{% if units %}<p>In the engineer's units: {{ units }}.</p>{% endif %}
 {% else %}<p>No candidate finished.</p>{% endif %}
 <p>Ranked by <b>{{ primary_label }}</b>{% if constraints %}, among candidates with {{ constraints }}{% endif %};
 {{ n_candidates }} candidates, {{ replicates }} replicate(s) each on paired seeds. Every number is an
 estimate with its 95 % interval from a bootstrap over (replicate, tag) or (replicate, filter run) units;
-a difference is called only where its interval excludes 0.</p>
+a difference is called only where its interval excludes 0.
+Each study ran up to its <code>{{ upto }}</code> stage{% if upto == "reads" %} (the objectives asked need
+no fitted model){% endif %}.</p>
+{% for d in dropped %}<p><b>Not computed:</b> {{ d }}</p>
+{% endfor %}
 </div>
 <h2>Ranking</h2>
 {{ table }}
@@ -63,8 +68,12 @@ def _caption(name: str) -> str:
         return (f"The primary objective against {name[9:]}, one line per value of the other grid "
                 "fields (nothing averaged), with 95 % intervals.")
     if name.startswith("readmap_"):
-        return (f"{name[8:]}: where along the route each training tag was read (replicate 0), by "
-                "antenna; the tick marks the tag's own position.")
+        return (f"{name[8:]}: reads per metre of route against the distance driven on the "
+                "training tour (replicate 0), one row per tag, ordered by where the route passes "
+                "it closest (black tick); red crosses: tags never read.")
+    if name.startswith("never_read_"):
+        return (f"{name[11:]}: top view of the tags the training tour never read (replicate 0), "
+                "with the walls at the lower tag height and the driven tour.")
     return _CAPTIONS.get(name, name)
 
 
@@ -90,6 +99,49 @@ def margin_sentence(answer: dict, lower_is_better: bool) -> str:
             "95 %</b>: choose between them on cost or mounting, or run more replicates.")
 
 
+def answer_lines(df, answer: dict) -> list[str]:
+    """The answer as the console prints it: the recommendation with its lead's verdict,
+    its inventory in the engineer's units, and what was not computed."""
+    out = []
+    best = answer.get("recommended")
+    if best:
+        verdict = (answer.get("margin") or {}).get("verdict")
+        lead = ("its lead over the runner-up exceeds the 95 % interval" if verdict == "worse" else
+                "the runner-up is ahead on the units both share: run more replicates"
+                if verdict == "better" else "not distinguishable from the runner-up at 95 %")
+        out.append(f"recommended: {best} ({lead})")
+        units = engineering_sentence(df[df["candidate"] == best].iloc[0])
+        if units:
+            out.append(f"  {units}")
+    out.extend(f"not computed: {d}" for d in answer.get("dropped") or [])
+    return out
+
+
+def engineering_sentence(row) -> str:
+    """A candidate's inventory in the units a mount is chosen by: reads per tag per
+    pass, link margin, tags never read (each with its 95 % interval)."""
+    def iv(key, fmt):
+        v, lo, hi = row.get(key), row.get(f"{key}_low"), row.get(f"{key}_high")
+        if v is None or not np.isfinite(v):
+            return None
+        out = format(v, fmt)
+        if lo is not None and hi is not None and np.isfinite(lo) and np.isfinite(hi):
+            out += f" [{format(lo, fmt)}, {format(hi, fmt)}]"
+        return out
+
+    parts = []
+    if (t := iv("reads_per_pass", ".3g")) is not None:
+        parts.append(f"{t} reads per tag per pass")
+    if (t := iv("link_margin_db", ".1f")) is not None:
+        parts.append(f"a median best link margin of {t} dB per pass")
+    n, tot = row.get("never_read_n"), row.get("n_tags")
+    if n is not None and tot is not None and np.isfinite(n) and np.isfinite(tot):
+        share = iv("never_read", ".3g")
+        parts.append(f"{n:.3g} of {tot:.3g} tags never read in the tour"
+                     + (f" (share {share})" if share else ""))
+    return "; ".join(parts)
+
+
 def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
     """Write ``out/placement/report.html`` (figures embedded) and return its path."""
     from jinja2 import Environment, select_autoescape
@@ -104,6 +156,9 @@ def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
               else "")
         sentence = f"{OBJECTIVES[s.primary].label}: {r[s.primary]:.3g}{iv}."
         sentence += " " + margin_sentence(answer, OBJECTIVES[s.primary].lower_is_better)
+    units = ""
+    if best:
+        units = engineering_sentence(df[df["candidate"] == best].iloc[0])
     cons = ", ".join(f"{c['objective']} {'>= ' + format(c['min'], 'g') if c['min'] is not None else ''}"
                      f"{' and ' if c['min'] is not None and c['max'] is not None else ''}"
                      f"{'<= ' + format(c['max'], 'g') if c['max'] is not None else ''}"
@@ -123,5 +178,6 @@ def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
         feasible=answer.get("recommended_feasible", False), sentence=Markup(sentence),
         primary_label=OBJECTIVES[s.primary].label, constraints=cons,
         n_candidates=answer.get("n_candidates"), replicates=answer.get("replicates"),
-        table=Markup(table), figures=figs, objectives=list(OBJECTIVES.values()))
+        table=Markup(table), figures=figs, objectives=list(OBJECTIVES.values()), units=units,
+        upto=answer.get("studies_ran_upto", "evaluation"), dropped=answer.get("dropped") or [])
     return atomic_write_bytes(out / "placement" / "report.html", text.encode("utf-8"))

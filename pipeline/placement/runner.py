@@ -20,6 +20,14 @@ of the tours. A study that finished is skipped stage by stage on a rerun (its ru
 directory is a cache), so a rerun computes nothing and an interrupted placement study
 resumes where it stopped; the optimiser's sampler is seeded, so it proposes the same
 trials again and finds them done.
+
+Each study runs only as far as the objectives need (:func:`.objectives.needed_stage`):
+a placement ranked and constrained by inventory objectives stops its studies after
+the ``reads`` stage and fits no model. A failure stops the placement at its second
+candidate (:class:`PlacementStopped`): two candidates failing at one stage with one
+exception type is the study's problem, not a mount's, and the rest would fail alike.
+Where that stage serves only a ``pareto`` objective, the placement goes on without it
+(the remaining studies stop before it; ``answer.json``'s ``dropped`` says why).
 """
 
 from __future__ import annotations
@@ -35,14 +43,20 @@ from pipeline.config import ConfigError, config_to_dict, replace_path
 from pipeline.runstore import atomic_write_json
 
 from .candidates import Candidate, candidates_of
+from .objectives import OBJECTIVES
 from .spec import PlacementSpec
 
-__all__ = ["PlacementResult", "ProgressEvent", "candidate_dir", "position_waves",
-           "run_placement"]
+__all__ = ["PlacementResult", "PlacementStopped", "ProgressEvent", "candidate_dir",
+           "position_waves", "run_placement"]
 
 log = logging.getLogger(__name__)
 
 MARKER = "placement.json"
+
+
+class PlacementStopped(ConfigError):
+    """Two candidates' studies failed alike at a stage the ranking needs: the placement
+    stopped instead of running the remaining candidates into the same failure."""
 
 
 @dataclass
@@ -156,11 +170,22 @@ def position_waves(cands: list[Candidate]) -> list[list[Candidate]]:
     return [w for w in (first, rest) if w]
 
 
+def _cause(error: str, limit: int = 300) -> str:
+    """A failed study's error without the engine's frame ("stage 'x' failed: ... (earlier
+    stages' outputs ... intact ...)"): the cause, at most ``limit`` characters."""
+    text = error.split(" (earlier stages' outputs", 1)[0]
+    if text.startswith("stage '") and "' failed: " in text:
+        text = text.split("' failed: ", 1)[1]
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 class _Runner:
     """Runs candidates' replicates in batches and keeps the progress books."""
 
     def __init__(self, spec, out, workers, scheduler, client, progress):
         from pipeline.stages import resolve_cache_dir
+
+        from .objectives import needed_stage
 
         self.spec, self.out = spec, out
         self.workers, self.scheduler, self.client = workers, scheduler, client
@@ -170,6 +195,44 @@ class _Runner:
         self.expected = 0  # candidates this study will run (grid + presets + trials)
         self.wall_s = 0.0  # wall time spent running batches
         self.n_run = 0  # candidates finished in those batches
+        s = spec.settings
+        #: the last stage the ranking needs (primary and constraints) and the last one any
+        #: objective asked for needs (with the pareto pair): what the studies run up to
+        self.required = needed_stage([s.primary, *(c.objective for c in s.constraint)])
+        self.upto = needed_stage([s.primary, *(c.objective for c in s.constraint), *s.pareto])
+        self.failures: dict[tuple, dict[str, str]] = {}  # (stage, kind) -> {candidate: error}
+        self.dropped: list[str] = []  # why the studies stopped earlier than asked
+        self.stop: str | None = None
+
+    def _failed(self, name: str, row: dict) -> bool:
+        """Book a failed replicate; True when its kind repeats in a second candidate (the
+        pending studies are then cancelled)."""
+        from pipeline.stages import stage_names
+
+        stage, kind = row.get("stage"), row.get("kind")
+        seen = self.failures.setdefault((stage, kind), {})
+        seen.setdefault(name, str(row.get("error") or ""))
+        if len(seen) < 2:
+            return False
+        first = _cause(next(iter(seen.values())))
+        cands = " and ".join(list(seen)[:2])
+        order = stage_names()
+        if stage in order and order.index(stage) > order.index(self.required):
+            if self.upto != self.required:
+                keys = [k for k in self.spec.settings.pareto
+                        if order.index(OBJECTIVES[k].stage) > order.index(self.required)]
+                self.dropped.append(
+                    f"stage {stage} failed ({kind}) in candidates {cands}: {first}; "
+                    f"{', '.join(keys)} not computed, the remaining studies stop after "
+                    f"{self.required}")
+                log.warning("placement: %s", self.dropped[-1])
+                self.upto = self.required
+                return True
+            return False
+        self.stop = (f"placement stopped: {'stage ' + stage if stage else 'a study'} failed "
+                     f"with {kind} in candidates {cands} (the ranking by "
+                     f"{self.spec.settings.primary} needs it): {first}")
+        return True
 
     def run(self, cands: list[Candidate]) -> None:
         """Run ``cands``' replicates not done yet: one candidate per set of antenna
@@ -186,6 +249,9 @@ class _Runner:
 
         from .objectives import traced_counts
 
+        if self.stop:
+            raise PlacementStopped(self.stop)
+
         n = self.spec.settings.replicates
         args, owner = [], []
         for c in todo:
@@ -198,12 +264,13 @@ class _Runner:
         t0 = time.monotonic()
         batch_done = [0]
 
-        def on_done(i: int, row: dict) -> None:
+        def on_done(i: int, row: dict) -> bool:
             name = owner[i]
             b = books[name]
             b[i] = row
+            stop = row.get("status") != "complete" and self._failed(name, row)
             if len(b) < n:
-                return
+                return stop
             rows = list(b.values())
             elapsed = float(sum(r.get("elapsed_s") or 0.0 for r in rows
                                 if r.get("status") == "complete"))
@@ -221,11 +288,17 @@ class _Runner:
                 ran = int(sum(r.get("stages_ran") or 0 for r in rows))
                 self.progress(ProgressEvent(name, len(self.done), self.expected, elapsed, traced,
                                             failed, eta, ran))
+            return stop
 
         run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
-                    client=self.client, on_done=on_done)
+                    client=self.client, on_done=on_done, command="placement", upto=self.upto)
         self.wall_s += time.monotonic() - t0
         self.n_run += batch_done[0]
+        if self.stop:
+            raise PlacementStopped(self.stop)
+        cancelled = [c for c in todo if c.name not in self.done]
+        if cancelled:  # cancelled when a pareto-only stage was dropped: run them without it
+            self._run_batch(cancelled)
 
 
 def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | None = None,
@@ -276,7 +349,8 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                 if t.name not in {c.name for c in cands}:
                     cands.append(t)
             _write_marker(out, spec, cands)
-        return write_outputs(spec, out, cands, runner.done)
+        return write_outputs(spec, out, cands, runner.done, upto=runner.upto,
+                             dropped=runner.dropped)
 
 
 def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> None:

@@ -16,6 +16,9 @@
   its studies), ``n_links`` (links its studies used), ``compute_s`` (its studies'
   stage times summed).
 
+- ``n_tags`` and ``never_read_n``: tags of a tour, and those it never read (means
+  over the replicates), beside ``never_read``'s share;
+
 ``placement/answer.json`` holds the recommendation, its margin to the runner-up on
 the primary objective with the margin's interval and whether it exceeds it ("better"
 verdict), and the Pareto front of the two ``pareto`` objectives.
@@ -44,15 +47,36 @@ from .spec import MOUNT_FIELDS
 __all__ = ["pareto_front", "rank_candidates", "summarise", "write_outputs"]
 
 
-def _complete_dirs(out: Path, name: str, n: int) -> dict:
-    from pipeline.runstore import inside, regular_file
+def usable_run(run: Path, required: str) -> bool:
+    """Whether a candidate's study holds what the ranking needs: its manifest says it
+    completed, or failed at a stage after ``required`` (a model that could not be fitted
+    leaves the tour's reads standing), and ``required``'s record is there. A study that
+    failed earlier, was interrupted or is running is not used: its older stage records
+    may belong to another config."""
+    from pipeline.runstore import inside, read_run_json, regular_file
+    from pipeline.stages import stage_names
 
+    try:
+        man = read_run_json(inside(run, "manifest.json"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(man, dict) or not regular_file(inside(run, f"stages/{required}.json")):
+        return False
+    order = stage_names()
+    if man.get("status") == "complete":
+        return True
+    failed = (man.get("failure") or {}).get("stage") if isinstance(man.get("failure"), dict) else None
+    return (man.get("status") == "failed" and failed in order
+            and order.index(failed) > order.index(required))
+
+
+def _complete_dirs(out: Path, name: str, n: int, required: str = "reads") -> dict:
     from .runner import candidate_dir
 
     dirs = {}
     for k in range(n):
         d = candidate_dir(out, name, k)
-        if regular_file(inside(d, "metrics.json")):
+        if usable_run(d, required):
             dirs[k] = d
     return dirs
 
@@ -87,12 +111,15 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
     """The summary table and each candidate's data (``{name: CandidateData}``)."""
     from pipeline.stages.common import link_budget
 
+    from .objectives import needed_stage
+
     s = spec.settings
     budget = link_budget(spec.base)
     seed = int(spec.base.seed)
+    required = needed_stage([s.primary, *(c.objective for c in s.constraint)])
     rows, datas = [], {}
     for c in cands:
-        dirs = _complete_dirs(out, c.name, s.replicates)
+        dirs = _complete_dirs(out, c.name, s.replicates, required)
         row = {"candidate": c.name, "origin": c.origin, "antennas": _antennas_text(c),
                "n_antennas": len(c.antennas), "n_replicates": len(dirs)}
         for k in MOUNT_FIELDS:
@@ -104,6 +131,7 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
         if dirs:
             data = load_candidate_data(dirs, budget)
             datas[c.name] = data
+            row.update(never_read_counts(data.inventory))
             for key in OBJECTIVES:
                 iv = objective_interval(data, key, seed=seed, candidate=c.name,
                                         min_reads=s.min_reads)
@@ -122,6 +150,18 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
         if col.endswith(("_low", "_high")):
             df[col] = pd.to_numeric(df[col], errors="coerce")
     return df, datas
+
+
+def never_read_counts(inventory: pd.DataFrame) -> dict:
+    """``n_tags`` (tags a tour attempted, mean over replicates) and ``never_read_n``
+    (those it never read, mean over replicates) of :class:`~.objectives.CandidateData`
+    inventory rows (units ``r<k>/<tag>``): the count beside ``never_read``'s share."""
+    if inventory is None or inventory.empty:
+        return {"n_tags": float("nan"), "never_read_n": float("nan")}
+    per_tag = inventory.groupby("unit")["n_reads"].sum()
+    rep = per_tag.index.to_series().str.split("/").str[0].to_numpy()
+    return {"n_tags": float(per_tag.groupby(rep).size().mean()),
+            "never_read_n": float((per_tag == 0).groupby(rep).sum().mean())}
 
 
 def _feasible(row: pd.Series, constraints) -> bool:
@@ -161,8 +201,12 @@ def pareto_front(df: pd.DataFrame, a: str, b: str) -> list[str]:
     return front
 
 
-def write_outputs(spec, out: Path, cands: list, done: dict):
-    """Summarise, rank, compare, draw and report; return a :class:`~.runner.PlacementResult`."""
+def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "evaluation",
+                  dropped: list | None = None):
+    """Summarise, rank, compare, draw and report; return a :class:`~.runner.PlacementResult`.
+
+    ``upto`` is the last stage the candidates' studies ran, ``dropped`` why they stopped
+    earlier than the objectives asked (both go into ``answer.json``)."""
     from pipeline.config import ConfigError
 
     from .figures import draw_figures
@@ -208,6 +252,8 @@ def write_outputs(spec, out: Path, cands: list, done: dict):
         "pareto_objectives": list(s.pareto),
         "pareto_front": pareto_front(df, *s.pareto),
         "replicates": s.replicates,
+        "studies_ran_upto": upto,
+        "dropped": list(dropped or []),
         "n_candidates": int(len(df)),
         "comparisons_vs_recommended": comparisons,
     }

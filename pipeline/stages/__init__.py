@@ -63,6 +63,7 @@ __all__ = [
     "run_full_study",
     "run_summary",
     "stage_names",
+    "stages_upto",
 ]
 
 #: The study's stages, in order.
@@ -86,16 +87,40 @@ def stage_names() -> list[str]:
     return [s.name for s in STAGES]
 
 
-def run_full_study(config: StudyConfig, run_dir: str | Path, **kwargs) -> StudyResult:
+def stages_upto(name: str | None) -> tuple[Stage, ...]:
+    """:data:`STAGES` up to and including ``name`` (all of them for None): what a caller
+    needs that reads only early outputs (a placement ranked by its tours' reads needs
+    no model; :mod:`pipeline.placement.runner`). A side stage (``truth_traces``) after
+    ``name`` is left out with the rest.
+
+    Raises
+    ------
+    ValueError
+        ``name`` is not a stage.
+    """
+    if name is None:
+        return STAGES
+    names = stage_names()
+    if name not in names:
+        raise ValueError(f"no stage {name!r}; stages are {', '.join(names)}")
+    return STAGES[:names.index(name) + 1]
+
+
+def run_full_study(config: StudyConfig, run_dir: str | Path, *, upto: str | None = None,
+                   **kwargs) -> StudyResult:
     """Run (or resume) the whole study into ``run_dir``: :func:`pipeline.study.run_study`
     with :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info` (package versions and the
     Dr.Jit backend in the manifest); with ``replicates.n > 1`` the stages of
-    :mod:`pipeline.replicates` (the study run into ``replicates/<k>/`` n times, pooled). Keyword arguments go to ``run_study`` and override
-    those (``checks=()``, ``manifest_extra=None``)."""
+    :mod:`pipeline.replicates` (the study run into ``replicates/<k>/`` n times, pooled).
+    ``upto`` stops after that stage (:func:`stages_upto`; not with replicates). Keyword
+    arguments go to ``run_study`` and override those (``checks=()``,
+    ``manifest_extra=None``)."""
     kwargs.setdefault("checks", CHECKS)
     kwargs.setdefault("manifest_extra", manifest_info)
     if config.replicates.n > 1:  # N studies in replicates/<k>/, pooled (pipeline.replicates)
+        if upto is not None:
+            raise ValueError("upto is for one study; replicates run every stage")
         from pipeline import replicates
 
         return run_study(config, run_dir, replicates.STAGES, **kwargs)
-    return run_study(config, run_dir, STAGES, **kwargs)
+    return run_study(config, run_dir, stages_upto(upto), **kwargs)

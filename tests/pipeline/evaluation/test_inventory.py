@@ -49,6 +49,40 @@ def test_counts_per_tag_and_pass_leave_turnarounds_out():
     assert inventory_statistic("read_rate", rows, codes, 2)(np.array([0.0, 2.0])) == pytest.approx(1 / 3)
 
 
+def test_engineering_units_by_hand():
+    """Reads per tag per pass, the best link margin of a pass and the tags never read,
+    against counts and margins worked out by hand on the same log."""
+    reads, t, passes, tags = _reads()
+    budget = LinkBudget()
+    g_min = budget.min_gain_db()
+    tab = tour_tag_table(reads, t, passes, tags, budget)
+    by = tab.set_index(["unit", "pass"])
+    # A, pass 0: attempts at -30 dB (in range) -> best margin -30 - g_min; A, pass 1: -80 dB
+    assert by.loc[("A", 0), "best_margin_db"] == pytest.approx(-30.0 - g_min)
+    assert by.loc[("A", 1), "best_margin_db"] == pytest.approx(-80.0 - g_min)
+    # B, pass 0: its only in-range attempt is pose 1 (pose 0 out of range)
+    assert by.loc[("B", 0), "best_margin_db"] == pytest.approx(-30.0 - g_min)
+    codes = (tab["unit"] == "B").to_numpy(int)
+    w = np.ones(2)
+    # reads 2 + 0 (A) and 0 + 1 (B) over four (tag, pass)
+    assert inventory_statistic("reads_per_pass", tab, codes, 2)(w) == pytest.approx(3 / 4)
+    # margins of the four passes: three at -30 - g_min, one at -80 - g_min: the median
+    assert inventory_statistic("link_margin_db", tab, codes, 2)(w) == pytest.approx(-30.0 - g_min)
+    assert inventory_statistic("never_read", tab, codes, 2)(w) == pytest.approx(0.0)
+    # B never read: a tag is one unit, whatever its number of passes
+    quiet = tab.assign(n_reads=np.where(tab["unit"] == "B", 0, tab["n_reads"]))
+    assert inventory_statistic("never_read", quiet, codes, 2)(w) == pytest.approx(0.5)
+    assert inventory_statistic("never_read", quiet, codes, 2)(np.array([[1.0, 3.0]]))[0] \
+        == pytest.approx(0.75)
+    # A pass that was never in range has no margin: left out, not a -inf median
+    far = reads.assign(in_range=np.where(reads["tag_id"] == "B", False, reads["in_range"]))
+    tab2 = tour_tag_table(far, t, passes, tags, budget)
+    assert tab2.loc[tab2["unit"] == "B", "best_margin_db"].isna().all()
+    c2 = (tab2["unit"] == "B").to_numpy(int)
+    # A's two passes only: -30 and -80 -> their mean (NumPy's median of two)
+    assert inventory_statistic("link_margin_db", tab2, c2, 2)(w) == pytest.approx(-55.0 - g_min)
+
+
 def test_coverage_counts_rounds_of_every_antenna_not_attempts():
     """Round-robin multiplexing (one antenna per read cycle, as the chapter's reader): a
     tag the left antenna reaches and the right one never does is covered along the whole
