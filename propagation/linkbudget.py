@@ -57,8 +57,10 @@ class LinkBudget:
         only). Set 3 dB only for gains traced with a linear reader that stands for a
         circular one.
     modulation_loss_db : float
-        Backscatter modulation factor M, dB (negative). Default -6 dB (ideal ASK between
-        open and short states; Nikitin & Rao 2008).
+        Backscatter modulation factor M = |Gamma_1 - Gamma_2|^2 / 4, dB (negative).
+        Default -6 dB: ASK between a matched (Gamma = 0) and a shorted (Gamma = -1) chip
+        state, |0 - (-1)|^2 / 4 = 1/4 (Nikitin & Rao 2008). Open and short states would
+        give |1 - (-1)|^2 / 4 = 1, 0 dB: the most a passive tag can backscatter.
     """
 
     frequency_hz: float = 865e6

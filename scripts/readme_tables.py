@@ -26,23 +26,12 @@ import re
 import sys
 from pathlib import Path
 
+from pipeline.sensormodels.registry import MODELS
+
 BEGIN, END = "<!-- headline-tables:begin -->", "<!-- headline-tables:end -->"
 SINGLE_BEGIN, SINGLE_END = "<!-- single-run:begin -->", "<!-- single-run:end -->"
 
-NAMES = {
-    "anfis": "FCM + ANFIS, MCL poses (`anfis`, the chapter's)",
-    "anfis_truepose": "FCM + ANFIS, true poses (`anfis_truepose`)",
-    "fcm_only": "FIS from FCM, no ANFIS (`fcm_only`)",
-    "anfis_gridinit": "ANFIS from a grid partition (`anfis_gridinit`)",
-    "joho2009": "Joho et al. 2009 (`joho2009`)",
-    "log_distance": "log-distance + pattern (`log_distance`)",
-    "grid_count": "Hähnel et al. 2004 grid count (`grid_count`)",
-    "liu2006": "sector read region, project's own (`liu2006`)",
-    "vorst2008": "Vorst & Zell 2008 (`vorst2008`)",
-    "phase": "reader phase alone (`phase`)",
-    "phase_anfis": "reader phase x ANFIS (`phase_anfis`)",
-    "oracle": "ray-traced oracle (`oracle`)",
-}
+NAMES = {k: f"{m.label} (`{k}`)" for k, m in MODELS.items()}
 MARK = {"better": " ▲", "worse": " ▼"}
 
 HELDOUT = (("heldout.rssi_mae_db", "RSSI MAE [dB]", 2), ("heldout.rssi_rmse_db", "RSSI RMSE [dB]", 2),
@@ -83,15 +72,22 @@ def table(metrics: dict, cols) -> str:
 
 
 def units_line(metrics: dict, origin: str = "") -> str:
+    """Where the intervals come from: the run(s), and the units of each metric family
+    (their counts differ: a held-out tag without a closing link has no RSSI unit)."""
     ivs = metrics.get("intervals") or {}
     rep = metrics.get("replicates")
-    tag = (ivs.get("tag_localisation.median_m") or ivs.get("heldout.rssi_mae_db") or {})
-    robot = ivs.get("robot_localisation.median_m") or {}
     what = f"{rep['covers']} (seeds {', '.join(str(s) for s in rep['seeds'].values())})" \
         if rep else "one run"
-    return (f"From {what}{', ' + origin if origin else ''}: intervals over {tag.get('n_units', '?')} "
-            f"{tag.get('unit', 'tag')} units and {robot.get('n_units', '?')} "
-            f"{robot.get('unit', 'filter run')} units.")
+    parts = []
+    for key, name in (("heldout.rssi_mae_db", "RSSI"), ("heldout.detection_brier", "detection"),
+                      ("fig7.median_pct", "Fig. 7"), ("tag_localisation.median_m",
+                                                      "tag localisation"),
+                      ("robot_localisation.median_m", "robot")):
+        iv = ivs.get(key) or {}
+        if iv.get("n_units") is not None:
+            parts.append(f"{iv['n_units']} {iv.get('unit', 'unit')} units ({name})")
+    return (f"From {what}{', ' + origin if origin else ''}: intervals over "
+            + (", ".join(parts) if parts else "no units") + ".")
 
 
 def run_origin(run_dir: Path, commit: str | None = None) -> str:

@@ -18,32 +18,16 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from pipeline.sensormodels.registry import MODELS, model_label
+
 from .common import model_metrics, new_figure, require, save_figure
 
 __all__ = ["HEADLINE_METRICS", "MODEL_LABELS", "HeadlineMetric", "compare_runs", "draw_headline",
            "fig_baselines", "headline_table", "model_label"]
 
-#: Display names of the models, in the order tables list them.
-MODEL_LABELS = {
-    "anfis": "FCM + ANFIS, MCL poses (the chapter's)",
-    "anfis_truepose": "FCM + ANFIS, true poses",
-    "fcm_only": "FIS from FCM, no ANFIS",
-    "anfis_gridinit": "ANFIS from a grid partition",
-    "joho2009": "Joho et al. 2009",
-    "log_distance": "log-distance + pattern",
-    "grid_count": "Hähnel et al. 2004 grid count",
-    "liu2006": "sector read region, project's own",
-    "vorst2008": "Vorst & Zell 2008",
-    "phase": "reader phase alone",
-    "phase_anfis": "reader phase x ANFIS",
-    "oracle": "ray-traced oracle",
-}
-
-
-def model_label(name: str) -> str:
-    """Display name of a model (its key where it has none)."""
-    return MODEL_LABELS.get(name, name)
-
+#: Display names of the models, in the order tables list them (from
+#: :data:`pipeline.sensormodels.registry.MODELS`, the one table of them).
+MODEL_LABELS = {k: m.label for k, m in MODELS.items()}
 
 @dataclass(frozen=True)
 class HeadlineMetric:

@@ -129,14 +129,15 @@ def stage_evaluation(ctx) -> dict:
     # each held-out link's tag height above its true antenna: a model whose detection
     # depends on it (Vorst & Zell's ground-plane table) is scored with it
     eval_dz = tag_height_differences(eval_reads, tags, pose="true")
+    det_names, merged = _detection_models(sensors, ("anfis", "anfis_truepose", "grid_count", *extra),
+                                          eval_reads, eval_truth)
     heldout = heldout_scores(sensors, eval_reads, train_truth, eval_truth, budget,
                              d_max_m=tr.d_max_m, min_attempts=tr.min_attempts,
-                             rssi_models=rssi_names,
-                             detection_models=("anfis", "anfis_truepose", "grid_count", *extra),
-                             dz_m=eval_dz)
+                             rssi_models=rssi_names, detection_models=det_names, dz_m=eval_dz)
     metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
                "reads": {"range_margin": _range_margin(meta, eval_meta)},
-               "model_fits": model_fits({n: sensors[n] for n in COMPETITORS})}
+               "model_fits": model_fits({n: sensors[n] for n in COMPETITORS}),
+               "detection_merged": merged}
     fig7, fig7_results = {}, {}
     for name in rssi_names:
         f7 = fig7_results[name] = fig7_errors(eval_reads, tags, sensors[name], radius_m=cfg.evaluation.fig7_radius_m,
@@ -181,12 +182,26 @@ def stage_evaluation(ctx) -> dict:
     coverage = field_coverage(cfg, load_scene(ctx), fields, eval_reads)
     if coverage is not None:
         metrics["coverage"] = coverage
-    det_names = ("anfis", "anfis_truepose", "grid_count", *extra)
     units = write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results,
                               rssi_names=rssi_names, detection_names=det_names, dz_m=eval_dz)
     metrics.update(headline_intervals(units, seed=cfg.seed, min_attempts=tr.min_attempts))
     atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
     return {"models": sorted(sensors)}
+
+
+def _detection_models(sensors, names, eval_reads, eval_truth):
+    """The detection models to score, each distinct set of predictions once
+    (:func:`pipeline.sensormodels.registry.merge_identical_detection`, probed at the
+    held-out links' MCL and true geometry and the truth grid's cell centres), and the
+    merged ones -> their twin."""
+    import numpy as np
+
+    from pipeline.sensormodels.registry import merge_identical_detection
+
+    dc, ac = eval_truth.grid.centre_mesh()
+    d = np.concatenate([eval_reads["d_est_m"], eval_reads["d_true_m"], dc.ravel()])
+    a = np.concatenate([eval_reads["alpha_est_rad"], eval_reads["alpha_true_rad"], ac.ravel()])
+    return merge_identical_detection(sensors, names, d, a)
 
 
 def write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results, *,
@@ -246,12 +261,13 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
-              version=14,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
+              version=15,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
               # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
               # 8: the Gen2 reader's miss probability at tag sites and fields;
               # 9: per-unit tables, intervals and paired comparisons; 10: detection MAE on
               # the observed sample's cells; 11: no interval for the cell MAE;
               # 12: each model over its own units, comparisons on the shared ones;
               # 13: model_fits; the error budget's oracle bound; 14: a model using the
-              # tag's height above the antenna (Vorst & Zell) scored at each link's
+              # tag's height above the antenna (Vorst & Zell) scored at each link's;
+              # 15: identical detection models scored once (detection_merged)
               description="metrics")

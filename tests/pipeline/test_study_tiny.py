@@ -207,6 +207,29 @@ def test_metrics_have_the_heldout_sections(tiny):
     assert "held-out" in (base / "run" / "report.html").read_text()
 
 
+def test_identical_detection_models_are_scored_once(tiny):
+    """Joho et al. 2009's detection part is the Hähnel grid count (reads / attempts per
+    polar cell, nearest-cell fill): the two predict the same probability everywhere, so
+    the detection scores hold one row for them, not one loser counted twice."""
+    from pipeline.evaluation.baselines import BaselineSensorModel
+    from pipeline.sensormodels import load_competitor
+
+    _, base, _ = tiny
+    run = base / "run"
+    joho = load_competitor(run / "models" / "joho2009.json")
+    grid = BaselineSensorModel.load(run / "models" / "baselines.json")
+    d, a = np.meshgrid(np.linspace(0.05, 4.0, 60), np.linspace(-np.pi, np.pi, 73))
+    assert np.array_equal(joho.fT(d, a), grid.fT(d, a))  # the premise, recomputed
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["detection_merged"] == {"joho2009": "grid_count"}
+    att = pd.read_parquet(run / "evaluation" / "detection_attempts.parquet")
+    assert "grid_count" in set(att["model"]) and "joho2009" not in set(att["model"])
+    brier = m["intervals"]["heldout.detection_brier"]["models"]
+    assert "grid_count" in brier and "joho2009" not in brier
+    # Joho's RSSI model is its own and is still scored
+    assert "joho2009" in m["intervals"]["heldout.rssi_rmse_db"]["models"]
+
+
 def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tiny):
     """Each interval's estimate is the headline number of its section, recomputed here
     from the per-unit tables the run saved; the robot median is over every step of every

@@ -90,6 +90,31 @@ def test_bound_is_below_every_models_error_on_its_links():
     assert old_floor.rmse > exact.rmse_db + 1.0  # 6 dB off (3 dB x 2) on top of the fading
 
 
+def test_the_mae_bound_is_the_cell_medians_not_the_means():
+    """With skewed fading (an exponential tail, as deep fades are) the cell means' MAE is
+    beaten by the cell medians', so the means cannot be the MAE bound: the bound's MAE is
+    the medians', and no cell model (here: any per-cell quantile) scores an MAE below it."""
+    rng = np.random.default_rng(3)
+    budget = LinkBudget()
+    table = _table(rng)
+    held = _reads(rng, 4000, table)
+    held["gain_db"] = table.ravel()[GRID.index(held["d_true_m"], held["alpha_true_rad"]).flat] \
+        - rng.exponential(4.0, len(held))
+    b = cell_mean_bound(held, GRID, budget, d_max_m=3.0, min_count=5)
+    y, cell = b.truth_dbm, b.cell
+    means_mae = float(np.mean(np.abs(y - b.cell_mean_dbm)))
+    assert b.mae_db < means_mae - 0.1  # the mean is not the least-MAE constant here
+    for q in (0.3, 0.5, 0.7):
+        qs = pd.Series(y).groupby(cell).transform(lambda v, q=q: np.quantile(v, q)).to_numpy()
+        assert np.mean(np.abs(y - qs)) >= b.mae_db - 1e-9, q
+    scores = heldout_scores({"c": ConstantSensor(-50.0, 0.5)}, held,
+                            detection_truth(held, budget, grid=GRID),
+                            detection_truth(held, budget, grid=GRID), budget, d_max_m=3.0,
+                            min_attempts=5, rssi_models=("c",), detection_models=())
+    assert scores["bound"]["rssi_dbm"]["mae"] == pytest.approx(b.mae_db)
+    assert scores["bound"]["rssi_dbm"]["rmse"] == pytest.approx(b.rmse_db)
+
+
 def test_bound_falls_with_the_cell_size():
     """Nested cells on the same links: a finer partition's cell means fit at least as
     well, so the bound does not rise as the cells shrink; the models are scored on each
