@@ -13,7 +13,7 @@ from pipeline.runstore import atomic_write_bytes
 from .objectives import OBJECTIVES
 from .summary import ranking_table
 
-__all__ = ["answer_lines", "engineering_sentence", "margin_sentence", "write_report"]
+__all__ = ["answer_lines", "confirmation_sentence", "engineering_sentence", "margin_sentence", "write_report"]
 
 _TEMPLATE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>Antenna placement: {{ title }}</title>
@@ -27,9 +27,13 @@ figure { margin: 1em 0; } img { max-width: 100%; }
 <h1>Antenna placement: {{ title }}</h1>
 <div class="answer">
 {% if recommended %}
-<p><b>Recommended: {{ recommended }}</b> ({{ antennas }}){% if not feasible %}, although it misses a constraint: no candidate meets them all{% endif %}.</p>
+{% if single_best %}<p><b>Recommended: {{ recommended }}</b> ({{ antennas }}){% if feasibility != "met" %}, although {{ "it may miss a constraint (its interval straddles a limit)" if feasibility == "uncertain" else "it misses a constraint: no candidate meets them all" }}{% endif %}.</p>
+{% else %}<p><b>No single best.</b> {{ recommended }} ({{ antennas }}) leads on the estimate, but
+{{ tied }} {{ "is" if n_tied == 1 else "are" }} not distinguishable from it at 95 %: choose among them on cost or
+mounting, or run more replicates.{% if feasibility != "met" %} Its constraints are {{ feasibility }} on their intervals.{% endif %}</p>{% endif %}
 <p>{{ sentence }}</p>
 {% if units %}<p>In the engineer's units: {{ units }}.</p>{% endif %}
+{% if confirmation %}<p>{{ confirmation }}</p>{% endif %}
 {% else %}<p>No candidate finished.</p>{% endif %}
 <p>Ranked by <b>{{ primary_label }}</b>{% if constraints %}, among candidates with {{ constraints }}{% endif %};
 {{ n_candidates }} candidates, {{ replicates }} replicate(s) each on paired seeds. Every number is an
@@ -39,6 +43,7 @@ Each study ran up to its <code>{{ upto }}</code> stage{% if upto == "reads" %} (
 no fitted model){% endif %}.</p>
 {% for d in dropped %}<p><b>Not computed:</b> {{ d }}</p>
 {% endfor %}
+<p><small>Selection rule: {{ rule }}</small></p>
 </div>
 <h2>Ranking</h2>
 {{ table }}
@@ -99,6 +104,28 @@ def margin_sentence(answer: dict, lower_is_better: bool) -> str:
             "95 %</b>: choose between them on cost or mounting, or run more replicates.")
 
 
+def confirmation_sentence(answer: dict) -> str:
+    """The confirmation on fresh replicates (``answer.json``'s ``confirmation``) as a
+    sentence: each candidate's estimate and interval there, and whether the lead holds."""
+    c = answer.get("confirmation")
+    if not c:
+        return ""
+
+    def iv(d):
+        txt = f"{d['estimate']:.3g}" if d.get("estimate") is not None else "–"
+        if d.get("low") is not None and d.get("high") is not None:
+            txt += f" [{d['low']:.3g}, {d['high']:.3g}]"
+        return txt
+
+    lo, hi = c["replicates"]
+    parts = ", ".join(f"{n} {iv(d)}" for n, d in c["estimates"].items())
+    first = c["candidates"][0]
+    verdict = ("it is ahead of each at 95 % there" if c.get("holds") else
+               "its lead is not confirmed at 95 % there")
+    return (f"Confirmation on fresh replicates {lo}-{hi}, which took no part in the selection: "
+            f"{answer.get('primary')} {parts}; {first} was selected, and {verdict}.")
+
+
 def answer_lines(df, answer: dict) -> list[str]:
     """The answer as the console prints it: the recommendation with its lead's verdict,
     its inventory in the engineer's units, and what was not computed."""
@@ -109,10 +136,16 @@ def answer_lines(df, answer: dict) -> list[str]:
         lead = ("its lead over the runner-up exceeds the 95 % interval" if verdict == "worse" else
                 "the runner-up is ahead on the units both share: run more replicates"
                 if verdict == "better" else "not distinguishable from the runner-up at 95 %")
-        out.append(f"recommended: {best} ({lead})")
+        if answer.get("single_best", True):
+            out.append(f"recommended: {best} ({lead})")
+        else:
+            out.append(f"no single best: {best} leads on the estimate; not distinguishable from "
+                       f"it at 95 %: {', '.join(answer.get('tied_with_best') or [])}")
         units = engineering_sentence(df[df["candidate"] == best].iloc[0])
         if units:
             out.append(f"  {units}")
+    if (conf := confirmation_sentence(answer)):
+        out.append(conf)
     out.extend(f"not computed: {d}" for d in answer.get("dropped") or [])
     return out
 
@@ -175,7 +208,11 @@ def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
     text = env.from_string(_TEMPLATE).render(
         title=html.escape(str(spec.base.scene)), recommended=best,
         antennas=(df[df["candidate"] == best].iloc[0]["antennas"] if best else ""),
-        feasible=answer.get("recommended_feasible", False), sentence=Markup(sentence),
+        feasibility=answer.get("recommended_feasibility") or "met", sentence=Markup(sentence),
+        single_best=answer.get("single_best", True),
+        tied=", ".join(answer.get("tied_with_best") or []),
+        n_tied=len(answer.get("tied_with_best") or []), rule=answer.get("rule", ""),
+        confirmation=confirmation_sentence(answer),
         primary_label=OBJECTIVES[s.primary].label, constraints=cons,
         n_candidates=answer.get("n_candidates"), replicates=answer.get("replicates"),
         table=Markup(table), figures=figs, objectives=list(OBJECTIVES.values()), units=units,

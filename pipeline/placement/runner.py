@@ -6,6 +6,7 @@ Directory layout of ``rfidstudy placement FILE --out DIR``::
                                        placement directory: nothing else is written into
                                        a non-empty directory without it)
     DIR/candidates/<name>/<k>/         replicate k of candidate <name>: a study run directory
+                                       (k >= replicates: the confirmation's fresh seeds)
     DIR/placement/summary.parquet      one row per candidate (see pipeline.placement.summary)
     DIR/placement/ranking.csv          the ranked table
     DIR/placement/answer.json          recommendation, margin, comparisons, Pareto front
@@ -192,6 +193,7 @@ class _Runner:
         self.progress = progress
         self.cache = str(resolve_cache_dir(spec.base))
         self.done: dict[str, dict] = {}
+        self.confirmed: dict[str, dict] = {}  # candidates run on the fresh replicates
         self.expected = 0  # candidates this study will run (grid + presets + trials)
         self.wall_s = 0.0  # wall time spent running batches
         self.n_run = 0  # candidates finished in those batches
@@ -244,7 +246,15 @@ class _Runner:
         for wave in position_waves(todo):
             self._run_batch(wave)
 
-    def _run_batch(self, todo: list[Candidate]) -> None:
+    def confirm(self, cands: list[Candidate]) -> None:
+        """Run ``cands`` on fresh replicates ``R .. 2R - 1`` (R = ``replicates``): seeds
+        that took no part in selecting them (:attr:`confirmed` books them)."""
+        n = self.spec.settings.replicates
+        todo = [c for c in cands if c.name not in self.confirmed]
+        for wave in position_waves(todo):
+            self._run_batch(wave, range(n, 2 * n), self.confirmed)
+
+    def _run_batch(self, todo: list[Candidate], ks=None, book: dict | None = None) -> None:
         from pipeline.sweep import run_studies
 
         from .objectives import traced_counts
@@ -252,10 +262,12 @@ class _Runner:
         if self.stop:
             raise PlacementStopped(self.stop)
 
-        n = self.spec.settings.replicates
+        ks = list(range(self.spec.settings.replicates) if ks is None else ks)
+        book = self.done if book is None else book
+        n = len(ks)
         args, owner = [], []
         for c in todo:
-            for k in range(n):
+            for k in ks:
                 run_dir = candidate_dir(self.out, c.name, k)
                 args.append((config_to_dict(_replicate_config(self.spec, c, k, self.cache)),
                              str(run_dir)))
@@ -275,19 +287,20 @@ class _Runner:
             elapsed = float(sum(r.get("elapsed_s") or 0.0 for r in rows
                                 if r.get("status") == "complete"))
             traced = sum(traced_counts(candidate_dir(self.out, name, k))["n_sources_traced"]
-                         for k in range(n))
+                         for k in ks)
             failed = sum(r.get("status") != "complete" for r in rows)
-            self.done[name] = {"elapsed_s": elapsed, "failed": failed,
-                               "errors": [r.get("error") for r in rows if r.get("error")]}
+            book[name] = {"elapsed_s": elapsed, "failed": failed,
+                          "errors": [r.get("error") for r in rows if r.get("error")]}
             batch_done[0] += 1
             # wall time per finished candidate so far (batches run their studies side by
             # side, so this is the pace, not one candidate's time) x candidates left
             per = (self.wall_s + time.monotonic() - t0) / (self.n_run + batch_done[0])
-            eta = per * max(0, self.expected - len(self.done))
+            eta = per * max(0, self.expected - len(self.done) - len(self.confirmed))
             if self.progress:
                 ran = int(sum(r.get("stages_ran") or 0 for r in rows))
-                self.progress(ProgressEvent(name, len(self.done), self.expected, elapsed, traced,
-                                            failed, eta, ran))
+                label = name if book is self.done else f"{name} (confirmation)"
+                self.progress(ProgressEvent(label, len(self.done) + len(self.confirmed),
+                                            self.expected, elapsed, traced, failed, eta, ran))
             return stop
 
         run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
@@ -296,9 +309,9 @@ class _Runner:
         self.n_run += batch_done[0]
         if self.stop:
             raise PlacementStopped(self.stop)
-        cancelled = [c for c in todo if c.name not in self.done]
+        cancelled = [c for c in todo if c.name not in book]
         if cancelled:  # cancelled when a pareto-only stage was dropped: run them without it
-            self._run_batch(cancelled)
+            self._run_batch(cancelled, ks, book)
 
 
 def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | None = None,
@@ -349,8 +362,16 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                 if t.name not in {c.name for c in cands}:
                     cands.append(t)
             _write_marker(out, spec, cands)
+        top = []
+        if spec.settings.confirm_top:
+            from .summary import top_candidates
+
+            top = top_candidates(spec, out, cands, spec.settings.confirm_top)
+            if len(top) >= 2:
+                runner.expected += len(top)
+                runner.confirm(top)
         return write_outputs(spec, out, cands, runner.done, upto=runner.upto,
-                             dropped=runner.dropped)
+                             dropped=runner.dropped, confirmed=[c.name for c in top])
 
 
 def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> None:

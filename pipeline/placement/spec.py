@@ -189,6 +189,9 @@ class PlacementSettings:
                             max=1_000_000)
     height_bands_m: tuple[float, ...] = option(
         (0.0, 0.5, 1.0, 1.5, 3.0), "Edges of the tag-height bands of completeness [m].")
+    confirm_top: int = option(
+        2, "Top candidates run again on `replicates` fresh replicate seeds after the selection "
+           "(0: no confirmation): estimates free of the selection's winner's curse.", max=20)
     workers: int = option(0, "Local worker processes (0: as many as the CPUs allow, <= 2).",
                           max=256)
     mount: MountConfig = option(doc="The base mount.", factory=MountConfig)
@@ -271,6 +274,9 @@ def check_placement(spec: PlacementSpec) -> None:
     s, src = spec.settings, spec.source
     if s.replicates < 1:
         raise _fail(src, f"replicates = {s.replicates}: at least 1")
+    if s.confirm_top < 0 or s.confirm_top == 1:
+        raise _fail(src, f"confirm_top = {s.confirm_top}: 0 (off) or at least 2 (the best and "
+                         "whom it is confirmed against)")
     for key, name in [("primary", s.primary), *((f"pareto[{i}]", p) for i, p in enumerate(s.pareto))]:
         if name not in OBJECTIVE_KEYS:
             raise _fail(src, f"{key} = {name!r}: unknown objective; known: {', '.join(OBJECTIVE_KEYS)}")

@@ -8,8 +8,9 @@
   ``<key>_low`` / ``<key>_high`` its 95 % interval over (replicate, unit) units;
 - ``completeness_<lo>_<hi>m`` (and ``_low`` / ``_high``): completeness of the tags
   whose height is in that band;
-- ``feasible``: every ``[[constraint]]`` met by the estimate; ``rank`` (1 = best
-  feasible by the primary objective; infeasible candidates after them);
+- ``feasibility``: "met" / "uncertain" / "missed", every ``[[constraint]]`` judged on
+  the objective's 95 % interval (:func:`feasibility`); ``feasible``: it is "met";
+  ``rank`` (1 = the best by the primary objective among the most feasible);
 - ``diff_vs_best``, ``diff_vs_best_low/high``, ``verdict_vs_best``: the primary
   objective minus the recommended candidate's on the same units;
 - ``n_replicates`` complete, ``n_sources_traced`` (antenna positions traced afresh by
@@ -44,7 +45,8 @@ from .objectives import (
 )
 from .spec import MOUNT_FIELDS
 
-__all__ = ["pareto_front", "rank_candidates", "summarise", "write_outputs"]
+__all__ = ["FEASIBILITY", "SELECTION_RULE", "evidence", "feasibility", "pareto_front",
+           "rank_candidates", "summarise", "write_outputs"]
 
 
 def usable_run(run: Path, required: str) -> bool:
@@ -70,11 +72,11 @@ def usable_run(run: Path, required: str) -> bool:
             and order.index(failed) > order.index(required))
 
 
-def _complete_dirs(out: Path, name: str, n: int, required: str = "reads") -> dict:
+def _complete_dirs(out: Path, name: str, n: int, required: str = "reads", ks=None) -> dict:
     from .runner import candidate_dir
 
     dirs = {}
-    for k in range(n):
+    for k in (range(n) if ks is None else ks):
         d = candidate_dir(out, name, k)
         if usable_run(d, required):
             dirs[k] = d
@@ -111,12 +113,10 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
     """The summary table and each candidate's data (``{name: CandidateData}``)."""
     from pipeline.stages.common import link_budget
 
-    from .objectives import needed_stage
-
     s = spec.settings
     budget = link_budget(spec.base)
     seed = int(spec.base.seed)
-    required = needed_stage([s.primary, *(c.objective for c in s.constraint)])
+    required = _required(spec)
     rows, datas = [], {}
     for c in cands:
         dirs = _complete_dirs(out, c.name, s.replicates, required)
@@ -164,26 +164,73 @@ def never_read_counts(inventory: pd.DataFrame) -> dict:
             "never_read_n": float((per_tag == 0).groupby(rep).sum().mean())}
 
 
-def _feasible(row: pd.Series, constraints) -> bool:
-    """Every constraint met by the row's estimates (one not evaluated is not met)."""
-    from .optimise import violations
+#: Order of the feasibility states (the ranking's first key).
+FEASIBILITY = ("met", "uncertain", "missed")
 
-    return all(math.isfinite(v) and v <= 0.0 for v in violations(row, constraints))
+
+def feasibility(row, constraints) -> str:
+    """Whether a candidate meets every constraint, judged on its 95 % intervals:
+    ``"met"`` (every interval inside its constraint), ``"missed"`` (some interval wholly
+    outside), else ``"uncertain"`` (an interval straddles a limit, or an objective has
+    no interval; not evaluated at all: ``"missed"``)."""
+    state = 0
+    for c in constraints:
+        v = row.get(c.objective)
+        if v is None or not math.isfinite(float(v)):
+            return "missed"
+        lo, hi = row.get(f"{c.objective}_low"), row.get(f"{c.objective}_high")
+        if lo is None or hi is None or not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
+            state = max(state, 1)
+            continue
+        met = (c.min is None or lo >= c.min) and (c.max is None or hi <= c.max)
+        missed = (c.min is not None and hi < c.min) or (c.max is not None and lo > c.max)
+        state = max(state, 0 if met else 2 if missed else 1)
+    return FEASIBILITY[state]
 
 
 def rank_candidates(df: pd.DataFrame, primary: str, constraints=()) -> pd.DataFrame:
-    """``df`` with ``feasible`` and ``rank``, sorted: feasible candidates by the primary
-    objective's estimate (best first), then the infeasible ones, then those without one."""
+    """``df`` with ``feasibility`` (:func:`feasibility`), ``feasible`` (it is "met") and
+    ``rank``, sorted: by feasibility (met, uncertain, missed), then by the primary
+    objective's estimate (best first; those without one last)."""
     out = df.copy()
     if primary not in out.columns:
         out[primary] = np.nan
-    out["feasible"] = [_feasible(r, constraints) for _, r in out.iterrows()]
+    out["feasibility"] = [feasibility(r, constraints) for _, r in out.iterrows()]
+    out["feasible"] = out["feasibility"] == "met"
     sign = 1.0 if OBJECTIVES[primary].lower_is_better else -1.0
     key = pd.to_numeric(out[primary], errors="coerce") * sign
-    out["_order"] = list(zip(~out["feasible"], key.isna(), key.fillna(0.0), strict=True))
+    out["_order"] = list(zip(out["feasibility"].map(FEASIBILITY.index), key.isna(),
+                             key.fillna(0.0), strict=True))
     out = out.sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
     out["rank"] = np.arange(1, len(out) + 1)
     return out
+
+
+def evidence(df: pd.DataFrame, best: str | None) -> dict:
+    """What the comparisons with the best support (``df`` ranked, with
+    ``verdict_vs_best``): ``single_best`` when every other candidate of the best's
+    feasibility or better is worse than it at 95 %; else ``tied_with_best`` lists those
+    not distinguishable from it (or ahead of it on the units both share)."""
+    if best is None:
+        return {"single_best": False, "tied_with_best": [], "rule": SELECTION_RULE}
+    fb = df.loc[df["candidate"] == best, "feasibility"].iloc[0]
+    peers = df[(df["candidate"] != best)
+               & (df["feasibility"].map(FEASIBILITY.index) <= FEASIBILITY.index(fb))
+               & df["verdict_vs_best"].astype(bool)]
+    tied = [str(n) for n, v in zip(peers["candidate"], peers["verdict_vs_best"], strict=True)
+            if v != "worse"]
+    return {"single_best": not tied, "tied_with_best": tied, "rule": SELECTION_RULE}
+
+
+#: The selection rule, as the report and ``answer.json`` state it.
+SELECTION_RULE = (
+    "Candidates are ranked by constraint feasibility judged on the 95 % intervals (met, "
+    "uncertain, missed), then by the primary objective's estimate. The best is compared with "
+    "every other candidate on the units both share (paired bootstrap of the difference); it is "
+    "a single best only if every candidate of its feasibility or better is worse than it at "
+    "95 %. These comparisons are made on the replicates that selected the best, so they "
+    "favour it (the winner's curse of a maximum over noisy estimates); the confirmation runs "
+    "the top candidates again on fresh replicate seeds that took no part in the selection.")
 
 
 def pareto_front(df: pd.DataFrame, a: str, b: str) -> list[str]:
@@ -201,12 +248,62 @@ def pareto_front(df: pd.DataFrame, a: str, b: str) -> list[str]:
     return front
 
 
+def _required(spec) -> str:
+    from .objectives import needed_stage
+
+    s = spec.settings
+    return needed_stage([s.primary, *(c.objective for c in s.constraint)])
+
+
+def top_candidates(spec, out: Path, cands: list, k: int) -> list:
+    """The ``k`` best-ranked candidates with results (:func:`rank_candidates` on the
+    selection replicates): whom the confirmation runs again."""
+    df, datas = summarise(spec, out, cands)
+    df = rank_candidates(df, spec.settings.primary, spec.settings.constraint)
+    by_name = {c.name: c for c in cands}
+    names = [n for n in df["candidate"] if n in datas and np.isfinite(
+        df.loc[df["candidate"] == n, spec.settings.primary].iloc[0])]
+    return [by_name[n] for n in names[:k]]
+
+
+def confirmation(spec, out: Path, names: list[str]) -> dict | None:
+    """The confirmed candidates on the fresh replicates ``R .. 2R - 1`` only: each one's
+    primary objective with its interval, and the first (the selected best) against each
+    other one on the units both share; ``holds`` when the first is still ahead of every
+    other at 95 %. None without two confirmed candidates with results."""
+    from pipeline.stages.common import link_budget
+
+    s = spec.settings
+    if len(names) < 2:
+        return None
+    fresh = range(s.replicates, 2 * s.replicates)
+    budget = link_budget(spec.base)
+    seed = int(spec.base.seed)
+    datas = {}
+    for n in names:
+        dirs = _complete_dirs(out, n, s.replicates, _required(spec), ks=fresh)
+        if dirs:
+            datas[n] = load_candidate_data(dirs, budget)
+    if len(datas) < 2 or names[0] not in datas:
+        return None
+    best = names[0]
+    est = {n: objective_interval(d, s.primary, seed=seed + 1, candidate=n,
+                                 min_reads=s.min_reads).to_dict() for n, d in datas.items()}
+    cmp_ = {n: compare_objective(datas[n], datas[best], s.primary, seed=seed + 1,
+                                 names=(n, best), min_reads=s.min_reads).to_dict()
+            for n in datas if n != best}
+    return {"candidates": list(datas), "replicates": [int(fresh[0]), int(fresh[-1])],
+            "estimates": est, "vs_selected": cmp_,
+            "holds": all(c.get("verdict") == "worse" for c in cmp_.values())}
+
+
 def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "evaluation",
-                  dropped: list | None = None):
+                  dropped: list | None = None, confirmed: list | None = None):
     """Summarise, rank, compare, draw and report; return a :class:`~.runner.PlacementResult`.
 
     ``upto`` is the last stage the candidates' studies ran, ``dropped`` why they stopped
-    earlier than the objectives asked (both go into ``answer.json``)."""
+    earlier than the objectives asked, ``confirmed`` the candidates run again on fresh
+    replicates (all go into ``answer.json``)."""
     from pipeline.config import ConfigError
 
     from .figures import draw_figures
@@ -245,14 +342,17 @@ def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "eval
         "constraints": [{"objective": c.objective, "min": c.min, "max": c.max} for c in s.constraint],
         "recommended": best,
         "recommended_feasible": bool(df.iloc[0]["feasible"]) if best is not None else False,
+        "recommended_feasibility": str(df.iloc[0]["feasibility"]) if best is not None else None,
         "runner_up": runner_up,
         "margin": None if runner_up is None else comparisons.get(runner_up),
         "margin_exceeds_interval": (runner_up is not None
                                     and comparisons[runner_up].get("verdict") == "worse"),
+        **evidence(df, best),
         "pareto_objectives": list(s.pareto),
         "pareto_front": pareto_front(df, *s.pareto),
         "replicates": s.replicates,
         "studies_ran_upto": upto,
+        "confirmation": confirmation(spec, out, list(confirmed or [])),
         "dropped": list(dropped or []),
         "n_candidates": int(len(df)),
         "comparisons_vs_recommended": comparisons,
@@ -286,7 +386,7 @@ def ranking_table(df: pd.DataFrame, settings) -> pd.DataFrame:
     rows = []
     for _, r in df.iterrows():
         row = {"rank": int(r["rank"]), "candidate": r["candidate"],
-               "feasible": "yes" if r["feasible"] else "no"}
+               "feasible": r.get("feasibility", "yes" if r["feasible"] else "no")}
         for key in OBJECTIVES:
             row[key] = fmt(r.get(key), r.get(f"{key}_low"), r.get(f"{key}_high"))
         row[f"{settings.primary} minus best"] = (

@@ -169,3 +169,43 @@ def test_report_states_the_lead_in_the_objectives_own_direction():
                                            "verdict": "not distinguishable at 95 %"}}
     text = margin_sentence(answer, lower_is_better=False)
     assert "0.05 [-0.01, 0.08]" in text and "not distinguishable" in text
+
+
+def test_a_third_candidate_tied_with_the_best_means_no_single_best():
+    """The best is compared with every candidate, not the runner-up alone: a runner-up
+    clearly behind and a third candidate not distinguishable from the best is no single
+    best (the third is named)."""
+    import pandas as pd
+
+    from pipeline.placement.summary import evidence, rank_candidates
+
+    df = pd.DataFrame({
+        "candidate": ["a", "b", "c"],
+        "read_rate": [0.50, 0.45, 0.44], "read_rate_low": [0.48, 0.44, 0.30],
+        "read_rate_high": [0.52, 0.46, 0.60]})
+    df = rank_candidates(df, "read_rate")
+    df["verdict_vs_best"] = ["", "worse", "not distinguishable at 95 %"]
+    ev = evidence(df, "a")
+    assert ev["single_best"] is False and ev["tied_with_best"] == ["c"]
+    df["verdict_vs_best"] = ["", "worse", "worse"]
+    assert evidence(df, "a") == {**ev, "single_best": True, "tied_with_best": []}
+
+
+def test_feasibility_is_judged_on_the_interval_not_the_estimate():
+    from pipeline.placement.spec import ConstraintConfig as C
+    from pipeline.placement.summary import feasibility, rank_candidates
+
+    cons = [C("completeness", min=0.9)]
+    row = {"completeness": 0.92, "completeness_low": 0.85, "completeness_high": 0.97}
+    assert feasibility(row, cons) == "uncertain"  # the estimate alone would say "met"
+    assert feasibility({**row, "completeness_low": 0.91}, cons) == "met"
+    assert feasibility({**row, "completeness": 0.8, "completeness_high": 0.88}, cons) == "missed"
+    assert feasibility({"completeness": float("nan")}, cons) == "missed"  # not evaluated
+    import pandas as pd
+
+    df = pd.DataFrame([{"candidate": "sure", "read_rate": 0.4, **{**row, "completeness_low": 0.91}},
+                       {"candidate": "maybe", "read_rate": 0.6, **row}])
+    ranked = rank_candidates(df, "read_rate", cons)
+    # the surely feasible candidate ranks first although its read rate is lower
+    assert ranked["candidate"].tolist() == ["sure", "maybe"]
+    assert ranked["feasibility"].tolist() == ["met", "uncertain"]

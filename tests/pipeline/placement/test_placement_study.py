@@ -45,7 +45,8 @@ def test_placement_study(tmp_path):
     assert s.loc["tilt25", "n_sources_traced"] == 0
     assert s.loc["tilt25", "n_replicates"] == 2
     ran = {e.candidate: e.n_stages_run for e in events}
-    assert ran["tilt0"] == 0 and ran["tilt25"] > 0  # tilt0 was done: nothing computed again
+    # tilt0's selection replicates were done (the first run confirmed nothing: one candidate)
+    assert ran["tilt0"] == 0 and ran["tilt25"] > 0
 
     # replicates change the seed and nothing else; candidates share the replicate seeds
     cfg = {(c, k): load_config(out / "candidates" / c / str(k) / "config.toml")
@@ -71,8 +72,18 @@ def test_placement_study(tmp_path):
     assert answer["margin"]["estimate"] == pytest.approx(
         s.loc[other, "read_rate"] - s.loc[best, "read_rate"], abs=1e-12)
     assert answer["margin_exceeds_interval"] == (answer["margin"]["verdict"] == "worse")
+    # with two candidates, a single best is exactly a runner-up worse at 95 %
+    assert answer["single_best"] == answer["margin_exceeds_interval"]
     report = (out / "placement" / "report.html").read_text()
-    assert f"Recommended: {best}" in report and "None" not in report
+    assert (f"Recommended: {best}" if answer["single_best"] else "No single best") in report
+    assert "None" not in report and "Selection rule" in report
+    # the confirmation: both candidates again on fresh seeds 2 and 3, scored on those alone
+    conf = answer["confirmation"]
+    assert conf["candidates"][0] == best and conf["replicates"] == [2, 3]
+    fresh = {load_config(out / "candidates" / best / str(k) / "config.toml").seed for k in (2, 3)}
+    assert not fresh & {cfg["tilt0", 0].seed, cfg["tilt0", 1].seed}
+    assert conf["estimates"][best]["n_units"] > 0 and set(conf["vs_selected"]) == {other}
+    assert "Confirmation on fresh replicates 2-3" in report
     assert (out / "placement" / "figures" / "ranking.png").is_file()
 
     # a rerun computes nothing: no stage record changes but the scene stage's, which
@@ -86,7 +97,7 @@ def test_placement_study(tmp_path):
     events.clear()
     run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=2, progress=events.append)
     assert records() == before
-    assert [e.n_stages_run for e in events] == [0, 0]
+    assert [e.n_stages_run for e in events] == [0, 0, 0, 0]  # two candidates, two confirmed
     assert not np.isfinite(s.loc["tilt0", "tag_localisation_median_m"])  # downstream off: none
 
     # a directory holding someone's files is not a placement directory
