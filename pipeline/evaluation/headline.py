@@ -50,6 +50,7 @@ from .intervals import (
     CONFIDENCE,
     N_RESAMPLES,
     Interval,
+    clusters_of,
     paired_difference,
     unit_interval,
     weighted_mean,
@@ -339,8 +340,10 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
                              for m, (f, n) in own.items()}
             intervals[spec.key] = sec
             continue
+        # pooled replicates: two-stage resampling, replicate then unit (clusters_of)
         sec["models"] = {m: unit_interval(f, n, _rng(seed, spec.key, m), unit=unit,
-                                          n_resamples=n_resamples).to_dict()
+                                          n_resamples=n_resamples,
+                                          clusters=clusters_of(_units_of(df, m))).to_dict()
                          for m, (f, n) in own.items()}
         intervals[spec.key] = sec
         if reference not in own:
@@ -356,7 +359,7 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
             comparisons[spec.key][m] = paired_difference(
                 pair[m], pair[reference], len(common), _rng(seed, spec.key, m, reference),
                 lower_is_better=spec.lower_is_better, unit=unit,
-                n_resamples=n_resamples).to_dict()
+                n_resamples=n_resamples, clusters=clusters_of(common)).to_dict()
     return {"intervals": intervals,
             "comparisons": {"reference": reference, "confidence": CONFIDENCE,
                             "how": "model minus reference on the same resampled units; "

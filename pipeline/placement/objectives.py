@@ -61,6 +61,7 @@ from pipeline.evaluation.headline import metric_statistic
 from pipeline.evaluation.intervals import (
     Comparison,
     Interval,
+    clusters_of,
     paired_difference,
     unit_interval,
     verdict,
@@ -265,7 +266,8 @@ def objective_interval(data: CandidateData, key: str, *, seed: int, candidate: s
     rows = rows.assign(unit=rows["unit"].astype(str))
     units = np.unique(rows["unit"])
     f = _statistic(key, rows, units, min_reads)
-    return unit_interval(f, len(units), _rng(seed, key, str(band), candidate), unit=obj.unit)
+    return unit_interval(f, len(units), _rng(seed, key, str(band), candidate), unit=obj.unit,
+                         clusters=clusters_of(units))
 
 
 def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int,
@@ -283,7 +285,8 @@ def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int
     fa = _statistic(key, ra, common, min_reads)
     fb = _statistic(key, rb, common, min_reads)
     return paired_difference(fa, fb, len(common), _rng(seed, key, *names),
-                             lower_is_better=obj.lower_is_better, unit=obj.unit)
+                             lower_is_better=obj.lower_is_better, unit=obj.unit,
+                             clusters=clusters_of(common))
 
 
 def traced_counts(run_dir: Path) -> dict:

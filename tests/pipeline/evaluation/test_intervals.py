@@ -179,6 +179,12 @@ def test_replicates_pool_as_units_of_their_own():
     assert rmse["n_units"] == 32 and rmse["unit"] == "replicate x tag"
     e = pooled.rssi_links.query("model == 'anfis'")["error_db"].to_numpy()
     assert rmse["models"]["anfis"]["estimate"] == pytest.approx(np.sqrt(np.mean(e * e)))
+    # two replicates: the between-replicate variance rests on one difference, no interval
+    assert rmse["models"]["anfis"]["low"] is None and "2 replicates" in rmse["models"]["anfis"]["note"]
+    three = concat_unit_tables({0: a, 1: b, 2: _tables(rng)})
+    out = headline_intervals(three, seed=1, min_attempts=5, n_resamples=300, replicated=True)
+    iv = out["intervals"]["heldout.rssi_rmse_db"]["models"]["anfis"]
+    assert iv["method"] == "two-stage percentile" and iv["low"] < iv["estimate"] < iv["high"]
 
 
 def test_a_model_scored_on_fewer_units_is_compared_on_the_shared_ones():

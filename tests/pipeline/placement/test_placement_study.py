@@ -20,7 +20,7 @@ def _spec(tmp_path: Path, tilts: list[float]):
     p = tmp_path / f"placement_{len(tilts)}.toml"
     p.write_text(
         f'base = "{ROOT / "configs" / "tiny.toml"}"\n'
-        "replicates = 2\n"
+        "replicates = 3\n"
         "pareto = [\"read_rate\", \"rssi_rmse_db\"]\n"
         "[grid]\n"
         f"tilt_deg = {tilts}\n"
@@ -43,14 +43,14 @@ def test_placement_study(tmp_path):
     # an orientation-only candidate traces no new antenna position (the path cache is
     # keyed by position; tilt turns the antenna about its phase centre)
     assert s.loc["tilt25", "n_sources_traced"] == 0
-    assert s.loc["tilt25", "n_replicates"] == 2
+    assert s.loc["tilt25", "n_replicates"] == 3
     ran = {e.candidate: e.n_stages_run for e in events}
     # tilt0's selection replicates were done (the first run confirmed nothing: one candidate)
     assert ran["tilt0"] == 0 and ran["tilt25"] > 0
 
     # replicates change the seed and nothing else; candidates share the replicate seeds
     cfg = {(c, k): load_config(out / "candidates" / c / str(k) / "config.toml")
-           for c in ("tilt0", "tilt25") for k in (0, 1)}
+           for c in ("tilt0", "tilt25") for k in (0, 1, 2)}
     assert cfg["tilt25", 0].seed != cfg["tilt25", 1].seed
     assert dataclasses.replace(cfg["tilt25", 1], seed=cfg["tilt25", 0].seed) == cfg["tilt25", 0]
     assert cfg["tilt0", 1].seed == cfg["tilt25", 1].seed
@@ -77,13 +77,13 @@ def test_placement_study(tmp_path):
     report = (out / "placement" / "report.html").read_text()
     assert (f"Recommended: {best}" if answer["single_best"] else "No single best") in report
     assert "None" not in report and "Selection rule" in report
-    # the confirmation: both candidates again on fresh seeds 2 and 3, scored on those alone
+    # the confirmation: both candidates again on fresh seeds 3-5, scored on those alone
     conf = answer["confirmation"]
-    assert conf["candidates"][0] == best and conf["replicates"] == [2, 3]
-    fresh = {load_config(out / "candidates" / best / str(k) / "config.toml").seed for k in (2, 3)}
-    assert not fresh & {cfg["tilt0", 0].seed, cfg["tilt0", 1].seed}
+    assert conf["candidates"][0] == best and conf["replicates"] == [3, 5]
+    fresh = {load_config(out / "candidates" / best / str(k) / "config.toml").seed for k in (3, 4, 5)}
+    assert not fresh & {cfg["tilt0", k].seed for k in (0, 1, 2)}
     assert conf["estimates"][best]["n_units"] > 0 and set(conf["vs_selected"]) == {other}
-    assert "Confirmation on fresh replicates 2-3" in report
+    assert "Confirmation on fresh replicates 3-5" in report
     assert (out / "placement" / "figures" / "ranking.png").is_file()
 
     # a rerun computes nothing: no stage record changes but the scene stage's, which
