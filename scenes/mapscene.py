@@ -6,11 +6,15 @@ The map (:mod:`scenes.rosmap`) gives the obstacles and their constructions
 generated corridors (:mod:`scenes.corridor_radio`):
 
 - walls: the outline extruded to ``height_m`` is the solid (collision, laser, tags;
-  triangulated by shapely's constrained Delaunay, extruded by trimesh); the ray tracer
-  sees the wall's *centre line* (the map does not say which face is inside, and a wall
-  between two rooms has two): ``"solid"`` one surface there carrying the wall's mean
-  thickness, ``"stud"``/``"double"`` one leaf of the material's library thickness on each
-  face (the centre line offset by half the thickness), ``"single"`` one leaf on the
+  triangulated by shapely's constrained Delaunay, extruded by trimesh). A ``"solid"``
+  wall is one traced surface carrying a construction thickness
+  (``MapSpec.solid_wall_thickness_m``; by default the material's library thickness,
+  not the map's occupied band, which in a SLAM map is the laser's spread): at the
+  wall's *inside face* where the map says which side is inside (free space on one side
+  of a segment, outside or obstacle on the other: the outer walls), else on its centre
+  line (a wall between two rooms has two faces and one crossing).
+  ``"stud"``/``"double"``: one leaf of the material's library thickness on each face
+  (the centre line offset by half the map's thickness); ``"single"``: one leaf on the
   centre line;
 - pillars: the extruded outline, traced as a closed shell whose faces each carry half
   the pillar's short side (a ray through it crosses two faces: the whole width);
@@ -69,15 +73,44 @@ def _vertical_quad(a, b, z0: float, z1: float) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, np.array([[0, 2, 1], [0, 3, 2]]), process=False)
 
 
-def _wall_surfaces(o: MapObstacle, height_m: float) -> list[RadioSurface]:
-    out = []
+def _solid_thickness(o: MapObstacle, spec: MapSpec) -> float:
+    """Traced slab thickness of a solid wall [m] (``MapSpec.solid_wall_thickness_m``)."""
+    if spec.solid_wall_thickness_m is None:
+        return float(get_material(o.material).thickness_m)
+    if spec.solid_wall_thickness_m == 0:
+        return round(max(o.thickness_m, 1e-3), 3)
+    return float(spec.solid_wall_thickness_m)
+
+
+def inside_side(a, b, half_m: float, cls: np.ndarray, rosmap: RosMap) -> float:
+    """Which side of the wall segment a -> b (2,) [m] is the building's inside: +1 (its
+    left normal), -1, or 0 when the map does not tell (free on both sides: a wall between
+    two rooms; free on neither). The cells probed lie ``half_m`` plus 1.5 cells off the
+    segment's midpoint."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = (b - a) / np.linalg.norm(b - a)
+    n = np.array([-d[1], d[0]])
+    off = half_m + 1.5 * rosmap.resolution_m
+    mid = (a + b) / 2
+    free = [_is_free_cell(cls, rosmap, mid + s * off * n) for s in (1.0, -1.0)]
+    return 0.0 if free[0] == free[1] else (1.0 if free[0] else -1.0)
+
+
+def _wall_surfaces(o: MapObstacle, height_m: float, spec: MapSpec, cls: np.ndarray,
+                   rosmap: RosMap) -> tuple[list[RadioSurface], int]:
+    """The wall's radio surfaces, and how many solid segments sit at the inside face."""
+    out, at_face = [], 0
     t = round(max(o.thickness_m, 1e-3), 3)
     lib = get_material(o.material).thickness_m
     for a, b in o.centre_lines_m:
         d = (b - a) / np.linalg.norm(b - a)
         n = np.array([-d[1], d[0]])
         if o.construction == "solid":
-            out.append(RadioSurface(o.material, t, _vertical_quad(a, b, 0.0, height_m), "wall"))
+            side = inside_side(a, b, t / 2, cls, rosmap)
+            off = side * t / 2 * n  # the inside face; 0: the centre line
+            at_face += side != 0
+            out.append(RadioSurface(o.material, _solid_thickness(o, spec),
+                                    _vertical_quad(a + off, b + off, 0.0, height_m), "wall"))
         elif o.construction == "single":
             out.append(RadioSurface(o.material, lib, _vertical_quad(a, b, 0.0, height_m), "leaf"))
         else:  # stud, double: a leaf on each face
@@ -86,7 +119,7 @@ def _wall_surfaces(o: MapObstacle, height_m: float) -> list[RadioSurface]:
                 q = _vertical_quad(a + off, b + off, 0.0, height_m) if s > 0 else \
                     _vertical_quad(b + off, a + off, 0.0, height_m)
                 out.append(RadioSurface(o.material, lib, q, "leaf"))
-    return out
+    return out, at_face
 
 
 def rack_frames(o) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
@@ -366,6 +399,7 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
     H = spec.height_m
     parts: dict[str, list] = {}
     radio: list[RadioSurface] = []
+    walls_at_face = 0  # solid wall segments traced at their inside face
     for o in obstacles:
         if o.kind == "rack":
             solids, surf = _rack(o, spec)
@@ -377,7 +411,9 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
         if o.kind == "pillar":
             radio.append(RadioSurface(o.material, max(o.rectangle_sides_m[1] / 2, 1e-3), prism, "shell"))
         else:
-            radio += _wall_surfaces(o, H)
+            surf, n_face = _wall_surfaces(o, H, spec, cls, rosmap)
+            radio += surf
+            walls_at_face += n_face
     inside = np.argwhere(cls != OUTSIDE)
     lo = rosmap.origin_m + inside.min(axis=0)[::-1] * rosmap.resolution_m
     hi = rosmap.origin_m + (inside.max(axis=0)[::-1] + 1) * rosmap.resolution_m
@@ -400,6 +436,7 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
                 "map": {"yaml": str(yaml_path), "image": rosmap.image_path, "digest": rosmap.digest(),
                         "resolution_m": rosmap.resolution_m, "mode": rosmap.mode,
                         "route_standoff_m": spec.route_standoff_m, "obstacles": summary,
+                        "solid_walls_at_inside_face": int(walls_at_face),
                         "shelf_levels_m": list(spec.shelf_levels_m), "beam_height_m": spec.beam_height_m,
                         "cleaning": {"gap_cells": cleaning.gap_cells, "kept_enclosed": cleaning.kept_enclosed,
                                      "filled": [dataclasses.asdict(f) for f in cleaning.filled]},

@@ -98,6 +98,13 @@ class MapSpec:
         ``fill_free_max_width_m = 0``): none (:mod:`scenes.mapclean`).
     fill_free_max_width_m : float
         Enclosed regions at most this wide become obstacle whatever they hold [m]; 0: none.
+    solid_wall_thickness_m : float or None
+        Slab thickness the tracer gives a solid wall (outer walls, thick inner walls) [m].
+        None (the default): the wall material's library thickness
+        (:data:`scenes.materials.MATERIALS`: concrete 0.20 m, brick 0.12 m), a
+        construction default; a SLAM map's occupied band is the laser's spread, not the
+        wall (ITU-R P.2040 concrete reflects 6.5 dB differently at 5 and 15 cm). 0: the
+        map's band, as drawn (a map drawn to scale).
     rack_height_m : float
         Height of a rack's uprights [m].
     shelf_levels_m : tuple of float
@@ -134,6 +141,7 @@ class MapSpec:
     gap_close_m: float = 0.1
     fill_max_width_m: float = 2.5
     fill_free_max_width_m: float = 0.8
+    solid_wall_thickness_m: float | None = None
     rack_height_m: float = 2.2
     shelf_levels_m: tuple[float, ...] = (0.3, 0.8, 1.3, 1.8)
     beam_height_m: float = 0.1
@@ -234,8 +242,8 @@ def parse_map_table(data, where: str) -> MapSpec:
                         f"{spec.height_m} (the ceiling)")
     if spec.tolerance_m is not None and spec.tolerance_m < 0:
         raise SpecError(f"{where}: key 'tolerance_m' must not be negative, got {spec.tolerance_m!r}")
-    for key in ("gap_close_m", "fill_max_width_m", "fill_free_max_width_m"):
-        if not getattr(spec, key) >= 0:
+    for key in ("gap_close_m", "fill_max_width_m", "fill_free_max_width_m", "solid_wall_thickness_m"):
+        if getattr(spec, key) is not None and not getattr(spec, key) >= 0:
             raise SpecError(f"{where}: key {key!r} must not be negative, got {getattr(spec, key)!r}")
     if not 0 < spec.rack_min_fill <= 1:
         raise SpecError(f"{where}: key 'rack_min_fill' must be in (0, 1], got {spec.rack_min_fill!r}")

@@ -58,9 +58,10 @@ def test_radio_surfaces_one_per_layer(tmp_path):
     sc = scenes.load(_map(tmp_path))
     surf = sc.radio_surfaces
     brick = [s for s in surf if s.material == "brick"]
-    # a solid wall: one surface on its centre line, carrying its thickness (within a cell)
+    # a solid wall with free space on both sides: one surface on its centre line, carrying
+    # the brick's construction thickness (the library's 0.12 m), not the map's 0.3 m band
     assert len(brick) == 1 and brick[0].kind == "wall"
-    assert brick[0].thickness_m == pytest.approx(0.3, abs=RES)
+    assert brick[0].thickness_m == pytest.approx(0.12)
     assert np.allclose(brick[0].mesh.vertices[:, 1], 7.15, atol=RES)
     # a stud partition: two plasterboard leaves of the library thickness, one per face
     leaves = [s for s in surf if s.material == "plasterboard"]
@@ -78,6 +79,31 @@ def test_radio_surfaces_one_per_layer(tmp_path):
     # floor and ceiling one surface each; free space is the building's inside only
     assert sum(s.kind == "floor" for s in surf) == 1 and sum(s.kind == "ceiling" for s in surf) == 1
     assert scenes.is_free(sc, [[2.0, 2.0, 1.0]])[0] and not scenes.is_free(sc, [[0.2, 0.2, 1.0]])[0]
+
+
+def test_outer_walls_are_traced_at_their_inside_face(tmp_path):
+    """The outer wall's reflector sits at the face the robot sees, not half a wall behind
+    it (0.125 m here), and carries the construction's thickness; with
+    ``solid_wall_thickness_m = 0`` the map's band, as drawn."""
+    sc = scenes.load(_map(tmp_path))
+    outer = [s for s in sc.radio_surfaces if s.material == "concrete" and s.kind == "wall"]
+    inner = PAD + WALL  # the inside faces: x = 0.75 and 12.75, y = 0.75 and 8.75
+    # the long segments of the four sides (the skeleton leans by up to a cell)
+    sides = [s for s in outer if max(np.ptp(s.mesh.vertices[:, 0]), np.ptp(s.mesh.vertices[:, 1])) > 5.0]
+    assert len(sides) == 4
+    # within 1.5 cells of the inside face (a cell of the map's own raster, and the
+    # skeleton's lean); the centre line is 0.125 m = 2.5 cells behind it
+    for s in sides:
+        v = s.mesh.vertices[:, :2]
+        axis = 0 if np.ptp(v[:, 0]) < np.ptp(v[:, 1]) else 1  # the coordinate across the wall
+        face = inner if v[0, axis] < 5.0 else (inner + (12.0 if axis == 0 else 8.0))
+        assert np.all(np.abs(v[:, axis] - face) <= 1.5 * RES), (axis, v[:, axis], face)
+        assert s.thickness_m == pytest.approx(0.2)  # concrete's library thickness
+    assert sc.metadata["map"]["solid_walls_at_inside_face"] >= 4
+    (tmp_path / "drawn.toml").write_text('[map]\npath = "site.yaml"\nsolid_wall_thickness_m = 0\n')
+    drawn = scenes.load(tmp_path / "drawn.toml")
+    walls = [s for s in drawn.radio_surfaces if s.material == "concrete" and s.kind == "wall"]
+    assert all(s.thickness_m == pytest.approx(WALL, abs=RES) for s in walls)
 
 
 def test_shelf_tags_on_the_fronts(tmp_path):
