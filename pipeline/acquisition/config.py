@@ -17,12 +17,15 @@ from pipeline.acquisition.gen2 import Gen2Config
 from pipeline.configschema import ConfigError, option, section
 from propagation.linkbudget import LinkBudget
 
-__all__ = ["ANTENNA_MODES", "INVENTORY_MODES", "POSE_SOURCES", "ReaderConfig", "reader_metadata"]
+__all__ = ["ANTENNA_MODES", "INVENTORY_MODES", "METAL_TAG_TYPES", "POSE_SOURCES", "ReaderConfig",
+           "reader_metadata"]
 
 #: How the reader multiplexes its antenna ports, see :class:`ReaderConfig`.
 ANTENNA_MODES = ("round_robin", "all")
 #: How misses between powered, audible tags arise, see :class:`ReaderConfig`.
 INVENTORY_MODES = ("fixed", "gen2")
+#: What a tag on a detuning material is (``ReaderConfig.metal_tag_type``).
+METAL_TAG_TYPES = ("on_metal", "dipole")
 #: Which antenna poses the training sets use: MCL estimates or ground truth.
 POSE_SOURCES = ("est", "true")
 #: Accepted conducted reader power [dBm]. The upper end is the largest power any UHF RFID
@@ -154,8 +157,15 @@ class ReaderConfig:
         0.0, "Standard deviation of each tag's chip sensitivity around tag_sensitivity_dbm [dB].")
     tag_modulation_spread_db: float = option(
         0.0, "Standard deviation of each tag's modulation factor around modulation_loss_db [dB].")
+    metal_tag_type: str = option(
+        "on_metal", "What a tag stuck on a detuning material (a rack's metal beam) is: 'on_metal', "
+                    "an on-metal tag type (its own ground plane, tuned for metal: no detuning "
+                    "loss; what inventory on metal shelving uses), or 'dipole', a plain dipole "
+                    "inlay, which loses metal_detuning_loss_db (docs/physics.md: a dipole flush "
+                    "on metal is effectively dead).")
     metal_detuning_loss_db: float = option(
-        0.0, "Tag gain penalty of tags on detuning materials [dB] (Griffin & Durgin 2009: ~10).")
+        10.0, "Tag gain penalty of a 'dipole' tag on a detuning material [dB] (Griffin & "
+              "Durgin 2009: ~10); not applied to 'on_metal' tags.")
     detuning_materials: tuple[str, ...] = option(
         ("metal",), "Surface materials that detune a tag stuck on them.")
 
@@ -187,6 +197,9 @@ class ReaderConfig:
                      "tag_sensitivity_spread_db", "tag_modulation_spread_db", "metal_detuning_loss_db"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.metal_tag_type not in METAL_TAG_TYPES:
+            raise ConfigError(f"metal_tag_type must be one of {', '.join(map(repr, METAL_TAG_TYPES))}, "
+                              f"got {self.metal_tag_type!r}")
         if self.inventory not in INVENTORY_MODES:
             raise ConfigError(f"inventory must be 'fixed' or 'gen2', got {self.inventory!r}")
         from scenes.materials import MATERIALS

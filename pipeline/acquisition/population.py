@@ -15,7 +15,11 @@ Real tags of one model are not identical, and where a tag is stuck matters:
   a loss of the tag antenna's gain, so it counts once on the forward link and twice in
   the backscattered power: ``P_tag -= L``, ``P_rx -= 2 L`` with ``L =
   metal_detuning_loss_db`` for tags whose nearest surface (within 5 cm) is of a material
-  listed in ``detuning_materials``. Griffin & Durgin ("Complete link budgets for
+  listed in ``detuning_materials``, when they are plain dipole inlays
+  (``metal_tag_type = "dipole"``). The default, ``"on_metal"``, makes a tag stuck on
+  metal an on-metal tag type, with its own ground plane and tuned for the metal (what
+  inventory on metal shelving uses): no detuning loss. Either is an explicit choice, and
+  the run's metadata records it. Griffin & Durgin ("Complete link budgets for
   backscatter-radio and RFID systems", IEEE Antennas Propag. Mag. 51(2), 2009) call it the
   tag's gain penalty and measured metal as the worst of the mounting materials, around
   10 dB for a dipole tag spaced a few millimetres off a plate; Dobkin ("The RF in RFID",
@@ -144,6 +148,7 @@ def draw_population(tags, reader, rng: np.random.Generator, materials=None) -> T
     z_m = rng.standard_normal(m)
     mat = np.full(m, "", dtype=object).astype(str) if materials is None else np.asarray(materials, str)
     on = np.isin(mat, list(reader.detuning_materials)) if len(mat) else np.zeros(0, bool)
+    on &= reader.metal_tag_type == "dipole"  # an on-metal tag type is tuned for the metal
     return TagPopulation(
         tag_ids=np.asarray(tags.ids, dtype=str),
         sensitivity_offset_db=reader.tag_sensitivity_spread_db * z_s,

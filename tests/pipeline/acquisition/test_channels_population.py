@@ -54,7 +54,8 @@ def test_population_spreads_and_detuning():
     tags = scenes.TagSet([f"t{i}" for i in range(n)], np.zeros((n, 3)), np.tile([0, 1.0, 0], (n, 1)))
     mats = np.where(np.arange(n) % 4 == 0, "metal", "brick")
     pop = draw_population(tags, ReaderConfig(tag_sensitivity_spread_db=1.5, tag_modulation_spread_db=1.0,
-                                             metal_detuning_loss_db=10.0), np.random.default_rng(0), mats)
+                                             metal_detuning_loss_db=10.0, metal_tag_type="dipole"),
+                          np.random.default_rng(0), mats)
     # 5 standard errors of mean and std of n normal draws
     assert abs(pop.sensitivity_offset_db.mean()) < 5 * 1.5 / np.sqrt(n)
     assert abs(pop.sensitivity_offset_db.std() - 1.5) < 5 * 1.5 / np.sqrt(2 * n)
@@ -66,6 +67,11 @@ def test_population_spreads_and_detuning():
                                                  metal_detuning_loss_db=0.0),
                               np.random.default_rng(0), mats)
     assert not nominal.sensitivity_offset_db.any() and not nominal.detuning_loss_db.any()
+    # the default: a tag on metal is an on-metal tag type, which the metal does not detune
+    default = draw_population(tags, ReaderConfig(), np.random.default_rng(0), mats)
+    assert ReaderConfig().metal_detuning_loss_db == 10.0 and not default.detuning_loss_db.any()
+    with pytest.raises(ConfigError, match="metal_tag_type"):
+        ReaderConfig(metal_tag_type="patch")
 
 
 def test_tag_deviations_in_the_budget():
