@@ -118,7 +118,7 @@ _HEADLINE_COLS = (
     ("RSSI MAE [dB]", "rssi_dbm", "mae"), ("RSSI RMSE [dB]", "rssi_dbm", "rmse"),
     ("RSSI bias [dB]", "rssi_dbm", "bias"), ("RSSI links", "rssi_dbm", "n"),
     ("RMSE on the bound's links [dB]", "rssi_dbm_bound_links", "rmse"), ("fT cell MAE", "detection", "mae"),
-    ("Brier", "detection", "brier"), ("Fig. 7 median [%]", "fig7", "median_pct"),
+    ("Brier", "detection", "brier"), ("Fig. 7 median, in-domain [%]", "fig7", "median_pct"),
     ("Fig. 7 p90 [%]", "fig7", "p90_pct"), ("Fig. 7 share < 20 %", "fig7", "share_below_20pct"),
 )
 

@@ -39,6 +39,7 @@ values are reported beside them, ``replicates.json``).
 
 from __future__ import annotations
 
+import dataclasses
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,6 +52,7 @@ from .intervals import (
     N_RESAMPLES,
     Interval,
     clusters_of,
+    fold_interval,
     paired_difference,
     unit_interval,
     weighted_mean,
@@ -63,6 +65,10 @@ __all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_estimates", "headline
 
 #: The model every other is compared with: the chapter's ANFIS on MCL poses.
 REFERENCE = "anfis"
+
+#: The |bias| metric, whose interval is the signed bias's, folded (fold_interval).
+ABS_BIAS = "heldout.rssi_abs_bias_db"
+SIGNED_BIAS = "heldout.rssi_bias_db"
 
 
 @dataclass(frozen=True)
@@ -89,6 +95,9 @@ class MetricSpec:
     unit: str
     no_interval: str | None = None
     """Why the metric gets no interval (None: it gets one)."""
+    quantile: bool = False
+    """A quantile of pooled observations (median, p90): its interval is the percentile
+    interval, not BCa (:func:`~.intervals.unit_interval`)."""
 
 
 #: Why the detection cell MAE is given without an interval.
@@ -106,19 +115,19 @@ METRICS: tuple[MetricSpec, ...] = (
                True, "tag", no_interval=CELL_MAE_NOTE),
     MetricSpec("heldout.detection_brier", "held-out detection Brier score", "detection_attempts",
                True, "tag"),
-    MetricSpec("fig7.median_pct", "Fig. 7 median error [%]", "fig7_groups", True, "tag"),
-    MetricSpec("fig7.share_below_20pct", "Fig. 7 share of groups below 20 %", "fig7_groups",
+    MetricSpec("fig7.median_pct", "Fig. 7 median error, in-domain [%]", "fig7_groups", True, "tag", quantile=True),
+    MetricSpec("fig7.share_below_20pct", "Fig. 7 share of in-domain groups below 20 %", "fig7_groups",
                False, "tag"),
-    MetricSpec("tag_localisation.median_m", "tag localisation median [m]", "tag_errors", True, "tag"),
-    MetricSpec("tag_localisation.p90_m", "tag localisation p90 [m]", "tag_errors", True, "tag"),
+    MetricSpec("tag_localisation.median_m", "tag localisation median [m]", "tag_errors", True, "tag", quantile=True),
+    MetricSpec("tag_localisation.p90_m", "tag localisation p90 [m]", "tag_errors", True, "tag", quantile=True),
     MetricSpec("tag_localisation.within_0_5m", "tags localised within 0.5 m", "tag_errors",
                False, "tag"),
     MetricSpec("robot_localisation.median_m", "robot median error, all steps [m]", "robot_steps",
-               True, "filter run"),
+               True, "filter run", quantile=True),
     MetricSpec("robot_localisation.median_before_kidnap_m", "robot median before the kidnapping [m]",
-               "robot_steps", True, "filter run"),
+               "robot_steps", True, "filter run", quantile=True),
     MetricSpec("robot_localisation.median_after_kidnap_m", "robot median from the kidnapping [m]",
-               "robot_steps", True, "filter run"),
+               "robot_steps", True, "filter run", quantile=True),
     MetricSpec("robot_localisation.converged_share", "filter runs converged", "robot_steps",
                False, "filter run"),
     MetricSpec("robot_localisation.recovered_share", "filter runs recovered after the kidnapping",
@@ -147,6 +156,8 @@ def _rssi(rows: pd.DataFrame, codes: np.ndarray, n: int, name: str) -> Statistic
     if name == "heldout.rssi_abs_bias_db":
         f = _ratio(_sums(codes, n, e), cnt)
         return lambda w: np.abs(f(w))
+    if name == SIGNED_BIAS:  # its interval, folded, is the |bias| interval
+        return _ratio(_sums(codes, n, e), cnt)
     f = _ratio(_sums(codes, n, e * e), cnt)
     return lambda w: np.sqrt(f(w))
 
@@ -341,10 +352,18 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
             intervals[spec.key] = sec
             continue
         # pooled replicates: two-stage resampling, replicate then unit (clusters_of)
-        sec["models"] = {m: unit_interval(f, n, _rng(seed, spec.key, m), unit=unit,
-                                          n_resamples=n_resamples,
-                                          clusters=clusters_of(_units_of(df, m))).to_dict()
-                         for m, (f, n) in own.items()}
+        how = "percentile" if spec.quantile else "BCa"
+        signed = (_own_statistics(dataclasses.replace(spec, key=SIGNED_BIAS), df, tables,
+                                  min_attempts) if spec.key == ABS_BIAS else None)
+        sec["models"] = {}
+        for m, (f, n) in own.items():
+            kw = dict(unit=unit, n_resamples=n_resamples, clusters=clusters_of(_units_of(df, m)),
+                      method=how)
+            if signed is not None:  # |bias|: the signed bias's interval, folded at 0
+                iv = fold_interval(unit_interval(signed[m][0], n, _rng(seed, spec.key, m), **kw))
+            else:
+                iv = unit_interval(f, n, _rng(seed, spec.key, m), **kw)
+            sec["models"][m] = iv.to_dict()
         intervals[spec.key] = sec
         if reference not in own:
             continue
@@ -359,7 +378,8 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
             comparisons[spec.key][m] = paired_difference(
                 pair[m], pair[reference], len(common), _rng(seed, spec.key, m, reference),
                 lower_is_better=spec.lower_is_better, unit=unit,
-                n_resamples=n_resamples, clusters=clusters_of(common)).to_dict()
+                n_resamples=n_resamples, clusters=clusters_of(common),
+                method="percentile" if spec.quantile else "BCa").to_dict()
     return {"intervals": intervals,
             "comparisons": {"reference": reference, "confidence": CONFIDENCE,
                             "how": "model minus reference on the same resampled units; "

@@ -48,7 +48,7 @@ HEADLINE_METRICS = (
     HeadlineMetric("heldout.rssi_mae_db", "held-out RSSI MAE [dB]"),
     HeadlineMetric("heldout.rssi_rmse_db", "held-out RSSI RMSE [dB]"),
     HeadlineMetric("heldout.detection_brier", "held-out detection Brier [-]", digits=3),
-    HeadlineMetric("fig7.median_pct", "Fig. 7 median error [%]", digits=1),
+    HeadlineMetric("fig7.median_pct", "Fig. 7 median error, in-domain [%]", digits=1),
     HeadlineMetric("tag_localisation.median_m", "tag localisation median [m]"),
     HeadlineMetric("robot_localisation.median_m", "robot median error [m]"),
 )

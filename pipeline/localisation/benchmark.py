@@ -165,8 +165,11 @@ class RobotRuns:
     that a caller can run the filter runs where it likes, e.g. in one pool of forked
     processes with other independent work: ``len(runs)`` tasks, :meth:`run` computes
     one, :meth:`scores` turns the results of every task, in task order, into the
-    scores :func:`robot_localisation` returns. Every run has its own random stream, so
-    the scores do not depend on where or in which order the runs are computed.
+    scores :func:`robot_localisation` returns. Run k has its own random stream, so the
+    scores do not depend on where or in which order the runs are computed, and it is the
+    *same* stream for every model (common random numbers: the same initial particles and
+    the same draws as far as the filters agree), so that two models' run k are a pair and
+    their difference is not swamped by the filters' own sampling noise.
     """
 
     def __init__(self, sources: dict, obs: Observations, tag_map, eval_poses: pd.DataFrame,
@@ -188,18 +191,19 @@ class RobotRuns:
         axis = 0 if np.ptp(true[:, 0]) >= np.ptp(true[:, 1]) else 1
         self.kidnap_offset = np.zeros(3)
         self.kidnap_offset[axis] = 3.0 if p[axis] < mid[axis] else -3.0
-        self.jobs = [(name, r_run) for (name, _), r in zip(sources.items(), rng.spawn(len(sources)),
-                                                            strict=True)
-                     for r_run in r.spawn(int(n_runs))]
+        # one seed per run, shared by the models: a fresh generator per job from it
+        seeds = [g.bit_generator.seed_seq for g in rng.spawn(int(n_runs))]
+        self.jobs = [(name, seeds[k]) for name in sources for k in range(int(n_runs))]
 
     def __len__(self) -> int:
         return len(self.jobs)
 
     def run(self, i: int):
         """Filter run `i` (:func:`~.robot.run_rfid_mcl`): model ``jobs[i][0]``, its own stream."""
-        name, r_run = self.jobs[i]
+        name, seed = self.jobs[i]
         return run_rfid_mcl(self.sources[name], self.obs, self.tag_map, self.odometry, self.t_s,
-                            self.mounts, self.free_space, r_run, config=self.config,
+                            self.mounts, self.free_space, np.random.default_rng(seed),
+                            config=self.config,
                             initial_pose=None, kidnap_time_s=self.kidnap_time_s,
                             kidnap_offset=self.kidnap_offset)
 

@@ -218,7 +218,7 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=11,
+              ("scene", "tour", "reads", "models"), version=12,
               # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
               # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
               # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
@@ -228,5 +228,7 @@ STAGE = Stage("downstream", stage_downstream,
               # every surface height (tag_candidates), not the held-out tags' band
               # 11: a model using the tag's height above the antenna (Vorst & Zell) gets
               # each candidate's / mapped tag's; the candidate grid half a step off the
-              # held-out tags' (tag_candidates); the phase cell a 3 x 3 patch on the face
+              # held-out tags' (tag_candidates); the phase cell a 3 x 3 patch on the face;
+              # 12: common random numbers: run k of the robot filter the same stream for
+              # every model
               description="downstream localisation (tags, robot)")

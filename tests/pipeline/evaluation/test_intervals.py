@@ -202,3 +202,38 @@ def test_a_model_scored_on_fewer_units_is_compared_on_the_shared_ones():
     ref = t.rssi_links.query("model == 'anfis' and unit < 'T08'")["error_db"]
     assert c["n_units"] == 8
     assert c["estimate"] == pytest.approx(abs(ref.mean() + 1.0) - abs(ref.mean()))
+
+
+def test_the_abs_bias_interval_is_the_signed_one_folded_and_can_reach_zero():
+    """Errors with no bias: a bootstrap of |mean| never reaches 0 (every resample's |mean|
+    is > 0), so it could never say "no bias"; the folded interval of the signed mean does."""
+    from pipeline.evaluation.intervals import Interval, fold_interval
+
+    rng = np.random.default_rng(21)
+    t = _tables(rng)
+    e = t.rssi_links.query("model == 'anfis'")
+    t.rssi_links = t.rssi_links.assign(error_db=t.rssi_links["error_db"] - e["error_db"].mean())
+    out = headline_intervals(t, seed=1, min_attempts=5, n_resamples=500)
+    iv = out["intervals"]["heldout.rssi_abs_bias_db"]["models"]["anfis"]
+    assert iv["estimate"] == pytest.approx(0.0, abs=1e-9)
+    assert iv["low"] == 0.0 and iv["high"] > 0 and iv["method"].endswith("(folded)")
+    # the fold itself: an interval off 0 keeps its magnitudes, one across 0 starts at 0
+    assert fold_interval(Interval(-2.0, -3.0, -1.0, 16, "tag", "BCa")).low == 1.0
+    f = fold_interval(Interval(0.5, -1.0, 2.0, 16, "tag", "BCa"))
+    assert (f.estimate, f.low, f.high) == (0.5, 0.0, 2.0)
+
+
+def test_quantile_metrics_take_the_percentile_interval():
+    """BCa's acceleration comes from the jackknife, which is inconsistent for a median
+    (Efron & Tibshirani 1993, Sec. 11.6); with the expanded level its adjusted tail
+    lands among the few largest order statistics of 16 tags, where the end jumps between
+    them with the bootstrap seed (the review saw 1.89 and 2.49 m). The quantile metrics
+    take the percentile interval, the others BCa."""
+    rng = np.random.default_rng(4)
+    t = _tables(rng)
+    out = headline_intervals(t, seed=1, min_attempts=5, n_resamples=500)
+    for key in ("tag_localisation.median_m", "tag_localisation.p90_m", "fig7.median_pct"):
+        assert out["intervals"][key]["models"]["anfis"]["method"] == "percentile", key
+    assert out["intervals"]["heldout.rssi_rmse_db"]["models"]["anfis"]["method"] == "BCa"
+    cmp_ = out["comparisons"]["metrics"]["tag_localisation.median_m"]["twin"]
+    assert cmp_["method"] in ("percentile", "degenerate")  # the twin equals ANFIS unit by unit
