@@ -552,7 +552,7 @@ def scenes_list():
 def scenes_show(
     name: Annotated[str, typer.Argument(help="Bundled scene name or scene path.")],
     png: Annotated[Path | None, typer.Option(
-        help="Write a top-view picture here (a .png file; a .pdf is written beside it).")] = None,
+        help="Write a top-view picture here (a .png file; nothing else is written).")] = None,
 ):
     """Describe a scene (size, materials, tags) and optionally draw its top view."""
     import scenes

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from pathlib import Path
 
 import tomli_w
@@ -134,7 +135,7 @@ def check_spec(spec: SceneSpec, source: str) -> None:
         raise SpecError(f"{source}: [[segment]], [[door]], [[panel]], [[box]] and [[cabinet]] "
                         "need a [corridor]")
     ids = [t.id for t in spec.tags]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
+    dup = sorted(i for i, k in Counter(ids).items() if k > 1)  # linear: 100,000 tags in ms
     if dup:
         raise SpecError(f"{source}: duplicate tag ids {dup}")
 

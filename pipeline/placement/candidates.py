@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
+from collections import Counter
 from dataclasses import dataclass
 
 from pipeline.config import AntennaMountConfig, ConfigError, StudyConfig
@@ -126,7 +127,7 @@ def candidates_of(spec) -> list[Candidate]:
                               "does not start with '.' or 'opt_' (the optimiser's trials)")
         out.append(Candidate(name, {}, tuple(p.antennas), "preset"))
     names = [c.name for c in out]
-    dup = sorted({n for n in names if names.count(n) > 1})
+    dup = sorted(n for n, k in Counter(names).items() if k > 1)  # linear in the candidates
     if dup:
         raise ConfigError(f"{spec.source}: candidate names repeat: {dup} (a grid value listed "
                           "twice, or a preset named like a grid point)")

@@ -77,6 +77,10 @@ __all__ = [
     "placement_from_mapping",
 ]
 
+#: Most candidates (grid points + presets + optimiser trials) a placement file may ask
+#: for: each is ``replicates`` studies of minutes, so more is a typo, not a study.
+MAX_CANDIDATES = 500
+
 #: Objectives a placement can rank by or constrain (pipeline.placement.objectives).
 OBJECTIVE_KEYS = tuple(OBJECTIVES)
 
@@ -328,6 +332,8 @@ def check_placement(spec: PlacementSpec) -> None:
         if not p.antennas:
             raise _fail(src, f"preset[{i}] ({p.name!r}).antennas: at least one antenna")
     opt = s.optimise
+    if opt.n_trials < 0:
+        raise _fail(src, f"optimise.n_trials = {opt.n_trials}: 0 (off) or more")
     if opt.sampler not in ("tpe", "cmaes"):
         raise _fail(src, f"optimise.sampler = {opt.sampler!r}: 'tpe' or 'cmaes'")
     ranges = {k: _pair(src, f"optimise.ranges.{k}", v)
@@ -341,6 +347,14 @@ def check_placement(spec: PlacementSpec) -> None:
     if opt.n_trials and opt.sampler == "cmaes" and s.constraint:
         raise _fail(src, "optimise.sampler = 'cmaes' with [[constraint]]: Optuna's CMA-ES "
                          "cannot honour constraints; use 'tpe' (constrained TPE)")
+    n_grid = 1
+    for k in MOUNT_FIELDS:  # the grid's size before building it: a 1000 x 1000 grid is refused
+        n_grid *= max(1, len(getattr(s.grid, k, ()) or ()))
+    total = n_grid + len(s.preset) + opt.n_trials
+    if total > MAX_CANDIDATES:
+        raise _fail(src, f"{total} candidates ({n_grid} grid points, {len(s.preset)} presets, "
+                         f"{opt.n_trials} trials) x {s.replicates} replicates: more than "
+                         f"{MAX_CANDIDATES} candidates; narrow the grid or use [optimise]")
     cands = candidates_of(spec)
     if not cands and not opt.n_trials:
         raise _fail(src, "no candidates: give [grid] values, [[preset]] tables or [optimise]")

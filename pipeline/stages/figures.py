@@ -29,12 +29,16 @@ def draw_figures(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
 
 
 def draw_scene_top_view(scene, png: str | Path) -> Path:
-    """Top view of a scene (walls at laser height, tags, route) as PNG, via pipeline.figures."""
+    """Top view of a scene (walls at laser height, tags, route) as PNG, via
+    pipeline.figures: the one file named, nothing beside it (a PDF of the same name
+    there would be someone's file)."""
     from pipeline.figures import scene_top_view
+    from pipeline.figures.common import FigureOutput, figure_output
 
     png = Path(png)
     png.parent.mkdir(parents=True, exist_ok=True)
-    return Path(scene_top_view(scene, png))
+    with figure_output(FigureOutput(formats=("png",))):
+        return Path(scene_top_view(scene, png))
 
 
 def stage_figures(ctx) -> dict:

@@ -58,10 +58,14 @@ def test_scenes_list_and_show(tmp_path):
     res = runner.invoke(app, ["scenes", "list"])
     assert res.exit_code == 0 and "corridor_lab" in res.output and "glass_metal_junction" in res.output
     png = tmp_path / "top.png"
+    canary = tmp_path / "top.pdf"  # the user's own file beside the picture
+    canary.write_bytes(b"mine")
     res = runner.invoke(app, ["scenes", "show", "corridor_lab", "--png", str(png)])
     assert res.exit_code == 0, res.output
     assert "tags: " in res.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert canary.read_bytes() == b"mine"  # only the file named is written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["top.pdf", "top.png"]
 
 
 def test_figures_on_missing_dir(tmp_path):

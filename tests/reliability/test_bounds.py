@@ -106,3 +106,20 @@ def test_a_trace_that_cannot_fit_its_memory_budget_stops_naming_the_memory(tmp_p
     if "MiB" in words:
         assert "raise tracing.memory_budget_mb" in res.output
     assert not out.exists()
+
+
+def test_duplicate_tag_ids_are_found_in_linear_time():
+    """100,000 tags with one id twice: named at once (a per-id ``list.count`` took
+    minutes), and a repeated id is named, not merged."""
+    import time
+
+    from scenes.spec import SceneSpec, TagSpec
+    from scenes.spec_toml import check_spec
+
+    tags = tuple(TagSpec(id=f"T{i}", position_m=(float(i % 50), 1.0, 1.0), normal=(0.0, -1.0, 0.0))
+                 for i in range(100_000))
+    spec = SceneSpec(name="many", tags=tags + (tags[7],))
+    t0 = time.perf_counter()
+    with pytest.raises(Exception, match=r"duplicate tag ids \['T7'\]"):
+        check_spec(spec, "many.toml")
+    assert time.perf_counter() - t0 < 5.0  # linear: ~0.1 s; the quadratic check: minutes

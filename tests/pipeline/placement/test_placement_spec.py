@@ -82,6 +82,11 @@ def test_asymmetric_and_single_antenna_mounts():
     ("[optimise]\nn_trials = 4\nsampler = 'cmaes'\n[optimise.ranges]\nz_m = [0.3, 1.5]\n"
      "tilt_deg = [-30.0, 30.0]\n[[constraint]]\nobjective = 'completeness'\nmin = 0.9\n",
      "cmaes"),  # Optuna's CMA-ES cannot honour a constraint
+    ("[grid]\nz_m = [1.0]\n[optimise]\nn_trials = -3\n", "optimise.n_trials = -3"),
+    ("[grid]\nz_m = [" + ", ".join(f"{0.3 + i * 1e-3:.3f}" for i in range(1000)) + "]\n"
+     "tilt_deg = [" + ", ".join(f"{i * 0.01:.2f}" for i in range(1000)) + "]\n",
+     "1000000 candidates"),  # refused before a million candidates are built
+    ("confirm_top = 1\n[grid]\nz_m = [1.0]\n", "confirm_top"),
 ])
 def test_bad_placement_files_name_the_key(tmp_path, text, names):
     with pytest.raises(ConfigError) as exc:
