@@ -62,6 +62,11 @@ MAX_SIDE_M = 2000.0
 #: (raw mode reads 0-100 as occupancy percent and 255 as unknown; a few stray values in
 #: an edited map are tolerated).
 RAW_STRAY_SHARE = 0.01
+#: Most pixels a map image may have, checked before decoding: 40 megapixels is a
+#: 300 x 300 m building at 5 cm (a 20000 x 20000 image would take 3.2 GB as float64).
+MAX_PIXELS = 40_000_000
+#: Finest map resolution [m/cell]: 1 mm; a finer one is a unit error.
+MIN_RESOLUTION_M = 1e-3
 #: Cell classes of :attr:`RosMap.cell_class` and :func:`resolve_unknown`.
 OBSTACLE, FREE, UNKNOWN, OUTSIDE = 1, 0, -1, -2
 
@@ -134,12 +139,30 @@ class RosMap:
         return h.hexdigest()
 
 
+def _short(value, limit: int = 60) -> str:
+    """``repr(value)``, at most ``limit`` characters: an error never echoes a whole file."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _as_float(value):
+    """A YAML scalar as ROS's map_server reads it (yaml-cpp ``as<double>``): a number, or
+    a string that spells one (YAML 1.1, which PyYAML follows, reads ``1e-9`` without a
+    dot as a string); anything else unchanged."""
+    if isinstance(value, str) and len(value) <= 40:
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
 def _number(data: dict, key: str, where: str, default=None) -> float:
-    value = data.get(key, default)
+    value = _as_float(data.get(key, default))
     if value is None:
         raise RosMapError(f"{where}: missing required key {key!r}")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise RosMapError(f"{where}: key {key!r} must be a finite number, got {value!r}")
+        raise RosMapError(f"{where}: key {key!r} must be a finite number, got {_short(value)}")
     return float(value)
 
 
@@ -149,6 +172,11 @@ def _pixels(image_path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None
 
     try:
         with Image.open(image_path) as im:
+            n_px = im.size[0] * im.size[1]  # read from the header, before decoding
+            if n_px > MAX_PIXELS:
+                raise RosMapError(f"{where}: key 'image': {image_path} has {im.size[0]} x "
+                                  f"{im.size[1]} pixels, more than {MAX_PIXELS:,} (MAX_PIXELS); "
+                                  "crop the map to the building or save it coarser")
             im.load()
             mode = im.mode
             if mode == "P":
@@ -247,27 +275,33 @@ def read_map(path: str | Path) -> RosMap:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise RosMapError(f"{where}: invalid YAML: {first}") from None
     if not isinstance(data, dict):
-        raise RosMapError(f"{where}: expected a mapping of map_server keys, got {data!r}")
+        raise RosMapError(f"{where}: expected a mapping of map_server keys, got {_short(data)}")
     unknown = sorted(str(k) for k in set(data) - set(MAP_KEYS))
     if unknown:
         raise RosMapError(f"{where}: unknown key {unknown[0]!r}; known keys: {', '.join(MAP_KEYS)}")
     image = data.get("image")
     if not isinstance(image, str) or not image:
-        raise RosMapError(f"{where}: key 'image' must be the image file name, got {image!r}")
+        raise RosMapError(f"{where}: key 'image' must be the image file name, got {_short(image)}")
     res = _number(data, "resolution", where)
     if not res > 0:
         raise RosMapError(f"{where}: key 'resolution' must be positive [m/cell], got {res!r}")
+    if res < MIN_RESOLUTION_M:
+        raise RosMapError(f"{where}: key 'resolution' {res!r} m/cell is finer than "
+                          f"{MIN_RESOLUTION_M} m (MIN_RESOLUTION_M): a unit error?")
     origin = data.get("origin")
+    if isinstance(origin, list):
+        origin = [_as_float(v) for v in origin]
     if (not isinstance(origin, list) or len(origin) != 3
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                       for v in origin)):
-        raise RosMapError(f"{where}: key 'origin' must be [x_m, y_m, yaw_rad], got {origin!r}")
+                       and abs(v) <= 1e6 for v in origin)):
+        raise RosMapError(f"{where}: key 'origin' must be [x_m, y_m, yaw_rad], finite and within "
+                          f"1e6 m, got {_short(origin)}")
     if abs(origin[2]) > 1e-9:
         raise RosMapError(f"{where}: key 'origin': yaw {origin[2]!r} rad is not supported (the "
                           "robot's grid is axis-aligned); rotate the image instead")
     negate = data.get("negate", 0)
     if negate not in (0, 1) or isinstance(negate, float):
-        raise RosMapError(f"{where}: key 'negate' must be 0 or 1, got {negate!r}")
+        raise RosMapError(f"{where}: key 'negate' must be 0 or 1, got {_short(negate)}")
     occ_t = _number(data, "occupied_thresh", where, 0.65)
     free_t = _number(data, "free_thresh", where, 0.196)
     if not 0.0 <= free_t < occ_t <= 1.0:
@@ -275,7 +309,7 @@ def read_map(path: str | Path) -> RosMap:
                           "must satisfy 0 <= free_thresh < occupied_thresh <= 1")
     mode = data.get("mode", "trinary")
     if mode not in _MODES:
-        raise RosMapError(f"{where}: key 'mode' must be one of {', '.join(_MODES)}, got {mode!r}")
+        raise RosMapError(f"{where}: key 'mode' must be one of {', '.join(_MODES)}, got {_short(mode)}")
     image_path = Path(image) if Path(image).is_absolute() else path.parent / image
     if not image_path.is_file():
         raise RosMapError(f"{where}: key 'image': image file {str(image_path)!r} does not exist")

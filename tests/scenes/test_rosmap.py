@@ -122,6 +122,8 @@ BAD = {
     "rotated origin": (dict(origin="[0.0, 0.0, 0.5]"), "'origin'"),
     "thresholds": (dict(free_thresh=0.7), "'free_thresh'"),
     "negate 2": (dict(negate=2), "'negate'"),
+    "finer than a millimetre": (dict(resolution="0.0001"), "MIN_RESOLUTION_M"),
+    "origin beyond any building": (dict(origin="[1e300, 0.0, 0.0]"), "within 1e6 m"),
 }
 
 
@@ -133,6 +135,30 @@ def test_bad_maps_name_file_and_key(tmp_path, case):
         scenes.load(path)
     msg = str(err.value)
     assert "\n" not in msg and str(path) in msg and key in msg
+
+
+def test_numbers_read_as_ros_reads_them_and_errors_quote_a_prefix(tmp_path):
+    """YAML 1.1 reads ``5e-2`` (no dot) as a string; ROS's map_server (yaml-cpp
+    ``as<double>``) reads a number: so do we. An error quotes at most a short prefix."""
+    path = write_map(tmp_path, building(2.0, 2.0), resolution="5e-2")
+    assert read_map(path).resolution_m == pytest.approx(0.05)
+    long = "x" * 5000
+    bad = write_map(tmp_path / "b", building(2.0, 2.0), resolution=f"'{long}'")
+    with pytest.raises(RosMapError) as err:
+        read_map(bad)
+    assert "'resolution'" in str(err.value) and len(str(err.value)) < 300
+
+
+def test_an_image_too_large_is_refused_before_decoding(tmp_path, monkeypatch):
+    """The pixel count is read from the header: a map image above MAX_PIXELS is refused,
+    named, before its pixels are decoded (a 20000 x 20000 image took gigabytes)."""
+    import scenes.rosmap as rosmap
+
+    path = write_map(tmp_path, building(2.0, 2.0))
+    n = read_map(path).shape[0] * read_map(path).shape[1]
+    monkeypatch.setattr(rosmap, "MAX_PIXELS", n - 1)  # the bound, not a giant file, is under test
+    with pytest.raises(RosMapError, match=r"more than .* \(MAX_PIXELS\)"):
+        read_map(path)
 
 
 def test_an_image_the_yaml_describes_wrongly_is_refused(tmp_path):
