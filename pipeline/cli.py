@@ -243,7 +243,7 @@ def _existing_run_dir(run_dir: Path, command: str):
     if not run_dir.is_dir():
         _fail(f"{run_dir}: not a directory")
     if not is_run_dir(run_dir):
-        _fail(f"{run_dir}: not a run directory of rfidstudy (no stages/, no manifest.json): "
+        _fail(f"{run_dir}: not a run directory of rfidstudy (no manifest.json of rfidstudy's): "
               f"`rfidstudy {command}` rewrites files only in a run directory")
     return RunStore(run_dir)
 

@@ -310,7 +310,11 @@ def write_manifest(store: RunStore, config: StudyConfig, result, started: str, t
     stage, files, and ``manifest_extra(config)`` (package versions, backend)."""
     result.elapsed_s = time.perf_counter() - t0
     result.peak_rss_mib = peak_rss_mib()
+    from pipeline.runstore import RUN_KIND, TOOL
+
     manifest = {
+        "tool": TOOL,  # what makes the folder a run directory (runstore.is_run_dir)
+        "kind": RUN_KIND,
         "seed": config.seed,
         "scene": config.scene,
         "command_line": list(command_line if command_line is not None else sys.argv),

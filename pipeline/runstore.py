@@ -11,7 +11,10 @@ stage version) and the SHA-256 of every output file; a rerun skips a stage only 
 its record's inputs hash matches and every output still has the recorded digest
 (a changed or truncated file is reported by name and the stage re-runs).
 
-A directory is a run directory when it holds ``stages/`` or ``manifest.json``;
+A directory is a run directory when it holds a ``manifest.json`` this tool wrote
+(:func:`is_run_dir`: ``"tool": "rfidstudy"``, written first by every run; an older
+run's manifest is known by its own keys): a folder that merely has a file of that name
+(a web app's) or an empty ``stages/`` is someone else's;
 :func:`open_run_dir` refuses a path that is a file, and a non-empty directory that is
 not a run directory (unless told otherwise), with a :class:`RunDirError` naming it.
 
@@ -40,7 +43,6 @@ import logging
 import os
 import re
 import shutil
-import stat
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -128,17 +130,42 @@ def write_error(exc: OSError, root) -> RunDirError | None:
     return RunDirError(f"cannot write the run directory {root}: {reason} ({where})")
 
 
+#: What ``manifest.json`` says to mark a run directory as this tool's (``"tool"``, ``"kind"``).
+TOOL, RUN_KIND = "rfidstudy", "run"
+#: The keys of a manifest written before it carried ``"tool"`` (all of them present).
+_LEGACY_MANIFEST_KEYS = frozenset({"command_line", "started_utc", "status", "stages", "files"})
+
+
 def is_run_dir(root: str | Path) -> bool:
-    """Whether ``root`` holds this tool's ``stages/`` records or ``manifest.json`` (a real
-    folder and a regular file: links do not count)."""
+    """Whether ``root`` is a run directory of this tool: its ``manifest.json`` (a regular
+    file; a link does not count) says ``"tool": "rfidstudy"`` and ``"kind": "run"`` (or is
+    an older run's, with every key of :data:`_LEGACY_MANIFEST_KEYS`), or, the manifest
+    damaged, ``stages/`` holds a stage record of this tool (``stage``, ``inputs_hash``,
+    ``outputs``). A folder with someone's ``manifest.json`` (a web app's) or an empty
+    ``stages/`` is not a run directory, so no command writes into it as if it were."""
     root = Path(root)
-    try:
-        st = os.lstat(root / RECORD_DIR)
-        if stat.S_ISDIR(st.st_mode):
+    path = root / MANIFEST
+    if regular_file(path):
+        try:
+            data = read_run_json(path, max_bytes=16 << 20)
+        except (OSError, ValueError):
+            data = None
+        if isinstance(data, dict) and data.get("tool") == TOOL:
+            return data.get("kind") == RUN_KIND
+        if isinstance(data, dict) and _LEGACY_MANIFEST_KEYS <= set(data):
             return True
-    except OSError:
-        pass
-    return regular_file(root / MANIFEST)
+    try:
+        records = run_files(root, RECORD_DIR, "*.json")
+    except (OSError, RunDirError):
+        return False
+    for rec in records[:50]:
+        try:
+            d = read_run_json(rec, max_bytes=1 << 20)
+        except (OSError, ValueError):
+            continue
+        if isinstance(d, dict) and {"stage", "inputs_hash", "outputs"} <= set(d):
+            return True
+    return False
 
 
 def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
@@ -155,8 +182,9 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
     Raises
     ------
     RunDirError
-        ``root`` is a file (or lies under one); it is a non-empty directory without
-        ``stages/`` or ``manifest.json`` and ``force_dir`` is false; it cannot be created.
+        ``root`` is a file (or lies under one); it is a non-empty directory that is not
+        a run directory (:func:`is_run_dir`) and ``force_dir`` is false; it cannot be
+        created.
     """
     path = Path(root).expanduser()
     try:
@@ -177,7 +205,7 @@ def open_run_dir(root: str | Path, *, force_dir: bool = False) -> RunStore:
             shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
             raise RunDirError(
                 f"{path} is not empty ({shown}) and is not a run directory of rfidstudy (no "
-                f"stages/, no {MANIFEST}): choose another directory, or pass --force-dir "
+                f"{MANIFEST} of rfidstudy's): choose another directory, or pass --force-dir "
                 "(force_dir=True) to run into it")
     first_time = path.is_dir() and not is_run_dir(path) and any(path.iterdir())
     foreign = first_time or regular_file(path / FOREIGN_MARK)

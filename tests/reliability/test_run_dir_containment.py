@@ -283,3 +283,45 @@ def test_run_log_is_never_written_through_a_fifo_or_a_link(tmp_path, kind):
             with log_to_file(path, mode=mode):
                 pass
     assert outside.read_text() == "keep\n"
+
+
+@pytest.mark.parametrize("plant", ["web app manifest", "empty stages"])
+def test_a_folder_is_a_run_directory_only_by_a_manifest_the_tool_wrote(tmp_path, plant):
+    """A web app's own ``manifest.json``, or an empty ``stages/`` folder, does not make a
+    folder a run directory: ``report``, ``figures`` and ``run --out`` refuse it and the
+    user's ``report.html`` is unchanged (they overwrote it, exit 0)."""
+    from pipeline.runstore import is_run_dir
+
+    user = tmp_path / "site"
+    user.mkdir()
+    if plant == "web app manifest":
+        (user / "manifest.json").write_text(json.dumps({"name": "My App", "icons": []}))
+    else:
+        (user / "stages").mkdir()
+    (user / "report.html").write_text("<p>my page</p>")
+    before = sorted(p.name for p in user.rglob("*"))
+    assert not is_run_dir(user)
+    runner = CliRunner()
+    for args in (["report", str(user)], ["figures", str(user)],
+                 ["run", str(ROOT / "configs" / "tiny.toml"), "--out", str(user), "--no-progress"]):
+        res = runner.invoke(app_cli(), args)
+        assert res.exit_code == 2, (args, res.output)
+        assert "not a run directory" in res.output and "Traceback" not in res.output
+    assert (user / "report.html").read_text() == "<p>my page</p>"
+    assert sorted(p.name for p in user.rglob("*")) == before
+
+
+def test_a_run_directory_is_known_by_its_manifest_or_its_records(run_and_canary):
+    from pipeline.runstore import is_run_dir
+
+    run, _ = run_and_canary
+    man = json.loads((run / "manifest.json").read_text())
+    assert man["tool"] == "rfidstudy" and man["kind"] == "run" and is_run_dir(run)
+    (run / "manifest.json").write_text("[]")  # damaged: its stage records still say whose it is
+    assert is_run_dir(run)
+
+
+def app_cli():
+    from pipeline.cli import app
+
+    return app
