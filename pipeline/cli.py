@@ -25,7 +25,6 @@ import json
 import logging
 import sys
 import time
-import tomllib
 from pathlib import Path
 from typing import Annotated
 
@@ -33,13 +32,12 @@ import typer
 
 from pipeline.config import (
     ConfigError,
-    StudyConfig,
-    config_from_mapping,
     config_to_toml,
     reference_config_toml,
 )
+from pipeline.targets import resolve_target
 
-__all__ = ["app", "resolve_target"]
+__all__ = ["app", "resolve_target"]  # resolve_target: pipeline.targets, re-exported
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Ray-traced UHF RFID sensor-model study (Cicirelli, Milella & Di Paola 2011).")
@@ -48,7 +46,6 @@ app.add_typer(scenes_app, name="scenes")
 
 log = logging.getLogger("pipeline.cli")
 
-_STUDY_KEYS = set(StudyConfig.__dataclass_fields__)
 
 
 def _setup_logging(verbose: bool) -> None:
@@ -84,66 +81,6 @@ def _fail_os(exc: OSError, what: str, code: int = 2):
 
 _WRITE_ERRNOS = {errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT,
                  errno.ENOTDIR, errno.EISDIR, errno.EEXIST}
-
-
-def _parse_value(text: str):
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def resolve_target(target: str | None, overrides: list[str] | None = None,
-                   backend: str | None = None) -> StudyConfig:
-    """Turn ``run``'s argument into a study config.
-
-    Parameters
-    ----------
-    target : str or None
-        ``None``: the default study; a study TOML (a file whose top-level keys are study
-        keys); a map_server YAML (the default study with
-        :func:`pipeline.profiles.map_scale_profile` on top); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
-    overrides : list of str
-        ``KEY=VALUE`` with dotted study keys (``training.epochs=10``); VALUE in TOML syntax.
-    backend : str, optional
-        Overrides ``tracing.backend``.
-    """
-    data: dict = {}
-    source, base_dir = "<default>", None
-    if target:
-        p = Path(target)
-        if p.suffix == ".toml" and p.is_file():
-            try:
-                parsed = tomllib.loads(p.read_text(encoding="utf-8"))
-            except tomllib.TOMLDecodeError as exc:
-                raise ConfigError(f"{p}: invalid TOML: {exc}") from None
-            if set(parsed) & _STUDY_KEYS:
-                data, source, base_dir = parsed, str(p), p.parent
-            else:
-                data = {"scene": str(p.resolve())}
-        elif p.suffix in (".toml", ".xml", ".yaml", ".yml") and not p.exists():
-            raise ConfigError(f"{p}: no such file")
-        elif p.suffix.lower() in (".yaml", ".yml"):  # a map alone: the map-scale profile
-            from pipeline.profiles import map_scale_profile
-
-            data = {**map_scale_profile(), "scene": str(p.resolve())}
-            source = f"{p} with the map-scale profile (pipeline/profiles/map_scale.toml)"
-        else:
-            data = {"scene": str(p.resolve()) if p.exists() else target}
-    for ov in overrides or []:
-        key, eq, val = ov.partition("=")
-        if not eq:
-            raise ConfigError(f"--set {ov!r}: expected KEY=VALUE")
-        cur = data
-        parts = key.strip().split(".")
-        for part in parts[:-1]:
-            cur = cur.setdefault(part, {})
-            if not isinstance(cur, dict):
-                raise ConfigError(f"--set {ov!r}: {part} is not a table")
-        cur[parts[-1]] = _parse_value(val.strip())
-    if backend:
-        data.setdefault("tracing", {})["backend"] = backend
-    return config_from_mapping(data, source=source, base_dir=base_dir)
 
 
 @app.command()
@@ -248,6 +185,16 @@ def _existing_run_dir(run_dir: Path, command: str):
     return RunStore(run_dir)
 
 
+def _claim(out: Path, kind: str, files: list[str]) -> None:
+    """Stop unless ``out`` may take ``files`` (:func:`pipeline.outdirs.check_output_dir`)."""
+    from pipeline.outdirs import check_output_dir
+
+    try:
+        check_output_dir(out, kind, files)
+    except ConfigError as exc:
+        _fail(str(exc))
+
+
 def _csv_option(value: str | None) -> list[str] | None:
     return None if value is None else [v.strip() for v in value.split(",") if v.strip()]
 
@@ -331,11 +278,18 @@ def figures(
     if study_figures and custom:
         _fail("--format, --dpi and --only do not write into the study's own figures/ (its "
               "stage record hashes them): leave out --out, or give another directory")
+    own_out = out is not None and not study_figures  # a folder of the user's choosing
+    if own_out:
+        _claim(out, "figures", [f"{n}.{e}" for n in (names or FIGURES) for e in output.formats])
     t0 = time.perf_counter()
     with _output_errors(str(target), (FileNotFoundError, ValueError, KeyError)), \
             store.lock("rfidstudy figures"):
         paths = draw_all(run_dir, out_dir=target, names=names, output=output)
         report = write_report(run_dir) if study_figures else None
+        if own_out:
+            from pipeline.outdirs import mark_output_dir
+
+            mark_output_dir(out, "figures", paths)
     tail = f"; report {report}" if report is not None else ""
     typer.echo(f"{len(paths)} figure files in {target}{tail} "
                f"({time.perf_counter() - t0:.1f} s)")
@@ -352,17 +306,21 @@ def compare(
     """Draw the headline numbers of several runs side by side, each with its 95 % interval."""
     from pipeline.figures import figure_output
     from pipeline.figures.headline import compare_runs
+    from pipeline.outdirs import mark_output_dir
     from pipeline.runstore import is_run_dir
 
     for d in run_dirs:
         if not d.is_dir() or not is_run_dir(d):
             _fail(f"{d}: not a run directory of rfidstudy")
-        if out.resolve() == d.resolve() or d.resolve() in out.resolve().parents:
-            _fail(f"--out {out} is inside the run directory {d}: compare writes outside the runs "
-                  "it reads")
+    try:
+        output = _figure_output(format_, dpi)
+    except ValueError as exc:
+        _fail(str(exc))
+    _claim(out, "compare", ["compare.csv", *(f"compare.{e}" for e in output.formats)])
     with _output_errors(str(out)):
-        with figure_output(_figure_output(format_, dpi)):
+        with figure_output(output):
             paths = compare_runs(run_dirs, out)
+            mark_output_dir(out, "compare", paths)
     typer.echo(f"{len(run_dirs)} runs compared: {', '.join(str(p) for p in paths)}")
 
 

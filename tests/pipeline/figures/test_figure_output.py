@@ -107,3 +107,36 @@ def test_compare_draws_runs_side_by_side(tiny_study, tmp_path):
     assert "Type3" not in _font_subtypes((tmp_path / "cmp" / "compare.pdf").read_bytes())
     bad = runner.invoke(app, ["compare", str(a), "--out", str(a / "cmp")])
     assert bad.exit_code == 2 and "inside the run directory" in bad.output
+
+
+def test_figures_and_compare_never_overwrite_a_users_file(tiny_study, tmp_path):
+    """As git with an untracked file: --out into a folder of the user's (not empty, no
+    marker of the tool's) is refused and the user's files are unchanged; the tool's own
+    folder is written again; another run's folders are never an --out."""
+    run = copy_run(tiny_study, tmp_path / "run")
+    user = tmp_path / "paper"
+    user.mkdir()
+    (user / "baselines.pdf").write_bytes(b"my figure")
+    (user / "compare.csv").write_bytes(b"my table")
+    for args in (["figures", str(run), "--only", "baselines", "--out", str(user)],
+                 ["compare", str(run), "--out", str(user)]):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 2 and "not a" in res.output and "rfidstudy" in res.output, res.output
+    assert (user / "baselines.pdf").read_bytes() == b"my figure"
+    assert (user / "compare.csv").read_bytes() == b"my table"
+    # a new folder becomes the tool's; a rerun may rewrite what it wrote there
+    mine = tmp_path / "figs"
+    for _ in range(2):
+        res = runner.invoke(app, ["figures", str(run), "--only", "baselines", "--out", str(mine)])
+        assert res.exit_code == 0, res.output
+    # ... but not a file the user put there since
+    (mine / "baselines.svg").write_bytes(b"mine too")
+    res = runner.invoke(app, ["figures", str(run), "--only", "baselines", "--format", "svg",
+                              "--out", str(mine)])
+    assert res.exit_code == 2 and "baselines.svg" in res.output
+    assert (mine / "baselines.svg").read_bytes() == b"mine too"
+    # another run's folders belong to that run
+    other = copy_run(tiny_study, tmp_path / "other")
+    for target in (other, other / "figures", other / "stages"):
+        res = runner.invoke(app, ["compare", str(run), "--out", str(target)])
+        assert res.exit_code == 2 and "inside the run directory" in res.output, (target, res.output)
