@@ -49,6 +49,7 @@ from pipeline.config import (
     replace_path,
 )
 from pipeline.configschema import from_dict
+from pipeline.outdirs import own_marker
 from pipeline.parallel import WORKERS_ENV, usable_cpus
 from pipeline.runstore import atomic_write_bytes, atomic_write_json
 
@@ -335,8 +336,9 @@ def check_sweep_dir(out_dir: str | Path) -> Path:
     except (OSError, RuntimeError) as exc:  # a link loop, no permission
         raise ConfigError(f"--out {out_dir}: cannot be used as a sweep directory: {exc}") from None
     if entries:
-        # sweep.json is written before the first point runs: its presence marks our own
-        ours = (out / "sweep.json").is_file() and not (out / "sweep.json").is_symlink()
+        # sweep.json is written before the first point runs and says whose it is: a
+        # sweep.json of the user's (the same name) does not make the folder ours
+        ours = own_marker(out / "sweep.json", "sweep", ("source", "parameters", "runs"))
         if entries and not ours:
             shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
             raise ConfigError(f"--out {out_dir} is not empty ({shown}) and is not a sweep "
@@ -369,7 +371,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     out = check_sweep_dir(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     # the marker first: an interrupted sweep's directory is recognised as ours on rerun
-    atomic_write_json(out / "sweep.json", {"source": plan.source, "parameters": plan.parameters,
+    atomic_write_json(out / "sweep.json", {"tool": "rfidstudy", "kind": "sweep",
+                                           "source": plan.source, "parameters": plan.parameters,
                                            "runs": plan.names})
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]
@@ -469,6 +472,7 @@ def _write_summary(df, out: Path, plan: SweepPlan) -> list[Path]:
     files.append(atomic_write_bytes(out / "summary.parquet", buf.getvalue()))
     files.append(atomic_write_bytes(out / "summary.csv", df.to_csv(index=False).encode()))
     files.append(atomic_write_json(out / "sweep.json", {
+        "tool": "rfidstudy", "kind": "sweep",
         "source": plan.source, "parameters": plan.parameters, "runs": plan.names,
     }))
     files.extend(_plots(df, out, list(plan.parameters)))

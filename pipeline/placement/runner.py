@@ -112,7 +112,7 @@ class PlacementResult:
 
 
 def _prepare_dir(out: Path) -> None:
-    from pipeline.runstore import UnsafePathError, regular_file
+    from pipeline.runstore import UnsafePathError
 
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
@@ -121,7 +121,9 @@ def _prepare_dir(out: Path) -> None:
     marker = out / MARKER
     # the lock files alone (a first run stopped before its marker) are not someone's files
     theirs = out.is_dir() and any(p.name not in HOUSEKEEPING for p in out.iterdir())
-    if theirs and not regular_file(marker):
+    from pipeline.outdirs import own_marker
+
+    if theirs and not own_marker(marker, "placement", ("source", "file", "replicates", "candidates")):
         raise ConfigError(f"--out {out}: a non-empty directory that is not a placement study "
                           f"(no {MARKER}); choose a new or empty directory")
     for sub in ("candidates", "placement"):
@@ -376,6 +378,7 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
 
 def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> None:
     atomic_write_json(out / MARKER, {
+        "tool": "rfidstudy", "kind": "placement",
         "source": spec.source,
         "file": spec.raw,
         "replicates": spec.settings.replicates,

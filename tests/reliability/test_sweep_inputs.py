@@ -59,3 +59,31 @@ def test_a_link_loop_as_out_is_one_line(tmp_path):
     loop.symlink_to(loop)
     res = runner.invoke(app, ["sweep", EXAMPLE, "--out", str(loop)])
     assert res.exit_code == 2 and "cannot be used as a sweep directory" in res.output, res.output
+
+
+def test_a_users_sweep_json_or_placement_json_is_not_the_tools_marker(tmp_path):
+    """A folder holding the user's own sweep.json (or placement.json) is not a sweep (or
+    placement) folder of the tool's: refused before anything is written, the file kept."""
+    from pipeline.config import ConfigError
+    from pipeline.placement.runner import _prepare_dir
+    from pipeline.sweep import check_sweep_dir
+
+    for name, check in (("sweep.json", check_sweep_dir), ("placement.json", _prepare_dir)):
+        d = tmp_path / name.split(".")[0]
+        d.mkdir()
+        (d / name).write_text('{"mine": true}')
+        (d / "summary.csv").write_text("my,table\n")
+        with pytest.raises(ConfigError, match="not a"):
+            check(d)
+        assert (d / name).read_text() == '{"mine": true}'
+        assert sorted(p.name for p in d.iterdir()) == sorted([name, "summary.csv"])
+    # the tool's own marker (and an older one without "tool") is recognised
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "sweep.json").write_text('{"tool": "rfidstudy", "kind": "sweep", "runs": []}')
+    assert check_sweep_dir(own) == own.resolve()
+    (own / "sweep.json").write_text('{"source": "s.toml", "parameters": {}, "runs": []}')
+    assert check_sweep_dir(own) == own.resolve()
+    (own / "sweep.json").write_text('{"tool": "rfidstudy", "kind": "placement"}')
+    with pytest.raises(ConfigError):
+        check_sweep_dir(own)
