@@ -125,6 +125,7 @@ def run(
     from pipeline.stages import run_full_study
     from pipeline.study import RunDirError, StageError, StudyInterrupted
 
+    scheduler = _scheduler(scheduler)
     try:
         cfg = resolve_target(target, [*(set_ or []), *(
             [f"replicates.n={replicates}"] if replicates is not None else []), *(
@@ -191,6 +192,18 @@ def _claim(out: Path, kind: str, files: list[str]) -> None:
 
     try:
         check_output_dir(out, kind, files)
+    except ConfigError as exc:
+        _fail(str(exc))
+
+
+def _scheduler(address: str | None) -> str | None:
+    """``--scheduler`` checked before any work (:func:`pipeline.tracetasks.check_scheduler`)."""
+    if address is None:
+        return None
+    from pipeline.tracetasks import check_scheduler
+
+    try:
+        return check_scheduler(address)
     except ConfigError as exc:
         _fail(str(exc))
 
@@ -388,6 +401,7 @@ def sweep(
         check_sweep_dir(out)
     except ConfigError as exc:
         _fail(str(exc))
+    scheduler = _scheduler(scheduler)
     typer.echo(f"{len(plan.configs)} runs: {', '.join(plan.names)}")
     t0 = time.perf_counter()
     n_done = 0
@@ -463,6 +477,7 @@ def placement(
 
     if workers is not None and workers < 1:
         _fail(f"--workers {workers}: at least 1")
+    scheduler = _scheduler(scheduler)
     try:
         spec = load_placement(placement_file)
     except ConfigError as exc:

@@ -26,10 +26,79 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-__all__ = ["CONNECT_TIMEOUT_S", "NO_WORKERS_S", "DaskChunkRunner", "TraceTaskStats", "trace_tasks"]
+__all__ = ["CONNECT_TIMEOUT_S", "HANDSHAKE_TIMEOUT_S", "NO_WORKERS_S", "DaskChunkRunner",
+           "TraceTaskStats", "check_scheduler", "trace_tasks"]
 
 #: Seconds to reach the scheduler before the stage stops.
 CONNECT_TIMEOUT_S = 20.0
+#: How long :func:`check_scheduler` waits for a TCP connection and for Dask's handshake [s].
+HANDSHAKE_TIMEOUT_S = 10.0
+
+
+def check_scheduler(address: str, what: str = "--scheduler") -> str:
+    """The Dask scheduler address, checked before any work, or a one-line ConfigError.
+
+    Refused, each with its own line: an empty address (leave the option out to run
+    locally), a path to a file (an address is ``tcp://host:port``), an address without a
+    port, a host that does not accept a TCP connection within
+    :data:`HANDSHAKE_TIMEOUT_S`, and a server that accepts one but does not complete
+    Dask's handshake (an HTTP server, anything else answering bytes): never a traceback,
+    never a silent local run.
+
+    Returns
+    -------
+    str
+        The address with its scheme (``tcp://`` added where none was given).
+    """
+    import os
+    import socket
+    from urllib.parse import urlsplit
+
+    from pipeline.config import ConfigError
+
+    text = str(address).strip()
+    if not text:
+        raise ConfigError(f"{what} '': an empty address; leave the option out to run locally")
+    shown = text if len(text) <= 80 else text[:77] + "..."
+    if os.path.exists(text):
+        raise ConfigError(f"{what} {shown!r}: a path on this machine, not a scheduler address "
+                          "(tcp://host:8786)")
+    url = text if "://" in text else f"tcp://{text}"
+    parts = urlsplit(url)
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if parts.scheme not in ("tcp", "tls") or not host or not port:
+        raise ConfigError(f"{what} {shown!r}: not a scheduler address; expected tcp://host:port")
+    try:
+        socket.create_connection((host, port), timeout=HANDSHAKE_TIMEOUT_S).close()
+    except OSError as exc:
+        raise ConfigError(f"{what} {shown!r}: unreachable ({exc.strerror or type(exc).__name__})"
+                          ) from None
+    import asyncio
+
+    async def identity() -> dict:
+        from distributed.comm import connect
+
+        comm = await connect(url, timeout=HANDSHAKE_TIMEOUT_S)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:  # Dask's own handshake and one request, bounded as a whole
+        info = asyncio.run(asyncio.wait_for(identity(), HANDSHAKE_TIMEOUT_S))
+    except BaseException as exc:  # noqa: BLE001 - garbage bytes raise anything, MemoryError too
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        info = {"error": type(exc).__name__}
+    if not isinstance(info, dict) or info.get("type") != "Scheduler":
+        why = info.get("error") if isinstance(info, dict) and "error" in info else "no scheduler identity"
+        raise ConfigError(f"{what} {shown!r}: answers, but is not a Dask scheduler (no "
+                          f"handshake within {HANDSHAKE_TIMEOUT_S:g} s: {why})")
+    return url
 #: Seconds a cluster may have no worker while tasks wait before the stage stops.
 NO_WORKERS_S = 60.0
 _POLL_S = 1.0
