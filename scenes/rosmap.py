@@ -139,6 +139,28 @@ class RosMap:
         return h.hexdigest()
 
 
+#: Largest map_server YAML read [bytes]: its seven keys take a few hundred.
+MAX_YAML_BYTES = 64 * 1024
+
+
+def _no_alias_loader():
+    import yaml
+
+    class NoAliasLoader(yaml.SafeLoader):
+        """PyYAML's safe loader that refuses aliases: a map_server YAML has none, and a
+        nest of aliases (a "billion laughs") expands to gigabytes."""
+
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.AliasEvent):
+                event = self.peek_event()
+                raise yaml.composer.ComposerError(
+                    None, None, "a YAML alias (*name): map_server YAML has none",
+                    event.start_mark)
+            return super().compose_node(parent, index)
+
+    return NoAliasLoader
+
+
 def _short(value, limit: int = 60) -> str:
     """``repr(value)``, at most ``limit`` characters: an error never echoes a whole file."""
     text = repr(value)
@@ -269,8 +291,11 @@ def read_map(path: str | Path) -> RosMap:
     if not path.is_file():
         raise FileNotFoundError(f"map file {str(path)!r} does not exist")
     where = str(path)
+    if path.stat().st_size > MAX_YAML_BYTES:
+        raise RosMapError(f"{where}: {path.stat().st_size:,} bytes, more than a map_server YAML "
+                          f"has ({MAX_YAML_BYTES:,}, MAX_YAML_BYTES)")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_no_alias_loader())  # noqa: S506 - a SafeLoader
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise RosMapError(f"{where}: invalid YAML: {first}") from None

@@ -200,3 +200,22 @@ def test_png_and_pgm_read_alike(tmp_path):
     b = read_map(write_map(tmp_path, g, name="b", suffix=".png"))
     assert np.array_equal(a.occupancy, b.occupancy)
     assert a.digest() == b.digest()
+
+
+def test_yaml_aliases_and_oversized_yaml_are_refused_before_expanding(tmp_path):
+    """A "billion laughs" nest of aliases, under any key, and a YAML far larger than a
+    map_server file: one line each, before anything is expanded (9.5 GB before)."""
+    path = write_map(tmp_path, building(2.0, 2.0))
+    text = path.read_text()
+    laughs = "".join(f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9 if i else ['"x"'] * 9) + "]\n"
+                     for i in range(9))
+    for name, body in (("list.yaml", text + laughs),
+                       ("origin.yaml", text.replace("origin: [0.0, 0.0, 0.0]",
+                                                    "o: &o 0.0\norigin: [*o, *o, 0.0]"))):
+        (tmp_path / name).write_text(body)
+        with pytest.raises(RosMapError, match="YAML alias") as err:
+            read_map(tmp_path / name)
+        assert "\n" not in str(err.value) and len(str(err.value)) < 300
+    (tmp_path / "big.yaml").write_text(text + "#" * 100_000 + "\n")
+    with pytest.raises(RosMapError, match="MAX_YAML_BYTES"):
+        read_map(tmp_path / "big.yaml")
