@@ -35,8 +35,8 @@ import traceback
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["WORKERS_ENV", "blas_threads_per_process", "fork_workers", "limit_blas_threads",
-           "map_forked", "usable_cpus"]
+__all__ = ["WORKERS_ENV", "blas_threads_per_process", "die_with_parent", "fork_workers",
+           "limit_blas_threads", "map_forked", "usable_cpus"]
 
 #: Environment variable capping the processes of one :func:`map_forked` call.
 WORKERS_ENV = "RFIDSTUDY_WORKERS"
@@ -128,7 +128,31 @@ def _fork_is_safe() -> bool:
             and "fork" in multiprocessing.get_all_start_methods())
 
 
+def die_with_parent() -> None:
+    """End this worker process when its parent dies, by any signal (``kill -9`` too).
+
+    Linux's ``prctl(PR_SET_PDEATHSIG, SIGTERM)``: the kernel sends SIGTERM when the
+    parent goes, so a killed study, sweep or placement leaves no worker finishing its
+    work and idling at a gigabyte (issue 54); a parent already gone ends the worker now.
+    Elsewhere a no-op (no such call; the pool's broken pipe ends the worker at its next
+    task instead)."""
+    import ctypes
+    import signal
+
+    parent = os.getppid()
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent died before the call took effect
+        os._exit(1)
+
+
 def _child_init(blas_threads: int) -> None:
+    die_with_parent()  # a forked task never outlives the study that forked it
     limit_blas_threads(blas_threads)  # the processes of a pool share the CPUs
     # a progress display may have replaced the streams by proxies writing through its
     # console, whose lock another (unforked) thread may have held at the fork

@@ -422,7 +422,12 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
 
 
 def _cap_nested_workers(cap: int) -> None:
-    """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs."""
+    """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs,
+    and the worker ends with the sweep, placement or replicated run that started it
+    (:func:`pipeline.parallel.die_with_parent`)."""
+    from pipeline.parallel import die_with_parent
+
+    die_with_parent()
     current = os.environ.get(WORKERS_ENV, "").strip()
     # a user's smaller cap stands; anything else (unset, larger, not a count) is replaced
     if not (current.isdecimal() and 1 <= int(current) <= cap):
