@@ -300,7 +300,8 @@ def read_map(path: str | Path) -> RosMap:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise RosMapError(f"{where}: invalid YAML: {first}") from None
     if not isinstance(data, dict):
-        raise RosMapError(f"{where}: expected a mapping of map_server keys, got {_short(data)}")
+        raise RosMapError(f"{where}: expected a mapping of map_server keys, got a "
+                          f"{type(data).__name__} (is this a map_server YAML?)")
     unknown = sorted(str(k) for k in set(data) - set(MAP_KEYS))
     if unknown:
         raise RosMapError(f"{where}: unknown key {unknown[0]!r}; known keys: {', '.join(MAP_KEYS)}")
@@ -336,8 +337,10 @@ def read_map(path: str | Path) -> RosMap:
     if mode not in _MODES:
         raise RosMapError(f"{where}: key 'mode' must be one of {', '.join(_MODES)}, got {_short(mode)}")
     image_path = Path(image) if Path(image).is_absolute() else path.parent / image
-    if not image_path.is_file():
+    if not image_path.exists():
         raise RosMapError(f"{where}: key 'image': image file {str(image_path)!r} does not exist")
+    if not image_path.is_file():  # a folder, a FIFO (a read would wait), a device
+        raise RosMapError(f"{where}: key 'image': {str(image_path)!r} is not a regular file")
     x, alpha = _pixels(image_path, where)
     if x.size == 0:
         raise RosMapError(f"{where}: key 'image': {image_path} has no pixels")

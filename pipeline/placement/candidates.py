@@ -120,9 +120,13 @@ def candidates_of(spec) -> list[Candidate]:
         for combo in itertools.product(*(grid[k] for k in keys)):
             out.append(candidate_from_values(spec, dict(zip(keys, combo, strict=True))))
     for i, p in enumerate(s.preset):
-        name = re.sub(r"[^A-Za-z0-9_.+-]", "-", p.name)
-        # a preset's name is a folder name; "opt_" names are the optimiser's trials
-        if name in ("", ".", "..") or name.startswith(("opt_", ".")):
+        name = p.name
+        # a preset's name is a folder name, used as given (never silently renamed);
+        # "opt_" names are the optimiser's trials
+        if re.fullmatch(r"[A-Za-z0-9_.+-]{1,64}", name) is None:
+            raise ConfigError(f"{spec.source}: preset[{i}].name = {p.name[:40]!r}: letters, digits "
+                              "and _ . + - only, at most 64 (it names a folder)")
+        if name in (".", "..") or name.startswith(("opt_", ".")):
             raise ConfigError(f"{spec.source}: preset[{i}].name = {p.name!r}: give a name that "
                               "does not start with '.' or 'opt_' (the optimiser's trials)")
         out.append(Candidate(name, {}, tuple(p.antennas), "preset"))

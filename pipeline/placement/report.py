@@ -131,7 +131,9 @@ def answer_lines(df, answer: dict) -> list[str]:
     its inventory in the engineer's units, and what was not computed."""
     out = []
     best = answer.get("recommended")
-    if best:
+    if best and not answer.get("runner_up"):
+        out.append(f"recommended: {best} (the only candidate with results: nothing to compare)")
+    elif best:
         verdict = (answer.get("margin") or {}).get("verdict")
         lead = ("its lead over the runner-up exceeds the 95 % interval" if verdict == "worse" else
                 "the runner-up is ahead on the units both share: run more replicates"
@@ -141,9 +143,8 @@ def answer_lines(df, answer: dict) -> list[str]:
         else:
             out.append(f"no single best: {best} leads on the estimate; not distinguishable from "
                        f"it at 95 %: {', '.join(answer.get('tied_with_best') or [])}")
-        units = engineering_sentence(df[df["candidate"] == best].iloc[0])
-        if units:
-            out.append(f"  {units}")
+    if best and (units := engineering_sentence(df[df["candidate"] == best].iloc[0])):
+        out.append(f"  {units}")
     if (conf := confirmation_sentence(answer)):
         out.append(conf)
     out.extend(f"not computed: {d}" for d in answer.get("dropped") or [])

@@ -214,3 +214,22 @@ def test_feasibility_is_judged_on_the_interval_not_the_estimate():
     # the surely feasible candidate ranks first although its read rate is lower
     assert ranked["candidate"].tolist() == ["sure", "maybe"]
     assert ranked["feasibility"].tolist() == ["met", "uncertain"]
+
+
+def test_a_preset_name_is_used_as_given_or_refused():
+    """A preset named like a path is refused by name, never silently renamed; one
+    candidate alone is said to have nothing to compare with."""
+    import pandas as pd
+
+    from pipeline.placement.report import answer_lines
+
+    bad = ("[[preset]]\nname = '/etc/evil'\n[[preset.antennas]]\nname = 'a'\n")
+    with pytest.raises(ConfigError, match=r"preset\[0\]\.name = '/etc/evil'"):
+        import tomllib
+
+        from pipeline.placement.spec import placement_from_mapping
+
+        placement_from_mapping(tomllib.loads(bad), source="p.toml")
+    df = pd.DataFrame({"candidate": ["a"], "read_rate": [0.5]})
+    lines = answer_lines(df, {"recommended": "a", "runner_up": None, "margin": None})
+    assert lines[0] == "recommended: a (the only candidate with results: nothing to compare)"
