@@ -397,8 +397,9 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     CPUs shared between them) or on a Dask cluster (``client`` or ``scheduler``).
 
     Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
-    called after each; when it returns True the studies not yet started are cancelled
-    (their rows stay None) and those under way finish."""
+    called after each; when it returns True the local studies not yet started are
+    cancelled (their rows stay None) and those under way finish. On a Dask cluster every
+    submitted study runs to its end (a stop is not passed on)."""
     if client is not None or scheduler:
         return _run_dask(args, scheduler, client, on_done, command, upto)
     rows: list = [None] * len(args)
@@ -453,15 +454,14 @@ def _run_dask(args, scheduler, client, on_done, command="sweep", upto=None):
                 for i, a in enumerate(args)]
         index = {f.key: i for i, f in enumerate(futs)}
         rows: list = [None] * len(args)
-        pending = as_completed(futs)
-        for fut in pending:
-            if fut.cancelled():
-                continue
+        # a stop asked by on_done is not passed on: Dask cannot interrupt a study under
+        # way on a worker, and one cancelled there would still hold its run directory's
+        # lock when the caller submits it again; every submitted study runs to its end
+        for fut in as_completed(futs):
             i = index[fut.key]
             rows[i] = fut.result()
-            if on_done and on_done(i, rows[i]):
-                client.cancel([f for f in futs if not f.done()])
-                break
+            if on_done:
+                on_done(i, rows[i])
         return rows
     finally:
         if own:

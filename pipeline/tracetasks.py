@@ -43,7 +43,8 @@ def check_scheduler(address: str, what: str = "--scheduler") -> str:
     port, a host that does not accept a TCP connection within
     :data:`HANDSHAKE_TIMEOUT_S`, and a server that accepts one but does not complete
     Dask's handshake (an HTTP server, anything else answering bytes): never a traceback,
-    never a silent local run.
+    never a silent local run. A ``tls://`` address is checked up to its TCP connection
+    (the handshake needs the cluster's certificates, which Dask's own config holds).
 
     Returns
     -------
@@ -76,6 +77,8 @@ def check_scheduler(address: str, what: str = "--scheduler") -> str:
     except OSError as exc:
         raise ConfigError(f"{what} {shown!r}: unreachable ({exc.strerror or type(exc).__name__})"
                           ) from None
+    if parts.scheme == "tls":  # Dask's handshake needs the cluster's certificates
+        return url
     import asyncio
 
     async def identity() -> dict:

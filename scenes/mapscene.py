@@ -82,6 +82,11 @@ def _solid_thickness(o: MapObstacle, spec: MapSpec) -> float:
     return float(spec.solid_wall_thickness_m)
 
 
+#: How far behind the map's inside face a solid wall's traced face is set [cells] (plus
+#: 1 cm): the centre line is a skeleton that leans by up to a cell.
+FACE_SETBACK_CELLS = 1.0
+
+
 def inside_side(a, b, half_m: float, cls: np.ndarray, rosmap: RosMap) -> float:
     """Which side of the wall segment a -> b (2,) [m] is the building's inside: +1 (its
     left normal), -1, or 0 when the map does not tell (free on both sides: a wall between
@@ -107,10 +112,19 @@ def _wall_surfaces(o: MapObstacle, height_m: float, spec: MapSpec, cls: np.ndarr
         n = np.array([-d[1], d[0]])
         if o.construction == "solid":
             side = inside_side(a, b, t / 2, cls, rosmap)
-            off = side * t / 2 * n  # the inside face; 0: the centre line
+            # the inside face, set back by a cell and a tag's offset: the skeleton leans
+            # by up to a cell and wall tags sit 5 mm off the outline, so the traced face
+            # stays behind every tag on it; 0: the centre line
+            shift = max(0.0, t / 2 - FACE_SETBACK_CELLS * rosmap.resolution_m - 0.01)
+            off = side * shift * n
+            # each segment lengthened by its shift at both ends: shifted alone, the two
+            # segments of an inner corner would no longer meet, and rays would pass
+            # between them
+            ext = d * abs(side) * shift
             at_face += side != 0
             out.append(RadioSurface(o.material, _solid_thickness(o, spec),
-                                    _vertical_quad(a + off, b + off, 0.0, height_m), "wall"))
+                                    _vertical_quad(a + off - ext, b + off + ext, 0.0, height_m),
+                                    "wall"))
         elif o.construction == "single":
             out.append(RadioSurface(o.material, lib, _vertical_quad(a, b, 0.0, height_m), "leaf"))
         else:  # stud, double: a leaf on each face

@@ -31,6 +31,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -193,7 +194,10 @@ def _pixels(image_path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(image_path) as im:
+        with warnings.catch_warnings():  # Pillow's own bomb warning: our bound is below it
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im_ctx = Image.open(image_path)
+        with im_ctx as im:
             n_px = im.size[0] * im.size[1]  # read from the header, before decoding
             if n_px > MAX_PIXELS:
                 raise RosMapError(f"{where}: key 'image': {image_path} has {im.size[0]} x "
@@ -211,6 +215,9 @@ def _pixels(image_path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None
                 raise RosMapError(f"{where}: key 'image': {image_path} has pixel mode {im.mode!r}; "
                                   "a map image is 8-bit grey, grey + alpha, RGB or RGBA")
             arr = np.asarray(im, dtype=np.float64)
+    except Image.DecompressionBombError as exc:  # beyond Pillow's own limit, still no pixels read
+        raise RosMapError(f"{where}: key 'image': {image_path} has more than {MAX_PIXELS:,} pixels "
+                          f"(MAX_PIXELS; {str(exc)[:80]})") from None
     except (UnidentifiedImageError, OSError) as exc:
         raise RosMapError(f"{where}: key 'image': cannot read {image_path} as an image "
                           f"({type(exc).__name__}: {exc})") from None

@@ -288,7 +288,7 @@ def _two_stage_interval(statistic, n: int, clusters, rng, unit: str, n_resamples
     level = min(expanded_level(n_r), MAX_LEVEL)
     n_res = max(int(n_resamples), int(np.ceil(50.0 / (1.0 - level))))
     dist = np.concatenate([np.asarray(statistic(two_stage_multiplicity(clusters, rng, b)), float)
-                           for b in _batches(n_res)])
+                           for b in _batches(n_res, _BATCH)])
     if np.all(dist == est):
         return Interval(est, est, est, n, unit, "degenerate")
     dist = dist[np.isfinite(dist)]

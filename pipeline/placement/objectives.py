@@ -212,9 +212,18 @@ def load_candidate_data(run_dirs: dict, budget) -> CandidateData:
 
 
 def _stage_done(run: Path, stage: str) -> bool:
-    from pipeline.runstore import inside, regular_file
+    """Whether the run's last study ran (or found cached) ``stage``: its manifest lists it.
+    A record left by an earlier run of other stages does not count (a study run up to
+    its reads after one that fitted models keeps the old evaluation's files)."""
+    from pipeline.runstore import inside, read_run_json, regular_file
 
-    return regular_file(inside(run, f"stages/{stage}.json"))
+    if not regular_file(inside(run, f"stages/{stage}.json")):
+        return False
+    try:
+        man = read_run_json(inside(run, "manifest.json"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(man, dict) and isinstance(man.get("stages"), dict) and stage in man["stages"]
 
 
 def _rows(data: CandidateData, key: str, band: tuple[float, float] | None = None) -> pd.DataFrame:
@@ -235,6 +244,15 @@ def _statistic(key: str, rows: pd.DataFrame, units: np.ndarray, min_reads: int):
     if obj.source == "inventory":
         return inventory_statistic(key, rows, codes, len(units), min_reads=min_reads)
     return metric_statistic(obj.source, rows, codes, len(units))
+
+
+#: Objectives that are quantiles (medians): the percentile interval, not BCa
+#: (:func:`pipeline.evaluation.intervals.unit_interval`).
+QUANTILE_OBJECTIVES = ("link_margin_db", "tag_localisation_median_m", "robot_median_m")
+
+
+def _method(key: str) -> str:
+    return "percentile" if key in QUANTILE_OBJECTIVES else "BCa"
 
 
 def _rng(seed: int, *names: str) -> np.random.Generator:
@@ -267,7 +285,7 @@ def objective_interval(data: CandidateData, key: str, *, seed: int, candidate: s
     units = np.unique(rows["unit"])
     f = _statistic(key, rows, units, min_reads)
     return unit_interval(f, len(units), _rng(seed, key, str(band), candidate), unit=obj.unit,
-                         clusters=clusters_of(units))
+                         clusters=clusters_of(units), method=_method(key))
 
 
 def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int,
@@ -286,7 +304,7 @@ def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int
     fb = _statistic(key, rb, common, min_reads)
     return paired_difference(fa, fb, len(common), _rng(seed, key, *names),
                              lower_is_better=obj.lower_is_better, unit=obj.unit,
-                             clusters=clusters_of(common))
+                             clusters=clusters_of(common), method=_method(key))
 
 
 def traced_counts(run_dir: Path) -> dict:

@@ -122,13 +122,12 @@ def violations(estimates: dict, constraints) -> list[float]:
 def optimise(spec, runner, out) -> list:
     """Run the placement file's ``[optimise]`` trials with ``runner`` (each trial a
     candidate with every replicate); return the trials' candidates in trial order."""
-    from pipeline.runstore import inside, regular_file
     from pipeline.stages.common import link_budget
 
     from .candidates import Candidate, candidate_from_trial
     from .objectives import OBJECTIVES, load_candidate_data, objective_estimate
-    from .runner import candidate_dir
     from .spec import MOUNT_FIELDS
+    from .summary import _complete_dirs
 
     s = spec.settings
     opt = s.optimise
@@ -141,8 +140,8 @@ def optimise(spec, runner, out) -> list:
         cand = candidate_from_trial(spec, values)
         trials.append(cand)
         runner.run([cand])
-        dirs = {k: candidate_dir(out, cand.name, k) for k in range(s.replicates)}
-        dirs = {k: d for k, d in dirs.items() if regular_file(inside(d, "metrics.json"))}
+        # the runs that hold what the ranking needs (a study may stop at its reads)
+        dirs = _complete_dirs(out, cand.name, s.replicates, runner.required)
         constraints = list(s.constraint)
         if not dirs:
             return (float("nan"), [float("nan")] * len(constraints)) if constraints \

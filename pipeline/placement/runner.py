@@ -371,7 +371,11 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
             top = top_candidates(spec, out, cands, spec.settings.confirm_top)
             if len(top) >= 2:
                 runner.expected += len(top)
-                runner.confirm(top)
+                try:
+                    runner.confirm(top)
+                except PlacementStopped as exc:  # the selection's answer still stands
+                    runner.dropped.append(f"the confirmation on fresh replicates: {exc}")
+                    top = []
         return write_outputs(spec, out, cands, runner.done, upto=runner.upto,
                              dropped=runner.dropped, confirmed=[c.name for c in top])
 

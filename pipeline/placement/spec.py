@@ -278,6 +278,10 @@ def check_placement(spec: PlacementSpec) -> None:
     s, src = spec.settings, spec.source
     if s.replicates < 1:
         raise _fail(src, f"replicates = {s.replicates}: at least 1")
+    if s.replicates == 2:
+        raise _fail(src, "replicates = 2: the intervals resample replicates first, and two give "
+                         "none (pipeline.evaluation.intervals.MIN_REPLICATES); use 1 (intervals "
+                         "over one replicate's tags) or 3 and more")
     if s.confirm_top < 0 or s.confirm_top == 1:
         raise _fail(src, f"confirm_top = {s.confirm_top}: 0 (off) or at least 2 (the best and "
                          "whom it is confirmed against)")

@@ -82,9 +82,9 @@ def test_radio_surfaces_one_per_layer(tmp_path):
 
 
 def test_outer_walls_are_traced_at_their_inside_face(tmp_path):
-    """The outer wall's reflector sits at the face the robot sees, not half a wall behind
-    it (0.125 m here), and carries the construction's thickness; with
-    ``solid_wall_thickness_m = 0`` the map's band, as drawn."""
+    """The outer wall's reflector sits at the face the robot sees (set back a cell, the
+    skeleton's lean), not half a wall behind it (0.125 m here), and carries the
+    construction's thickness; with ``solid_wall_thickness_m = 0`` the map's band."""
     sc = scenes.load(_map(tmp_path))
     outer = [s for s in sc.radio_surfaces if s.material == "concrete" and s.kind == "wall"]
     inner = PAD + WALL  # the inside faces: x = 0.75 and 12.75, y = 0.75 and 8.75
@@ -104,6 +104,55 @@ def test_outer_walls_are_traced_at_their_inside_face(tmp_path):
     drawn = scenes.load(tmp_path / "drawn.toml")
     walls = [s for s in drawn.radio_surfaces if s.material == "concrete" and s.kind == "wall"]
     assert all(s.thickness_m == pytest.approx(WALL, abs=RES) for s in walls)
+
+
+def _hits(scene, origins, directions, max_m):
+    """Whether each ray meets a traced wall surface within ``max_m`` (Moller-Trumbore on
+    the surfaces' triangles, in NumPy)."""
+    tri = np.concatenate([s.mesh.vertices[s.mesh.faces] for s in scene.radio_surfaces
+                          if s.kind == "wall"])  # (T, 3, 3)
+    o = np.asarray(origins, float)[:, None, :]
+    d = np.asarray(directions, float)[:, None, :]
+    e1, e2 = tri[None, :, 1] - tri[None, :, 0], tri[None, :, 2] - tri[None, :, 0]
+    p = np.cross(d, e2)
+    det = np.einsum("rtk,rtk->rt", e1, p)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s_ = o - tri[None, :, 0]
+    u = np.einsum("rtk,rtk->rt", s_, p) * inv
+    q = np.cross(s_, e1)
+    v = np.einsum("rtk,rtk->rt", d, q) * inv
+    t = np.einsum("rtk,rtk->rt", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t <= max_m)
+    return hit.any(axis=1)
+
+
+def test_wall_tags_stay_in_front_of_the_traced_wall(tmp_path):
+    """No wall tag has its wall's traced surface between it and the room: a link from a
+    tag would otherwise cross the 0.2 m slab it is stuck on."""
+    g = building(width_m=8.0, length_m=6.0, wall_m=0.25, pad_m=0.5)
+    write_map(tmp_path, g, name="room")
+    (tmp_path / "room.toml").write_text('[map]\npath = "room.yaml"\n[tags]\nwalls = true\n')
+    sc = scenes.load(tmp_path / "room.toml")
+    assert len(sc.tags) > 10
+    p, n = sc.tags.positions_m, sc.tags.normals
+    # from 0.3 m in front of each tag back to the tag: no wall surface on the way
+    assert not _hits(sc, p + 0.3 * n, -n, 0.3 - 1e-4).any()
+
+
+def test_an_inner_corner_of_the_building_has_no_gap(tmp_path):
+    """At a corner where the inside bends round (an L-shaped building) the two shifted
+    wall segments still meet: every ray from the room into the corner meets a wall."""
+    g = building(width_m=8.0, length_m=6.0, wall_m=0.2, pad_m=0.5)
+    paint(g, 4.8, 3.8, 9.5, 7.5, OCC)  # the walls of the notch ...
+    paint(g, 5.0, 4.0, 9.5, 7.5, 205)  # ... and the outside it cuts into the building
+    path = write_map(tmp_path, g, name="ell")
+    sc = scenes.load(path)
+    # from the room at the notch's corner (4.8, 3.8): 0.7 m away, +-20 deg around it
+    ang = np.radians(np.linspace(25.0, 65.0, 81))
+    d = np.column_stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)])
+    o = np.tile([4.3, 3.3, 1.0], (len(ang), 1))
+    assert _hits(sc, o, d, 2.0).all()
 
 
 def test_shelf_tags_on_the_fronts(tmp_path):

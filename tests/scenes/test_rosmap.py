@@ -219,3 +219,21 @@ def test_yaml_aliases_and_oversized_yaml_are_refused_before_expanding(tmp_path):
     (tmp_path / "big.yaml").write_text(text + "#" * 100_000 + "\n")
     with pytest.raises(RosMapError, match="MAX_YAML_BYTES"):
         read_map(tmp_path / "big.yaml")
+
+
+def test_a_decompression_bomb_is_a_map_error_not_a_traceback(tmp_path):
+    """A PNG whose header declares 20000 x 20000 pixels (beyond Pillow's own limit):
+    refused by name before a pixel is decoded (a DecompressionBombError before)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 20000, 20000, 8, 0, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(b"\x00" * 100)) + chunk(b"IEND", b""))
+    path = write_map(tmp_path, building(2.0, 2.0), name="bomb", image_name="bomb.png")
+    (tmp_path / "bomb.png").write_bytes(png)  # the map's image replaced by the bomb
+    with pytest.raises(RosMapError, match="MAX_PIXELS") as err:
+        read_map(path)
+    assert "\n" not in str(err.value)
