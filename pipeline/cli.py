@@ -9,6 +9,7 @@
     rfidstudy report RUN_DIR                           # rewrite report.html only
     rfidstudy sweep SWEEP.toml --out sweeps/x [--scheduler tcp://host:8786] [--workers N]
     rfidstudy placement PLACEMENT.toml --out runs/placement [--workers N | --scheduler ADDR]
+    rfidstudy export RUN --format csv --out DIR                # the tour as a recording
     rfidstudy scenes list | show NAME [--png top.png]
     rfidstudy config [CONFIG.toml]                     # print the resolved (or reference) config
 
@@ -345,6 +346,26 @@ def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     store = _existing_run_dir(run_dir, "report")
     with _output_errors(str(run_dir)), store.lock("rfidstudy report"):
         typer.echo(str(write_report(run_dir)))
+
+
+@app.command()
+def export(
+    run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="New, empty, or an earlier export.")],
+    format_: Annotated[str, typer.Option("--format", help="csv (mcap: not yet).")] = "csv",
+):
+    """Write a study's training tour as a recording: reads in sllurp's CSV layout, the
+    robot's estimated poses, the tag layout, the antenna mounts (docs/recordings.md)."""
+    from pipeline.recording import export_csv
+
+    if format_ != "csv":
+        _fail(f"--format {format_!r}: only 'csv' is written so far")
+    _existing_run_dir(run_dir, "export")
+    try:
+        files = export_csv(run_dir, out)
+    except (ConfigError, ValueError) as exc:
+        _fail(str(exc))
+    typer.echo(f"{len(files)} files in {out}: {', '.join(p.name for p in files)}")
 
 
 @app.command()

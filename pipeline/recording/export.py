@@ -1,0 +1,106 @@
+"""A finished study's training tour written as a recording a real robot would leave.
+
+``rfidstudy export RUN --format csv --out DIR`` writes into ``DIR`` (new, empty, or an
+earlier export: :mod:`pipeline.outdirs`):
+
+- ``reads.csv``: every successful read of the training tour in ``sllurp log``'s layout
+  (:mod:`.csvformats`): ``timestamp`` = :data:`EPOCH_S` + the tour's time, ``reader``
+  ``simulated:5084``, ``antenna`` the reader port (the study's antenna index + 1),
+  ``rssi`` whole dBm, ``epc`` :func:`epc_of` the tag id. Failed attempts are no row, as
+  in a real log;
+- ``poses.csv``: the robot base's *estimated* poses (MCL), what a real robot records
+  (``/amcl_pose``), on the same clock;
+- ``tags.csv``: the training tags' EPCs, positions and normals;
+- ``mounts.toml``: the study's ``[[robot.antennas]]``, reader port k = the k-th mount.
+
+The export is what the importers read back (``tests/pipeline/test_recording.py``: the
+same reads, the same poses at the reads' times).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .csvformats import write_poses_csv, write_sllurp_csv, write_tags_csv
+
+__all__ = ["EPOCH_S", "epc_of", "export_csv", "tag_id_of"]
+
+#: The exported clock's zero: 2026-01-01T00:00:00Z [s since 1970] (a real log's
+#: timestamps are wall-clock; a fixed origin keeps an export byte-identical).
+EPOCH_S = 1_767_225_600.0
+
+#: EPC length [hex digits]: 96 bits.
+EPC_DIGITS = 24
+
+
+def epc_of(tag_id: str) -> str:
+    """A 96-bit EPC (24 hex digits) that carries the tag id (its UTF-8 bytes, zero-padded
+    on the left); :func:`tag_id_of` reverses it. Ids longer than 12 bytes are refused."""
+    raw = str(tag_id).encode("utf-8")
+    if len(raw) > EPC_DIGITS // 2:
+        raise ValueError(f"tag id {str(tag_id)[:20]!r}: more than {EPC_DIGITS // 2} bytes, no 96-bit EPC")
+    return raw.hex().upper().rjust(EPC_DIGITS, "0")
+
+
+def tag_id_of(epc: str) -> str:
+    """The tag id an :func:`epc_of` EPC carries."""
+    return bytes.fromhex(epc).lstrip(b"\x00").decode("utf-8")
+
+
+def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
+    """Write the run's training tour as a recording (module doc); return the files.
+
+    Raises
+    ------
+    pipeline.config.ConfigError
+        ``out_dir`` may not be written (:func:`pipeline.outdirs.check_output_dir`).
+    ValueError
+        A run file is missing or unreadable (named).
+    """
+    import dataclasses
+
+    import tomli_w
+
+    from pipeline.config import load_config
+    from pipeline.outdirs import check_output_dir, mark_output_dir
+    from pipeline.runstore import inside
+    from scenes.fileio import atomic_write_text, read_npz
+
+    run = Path(run_dir)
+    names = ["reads.csv", "poses.csv", "tags.csv", "mounts.toml"]
+    out = check_output_dir(out_dir, "export", names)
+    try:
+        reads = pd.read_parquet(inside(run, "reads.parquet"),
+                                columns=["time_s", "antenna", "tag_id", "read", "rssi_dbm"])
+        tags = pd.read_parquet(inside(run, "scene/tags.parquet"))
+        with read_npz(inside(run, "tour/train_track.npz")) as z:
+            t_s, est = z["t_s"], z["est"]
+        cfg = load_config(inside(run, "config.toml"))
+    except (OSError, KeyError) as exc:
+        raise ValueError(f"{run}: cannot read the run's files ({exc})") from None
+    got = reads[reads["read"].to_numpy(bool)]
+    out.mkdir(parents=True, exist_ok=True)
+    files = [write_sllurp_csv(pd.DataFrame({
+        "t_s": EPOCH_S + got["time_s"].to_numpy(np.float64),
+        "reader": "simulated:5084",
+        "antenna_port": got["antenna"].to_numpy(np.int64) + 1,
+        "rssi_dbm": got["rssi_dbm"].to_numpy(np.float64),
+        "epc": [epc_of(t) for t in got["tag_id"].astype(str)],
+    }), out / "reads.csv")]
+    files.append(write_poses_csv(pd.DataFrame({
+        "t_s": EPOCH_S + np.asarray(t_s, np.float64), "x_m": est[:, 0], "y_m": est[:, 1],
+        "yaw_rad": est[:, 2]}), out / "poses.csv"))
+    train = tags[tags["split"].astype(str) == "train"] if "split" in tags else tags
+    files.append(write_tags_csv(pd.DataFrame({
+        "epc": [epc_of(t) for t in train["tag_id"].astype(str)],
+        **{c: train[c].to_numpy(np.float64) for c in ("x_m", "y_m", "z_m", "nx", "ny", "nz")}}),
+        out / "tags.csv"))
+    mounts = {"robot": {"antennas": [{k: v for k, v in dataclasses.asdict(a).items()
+                                      if v is not None} for a in cfg.robot.antennas]}}
+    files.append(atomic_write_text(out / "mounts.toml", "# reader port k = the k-th antenna\n"
+                                   + tomli_w.dumps(mounts)))
+    mark_output_dir(out, "export", files)
+    return files
