@@ -555,6 +555,8 @@ def scenes_show(
         _fail(f"--png {png}: the top view is written as PNG; give a file name ending in .png")
     if png is not None and png.is_dir():
         _fail(f"--png {png}: is a directory; give a file name ending in .png")
+    if png is not None and any(p.exists() and not p.is_dir() for p in png.parents):
+        _fail(f"--png {png}: a file stands where its folder would be")
     try:
         sc = scenes.load(name)
     except (FileNotFoundError, KeyError, ValueError) as exc:

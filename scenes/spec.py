@@ -366,6 +366,10 @@ class SceneSpec:
     source: str = ""
 
 
+#: Largest length or coordinate a scene file may give [m]: a site with room for a campus;
+#: 1e300 would overflow every extent computed from it.
+MAX_EXTENT_M = 100_000.0
+
 _POSITIVE_KEYS = {"length_m", "width_m", "height_m", "wall_thickness_m", "floor_thickness_m",
                   "ceiling_thickness_m", "leaf_thickness_m", "size_m", "thickness_m",
                   "relative_permittivity", "thin_box_max_m"}
@@ -464,4 +468,14 @@ def parse_item(cls, data, where: str):
             raise _fail(where, f"key {name!r} must be positive, got {value!r}")
         if name in _NONNEGATIVE_KEYS and any(v < 0 for v in vals):
             raise _fail(where, f"key {name!r} must not be negative, got {value!r}")
+        if name.endswith("_m") and _beyond(value, MAX_EXTENT_M):
+            raise _fail(where, f"key {name!r}: {str(value)[:40]} is beyond {MAX_EXTENT_M:g} m "
+                               "(MAX_EXTENT_M): a unit error?")
     return cls(**kwargs)
+
+
+def _beyond(value, limit: float) -> bool:
+    """Whether a length (or a tuple of them, nested) exceeds ``limit`` in magnitude."""
+    if isinstance(value, (tuple, list)):
+        return any(_beyond(v, limit) for v in value)
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) > limit

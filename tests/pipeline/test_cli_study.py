@@ -65,6 +65,8 @@ def test_scenes_list_and_show(tmp_path):
     assert "tags: " in res.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert canary.read_bytes() == b"mine"  # only the file named is written
+    bad = runner.invoke(app, ["scenes", "show", "corridor_lab", "--png", str(canary / "x.png")])
+    assert bad.exit_code == 2 and "a file stands where its folder would be" in bad.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["top.pdf", "top.png"]
 
 

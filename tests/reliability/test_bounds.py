@@ -123,3 +123,17 @@ def test_duplicate_tag_ids_are_found_in_linear_time():
     with pytest.raises(Exception, match=r"duplicate tag ids \['T7'\]"):
         check_spec(spec, "many.toml")
     assert time.perf_counter() - t0 < 5.0  # linear: ~0.1 s; the quadratic check: minutes
+
+
+def test_a_scene_length_beyond_any_site_is_refused_by_name():
+    """``length_m = 1e300`` (and a coordinate likewise) overflowed every extent computed
+    from it; it stops at the scene file, naming the key and the bound."""
+    from scenes.spec import SpecError
+    from scenes.spec_toml import spec_from_dict
+
+    with pytest.raises(SpecError, match=r"key 'length_m': 1e\+300 is beyond .*MAX_EXTENT_M"):
+        spec_from_dict({"name": "x", "corridor": {"length_m": 1e300, "width_m": 2.0}}, "x.toml")
+    with pytest.raises(SpecError, match=r"key 'position_m'"):
+        spec_from_dict({"name": "x", "corridor": {"length_m": 10.0, "width_m": 2.0},
+                        "tag": [{"id": "T1", "position_m": [1e9, 1.0, 1.0],
+                                 "normal": [0.0, 1.0, 0.0]}]}, "x.toml")
