@@ -18,7 +18,8 @@ import json
 from pathlib import Path
 
 from pipeline.config import ConfigError
-from pipeline.runpaths import read_run_json, regular_file
+from pipeline.runpaths import json_dict
+from pipeline.runpaths import tool_marker as own_marker
 
 __all__ = ["MARK", "check_output_dir", "mark_output_dir", "own_marker"]
 
@@ -27,32 +28,8 @@ MARK = ".rfidstudy-output.json"
 
 
 def _marker(out: Path) -> dict | None:
-    p = out / MARK
-    if not regular_file(p):
-        return None
-    try:
-        d = read_run_json(p, max_bytes=1 << 20)
-    except (OSError, ValueError):
-        return None
-    return d if isinstance(d, dict) and d.get("tool") == "rfidstudy" else None
-
-
-def own_marker(path: str | Path, kind: str, legacy_keys=()) -> bool:
-    """Whether ``path`` is a marker file this tool wrote for a folder of ``kind``: a
-    regular file (not a link) whose JSON says ``"tool": "rfidstudy"`` and ``"kind"``, or,
-    written before markers said so, holds every key of ``legacy_keys``. A user's file of
-    the same name (a ``sweep.json`` of their own) is not."""
-    if not regular_file(path):
-        return False
-    try:
-        d = read_run_json(path, max_bytes=64 << 20)
-    except (OSError, ValueError):
-        return False
-    if not isinstance(d, dict):
-        return False
-    if d.get("tool") == "rfidstudy":
-        return d.get("kind") == kind
-    return bool(legacy_keys) and set(legacy_keys) <= set(d)
+    d = json_dict(out / MARK, max_bytes=1 << 20)
+    return d if d is not None and d.get("tool") == "rfidstudy" else None
 
 
 def check_output_dir(out: str | Path, kind: str, names=()) -> Path:

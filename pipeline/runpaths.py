@@ -19,8 +19,8 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["RunDirError", "UnsafePathError", "file_sha256", "inside", "read_run_json",
-           "regular_file", "run_files"]
+__all__ = ["RunDirError", "UnsafePathError", "file_sha256", "inside", "json_dict",
+           "read_run_json", "regular_file", "run_files", "tool_marker"]
 
 log = logging.getLogger(__name__)
 
@@ -159,3 +159,28 @@ def file_sha256(path: str | Path) -> str:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def json_dict(path: str | Path, max_bytes: int = 64 << 20) -> dict | None:
+    """The JSON object of a regular file (:func:`read_run_json`), or None: missing, a
+    link, unreadable, not JSON, or not an object."""
+    if not regular_file(path):
+        return None
+    try:
+        d = read_run_json(path, max_bytes=max_bytes)
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def tool_marker(path: str | Path, kind: str, legacy_keys=(), max_bytes: int = 64 << 20) -> bool:
+    """Whether ``path`` is a marker this tool wrote for a folder of ``kind``: its JSON
+    object says ``"tool": "rfidstudy"`` and ``"kind": kind``, or, written before markers
+    said so, holds every key of ``legacy_keys``. A user's file of the same name (a
+    ``manifest.json`` of a web app, a ``sweep.json`` of their own) is not."""
+    d = json_dict(path, max_bytes)
+    if d is None:
+        return False
+    if d.get("tool") == "rfidstudy":
+        return d.get("kind") == kind
+    return bool(legacy_keys) and set(legacy_keys) <= set(d)

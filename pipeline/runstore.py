@@ -53,9 +53,11 @@ from pipeline.runpaths import (
     UnsafePathError,
     file_sha256,
     inside,
+    json_dict,
     read_run_json,
     regular_file,
     run_files,
+    tool_marker,
 )
 from scenes.fileio import atomic_write_bytes, atomic_write_text
 
@@ -144,16 +146,11 @@ def is_run_dir(root: str | Path) -> bool:
     ``outputs``). A folder with someone's ``manifest.json`` (a web app's) or an empty
     ``stages/`` is not a run directory, so no command writes into it as if it were."""
     root = Path(root)
-    path = root / MANIFEST
-    if regular_file(path):
-        try:
-            data = read_run_json(path, max_bytes=16 << 20)
-        except (OSError, ValueError):
-            data = None
-        if isinstance(data, dict) and data.get("tool") == TOOL:
-            return data.get("kind") == RUN_KIND
-        if isinstance(data, dict) and _LEGACY_MANIFEST_KEYS <= set(data):
-            return True
+    man = json_dict(root / MANIFEST, max_bytes=16 << 20)
+    if man is not None and man.get("tool") == TOOL:  # another kind of the tool's: not a run
+        return man.get("kind") == RUN_KIND
+    if tool_marker(root / MANIFEST, RUN_KIND, _LEGACY_MANIFEST_KEYS, max_bytes=16 << 20):
+        return True
     try:
         records = run_files(root, RECORD_DIR, "*.json")
     except (OSError, RunDirError):

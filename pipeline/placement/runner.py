@@ -364,11 +364,12 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                 if t.name not in {c.name for c in cands}:
                     cands.append(t)
             _write_marker(out, spec, cands)
-        top = []
+        top, summary = [], None
         if spec.settings.confirm_top:
-            from .summary import top_candidates
+            from .summary import summarise, top_candidates
 
-            top = top_candidates(spec, out, cands, spec.settings.confirm_top)
+            summary = summarise(spec, out, cands)  # the selection's: reused for the answer
+            top = top_candidates(spec, cands, spec.settings.confirm_top, summary)
             if len(top) >= 2:
                 runner.expected += len(top)
                 try:
@@ -377,7 +378,8 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                     runner.dropped.append(f"the confirmation on fresh replicates: {exc}")
                     top = []
         return write_outputs(spec, out, cands, runner.done, upto=runner.upto,
-                             dropped=runner.dropped, confirmed=[c.name for c in top])
+                             dropped=runner.dropped, confirmed=[c.name for c in top],
+                             summary=summary)
 
 
 def _write_marker(out: Path, spec: PlacementSpec, cands: list[Candidate]) -> None:

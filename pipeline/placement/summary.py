@@ -255,10 +255,11 @@ def _required(spec) -> str:
     return needed_stage([s.primary, *(c.objective for c in s.constraint)])
 
 
-def top_candidates(spec, out: Path, cands: list, k: int) -> list:
+def top_candidates(spec, cands: list, k: int, summary: tuple) -> list:
     """The ``k`` best-ranked candidates with results (:func:`rank_candidates` on the
-    selection replicates): whom the confirmation runs again."""
-    df, datas = summarise(spec, out, cands)
+    selection replicates' ``summary``, :func:`summarise`'s pair): whom the confirmation
+    runs again."""
+    df, datas = summary
     df = rank_candidates(df, spec.settings.primary, spec.settings.constraint)
     by_name = {c.name: c for c in cands}
     names = [n for n in df["candidate"] if n in datas and np.isfinite(
@@ -298,12 +299,14 @@ def confirmation(spec, out: Path, names: list[str]) -> dict | None:
 
 
 def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "evaluation",
-                  dropped: list | None = None, confirmed: list | None = None):
+                  dropped: list | None = None, confirmed: list | None = None,
+                  summary: tuple | None = None):
     """Summarise, rank, compare, draw and report; return a :class:`~.runner.PlacementResult`.
 
     ``upto`` is the last stage the candidates' studies ran, ``dropped`` why they stopped
     earlier than the objectives asked, ``confirmed`` the candidates run again on fresh
-    replicates (all go into ``answer.json``)."""
+    replicates (all go into ``answer.json``); ``summary``, :func:`summarise` already
+    computed (the confirmation's replicates do not enter it)."""
     from pipeline.config import ConfigError
 
     from .figures import draw_figures
@@ -311,7 +314,7 @@ def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "eval
     from .runner import PlacementResult
 
     s = spec.settings
-    df, datas = summarise(spec, out, cands)
+    df, datas = summary if summary is not None else summarise(spec, out, cands)
     if not datas:
         errors = sorted({e for d in done.values() for e in d.get("errors", [])})
         raise ConfigError(f"{out}: no candidate finished a single replicate"

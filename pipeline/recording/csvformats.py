@@ -142,20 +142,27 @@ def read_sllurp_csv(path: str | Path) -> pd.DataFrame:
                          "rssi_dbm": np.asarray(out["rssi_dbm"], np.float64), "epc": out["epc"]})
 
 
-def write_sllurp_csv(reads: pd.DataFrame, path: str | Path) -> Path:
-    """Write ``reads`` (``t_s``, ``reader``, ``antenna_port``, ``rssi_dbm``, ``epc``) as
-    ``sllurp log`` does: the excel dialect (CRLF), its header, RSSI in whole dBm (LLRP's
-    ``PeakRSSI`` is a signed byte), the timestamp with microseconds. Atomic."""
+def _write_csv(path, header, rows) -> Path:
+    """``header`` then ``rows`` as CSV (excel dialect, CRLF), atomically (a half-written
+    file never appears)."""
     from scenes.fileio import atomic_output
 
     path = Path(path)
     with atomic_output(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, dialect="excel")
-        w.writerow(SLLURP_COLUMNS)
-        for t, rd, a, s, e in zip(reads["t_s"], reads["reader"], reads["antenna_port"],
-                                  reads["rssi_dbm"], reads["epc"], strict=True):
-            w.writerow((f"{float(t):.6f}", rd, int(a), int(round(float(s))), e))
+        w.writerow(header)
+        w.writerows(rows)
     return path
+
+
+def write_sllurp_csv(reads: pd.DataFrame, path: str | Path) -> Path:
+    """Write ``reads`` (``t_s``, ``reader``, ``antenna_port``, ``rssi_dbm``, ``epc``) as
+    ``sllurp log`` does: the excel dialect (CRLF), its header, RSSI in whole dBm (LLRP's
+    ``PeakRSSI`` is a signed byte), the timestamp with microseconds. Atomic."""
+    rows = ((f"{float(t):.6f}", rd, int(a), int(round(float(s))), e)
+            for t, rd, a, s, e in zip(reads["t_s"], reads["reader"], reads["antenna_port"],
+                                      reads["rssi_dbm"], reads["epc"], strict=True))
+    return _write_csv(path, SLLURP_COLUMNS, rows)
 
 
 def read_poses_csv(path: str | Path) -> pd.DataFrame:
@@ -181,15 +188,8 @@ def read_poses_csv(path: str | Path) -> pd.DataFrame:
 
 def write_poses_csv(poses: pd.DataFrame, path: str | Path) -> Path:
     """Write ``t_s, x_m, y_m, yaw_rad`` (microsecond and micrometre precision). Atomic."""
-    from scenes.fileio import atomic_output
-
-    path = Path(path)
-    with atomic_output(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(POSE_COLUMNS)
-        for row in poses[list(POSE_COLUMNS)].to_numpy(np.float64):
-            w.writerow([f"{row[0]:.6f}", f"{row[1]:.6f}", f"{row[2]:.6f}", f"{row[3]:.6f}"])
-    return path
+    rows = ([f"{v:.6f}" for v in row] for row in poses[list(POSE_COLUMNS)].to_numpy(np.float64))
+    return _write_csv(path, POSE_COLUMNS, rows)
 
 
 def read_tags_csv(path: str | Path) -> pd.DataFrame:
@@ -218,16 +218,9 @@ def read_tags_csv(path: str | Path) -> pd.DataFrame:
 
 def write_tags_csv(tags: pd.DataFrame, path: str | Path) -> Path:
     """Write ``epc, x_m, y_m, z_m, nx, ny, nz``. Atomic."""
-    from scenes.fileio import atomic_output
-
-    path = Path(path)
     cols = [*TAG_COLUMNS, "nx", "ny", "nz"]
-    with atomic_output(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for _, r in tags.iterrows():
-            w.writerow([r["epc"], *(f"{float(r[c]):.6f}" for c in cols[1:])])
-    return path
+    rows = ([r["epc"], *(f"{float(r[c]):.6f}" for c in cols[1:])] for _, r in tags.iterrows())
+    return _write_csv(path, cols, rows)
 
 
 def align_reads(reads: pd.DataFrame, poses: pd.DataFrame) -> tuple[pd.DataFrame, int]:
