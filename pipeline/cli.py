@@ -109,6 +109,8 @@ def run(
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (tcp://host:8786): the study's ray tracing runs there as "
              "Dask tasks, chunks of antenna positions (sets tracing.scheduler).")] = None,
+    recording: Annotated[Path | None, typer.Option(help="A recording to run the study on: a "
+        "folder with reads.csv, tags.csv, poses.csv, or a reads file (docs/recordings.md).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
 ):
     """Run (or resume) the whole study into a run directory.
@@ -116,19 +118,21 @@ def run(
     Stages: scene -> tour (robot, MCL) -> reads (ray-traced, train tour and the held-out
     evaluation path) -> training sets -> models (FCM + ANFIS; MCL-pose and true-pose;
     baselines) -> truth -> downstream -> evaluation -> figures -> report; truth_traces
-    (the truth's ray traces) runs beside tour and reads. Each stage is cached in the
-    run directory and skipped when its inputs are unchanged; ray traces are cached in
-    the shared propagation cache (tracing.cache_dir).
+    (the truth's ray traces) runs beside tour and reads. With a recording: scene ->
+    recording -> training sets -> models -> sim_vs_real -> recorded_eval -> report.
+    Stages are cached in the run directory, ray traces in tracing.cache_dir.
 
     Every config key and its default: configs/reference.toml (or `rfidstudy config`).
     """
     _setup_logging(verbose)
+    from pipeline.recording.config import recording_overrides
     from pipeline.stages import run_full_study
     from pipeline.study import RunDirError, StageError, StudyInterrupted
 
     scheduler = _scheduler(scheduler)
     try:
-        cfg = resolve_target(target, [*(set_ or []), *(
+        rec_sets = recording_overrides(recording) if recording is not None else []
+        cfg = resolve_target(target, [*(set_ or []), *rec_sets, *(
             [f"replicates.n={replicates}"] if replicates is not None else []), *(
             [f"tracing.scheduler={json.dumps(scheduler)}"] if scheduler else [])], backend)
     except ConfigError as exc:

@@ -27,6 +27,7 @@ import numpy as np
 
 from pipeline.acquisition.config import ReaderConfig
 from pipeline.configschema import ConfigError, from_dict, option, reference_toml, section, to_dict
+from pipeline.recording.config import RecordingConfig
 from pipeline.robot.kinematics import default_antennas
 from pipeline.robot.simulate import LocalisationConfig
 from pipeline.robot.trajectory import TourConfig
@@ -46,6 +47,7 @@ __all__ = [
     "EvaluationConfig",
     "LocalisationConfig",
     "ReaderConfig",
+    "RecordingConfig",
     "ReplicatesConfig",
     "RobotConfig",
     "StudyConfig",
@@ -412,6 +414,8 @@ class StudyConfig:
                                           factory=DownstreamConfig)
     replicates: ReplicatesConfig = option(doc="Independent replicates of the study.",
                                           factory=ReplicatesConfig)
+    recording: RecordingConfig = option(doc="A real reader's log the study runs on instead of "
+                                        "simulating (docs/recordings.md).", factory=RecordingConfig)
 
     def __post_init__(self):
         if not self.scene:
@@ -468,7 +472,8 @@ def _resolve_paths(cfg: StudyConfig, base_dir: Path) -> StudyConfig:
     tracing = cfg.tracing
     if tracing.cache_dir and not Path(tracing.cache_dir).expanduser().is_absolute():
         tracing = dataclasses.replace(tracing, cache_dir=str((base_dir / tracing.cache_dir).resolve()))
-    return dataclasses.replace(cfg, scene=scene, tracing=tracing)
+    return dataclasses.replace(cfg, scene=scene, tracing=tracing,
+                               recording=cfg.recording.resolved(base_dir))
 
 
 def read_toml(path: str | Path, what: str = "config") -> dict:

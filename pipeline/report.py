@@ -261,6 +261,10 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         raise FileNotFoundError(f"{run}: not a run directory")
     manifest = _load_json(run / "manifest.json") or {}
     metrics = _load_json(run / "metrics.json")
+    if (metrics or {}).get("source") == "recording":  # a recorded study's own report
+        from pipeline.reportrecorded import write_recorded_report
+
+        return write_recorded_report(run, metrics, out or run / "report.html")
     cfg_path = run / "config.toml"
     if os.path.lexists(cfg_path) and not regular_file(cfg_path):
         raise ValueError(f"{cfg_path}: not a regular file (a link or a special file): not read")

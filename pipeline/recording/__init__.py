@@ -3,13 +3,22 @@
 - :mod:`.csvformats` - the reads in the CSV layout ``sllurp log`` writes, the poses and
   the tag layout as plain CSV: readers that stop at the first bad row naming
   ``file:line`` and the column, writers, and the time alignment of reads with poses;
+- :mod:`.impinj` - an Impinj reader's tag reports (raw LLRP / Impinj units or the Octane
+  SDK's), converted to SI;
+- :mod:`.load` - a ``[recording]``'s files read, checked and joined (:func:`load_recording`);
+- :mod:`.attempts` - the read attempts rebuilt from a log of reads (the rule the
+  detection model's counts rest on);
+- :mod:`.config` - the ``[recording]`` section;
 - :mod:`.export` - a finished study's training tour written as such a recording
   (``rfidstudy export RUN --format csv --out DIR``).
 
-What is not here yet (issue 53): the Impinj and ROS 2 bag formats, a ``[recording]``
-section that runs the study on recorded reads, simulation against reality, calibration.
+The recorded study's stages are :mod:`pipeline.stages.recorded`,
+:mod:`pipeline.stages.sim_vs_real` and :mod:`pipeline.stages.recorded_eval`. Not here
+yet (issue 53): ROS 2 bags in and out, calibration.
 """
 
+from .attempts import recorded_read_table
+from .config import RecordingConfig, recording_overrides
 from .csvformats import (
     RecordingError,
     align_reads,
@@ -21,14 +30,24 @@ from .csvformats import (
     write_tags_csv,
 )
 from .export import export_csv
+from .impinj import read_impinj_csv, write_impinj_csv
+from .load import Recording, load_recording, recorded_tagset
 
 __all__ = [
+    "Recording",
+    "RecordingConfig",
     "RecordingError",
     "align_reads",
     "export_csv",
+    "load_recording",
+    "read_impinj_csv",
     "read_poses_csv",
     "read_sllurp_csv",
     "read_tags_csv",
+    "recorded_read_table",
+    "recorded_tagset",
+    "recording_overrides",
+    "write_impinj_csv",
     "write_poses_csv",
     "write_sllurp_csv",
     "write_tags_csv",

@@ -29,6 +29,7 @@ checks that they are the tour's).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from pipeline.config import StudyConfig
@@ -38,14 +39,23 @@ from pipeline.stages import (
     figures,
     models,
     reads,
+    recorded,
+    recorded_eval,
     report,
     scene,
+    sim_vs_real,
     tour,
     training_sets,
     truth,
     truth_traces,
 )
-from pipeline.stages.checks import CHECKS, check_antenna_mounts
+from pipeline.stages.checks import (
+    CHECKS,
+    check_antenna_mounts,
+    check_cache_dir,
+    check_memory_budget,
+    check_tracer_versions,
+)
 from pipeline.stages.common import manifest_info, resolve_cache_dir
 from pipeline.stages.figures import draw_figures, draw_scene_top_view
 from pipeline.stages.summary import corridor_coverage, run_summary
@@ -53,6 +63,7 @@ from pipeline.study import Stage, StudyResult, run_study
 
 __all__ = [
     "CHECKS",
+    "RECORDED_STAGES",
     "STAGES",
     "check_antenna_mounts",
     "corridor_coverage",
@@ -82,12 +93,34 @@ STAGES: tuple[Stage, ...] = (
 )
 
 
-def stage_names() -> list[str]:
-    """Names of the study's stages, in order."""
-    return [s.name for s in STAGES]
+#: The recorded study's stages (:mod:`pipeline.stages.recorded`): the recording stands
+#: in for the tour and the reads; no truth, downstream or figures stages.
+RECORDED_STAGES: tuple[Stage, ...] = (
+    scene.STAGE,
+    recorded.STAGE,
+    dataclasses.replace(training_sets.STAGE, upstream=("recording",)),
+    dataclasses.replace(models.STAGE, upstream=("training_sets", "recording")),
+    sim_vs_real.STAGE,
+    recorded_eval.STAGE,
+    dataclasses.replace(report.STAGE, upstream=("recorded_eval",)),
+)
+
+#: The recorded study's checks: its mounts are where the recording says (fixed antennas
+#: are absolute), not on a planned route.
+RECORDED_CHECKS = (check_tracer_versions, check_cache_dir, check_memory_budget)
 
 
-def stages_upto(name: str | None) -> tuple[Stage, ...]:
+def study_stages(config: StudyConfig) -> tuple[Stage, ...]:
+    """:data:`RECORDED_STAGES` for a study with a ``[recording]``, else :data:`STAGES`."""
+    return RECORDED_STAGES if config.recording.enabled else STAGES
+
+
+def stage_names(config: StudyConfig | None = None) -> list[str]:
+    """Names of the study's stages, in order (the simulated study's without a config)."""
+    return [s.name for s in (STAGES if config is None else study_stages(config))]
+
+
+def stages_upto(name: str | None, config: StudyConfig | None = None) -> tuple[Stage, ...]:
     """:data:`STAGES` up to and including ``name`` (all of them for None): what a caller
     needs that reads only early outputs (a placement ranked by its tours' reads needs
     no model; :mod:`pipeline.placement.runner`). A side stage (``truth_traces``) after
@@ -98,12 +131,13 @@ def stages_upto(name: str | None) -> tuple[Stage, ...]:
     ValueError
         ``name`` is not a stage.
     """
+    stages = STAGES if config is None else study_stages(config)
     if name is None:
-        return STAGES
-    names = stage_names()
+        return stages
+    names = [s.name for s in stages]
     if name not in names:
         raise ValueError(f"no stage {name!r}; stages are {', '.join(names)}")
-    return STAGES[:names.index(name) + 1]
+    return stages[:names.index(name) + 1]
 
 
 def run_full_study(config: StudyConfig, run_dir: str | Path, *, upto: str | None = None,
@@ -115,12 +149,15 @@ def run_full_study(config: StudyConfig, run_dir: str | Path, *, upto: str | None
     ``upto`` stops after that stage (:func:`stages_upto`; not with replicates). Keyword
     arguments go to ``run_study`` and override those (``checks=()``,
     ``manifest_extra=None``)."""
-    kwargs.setdefault("checks", CHECKS)
+    kwargs.setdefault("checks", RECORDED_CHECKS if config.recording.enabled else CHECKS)
     kwargs.setdefault("manifest_extra", manifest_info)
+    if config.recording.enabled and config.replicates.n > 1:
+        raise ValueError("replicates.n > 1 with a [recording]: a recording is one tour; its "
+                         "intervals are over its held-out tags (set replicates.n = 1)")
     if config.replicates.n > 1:  # N studies in replicates/<k>/, pooled (pipeline.replicates)
         if upto is not None:
             raise ValueError("upto is for one study; replicates run every stage")
         from pipeline import replicates
 
         return run_study(config, run_dir, replicates.STAGES, **kwargs)
-    return run_study(config, run_dir, stages_upto(upto), **kwargs)
+    return run_study(config, run_dir, stages_upto(upto, config), **kwargs)

@@ -31,6 +31,7 @@ __all__ = [
     "load_scene",
     "manifest_info",
     "map_route",
+    "pose_sources",
     "preferred_backend",
     "read_reads",
     "read_track",
@@ -236,10 +237,21 @@ def load_scene(ctx):
     """The study's scene with both tag layouts (:func:`study_scene`), memoised per run."""
     sc = ctx.memo.get("scene")
     if sc is None:
-        sc, split = study_scene(ctx.config)
+        if ctx.config.recording.enabled:  # the building with the recording's tags
+            from pipeline.stages.recorded import recorded_scene  # imports this module
+
+            sc, split = recorded_scene(ctx.config)
+        else:
+            sc, split = study_scene(ctx.config)
         ctx.memo["scene"] = sc
         ctx.memo["tag_split"] = split
     return sc
+
+
+def pose_sources(cfg: StudyConfig) -> tuple[str, ...]:
+    """The poses the training sets and models use: :data:`POSE_SOURCES` (MCL and true),
+    or the estimate alone for a recording (it knows one pose, the robot's own)."""
+    return ("est",) if cfg.recording.enabled else POSE_SOURCES
 
 
 def split_tags(ctx, which: str):

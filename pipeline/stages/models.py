@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.runstore import atomic_write_json
-from pipeline.stages.common import POSE_SOURCES, read_reads, split_tags, stage_rng
+from pipeline.stages.common import pose_sources, read_reads, split_tags, stage_rng
 from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_models"]
@@ -68,10 +68,10 @@ def stage_models(ctx) -> dict:
 
     cfg = ctx.config.training
     rng = stage_rng(ctx.config, "models")
-    progress = ctx.progress("FCM + ANFIS", total=2 * len(POSE_SOURCES))
+    progress = ctx.progress("FCM + ANFIS", total=2 * len(pose_sources(ctx.config)))
     histories, info = {}, {}
     rssi_range = None
-    for pose in POSE_SOURCES:
+    for pose in pose_sources(ctx.config):
         suffix = "" if pose == "est" else "_truepose"
         ssm_set = TrainingSet.from_parquet(ctx.input(f"training/ssm_{pose}.parquet"))
         tdm_set = TrainingSet.from_parquet(ctx.input(f"training/tdm_{pose}.parquet"))
@@ -90,8 +90,9 @@ def stage_models(ctx) -> dict:
     grid = CellGrid(d_max_m=cfg.d_max_m, d_bin_m=cfg.d_bin_m, alpha_bin_deg=cfg.alpha_bin_deg)
     base = fit_baselines(reads, rssi_range, grid=grid, pose="est")
     base.save(ctx.out("models/baselines.json"))
-    base_true = fit_baselines(reads, rssi_range, grid=grid, pose="true")
-    base_true.save(ctx.out("models/baselines_truepose.json"))
+    if "true" in pose_sources(ctx.config):
+        base_true = fit_baselines(reads, rssi_range, grid=grid, pose="true")
+        base_true.save(ctx.out("models/baselines_truepose.json"))
     # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
     # so the ANFIS fits above stay bit-identical
     from pipeline.sensormodels import (

@@ -3,7 +3,7 @@ MCL poses and on the true poses (``pipeline.acquisition``); writes ``training/``
 
 from __future__ import annotations
 
-from pipeline.stages.common import POSE_SOURCES, read_reads
+from pipeline.stages.common import pose_sources, read_reads
 from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_training_sets"]
@@ -21,7 +21,7 @@ def stage_training_sets(ctx) -> dict:
         rssi = reads.loc[reads["read"].to_numpy(bool) & (reads["d_est_m"] < cfg.d_max_m), "rssi_dbm"]
         rng_dbm = rssi_range_from_data(rssi.to_numpy(float))
     info = {"rssi_range_dbm": [float(v) for v in rng_dbm]}
-    for pose in POSE_SOURCES:
+    for pose in pose_sources(ctx.config):
         ssm = ssm_samples(reads, d_max_m=cfg.d_max_m, rssi_range_dbm=rng_dbm, pose=pose)
         tdm = tdm_samples(reads, d_bin_m=cfg.d_bin_m, alpha_bin_deg=cfg.alpha_bin_deg,
                           d_max_m=cfg.d_max_m, pose=pose, min_attempts=cfg.min_attempts)

@@ -1,0 +1,115 @@
+"""The recorded study: the chapter's experiment on a real reader's log (``[recording]``).
+
+With ``recording.reads`` set the study's stages are :data:`RECORDED_STAGES`::
+
+    scene           the building (``scene``) with the recording's tags, split by tag   [scene, recording]
+    recording       the log read, its attempts rebuilt -> reads/poses Parquet          [recording, robot, reader]
+    training_sets   as simulated, on the recorded poses
+    models          as simulated (MCL poses only: a recording knows one pose)
+    sim_vs_real     the recorded antenna poses traced in the scene, compared           [reader, tracing]
+    recorded_eval   every model on the held-out tags' recorded reads, intervals -> metrics.json
+    report          report.html
+
+The held-out tags (``recording.heldout_fraction`` of them, drawn from the stream
+``stage_rng(cfg, "recording_split")``) are read along the same recorded tour as the
+training tags, but no model sees their reads: ``reads.parquet`` holds the training tags'
+attempts, ``eval_reads.parquet`` the held-out ones'.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pipeline.runstore import atomic_write_json, save_npz
+from pipeline.stages.common import build_robot, load_scene, stage_rng
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "recorded_scene", "stage_recording"]
+
+
+def _load(cfg):
+    from pipeline.recording.load import load_recording
+
+    return load_recording(cfg.recording, region=cfg.reader.region,
+                          n_mounts=len(cfg.robot.antennas))
+
+
+def recorded_scene(cfg):
+    """The study's building with the recording's tags, and each tag's split.
+
+    Returns
+    -------
+    scene : scenes.Scene
+        ``scenes.load(cfg.scene)`` with ``tags`` the recording's (ids = EPCs).
+    split : numpy.ndarray of str
+        ``"train"`` or ``"eval"`` per tag: ``round(heldout_fraction * n)`` tags (at least
+        one, at most n - 1) held out, drawn from ``stage_rng(cfg, "recording_split")``.
+
+    Raises
+    ------
+    pipeline.recording.RecordingError
+        A recording file cannot be read; fewer than two tags.
+    """
+    import scenes
+    from pipeline.recording import RecordingError
+    from pipeline.recording.load import recorded_tagset
+    from pipeline.robot.kinematics import antenna_poses
+
+    rec = _load(cfg)
+    mounts = build_robot(cfg).antennas
+    ant_xy = antenna_poses(np.zeros((1, 3)), list(mounts))[0, :, :2]
+    tags = recorded_tagset(rec, ant_xy)
+    n = len(tags)
+    if n < 2:
+        raise RecordingError(f"{cfg.recording.tags}: {n} tag(s); a held-out split needs two")
+    k = int(min(max(round(cfg.recording.heldout_fraction * n), 1), n - 1))
+    held = stage_rng(cfg, "recording_split").choice(n, size=k, replace=False)
+    split = np.full(n, "train", dtype="<U5")
+    split[held] = "eval"
+    return dataclasses.replace(scenes.load(cfg.scene), tags=tags), split
+
+
+def stage_recording(ctx) -> dict:
+    """Read the recording, rebuild its attempts; write the read logs and the tracks.
+
+    Writes ``reads.parquet`` / ``poses.parquet`` (the training tags' attempts) and their
+    ``eval_`` twins (the held-out tags'), ``tour/train_track.npz`` and
+    ``tour/eval_track.npz`` (the recorded poses, ``true`` = ``est``), and
+    ``recording/import.json`` (what the import counted, :func:`load_recording`, and the
+    attempts rule's counts, :func:`~pipeline.recording.attempts.recorded_read_table`).
+    """
+    from pipeline.acquisition import ReadLog
+    from pipeline.recording.attempts import recorded_read_table
+
+    cfg = ctx.config
+    sc = load_scene(ctx)
+    split = ctx.memo["tag_split"]
+    rec = _load(cfg)
+    mounts = build_robot(cfg).antennas
+    table, poses, att_info = recorded_read_table(rec, sc.tags, mounts, cfg.reader,
+                                                 frequency_hz=cfg.frequency_hz)
+    info = {**rec.info, **att_info}
+    held = set(np.asarray(sc.tags.ids)[split == "eval"].tolist())
+    is_held = table["tag_id"].astype(str).isin(held).to_numpy()
+    meta = {"source": "recording", "reads_file": cfg.recording.reads, "format": rec.format,
+            "antennas": [a.name for a in mounts], "ports": rec.info["ports"],
+            "t0_s": att_info["t0_s"]}
+    for prefix, rows in (("", ~is_held), ("eval_", is_held)):
+        part = table.loc[rows].reset_index(drop=True)
+        part["tag_id"] = part["tag_id"].cat.remove_unused_categories()
+        ReadLog(part, poses, meta).write(ctx.staging_dir, prefix=prefix)
+        info[f"{prefix or 'train_'}reads"] = int(part["read"].sum())
+    t = poses["time_s"].to_numpy(np.float64)
+    xyz = poses[["est_x_m", "est_y_m", "est_theta_rad"]].to_numpy(np.float64)
+    for name in ("train", "eval"):
+        save_npz(ctx.out(f"tour/{name}_track.npz"), t_s=t, true=xyz, est=xyz, odom=xyz,
+                 pass_index=np.zeros(len(t), np.int64))
+    atomic_write_json(ctx.out("recording/import.json"), info)
+    return {k: info[k] for k in ("format", "n_reads_in_file", "n_reads", "n_reads_unknown_epc",
+                                 "n_reads_outside_poses", "n_attempts", "n_off_schedule")}
+
+
+STAGE = Stage("recording", stage_recording, ("seed", "recording", "robot", "reader", "frequency_hz"),
+              ("scene",), description="read the recording", always=True)

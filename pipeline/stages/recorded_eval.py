@@ -1,0 +1,120 @@
+"""Stage ``recorded_eval``: every model on the held-out tags' recorded reads -> ``metrics.json``.
+
+A recording has no noise-free truth: each model is scored against what the reader
+measured on the held-out tags (``eval_reads.parquet``), on the recorded poses:
+
+- RSSI: ``fs_dbm(d, alpha)`` minus the measured RSSI of each held-out read within
+  ``training.d_max_m`` (MAE, RMSE, |bias| [dB]);
+- detection: the Brier score of ``fT(d, alpha)`` on the held-out attempts inside the
+  models' (d, alpha) grid, and the cell MAE of ``fT`` at the cell centres against the
+  cells' measured read frequencies.
+
+The per-unit tables go to ``evaluation/`` (:mod:`pipeline.evaluation.units`, the held-out
+tag the unit) and every number gets its interval over tags and its paired comparison
+with the chapter's ANFIS (:func:`pipeline.evaluation.headline.headline_intervals`).
+``metrics.json`` holds ``source = "recording"``, ``heldout`` (estimates, against
+``"measured"``), ``intervals``, ``comparisons``, ``recording`` (what the import
+counted), ``sim_vs_real`` (:mod:`pipeline.stages.sim_vs_real`) and ``model_fits``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from pipeline.runstore import atomic_write_json
+from pipeline.stages.common import read_reads, split_tags
+from pipeline.study import Stage
+
+__all__ = ["STAGE", "recorded_unit_tables", "stage_recorded_eval"]
+
+
+def recorded_unit_tables(eval_reads: pd.DataFrame, sensors: dict, grid, *, d_max_m: float,
+                         rssi_names, detection_names, dz_m=None):
+    """The :class:`~pipeline.evaluation.units.UnitTables` of a recording (module doc):
+    ``rssi_links`` error_db = predicted - measured, ``detection_attempts`` with
+    ``p_true`` the measured outcome (so a cell's mean is its read frequency)."""
+    from pipeline.evaluation import units as u
+    from pipeline.evaluation.interface import detection_probability
+
+    d = eval_reads["d_est_m"].to_numpy(np.float64)
+    a = eval_reads["alpha_est_rad"].to_numpy(np.float64)
+    read = eval_reads["read"].to_numpy(bool)
+    unit = eval_reads["tag_id"].astype(str).to_numpy()
+    meas = eval_reads["rssi_dbm"].to_numpy(np.float64)
+    keep = read & (d < d_max_m) & np.isfinite(meas)
+    rssi = pd.concat([pd.DataFrame({"model": n, "unit": unit[keep],
+                                    "error_db": np.asarray(sensors[n].fs_dbm(d[keep], a[keep]),
+                                                           np.float64) - meas[keep]})
+                      for n in rssi_names], ignore_index=True)
+    idx = grid.index(d, a)
+    v = idx.valid
+    dz = None if dz_m is None else np.asarray(dz_m, np.float64)[v]
+    det = pd.concat([pd.DataFrame({"model": n, "unit": unit[v], "cell": idx.flat[v].astype(np.int64),
+                                   "read": read[v], "p_true": read[v].astype(np.float64),
+                                   "ft": np.asarray(detection_probability(sensors[n], d[v], a[v], dz),
+                                                    np.float64)})
+                     for n in detection_names], ignore_index=True)
+    cells = u.detection_cells(sensors, grid, names=detection_names)
+    empty = pd.DataFrame({"model": pd.Series(dtype=str), "unit": pd.Series(dtype=str),
+                          "error_pct": pd.Series(dtype=float)})
+    return u.UnitTables(rssi_links=rssi, detection_attempts=det, detection_cells=cells,
+                        fig7_groups=empty)
+
+
+def stage_recorded_eval(ctx) -> dict:
+    """Score every model on the held-out recorded reads; write ``metrics.json`` (module doc)."""
+    from fuzzymodel import SensorModel
+    from pipeline.evaluation import units as u
+    from pipeline.evaluation.baselines import BaselineSensorModel
+    from pipeline.evaluation.cells import CellGrid
+    from pipeline.evaluation.headline import headline_estimates, headline_intervals
+    from pipeline.evaluation.tables import write_parquet_atomic
+    from pipeline.sensormodels import (
+        ABLATIONS,
+        COMPETITORS,
+        load_competitor,
+        tag_height_differences,
+    )
+    from pipeline.stages.evaluation import model_fits
+
+    cfg = ctx.config
+    tr = cfg.training
+    eval_reads, _ = read_reads(ctx, "eval_")
+    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
+    sensors = {"anfis": SensorModel.load(ctx.input("models/sensor.json")),
+               "log_distance": base, "grid_count": base}
+    sensors.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
+    sensors.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
+    extra = (*COMPETITORS, *ABLATIONS)
+    rssi_names = ("anfis", "log_distance",
+                  *(n for n in extra if getattr(sensors[n], "predicts_rssi", True)))
+    det_names = ("anfis", "grid_count", *extra)
+    grid = CellGrid(d_max_m=tr.d_max_m, d_bin_m=tr.d_bin_m, alpha_bin_deg=tr.alpha_bin_deg)
+    dz = tag_height_differences(eval_reads, split_tags(ctx, "eval"), pose="est")
+    tables = recorded_unit_tables(eval_reads, sensors, grid, d_max_m=tr.d_max_m,
+                                  rssi_names=rssi_names, detection_names=det_names, dz_m=dz)
+    for name in ("rssi_links", "detection_attempts", "detection_cells", "fig7_groups"):
+        write_parquet_atomic(getattr(tables, name), ctx.out(u.TABLES[name]))
+    ivs = headline_intervals(tables, seed=cfg.seed, min_attempts=tr.min_attempts)
+    est = headline_estimates(tables, min_attempts=tr.min_attempts)
+    metrics = {
+        "source": "recording",
+        "heldout": {"against": "measured", "n_tags": int(eval_reads["tag_id"].nunique()),
+                    "n_attempts": int(len(eval_reads)), "n_reads": int(eval_reads["read"].sum()),
+                    "estimates": est},
+        **ivs,
+        "recording": json.loads(ctx.input("recording/import.json").read_text()),
+        "sim_vs_real": json.loads(ctx.input("sim_vs_real/summary.json").read_text()),
+        "model_fits": model_fits({n: sensors[n] for n in COMPETITORS}),
+    }
+    atomic_write_json(ctx.out("metrics.json"), metrics)
+    return {"models": sorted(sensors)}
+
+
+STAGE = Stage("recorded_eval", stage_recorded_eval,
+              ("seed", "training.d_max_m", "training.d_bin_m", "training.alpha_bin_deg",
+               "training.min_attempts"),
+              ("recording", "models", "sim_vs_real"), description="held-out scores on the recording")
