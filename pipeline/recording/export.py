@@ -8,6 +8,10 @@ earlier export: :mod:`pipeline.outdirs`):
   ``simulated:5084``, ``antenna`` the reader port (the study's antenna index + 1),
   ``rssi`` whole dBm, ``epc`` :func:`epc_of` the tag id. Failed attempts are no row, as
   in a real log;
+- ``reads_impinj.csv``: the same reads as an Impinj reader reports them
+  (:mod:`.impinj`, raw units: 0.01 dBm, the 12-bit phase, the channel index in the
+  reader's region, 1/16 Hz Doppler, the tag seen count); written where the reader's
+  region has a channel table (``reader.region`` ETSI or FCC, the default ETSI);
 - ``poses.csv``: the robot base's *estimated* poses (MCL), what a real robot records
   (``/amcl_pose``), on the same clock;
 - ``tags.csv``: the training tags' EPCs, positions and normals;
@@ -25,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from .csvformats import write_poses_csv, write_sllurp_csv, write_tags_csv
+from .impinj import write_impinj_csv
 
 __all__ = ["EPOCH_S", "epc_of", "export_csv", "tag_id_of"]
 
@@ -70,11 +75,12 @@ def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     from scenes.fileio import atomic_write_text, read_npz
 
     run = Path(run_dir)
-    names = ["reads.csv", "poses.csv", "tags.csv", "mounts.toml"]
+    names = ["reads.csv", "reads_impinj.csv", "poses.csv", "tags.csv", "mounts.toml"]
     out = check_output_dir(out_dir, "export", names)
     try:
         reads = pd.read_parquet(inside(run, "reads.parquet"),
-                                columns=["time_s", "antenna", "tag_id", "read", "rssi_dbm"])
+                                columns=["time_s", "antenna", "tag_id", "read", "rssi_dbm",
+                                         "frequency_hz", "phase_rad", "doppler_hz", "seen_count"])
         tags = pd.read_parquet(inside(run, "scene/tags.parquet"))
         with read_npz(inside(run, "tour/train_track.npz")) as z:
             t_s, est = z["t_s"], z["est"]
@@ -90,6 +96,19 @@ def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
         "rssi_dbm": got["rssi_dbm"].to_numpy(np.float64),
         "epc": [epc_of(t) for t in got["tag_id"].astype(str)],
     }), out / "reads.csv")]
+    from pipeline.acquisition.channels import REGIONS
+
+    if REGIONS[cfg.reader.region].channels_hz and not cfg.reader.channels_hz:
+        files.append(write_impinj_csv(pd.DataFrame({
+            "t_s": EPOCH_S + got["time_s"].to_numpy(np.float64),
+            "antenna_port": got["antenna"].to_numpy(np.int64) + 1,
+            "rssi_dbm": got["rssi_dbm"].to_numpy(np.float64),
+            "epc": [epc_of(t) for t in got["tag_id"].astype(str)],
+            "phase_rad": got["phase_rad"].to_numpy(np.float64),
+            "frequency_hz": got["frequency_hz"].to_numpy(np.float64),
+            "doppler_hz": got["doppler_hz"].to_numpy(np.float64),
+            "seen_count": np.maximum(got["seen_count"].to_numpy(np.int64), 1)}),
+            out / "reads_impinj.csv", cfg.reader.region))
     files.append(write_poses_csv(pd.DataFrame({
         "t_s": EPOCH_S + np.asarray(t_s, np.float64), "x_m": est[:, 0], "y_m": est[:, 1],
         "yaw_rad": est[:, 2]}), out / "poses.csv"))
