@@ -65,6 +65,31 @@ def _run_banner(run_dir: Path) -> str:
         return ""
 
 
+def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:
+    """A recorded study's figures (:func:`pipeline.reportrecorded.draw_sim_vs_real`):
+    ``sim_vs_real_rssi`` and ``sim_vs_real_residual``, in each of ``output.formats``."""
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from pipeline.reportrecorded import draw_sim_vs_real
+    from pipeline.runstore import inside
+
+    links, tags = inside(run_dir, "sim_vs_real/links.parquet"), inside(run_dir, "scene/tags.parquet")
+    if not (links.is_file() and tags.is_file()):
+        log.warning("recorded study without sim_vs_real/links.parquet: no figures")
+        return []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    figs = draw_sim_vs_real(pd.read_parquet(links), pd.read_parquet(tags))
+    for fig, name in zip(figs, ("sim_vs_real_rssi", "sim_vs_real_residual"), strict=True):
+        for fmt in output.formats:
+            path = out_dir / f"{name}.{fmt}"
+            fig.savefig(path, dpi=output.dpi, bbox_inches="tight")
+            written.append(path)
+        plt.close(fig)
+    return written
+
+
 def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
              output: FigureOutput | None = None) -> list[Path]:
     """Draw every figure (or those in `names`) from the run directory's files.
@@ -96,6 +121,8 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory {run_dir} does not exist")
     out_dir = Path(out_dir) if out_dir is not None else run_dir / "figures"
+    if (run_dir / "recording" / "import.json").is_file():  # a recorded study's own figures
+        return _draw_recorded(run_dir, out_dir, output or FigureOutput())
     names = list(FIGURES) if names is None else list(names)
     unknown = sorted(set(names) - set(FIGURES))
     if unknown:

@@ -88,13 +88,15 @@ def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     except (OSError, KeyError) as exc:
         raise ValueError(f"{run}: cannot read the run's files ({exc})") from None
     got = reads[reads["read"].to_numpy(bool)]
+    # a recorded study's tag ids are its EPCs already (pipeline.stages.recorded)
+    epc = (str if inside(run, "recording/import.json").is_file() else epc_of)
     out.mkdir(parents=True, exist_ok=True)
     files = [write_sllurp_csv(pd.DataFrame({
         "t_s": EPOCH_S + got["time_s"].to_numpy(np.float64),
         "reader": "simulated:5084",
         "antenna_port": got["antenna"].to_numpy(np.int64) + 1,
         "rssi_dbm": got["rssi_dbm"].to_numpy(np.float64),
-        "epc": [epc_of(t) for t in got["tag_id"].astype(str)],
+        "epc": [epc(t) for t in got["tag_id"].astype(str)],
     }), out / "reads.csv")]
     from pipeline.acquisition.channels import REGIONS
 
@@ -103,7 +105,7 @@ def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
             "t_s": EPOCH_S + got["time_s"].to_numpy(np.float64),
             "antenna_port": got["antenna"].to_numpy(np.int64) + 1,
             "rssi_dbm": got["rssi_dbm"].to_numpy(np.float64),
-            "epc": [epc_of(t) for t in got["tag_id"].astype(str)],
+            "epc": [epc(t) for t in got["tag_id"].astype(str)],
             "phase_rad": got["phase_rad"].to_numpy(np.float64),
             "frequency_hz": got["frequency_hz"].to_numpy(np.float64),
             "doppler_hz": got["doppler_hz"].to_numpy(np.float64),
@@ -114,7 +116,7 @@ def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
         "yaw_rad": est[:, 2]}), out / "poses.csv"))
     train = tags[tags["split"].astype(str) == "train"] if "split" in tags else tags
     files.append(write_tags_csv(pd.DataFrame({
-        "epc": [epc_of(t) for t in train["tag_id"].astype(str)],
+        "epc": [epc(t) for t in train["tag_id"].astype(str)],
         **{c: train[c].to_numpy(np.float64) for c in ("x_m", "y_m", "z_m", "nx", "ny", "nz")}}),
         out / "tags.csv"))
     mounts = {"robot": {"antennas": [{k: v for k, v in dataclasses.asdict(a).items()

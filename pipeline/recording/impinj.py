@@ -186,7 +186,8 @@ def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:
 def write_impinj_csv(reads: pd.DataFrame, path: str | Path, region: str) -> Path:
     """Write ``reads`` (the columns :func:`read_impinj_csv` returns) in the raw layout:
     microsecond timestamps, RSSI in 0.01 dBm, the 12-bit phase, the channel index in
-    ``region``'s table (a frequency not in it is an error), Doppler in 1/16 Hz. Atomic.
+    ``region``'s table (a frequency not in it is an error), Doppler in 1/16 Hz; an unknown
+    (NaN) phase or Doppler is an empty field. Atomic.
 
     Raises
     ------
@@ -202,15 +203,20 @@ def write_impinj_csv(reads: pd.DataFrame, path: str | Path, region: str) -> Path
     if len(f) and not np.allclose(table[idx], f, rtol=0, atol=1.0):
         bad = f[~np.isclose(table[idx], f, rtol=0, atol=1.0)][0]
         raise ValueError(f"{bad:.0f} Hz is not a channel of {region}")
-    phase = np.round(np.mod(reads["phase_rad"].to_numpy(np.float64), 2 * np.pi)
-                     * PHASE_STEPS / (2 * np.pi)).astype(np.int64) % PHASE_STEPS
+    def steps(values, scale, modulo=None):  # whole raw steps; "" where unknown (NaN)
+        v = np.asarray(values, np.float64) * scale
+        v = np.mod(v, modulo) if modulo else v
+        return ["" if not np.isfinite(x) else int(round(x)) % modulo if modulo else int(round(x))
+                for x in v]
+
+    phase = steps(np.mod(reads["phase_rad"].to_numpy(np.float64), 2 * np.pi),
+                  PHASE_STEPS / (2 * np.pi), PHASE_STEPS)
+    dop = steps(reads["doppler_hz"], DOPPLER_STEPS_PER_HZ)
     header = ("EPC", "AntennaPort", "LastSeenTimestampUTC", "ImpinjPeakRSSI", "ImpinjRFPhaseAngle",
               "ChannelIndex", "ImpinjRFDopplerFrequency", "TagSeenCount")
-    rows = ((e, int(a), int(round(t * 1e6)), int(round(s * 100.0)), int(p), int(i) + 1,
-             int(round(d * DOPPLER_STEPS_PER_HZ)), int(c))
+    rows = ((e, int(a), int(round(t * 1e6)), int(round(s * 100.0)), p, int(i) + 1, d, int(c))
             for e, a, t, s, p, i, d, c in zip(
                 reads["epc"], reads["antenna_port"], reads["t_s"].to_numpy(np.float64),
-                reads["rssi_dbm"].to_numpy(np.float64), phase, idx,
-                np.nan_to_num(reads["doppler_hz"].to_numpy(np.float64)), reads["seen_count"],
+                reads["rssi_dbm"].to_numpy(np.float64), phase, idx, dop, reads["seen_count"],
                 strict=True))
     return _write_csv(path, header, rows)

@@ -221,3 +221,22 @@ def test_bad_recordings_stop_before_anything_is_written(tiny_study, recording, t
     (tmp_path / "empty").mkdir()
     res = _run(tiny_study, tmp_path / "run2", "--recording", str(tmp_path / "empty"))
     assert res.exit_code != 0 and "no reads.csv or tags.csv" in res.output
+
+
+def test_figures_and_export_of_a_recorded_run(recorded_run, recording, tmp_path):
+    run = tmp_path / "run"
+    import shutil
+
+    shutil.copytree(recorded_run, run)
+    res = CliRunner().invoke(app, ["figures", str(run)])
+    assert res.exit_code == 0, res.output
+    assert {p.name for p in (run / "figures").glob("*.png")} == {"sim_vs_real_rssi.png",
+                                                                 "sim_vs_real_residual.png"}
+    res = CliRunner().invoke(app, ["export", str(run), "--out", str(tmp_path / "again")])
+    assert res.exit_code == 0, res.output
+    # a recorded run's tag ids are the EPCs: exported as they are, not encoded again
+    again = pd.read_csv(tmp_path / "again" / "reads.csv", dtype={"epc": str})
+    first = pd.read_csv(recording / "reads.csv", dtype={"epc": str})
+    assert set(again["epc"]) < set(first["epc"])  # the training tags' reads
+    imp = read_impinj_csv(tmp_path / "again" / "reads_impinj.csv", "ETSI")
+    assert imp["phase_rad"].isna().all()  # sllurp's log had no phase: empty, not invented
