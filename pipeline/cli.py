@@ -139,10 +139,10 @@ def run(
         _fail(str(exc))
     except KeyboardInterrupt:
         _fail("interrupted before the run started", code=130)
-    try:  # a bad occupancy-grid map stops here, before the run directory is made
-        from scenes.mapscene import check_map_source
+    try:  # a bad map or a budget over ulimit -v stops here, before the run directory is made
+        from pipeline.preflight import check_before_run
 
-        check_map_source(cfg.scene)
+        check_before_run(cfg)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     t0 = time.perf_counter()

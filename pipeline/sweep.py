@@ -399,9 +399,16 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
     called after each; when it returns True the local studies not yet started are
     cancelled (their rows stay None) and those under way finish. On a Dask cluster every
-    submitted study runs to its end (a stop is not passed on)."""
+    submitted study runs to its end (a stop is not passed on). Local workers inherit the
+    address-space limit: a tracer budget it cannot hold is a ConfigError before any
+    starts (:func:`pipeline.preflight.check_address_space`)."""
     if client is not None or scheduler:
         return _run_dask(args, scheduler, client, on_done, command, upto)
+    from pipeline.preflight import check_address_space
+
+    # the workers inherit ulimit -v: a budget over it would segfault each one, silently
+    budgets = [a[0].get("tracing", {}).get("memory_budget_mb", 0.0) for a in args]
+    check_address_space(max(budgets, default=0.0))
     rows: list = [None] * len(args)
     n_workers = workers or min(len(args), 2)
     ctx = multiprocessing.get_context("spawn")

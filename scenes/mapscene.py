@@ -47,10 +47,10 @@ from scenes.mapextract import MapObstacle, apply_override, extract_obstacles, ma
 from scenes.mapspec import MapSpec, TagLayoutSpec, rules_of
 from scenes.materials import UnknownMaterialError, get_material, resolve_material_name
 from scenes.radio import RadioSurface
-from scenes.rosmap import FREE, OUTSIDE, RosMap, read_map
+from scenes.rosmap import FREE, OUTSIDE, RosMap, file_state, read_map, short_repr
 from scenes.scene import Scene, TagSet
 from scenes.spec import SpecError, TagSpec
-from scenes.tags import make_tags, validate_tags
+from scenes.tags import MAX_TAGS, make_tags, validate_tags
 
 __all__ = ["BARE_MAP_TAG_SPACING_M", "bare_map_tags", "build_map_scene", "check_map_source", "load_map",
            "rack_frames", "shelf_tags", "wall_tags"]
@@ -336,22 +336,61 @@ def wall_tags(obstacles: list[MapObstacle], cls: np.ndarray, rosmap: RosMap, spe
 
 
 def csv_tags(path: Path, offset_m: float, where: str) -> list[TagSpec]:
-    """Tags from a CSV with header ``id, x_m, y_m, z_m, nx, ny, nz``."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{where}: [tags] key 'csv': file {str(path)!r} does not exist")
+    """Tags from a CSV with header ``id, x_m, y_m, z_m, nx, ny, nz``.
+
+    Parameters
+    ----------
+    path : Path
+        The CSV file.
+    offset_m : float
+        Every tag's offset off its surface [m].
+    where : str
+        The scene file naming it (for messages).
+
+    Returns
+    -------
+    list of TagSpec
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    SpecError
+        Not a regular file (a FIFO, a device, a folder), not UTF-8 text, not CSV, a wrong
+        header, a row that is not numbers, more rows than :data:`scenes.tags.MAX_TAGS`.
+        A message quotes at most 60 characters of what it read (``/etc/passwd`` given as
+        the CSV is not printed).
+    """
+    state = file_state(path)
+    if state == "missing":
+        raise FileNotFoundError(f"{where}: [tags] key 'csv': file {short_repr(str(path), 200)} does not exist")
+    if state != "regular":  # a FIFO would wait for a writer; /dev/zero never ends
+        raise SpecError(f"{where}: [tags] key 'csv': {short_repr(str(path), 200)} {state}")
     need = ["id", "x_m", "y_m", "z_m", "nx", "ny", "nz"]
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        cols = [c.strip() for c in reader.fieldnames or []]
-        if cols != need:
-            raise SpecError(f"{path}: header must be {','.join(need)}, got {','.join(cols)}")
-        out = []
-        for i, row in enumerate(reader, start=2):
-            try:
-                vals = [float(row[k]) for k in need[1:]]
-            except (TypeError, ValueError):
-                raise SpecError(f"{path}: line {i}: x_m..nz must be numbers, got {row}") from None
-            out.append(TagSpec(row["id"].strip(), tuple(vals[:3]), tuple(vals[3:]), offset_m))
+    i = 1
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            cols = [c.strip() for c in reader.fieldnames or []]
+            if cols != need:
+                raise SpecError(f"{path}: header must be {','.join(need)}, got "
+                                f"{short_repr(','.join(cols))}")
+            out = []
+            for i, row in enumerate(reader, start=2):
+                if len(out) >= MAX_TAGS:
+                    raise SpecError(f"{path}: more than {MAX_TAGS:,} tags (MAX_TAGS)")
+                vals = []
+                for k in need[1:]:
+                    try:
+                        vals.append(float(row[k]))
+                    except (TypeError, ValueError):
+                        raise SpecError(f"{path}: line {i}: {k} must be a number, got "
+                                        f"{short_repr(row[k])}") from None
+                out.append(TagSpec(row["id"].strip(), tuple(vals[:3]), tuple(vals[3:]), offset_m))
+    except UnicodeDecodeError:
+        raise SpecError(f"{path}: not a UTF-8 text file (a tag CSV is text)") from None
+    except csv.Error as exc:
+        raise SpecError(f"{path}: line {i + 1}: not a CSV row ({short_repr(str(exc))})") from None
     return out
 
 

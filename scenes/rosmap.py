@@ -31,6 +31,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
+import stat
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +52,8 @@ __all__ = [
     "boundary_segments",
     "read_map",
     "resolve_unknown",
+    "file_state",
+    "short_repr",
 ]
 
 #: YAML keys of a map_server map (every other key is refused by name).
@@ -162,10 +165,53 @@ def _no_alias_loader():
     return NoAliasLoader
 
 
-def _short(value, limit: int = 60) -> str:
-    """``repr(value)``, at most ``limit`` characters: an error never echoes a whole file."""
+def short_repr(value, limit: int = 60) -> str:
+    """``repr(value)``, at most ``limit`` characters: an error never echoes a whole file.
+
+    Parameters
+    ----------
+    value : object
+        A value read from a file (a string, a list, a number).
+    limit : int
+        Most characters returned, the closing ``...`` included.
+
+    Returns
+    -------
+    str
+        ``repr(value)``, or its first ``limit - 3`` characters and ``...``.
+    """
     text = repr(value)
     return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def file_state(path: Path) -> str:
+    """What ``path`` is, without opening it (a FIFO would wait) and without raising.
+
+    Parameters
+    ----------
+    path : Path
+        A file named by a scene or a map YAML.
+
+    Returns
+    -------
+    str
+        ``"regular"``; ``"missing"``; ``"is not a regular file"`` (a folder, a FIFO, a
+        device); or ``"cannot be looked up (<reason>)"`` (a name too long, no permission).
+    """
+    try:
+        mode = path.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return "missing"
+    except OSError as exc:
+        return f"cannot be looked up ({exc.strerror or type(exc).__name__})"
+    return "regular" if stat.S_ISREG(mode) else "is not a regular file"
+
+
+def _short_line(text: str, limit: int = 100) -> str:
+    """The first line of a library's message, at most ``limit`` characters (PyYAML quotes
+    the text it stumbled on: a tag, a key)."""
+    first = text.splitlines()[0] if text else ""
+    return first if len(first) <= limit else first[:limit - 3] + "..."
 
 
 def _as_float(value):
@@ -185,7 +231,7 @@ def _number(data: dict, key: str, where: str, default=None) -> float:
     if value is None:
         raise RosMapError(f"{where}: missing required key {key!r}")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise RosMapError(f"{where}: key {key!r} must be a finite number, got {_short(value)}")
+        raise RosMapError(f"{where}: key {key!r} must be a finite number, got {short_repr(value)}")
     return float(value)
 
 
@@ -295,8 +341,11 @@ def read_map(path: str | Path) -> RosMap:
     import yaml
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"map file {str(path)!r} does not exist")
+    state = file_state(path)
+    if state == "missing":
+        raise FileNotFoundError(f"map file {short_repr(str(path), 200)} does not exist")
+    if state != "regular":  # a folder, a FIFO (a read would wait), a device (/dev/zero)
+        raise RosMapError(f"map file {short_repr(str(path), 200)} {state}")
     where = str(path)
     if path.stat().st_size > MAX_YAML_BYTES:
         raise RosMapError(f"{where}: {path.stat().st_size:,} bytes, more than a map_server YAML "
@@ -304,17 +353,17 @@ def read_map(path: str | Path) -> RosMap:
     try:
         data = yaml.load(path.read_text(encoding="utf-8"), Loader=_no_alias_loader())  # noqa: S506 - a SafeLoader
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = _short_line(str(exc)) or type(exc).__name__
         raise RosMapError(f"{where}: invalid YAML: {first}") from None
     if not isinstance(data, dict):
         raise RosMapError(f"{where}: expected a mapping of map_server keys, got a "
                           f"{type(data).__name__} (is this a map_server YAML?)")
     unknown = sorted(str(k) for k in set(data) - set(MAP_KEYS))
     if unknown:
-        raise RosMapError(f"{where}: unknown key {unknown[0]!r}; known keys: {', '.join(MAP_KEYS)}")
+        raise RosMapError(f"{where}: unknown key {short_repr(unknown[0])}; known keys: {', '.join(MAP_KEYS)}")
     image = data.get("image")
     if not isinstance(image, str) or not image:
-        raise RosMapError(f"{where}: key 'image' must be the image file name, got {_short(image)}")
+        raise RosMapError(f"{where}: key 'image' must be the image file name, got {short_repr(image)}")
     res = _number(data, "resolution", where)
     if not res > 0:
         raise RosMapError(f"{where}: key 'resolution' must be positive [m/cell], got {res!r}")
@@ -328,13 +377,13 @@ def read_map(path: str | Path) -> RosMap:
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                        and abs(v) <= 1e6 for v in origin)):
         raise RosMapError(f"{where}: key 'origin' must be [x_m, y_m, yaw_rad], finite and within "
-                          f"1e6 m, got {_short(origin)}")
+                          f"1e6 m, got {short_repr(origin)}")
     if abs(origin[2]) > 1e-9:
         raise RosMapError(f"{where}: key 'origin': yaw {origin[2]!r} rad is not supported (the "
                           "robot's grid is axis-aligned); rotate the image instead")
     negate = data.get("negate", 0)
     if negate not in (0, 1) or isinstance(negate, float):
-        raise RosMapError(f"{where}: key 'negate' must be 0 or 1, got {_short(negate)}")
+        raise RosMapError(f"{where}: key 'negate' must be 0 or 1, got {short_repr(negate)}")
     occ_t = _number(data, "occupied_thresh", where, 0.65)
     free_t = _number(data, "free_thresh", where, 0.196)
     if not 0.0 <= free_t < occ_t <= 1.0:
@@ -342,12 +391,14 @@ def read_map(path: str | Path) -> RosMap:
                           "must satisfy 0 <= free_thresh < occupied_thresh <= 1")
     mode = data.get("mode", "trinary")
     if mode not in _MODES:
-        raise RosMapError(f"{where}: key 'mode' must be one of {', '.join(_MODES)}, got {_short(mode)}")
+        raise RosMapError(f"{where}: key 'mode' must be one of {', '.join(_MODES)}, got {short_repr(mode)}")
     image_path = Path(image) if Path(image).is_absolute() else path.parent / image
-    if not image_path.exists():
-        raise RosMapError(f"{where}: key 'image': image file {str(image_path)!r} does not exist")
-    if not image_path.is_file():  # a folder, a FIFO (a read would wait), a device
-        raise RosMapError(f"{where}: key 'image': {str(image_path)!r} is not a regular file")
+    state = file_state(image_path)
+    if state == "missing":
+        folder = "" if Path(image).is_absolute() else f" in {str(path.parent)!r}"
+        raise RosMapError(f"{where}: key 'image': image file {short_repr(image)} does not exist{folder}")
+    if state != "regular":  # a folder, a FIFO (a read would wait), a device
+        raise RosMapError(f"{where}: key 'image': image file {short_repr(image)} {state}")
     x, alpha = _pixels(image_path, where)
     if x.size == 0:
         raise RosMapError(f"{where}: key 'image': {image_path} has no pixels")
