@@ -48,7 +48,6 @@ app.add_typer(scenes_app, name="scenes")
 log = logging.getLogger("pipeline.cli")
 
 
-
 def _setup_logging(verbose: bool) -> None:
     from rich.logging import RichHandler
 
@@ -109,8 +108,7 @@ def run(
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (tcp://host:8786): the study's ray tracing runs there as "
              "Dask tasks, chunks of antenna positions (sets tracing.scheduler).")] = None,
-    recording: Annotated[Path | None, typer.Option(help="A recording to run the study on: a "
-        "folder with reads.csv, tags.csv, poses.csv, or a reads file (docs/recordings.md).")] = None,
+    recording: Annotated[Path | None, typer.Option(help="Run on a recording: folder or reads file (docs/recordings.md).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
 ):
     """Run (or resume) the whole study into a run directory.
@@ -118,8 +116,7 @@ def run(
     Stages: scene -> tour (robot, MCL) -> reads (ray-traced, train tour and the held-out
     evaluation path) -> training sets -> models (FCM + ANFIS; MCL-pose and true-pose;
     baselines) -> truth -> downstream -> evaluation -> figures -> report; truth_traces
-    (the truth's ray traces) runs beside tour and reads. With a recording: scene ->
-    recording -> training sets -> models -> sim_vs_real -> recorded_eval -> report.
+    (the truth's ray traces) runs beside tour and reads. A recording: docs/recordings.md.
     Stages are cached in the run directory, ray traces in tracing.cache_dir.
 
     Every config key and its default: configs/reference.toml (or `rfidstudy config`).
@@ -598,3 +595,6 @@ def scenes_show(
             if exc.errno not in _WRITE_ERRNOS:
                 raise
             _fail_os(exc, str(png))
+
+
+from pipeline import clicalibrate  # noqa: E402, F401 - registers `rfidstudy calibrate`

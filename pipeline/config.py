@@ -91,6 +91,8 @@ class AntennaMountConfig:
     z_m: float = option(0.6, "Mount height above the floor [m].")
     yaw_deg: float = option(0.0, "Boresight yaw relative to the robot heading, counter-clockwise [deg].")
     tilt_deg: float = option(0.0, "Boresight tilt (pitch), positive up [deg].")
+    cable_loss_db: float = option(0.0, "Loss between the reader port and this antenna (cable, "
+                                  "connectors) [dB]: one way, so twice in the backscatter RSSI.")
 
     def __post_init__(self):
         if not self.name:

@@ -147,9 +147,27 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
             continue
         diff = val.get("difference", {})
         parts.append(f"<tr><td>{esc(val.get('label', key))}</td><td>{_fmt(val.get('ray_tracer'), 3)}</td>"
-                     f"<td>{_fmt(val.get('baseline'), 3)}</td><td>{_fmt(diff.get('difference'), 3)}"
+                     f"<td>{_fmt(val.get('baseline'), 3)}</td><td>{_fmt(diff, 3)}"
                      f"{_verdict(diff)}</td></tr>")
     parts.append("</table>")
+    cal = metrics.get("calibration")
+    if cal:
+        parts.append("<h2>Calibration</h2><p class='muted'>The simulated reader fitted to the "
+                     f"training tags ({cal.get('n_train_tags')} tags; 95 % intervals from "
+                     f"{cal.get('n_boot')} refits on resampled tags). {esc(cal.get('fixed', ''))}. "
+                     "The calibrated study: <code>calibrated.toml</code>.</p><table><tr><th>"
+                     "parameter</th><th>value [95 % interval]</th></tr>")
+        for key, v in cal.get("parameters", {}).items():
+            parts.append(f"<tr><td>{esc(key)}</td><td>{_fmt({'estimate': v['value'], **v}, 2)}</td></tr>")
+        parts.append("</table><table><tr><th>held-out</th><th>before</th><th>after</th>"
+                     "<th>after - before</th></tr>")
+        for key, val in cal.get("heldout", {}).items():
+            if isinstance(val, dict) and "after" in val:
+                diff = val.get("difference", {})
+                parts.append(f"<tr><td>{esc(val.get('label', key))}</td><td>{_fmt(val['before'], 3)}"
+                             f"</td><td>{_fmt(val['after'], 3)}</td><td>{_fmt(diff, 3)}"
+                             f"{_verdict(diff)}</td></tr>")
+        parts.append("</table>")
     links_p, tags_p = inside(run, "sim_vs_real/links.parquet"), inside(run, "scene/tags.parquet")
     if links_p.is_file() and tags_p.is_file():
         for fig, cap in zip(draw_sim_vs_real(pd.read_parquet(links_p), pd.read_parquet(tags_p)),

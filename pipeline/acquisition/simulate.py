@@ -198,7 +198,11 @@ def simulate_reads(
     links = _trace_gains(scene, tags, att.true_antenna, mask, budget.frequency_hz, trace,
                          cache_dir=cache_dir, progress=progress, channel_hz=att.frequency_hz)
     info: dict = {}
-    reads = reads_from_gains(att, tags, links.gain_db, links.traced, reader, rng, h=links.h,
+    gain = links.gain_db
+    loss = np.array([float(getattr(a, "cable_loss_db", 0.0)) for a in mounts])
+    if np.any(loss != 0.0):  # the gain from the reader port: the antenna's cable loss off
+        gain = np.where(links.traced, gain - loss[att.antenna][:, None], gain)
+    reads = reads_from_gains(att, tags, gain, links.traced, reader, rng, h=links.h,
                              dh_dpos=links.dh_dpos, population=pop, offsets_rad=offsets,
                              aux_rng=aux, info=info)
     excess_db = _check_margin(links.gain_db, links.traced, d_true, reader.range_margin_db, budget)

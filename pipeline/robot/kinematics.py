@@ -66,6 +66,9 @@ class AntennaMount:
         Boresight azimuth relative to the robot heading [rad] (positive = to the left).
     tilt_rad : float
         Boresight elevation [rad], positive up; becomes the antenna's pitch.
+    cable_loss_db : float
+        Loss between the reader port and the antenna [dB]: every link of this antenna is
+        this much weaker one way (:func:`pipeline.acquisition.simulate_reads`).
     """
 
     name: str
@@ -74,9 +77,10 @@ class AntennaMount:
     z_m: float
     yaw_rad: float
     tilt_rad: float = 0.0
+    cable_loss_db: float = 0.0
 
     def __post_init__(self) -> None:
-        vals = [self.x_m, self.y_m, self.z_m, self.yaw_rad, self.tilt_rad]
+        vals = [self.x_m, self.y_m, self.z_m, self.yaw_rad, self.tilt_rad, self.cable_loss_db]
         if not np.all(np.isfinite(vals)):
             raise ValueError(f"AntennaMount {self.name!r}: non-finite value in {vals}")
         if abs(self.tilt_rad) > np.pi / 2:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 from pipeline.config import StudyConfig
 from pipeline.stages import (
+    calibration,
     downstream,
     evaluation,
     figures,
@@ -101,6 +102,7 @@ RECORDED_STAGES: tuple[Stage, ...] = (
     dataclasses.replace(training_sets.STAGE, upstream=("recording",)),
     dataclasses.replace(models.STAGE, upstream=("training_sets", "recording")),
     sim_vs_real.STAGE,
+    calibration.STAGE,
     recorded_eval.STAGE,
     dataclasses.replace(report.STAGE, upstream=("recorded_eval",)),
 )

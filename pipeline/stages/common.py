@@ -288,7 +288,7 @@ def build_robot(cfg: StudyConfig):
 
     mounts = [
         AntennaMount(a.name, x_m=a.x_m, y_m=a.y_m, z_m=a.z_m, yaw_rad=float(np.deg2rad(a.yaw_deg)),
-                     tilt_rad=float(np.deg2rad(a.tilt_deg)))
+                     tilt_rad=float(np.deg2rad(a.tilt_deg)), cable_loss_db=float(a.cable_loss_db))
         for a in cfg.robot.antennas
     ]
     return Robot(antennas=mounts)

@@ -14,7 +14,8 @@ tag the unit) and every number gets its interval over tags and its paired compar
 with the chapter's ANFIS (:func:`pipeline.evaluation.headline.headline_intervals`).
 ``metrics.json`` holds ``source = "recording"``, ``heldout`` (estimates, against
 ``"measured"``), ``intervals``, ``comparisons``, ``recording`` (what the import
-counted), ``sim_vs_real`` (:mod:`pipeline.stages.sim_vs_real`) and ``model_fits``.
+counted), ``sim_vs_real`` (:mod:`pipeline.stages.sim_vs_real`), ``calibration``
+(:mod:`pipeline.stages.calibration`) and ``model_fits``.
 """
 
 from __future__ import annotations
@@ -108,6 +109,7 @@ def stage_recorded_eval(ctx) -> dict:
         **ivs,
         "recording": json.loads(ctx.input("recording/import.json").read_text()),
         "sim_vs_real": json.loads(ctx.input("sim_vs_real/summary.json").read_text()),
+        "calibration": json.loads(ctx.input("calibration.json").read_text()),
         "model_fits": model_fits({n: sensors[n] for n in COMPETITORS}),
     }
     atomic_write_json(ctx.out("metrics.json"), metrics)
@@ -117,4 +119,4 @@ def stage_recorded_eval(ctx) -> dict:
 STAGE = Stage("recorded_eval", stage_recorded_eval,
               ("seed", "training.d_max_m", "training.d_bin_m", "training.alpha_bin_deg",
                "training.min_attempts"),
-              ("recording", "models", "sim_vs_real"), description="held-out scores on the recording")
+              ("recording", "models", "sim_vs_real", "calibration"), description="held-out scores on the recording")

@@ -72,7 +72,7 @@ def stage_sim_vs_real(ctx) -> dict:
     pred = pd.DataFrame({
         "cycle": s["cycle"].to_numpy(), "antenna": s["antenna"].to_numpy(),
         "tag_id": s["tag_id"].astype(str).to_numpy(), "in_range": s["in_range"].to_numpy(bool),
-        "gain_db": gain, "p_sim": np.where(closed, 1.0 - q, 0.0),
+        "gain_db": gain, "miss_probability": q, "p_sim": np.where(closed, 1.0 - q, 0.0),
         "rssi_sim_dbm": np.where(closed, true_rssi_dbm(gain, budget), np.nan)})
     rec = _recorded(ctx)
     att = rec.merge(pred, on=_KEY, how="left", validate="one_to_one")

@@ -1,0 +1,35 @@
+"""``rfidstudy calibrate``: the recorded study run for its calibration (:mod:`pipeline.cli`).
+
+The recorded study's ``calibration`` stage (:mod:`pipeline.stages.calibration`) writes
+``OUT/calibration.json`` and ``OUT/calibrated.toml``; this command runs the study with
+the recording and points at them. Registered on :data:`pipeline.cli.app` when that
+module is imported.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from pipeline.cli import app, run
+
+__all__ = ["calibrate"]
+
+
+@app.command()
+def calibrate(
+    target: Annotated[str, typer.Argument(help="Study TOML: the building, the robot and the reader.")],
+    recording: Annotated[Path | None, typer.Option(help="A recording folder (reads.csv, tags.csv, "
+        "poses.csv) or reads file; default: the study's [recording].")] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Run directory.")] = Path("runs/calibration"),
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", "-s", help="Override a config key (repeatable).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+):
+    """Fit the simulated reader to a recording: OUT/calibration.json (each value with its
+    95 % interval, held-out residuals before and after) and OUT/calibrated.toml (the study
+    with the calibrated reader, for `rfidstudy run` or a placement study)."""
+    run(target=target, out=out, set_=set_, recording=recording, progress=progress)
+    typer.echo(f"calibration: {out / 'calibration.json'}\ncalibrated study: {out / 'calibrated.toml'}")
