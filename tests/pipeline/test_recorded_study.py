@@ -100,7 +100,12 @@ def test_recorded_study_scores_models_and_the_ray_tracer(recorded_run):
     held = set(tags.loc[tags["split"] == "eval", "tag_id"].astype(str))
     train = set(pd.read_parquet(recorded_run / "reads.parquet")["tag_id"].astype(str))
     assert held and not held & train  # no model saw a held-out tag's reads
+    cal = met["calibration"]  # the calibration stage's calibration.json
+    assert {"antenna_offset_db[1]", "tag_sensitivity_offset_db", "rssi_offset_db"} <= set(cal["parameters"])
+    assert cal["parameters"]["antenna_offset_db[0]"]["value"] == 0.0  # the reference antenna
+    assert {"before", "after", "difference"} <= set(cal["heldout"]["brier"])
     html = (recorded_run / "report.html").read_text()
+    assert "Calibration" in html
     assert "Simulation against the recording" in html and "data:image/png;base64" in html
     assert not (recorded_run / "truth").exists()  # no simulated truth in a recorded run
 
@@ -240,3 +245,19 @@ def test_figures_and_export_of_a_recorded_run(recorded_run, recording, tmp_path)
     assert set(again["epc"]) < set(first["epc"])  # the training tags' reads
     imp = read_impinj_csv(tmp_path / "again" / "reads_impinj.csv", "ETSI")
     assert imp["phase_rad"].isna().all()  # sllurp's log had no phase: empty, not invented
+
+
+def test_calibrate_writes_the_calibration_and_a_calibrated_study(tiny_study, recording, tmp_path):
+    from pipeline.config import load_config
+
+    out = tmp_path / "cal"
+    cache = tiny_study.config.tracing.cache_dir
+    res = CliRunner().invoke(app, ["calibrate", "configs/tiny.toml", "--recording", str(recording),
+                                   "--out", str(out), "--no-progress",
+                                   "--set", f"tracing.cache_dir={json.dumps(cache)}"])
+    assert res.exit_code == 0, res.output
+    cal = json.loads((out / "calibration.json").read_text())
+    study = load_config(out / "calibrated.toml")  # a valid study, without the recording
+    assert not study.recording.enabled
+    d1 = cal["parameters"]["antenna_offset_db[1]"]["value"]
+    assert study.robot.antennas[1].cable_loss_db == pytest.approx(-d1)
