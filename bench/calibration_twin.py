@@ -45,8 +45,8 @@ def _recorded(base, rec: Path, out: Path) -> dict:
     from pipeline.stages import run_full_study
 
     cfg = base
-    for key, name in (("recording.reads", "reads.csv"), ("recording.tags", "tags.csv"),
-                      ("recording.poses", "poses.csv")):
+    for key, name in (("recording.tags", "tags.csv"), ("recording.poses", "poses.csv"),
+                      ("recording.reads", "reads.csv")):  # reads last: it needs the tags
         cfg = replace_path(cfg, key, str(rec / name))
     t0 = time.perf_counter()
     run_full_study(cfg, out, command_line=["bench"])
