@@ -44,6 +44,9 @@ class RecordingConfig:
     heldout_fraction: float = option(
         0.3, "Share of the recorded tags held out of training and scored on (drawn per tag "
         "from the study's seed).")
+    time_offset_s: float = option(
+        0.0, "Added to every read's time before it meets the poses [s]: a known offset "
+        "between the reader's clock and the robot's (import.json's pose_lag estimates it).")
     max_tags: int = option(100_000, "Largest tag layout taken.", max=1_000_000)
 
     def __post_init__(self):
@@ -53,6 +56,8 @@ class RecordingConfig:
         if self.reads and not self.tags:
             raise ConfigError("recording.tags: a recording needs its tag layout (a CSV with "
                               "header epc,x_m,y_m,z_m)")
+        if not abs(self.time_offset_s) <= 86_400.0:  # NaN fails too
+            raise ConfigError(f"recording.time_offset_s must be within a day, got {self.time_offset_s!r}")
         if not 0.0 < self.heldout_fraction < 1.0:
             raise ConfigError(f"recording.heldout_fraction must be in (0, 1), got "
                               f"{self.heldout_fraction!r}")

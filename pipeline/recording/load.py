@@ -109,6 +109,8 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
     else:
         raw = read_impinj_csv(rcfg.reads, rcfg.region or region)
     raw = raw[list(READ_FIELDS)]
+    if rcfg.time_offset_s:
+        raw["t_s"] = raw["t_s"] + float(rcfg.time_offset_s)
     tags = read_tags_csv(rcfg.tags)
     if len(tags) > rcfg.max_tags:
         raise RecordingError(f"{rcfg.tags}: {len(tags)} tags, more than recording.max_tags = "

@@ -91,6 +91,10 @@ def stage_recording(ctx) -> dict:
     table, poses, att_info = recorded_read_table(rec, sc.tags, mounts, cfg.reader,
                                                  frequency_hz=cfg.frequency_hz)
     info = {**rec.info, **att_info}
+    if rec.poses is not None:  # a clock offset between reads and poses, estimated, reported
+        from pipeline.recording.lag import pose_lag_profile
+
+        info["pose_lag"] = pose_lag_profile(rec.reads, rec.poses, sc.tags, mounts, rec.info["ports"])
     held = set(np.asarray(sc.tags.ids)[split == "eval"].tolist())
     is_held = table["tag_id"].astype(str).isin(held).to_numpy()
     meta = {"source": "recording", "reads_file": cfg.recording.reads, "format": rec.format,

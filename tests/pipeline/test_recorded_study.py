@@ -261,3 +261,21 @@ def test_calibrate_writes_the_calibration_and_a_calibrated_study(tiny_study, rec
     assert not study.recording.enabled
     d1 = cal["parameters"]["antenna_offset_db[1]"]["value"]
     assert study.robot.antennas[1].cable_loss_db == pytest.approx(-d1)
+
+
+def test_a_pose_clock_offset_is_found(recording):
+    """Poses logged 0.8 s late: the estimated lag moves by 0.8 s (within two 0.1 s steps)."""
+    from pipeline.config import load_config
+    from pipeline.recording import read_poses_csv, read_sllurp_csv, read_tags_csv
+    from pipeline.recording.lag import pose_lag_profile
+    from pipeline.recording.load import recorded_tagset
+    from pipeline.stages.common import build_robot
+
+    reads = read_sllurp_csv(recording / "reads.csv")
+    poses = read_poses_csv(recording / "poses.csv")
+    rec = Recording(reads, poses, read_tags_csv(recording / "tags.csv"), "sllurp", {})
+    tags, mounts = recorded_tagset(rec), build_robot(load_config("configs/tiny.toml")).antennas
+    base = pose_lag_profile(reads, poses, tags, mounts, [1, 2])
+    late = pose_lag_profile(reads, poses.assign(t_s=poses["t_s"] + 0.8), tags, mounts, [1, 2])
+    assert late["lag_s"] - base["lag_s"] == pytest.approx(0.8, abs=0.2)
+    assert late["rmse_db"] < late["rmse_db_at_zero"]
