@@ -108,7 +108,8 @@ def run(
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (tcp://host:8786): the study's ray tracing runs there as "
              "Dask tasks, chunks of antenna positions (sets tracing.scheduler).")] = None,
-    recording: Annotated[Path | None, typer.Option(help="Run on a recording: folder or reads file (docs/recordings.md).")] = None,
+    recording: Annotated[Path | None, typer.Option(help="Run on a recording: a folder, reads file "
+        "or ROS 2 bag (docs/recordings.md).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
 ):
     """Run (or resume) the whole study into a run directory.
@@ -353,17 +354,15 @@ def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
 def export(
     run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="New, empty, or an earlier export.")],
-    format_: Annotated[str, typer.Option("--format", help="csv (mcap: not yet).")] = "csv",
+    format_: Annotated[str, typer.Option("--format", help="csv, or mcap (a ROS 2 bag).")] = "csv",
 ):
-    """Write a study's training tour as a recording: reads in sllurp's CSV layout, the
-    robot's estimated poses, the tag layout, the antenna mounts (docs/recordings.md)."""
-    from pipeline.recording import export_csv
+    """Write a study's training tour as a recording: reads in sllurp's CSV layout (or a ROS 2
+    bag), the robot's estimated poses, the tag layout, the antenna mounts (docs/recordings.md)."""
+    from pipeline.recording import export_recording
 
-    if format_ != "csv":
-        _fail(f"--format {format_!r}: only 'csv' is written so far")
     _existing_run_dir(run_dir, "export")
     try:
-        files = export_csv(run_dir, out)
+        files = export_recording(run_dir, out, format_)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc))
     typer.echo(f"{len(files)} files in {out}: {', '.join(p.name for p in files)}")

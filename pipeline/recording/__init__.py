@@ -9,12 +9,16 @@
 - :mod:`.attempts` - the read attempts rebuilt from a log of reads (the rule the
   detection model's counts rest on);
 - :mod:`.config` - the ``[recording]`` section;
+- :mod:`.rosbag` - a ROS 2 bag's reads and poses (:func:`read_rosbag`, with ``rosbags``:
+  MCAP and sqlite3, no ROS install), and a run written as a bag (:func:`export_mcap`;
+  the writer is :mod:`.rosbag_export`); the message type ``rfidstudy_msgs/msg/RfidRead``
+  is ``rfidmsg/RfidRead.msg``;
 - :mod:`.export` - a finished study's training tour written as such a recording
-  (``rfidstudy export RUN --format csv --out DIR``).
+  (``rfidstudy export RUN --format csv|mcap --out DIR``).
 
 The recorded study's stages are :mod:`pipeline.stages.recorded`,
 :mod:`pipeline.stages.sim_vs_real` and :mod:`pipeline.stages.recorded_eval`. Not here
-yet (issue 53): ROS 2 bags in and out, calibration.
+yet (issue 53): calibration.
 """
 
 from .attempts import recorded_read_table
@@ -29,9 +33,10 @@ from .csvformats import (
     write_sllurp_csv,
     write_tags_csv,
 )
-from .export import export_csv
+from .export import export_csv, export_recording
 from .impinj import read_impinj_csv, write_impinj_csv
 from .load import Recording, load_recording, recorded_tagset
+from .rosbag import export_mcap, read_rosbag
 
 __all__ = [
     "Recording",
@@ -39,9 +44,12 @@ __all__ = [
     "RecordingError",
     "align_reads",
     "export_csv",
+    "export_mcap",
+    "export_recording",
     "load_recording",
     "read_impinj_csv",
     "read_poses_csv",
+    "read_rosbag",
     "read_sllurp_csv",
     "read_tags_csv",
     "recorded_read_table",

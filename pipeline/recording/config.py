@@ -15,8 +15,9 @@ from pipeline.configschema import ConfigError, option, section
 
 __all__ = ["FORMATS", "RecordingConfig"]
 
-#: Formats of a reads file (``"auto"``: told apart by the file's header).
-FORMATS = ("auto", "sllurp", "impinj")
+#: Formats of a reads file (``"auto"``: a ROS 2 bag by its folder or suffix
+#: (:func:`pipeline.recording.load.is_rosbag`), a CSV by its header).
+FORMATS = ("auto", "sllurp", "impinj", "rosbag")
 
 
 @section
@@ -27,14 +28,26 @@ class RecordingConfig:
     the study's ``[[robot.antennas]]``; without ``poses`` they are absolute positions
     and orientations in the scene frame (fixed antennas: a portal, a survey grid)."""
 
-    reads: str = option("", "The reader's log: a CSV file ('' = no recording, the reads are simulated).")
+    reads: str = option(
+        "", "The reader's log: a CSV file, or a ROS 2 bag (its folder, or one .mcap / .db3 "
+        "file) ('' = no recording, the reads are simulated).")
     format: str = option(
         "auto", "Format of `reads`: 'sllurp' (the CSV `sllurp log` writes), 'impinj' (an Impinj "
-        "ItemTest / Octane-style CSV) or 'auto' (told apart by the header).")
+        "ItemTest / Octane-style CSV), 'rosbag' (a ROS 2 bag: reads and poses from its topics) "
+        "or 'auto' (a bag by its metadata.yaml or suffix, a CSV by its header).")
     tags: str = option("", "Tag layout CSV: header epc,x_m,y_m,z_m with optional nx,ny,nz [m].")
     poses: str = option(
         "", "Robot poses CSV: header t_s,x_m,y_m,yaw_rad, the localisation's estimate in the "
-        "scene frame ('' = fixed antennas: the mounts are absolute).")
+        "scene frame ('' = from the bag's pose_topic for a ROS 2 bag, else fixed antennas: "
+        "the mounts are absolute). Set with a bag, it replaces the bag's poses.")
+    reads_topic: str = option(
+        "/rfid/reads", "A bag's topic of the reads: rfidstudy_msgs/msg/RfidRead, or "
+        "std_msgs/msg/String with one JSON object per read (docs/recordings.md).")
+    pose_topic: str = option(
+        "/amcl_pose", "A bag's topic of the robot's pose in the map frame: "
+        "geometry_msgs/msg/PoseWithCovarianceStamped, PoseStamped, nav_msgs/msg/Odometry, or "
+        "'/tf' (the transforms map -> base_link, or map -> odom -> base_link); '' = no poses "
+        "(fixed antennas).")
     region: str = option(
         "", "Channel plan the reader ran ('ETSI', 'FCC'): an Impinj channel index becomes its "
         "frequency by it ('' = reader.region).")
@@ -61,6 +74,10 @@ class RecordingConfig:
         if not 0.0 < self.heldout_fraction < 1.0:
             raise ConfigError(f"recording.heldout_fraction must be in (0, 1), got "
                               f"{self.heldout_fraction!r}")
+        for key, topic in (("reads_topic", self.reads_topic), ("pose_topic", self.pose_topic)):
+            if (topic or key == "reads_topic") and not topic.startswith("/"):
+                raise ConfigError(f"recording.{key} must be a topic name with its leading '/' "
+                                  f"(as a bag stores it), got {topic[:60]!r}")
         ports = list(self.antenna_ports)
         if any(isinstance(p, bool) or not 1 <= p <= 65535 for p in ports):
             raise ConfigError(f"recording.antenna_ports must be reader ports >= 1, got {ports}")
@@ -83,28 +100,47 @@ class RecordingConfig:
 
 def recording_overrides(path: str | Path) -> list[str]:
     """``--set`` overrides that make a study run on the recording at ``path``
-    (``rfidstudy run STUDY --recording PATH``): a folder names its ``reads.csv``, ``tags.csv``
-    and (where present) ``poses.csv``, as ``rfidstudy export`` writes them; a file is the
-    reads file itself (the tags and poses then come from the study's ``[recording]``).
+    (``rfidstudy run STUDY --recording PATH``):
+
+    - a folder with ``reads.csv`` and ``tags.csv`` (and, where present, ``poses.csv``),
+      as ``rfidstudy export --format csv`` writes it;
+    - a folder with a ROS 2 bag ``bag/`` and ``tags.csv``, as ``rfidstudy export --format
+      mcap`` writes it; or a bag itself (a folder with ``metadata.yaml``), the tags then
+      from a ``tags.csv`` next to it (in its parent folder) or the study's
+      ``[recording]``. The reads and the poses then come from the bag's topics
+      (``recording.reads_topic``, ``recording.pose_topic``);
+    - a file: the reads file itself (a ``.mcap`` / ``.db3`` file is a bag); the tags and
+      poses then come from the study's ``[recording]``.
 
     Raises
     ------
     ConfigError
-        Nothing at ``path``, or a folder without ``reads.csv`` and ``tags.csv``.
+        Nothing at ``path``, or a folder that is none of these.
     """
     import json
 
+    def put(key: str, value) -> str:
+        return f"recording.{key}={json.dumps(str(value))}"
+
     p = Path(path).expanduser().resolve()
     if p.is_file():
-        return [f"recording.reads={json.dumps(str(p))}"]
+        return [put("reads", p)]
     if not p.is_dir():
         raise ConfigError(f"--recording {path}: no such file or folder")
+    bag, tags = None, p / "tags.csv"
+    if (p / "metadata.yaml").is_file():
+        bag, tags = p, p.parent / "tags.csv"
+    elif not (p / "reads.csv").is_file() and (p / "bag" / "metadata.yaml").is_file():
+        bag = p / "bag"
+    if bag is not None:  # the bag's poses, unless the study names a poses file
+        return [put("reads", bag), put("format", "rosbag"),
+                *([put("tags", tags)] if tags.is_file() else [])]
     missing = [n for n in ("reads.csv", "tags.csv") if not (p / n).is_file()]
     if missing:
         raise ConfigError(f"--recording {path}: the folder has no {' or '.join(missing)} "
-                          "(a recording folder holds reads.csv, tags.csv and poses.csv)")
-    sets = [f"recording.reads={json.dumps(str(p / 'reads.csv'))}",
-            f"recording.tags={json.dumps(str(p / 'tags.csv'))}"]
+                          "(a recording folder holds reads.csv, tags.csv and poses.csv, or a "
+                          "ROS 2 bag folder bag/ and tags.csv)")
+    sets = [put("reads", p / "reads.csv"), put("tags", p / "tags.csv")]
     if (p / "poses.csv").is_file():
-        sets.append(f"recording.poses={json.dumps(str(p / 'poses.csv'))}")
+        sets.append(put("poses", p / "poses.csv"))
     return sets

@@ -1,8 +1,10 @@
 """A recording's files read, checked and joined: :func:`load_recording`.
 
-The reads file's format is told apart by its header (``format = "auto"``): ``sllurp
-log``'s ``timestamp,reader,antenna,rssi,epc`` (:mod:`.csvformats`) or an Impinj tag
-report CSV (:mod:`.impinj`). What the import leaves out is counted, never merged
+The reads file's format is told apart (``format = "auto"``): a ROS 2 bag by its folder's
+``metadata.yaml`` or a ``.mcap`` / ``.db3`` suffix (:mod:`.rosbag`: the reads and the
+poses from its topics), a CSV by its header: ``sllurp log``'s
+``timestamp,reader,antenna,rssi,epc`` (:mod:`.csvformats`) or an Impinj tag report CSV
+(:mod:`.impinj`). What the import leaves out is counted, never merged
 silently: reads of EPCs absent from the tag layout (listed), reads outside the poses'
 time span. A read on a port no mount is on stops the import (``recording.antenna_ports``).
 """
@@ -24,7 +26,8 @@ from .csvformats import (
 )
 from .impinj import IMPINJ_FIELDS, impinj_header, read_impinj_csv
 
-__all__ = ["READ_FIELDS", "Recording", "detect_format", "load_recording", "recorded_tagset"]
+__all__ = ["READ_FIELDS", "Recording", "detect_format", "is_rosbag", "load_recording",
+           "recorded_tagset"]
 
 #: Columns of :attr:`Recording.reads`.
 READ_FIELDS = ("t_s", "antenna_port", "rssi_dbm", "epc", "phase_rad", "frequency_hz",
@@ -50,7 +53,7 @@ class Recording:
     tags : pandas.DataFrame
         ``epc, x_m, y_m, z_m, nx, ny, nz`` (normals NaN where the file gives none).
     format : str
-        ``"sllurp"`` or ``"impinj"``.
+        ``"sllurp"``, ``"impinj"`` or ``"rosbag"``.
     info : dict
         What the import counted: reads in the file, kept, of unknown EPCs (and the first
         :data:`LISTED` of them), outside the poses' span.
@@ -63,14 +66,28 @@ class Recording:
     info: dict = field(default_factory=dict)
 
 
+def is_rosbag(path: str | Path) -> bool:
+    """``path`` is a ROS 2 bag: a folder with ``metadata.yaml``, or a ``.mcap`` / ``.db3``
+    file."""
+    p = Path(path)
+    return (p.is_dir() and (p / "metadata.yaml").is_file()) or (
+        p.is_file() and p.suffix.lower() in (".mcap", ".db3"))
+
+
 def detect_format(path: str | Path) -> str:
-    """``"sllurp"`` or ``"impinj"`` from the reads file's header.
+    """``"rosbag"`` (:func:`is_rosbag`), else ``"sllurp"`` or ``"impinj"`` from the reads
+    file's header.
 
     Raises
     ------
     RecordingError
         Neither header (the file's is quoted, shortened).
     """
+    if is_rosbag(path):
+        return "rosbag"
+    if Path(path).is_dir():
+        raise RecordingError(f"{path}: a folder, and not a ROS 2 bag (no metadata.yaml): name "
+                             "the reads file, or the bag's folder")
     head = impinj_header(path)
     if all(c in head for c in SLLURP_COLUMNS):
         return "sllurp"
@@ -94,14 +111,24 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
     n_mounts : int
         The study's antenna mounts: ports ``rcfg.antenna_ports`` or 1..n_mounts.
 
+    A ROS 2 bag (``format = "rosbag"``) gives the reads (``rcfg.reads_topic``) and the
+    poses (``rcfg.pose_topic``; ``rcfg.poses``, where set, replaces them):
+    :func:`.rosbag.read_rosbag`.
+
     Raises
     ------
     RecordingError
-        A file that cannot be read (named, with its line), a tag layout over
+        A file that cannot be read (named, with its line; a bag, with the topic), a tag layout over
         ``max_tags``, a read on a port no mount is on, no read of a known tag left.
     """
     fmt = detect_format(rcfg.reads) if rcfg.format == "auto" else rcfg.format
-    if fmt == "sllurp":
+    bag_poses = None
+    if fmt == "rosbag":
+        from .rosbag import read_rosbag
+
+        raw, bag_poses = read_rosbag(rcfg.reads, reads_topic=rcfg.reads_topic,
+                                     pose_topic="" if rcfg.poses else rcfg.pose_topic)
+    elif fmt == "sllurp":
         raw = read_sllurp_csv(rcfg.reads).drop(columns=["reader"])
         for c in ("phase_rad", "frequency_hz", "doppler_hz"):
             raw[c] = np.nan
@@ -132,7 +159,7 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
             "unknown_epcs": {str(k): int(v) for k, v in unknown.head(LISTED).items()},
             "n_unknown_epcs": int(len(unknown))}
     reads = raw.loc[known].reset_index(drop=True)
-    poses = read_poses_csv(rcfg.poses) if rcfg.poses else None
+    poses = read_poses_csv(rcfg.poses) if rcfg.poses else bag_poses
     if poses is not None:
         t = poses["t_s"].to_numpy(np.float64)
         tr = reads["t_s"].to_numpy(np.float64)
