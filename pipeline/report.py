@@ -41,7 +41,7 @@ from pipeline.runstore import (
     UnsafePathError,
     atomic_write_text,
     read_run_json,
-    regular_file,
+    read_run_text,
     run_files,
 )
 
@@ -262,12 +262,10 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     manifest = _load_json(run / "manifest.json") or {}
     metrics = _load_json(run / "metrics.json")
     cfg_path = run / "config.toml"
-    if os.path.lexists(cfg_path) and not regular_file(cfg_path):
-        raise ValueError(f"{cfg_path}: not a regular file (a link or a special file): not read")
+    cfg_text = read_run_text(cfg_path) if os.path.lexists(cfg_path) else ""  # no link, no FIFO
     try:
-        cfg_text = cfg_path.read_text(encoding="utf-8") if cfg_path.exists() else ""
         cfg = tomllib.loads(cfg_text) if cfg_text else {}
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{cfg_path}: not a valid TOML file: {exc}") from None
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
