@@ -116,8 +116,8 @@ def not_regular(path: str | Path) -> str | None:
     if stat.S_ISREG(mode):
         return None
     if stat.S_ISLNK(mode):
-        return (f"{path}: a symbolic link in a run directory, not followed (rfidstudy never reads "
-                "through links there; put the real file in its place)")
+        return (f"{path}: a symbolic link, not followed (rfidstudy never reads through links in "
+                "its folders; put the real file in its place)")
     kind = next((k for test, k in _KINDS if test(mode)), "a special file")
     return f"{path}: not a regular file ({kind}): not read"
 
