@@ -113,3 +113,33 @@ def test_the_fig7_helpers_do_not_read_a_linked_config_outside(run, tmp_path):
     for helper in (_training_d_max, _tilts):
         with pytest.raises(ValueError, match=r"config.toml: a symbolic link"):
             helper(run)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", '"abc"', "1e30", "true", "[865e6]"])
+def test_a_bad_frequency_in_the_runs_config_is_one_line_naming_key_and_file(run, tmp_path, value):
+    """The report extrapolated materials to 0 Hz (or NaN, or 1e30) and said nothing; a
+    string was "could not convert string to float: 'abc'" with no key or file."""
+    from pipeline.config import StudyConfig, config_to_toml
+
+    text = config_to_toml(StudyConfig())
+    assert "\nfrequency_hz = " in text
+    (run / "config.toml").write_text(text.replace("\nfrequency_hz = ", f"\nfrequency_hz = {value}\n#", 1))
+    for command in ("report", "figures"):
+        res = _invoke(command, run, tmp_path)
+        errors = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+        assert res.exit_code in (1, 2) and "Traceback" not in res.output, (command, res.output)
+        assert len(errors) == 1, (command, res.output)
+        assert str(run / "config.toml") in errors[0] and "frequency_hz" in errors[0], (command, res.output)
+        assert not (run / "report.html").exists()
+
+
+def test_a_good_frequency_in_the_runs_config_is_reported(run, tmp_path):
+    from pipeline.config import StudyConfig, config_to_toml, replace_path
+
+    (run / "config.toml").write_text(config_to_toml(replace_path(StudyConfig(), "frequency_hz", 915e6)))
+    (run / "scene").mkdir()
+    (run / "scene" / "scene.json").write_text(json.dumps({"materials": ["concrete"]}))
+    res = _invoke("report", run, tmp_path)
+    assert res.exit_code == 0, res.output
+    html = (run / "report.html").read_text()
+    assert "9.15e+08" in html and "extrapolated to 0.915 GHz" in html
