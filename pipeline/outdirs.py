@@ -21,7 +21,7 @@ from pipeline.config import ConfigError
 from pipeline.runpaths import json_dict
 from pipeline.runpaths import tool_marker as own_marker
 
-__all__ = ["MARK", "check_output_dir", "mark_output_dir", "own_marker"]
+__all__ = ["MARK", "check_marker_file", "check_output_dir", "mark_output_dir", "own_marker"]
 
 #: The marker file of an output folder (JSON: tool, kind, files written).
 MARK = ".rfidstudy-output.json"
@@ -30,6 +30,24 @@ MARK = ".rfidstudy-output.json"
 def _marker(out: Path) -> dict | None:
     d = json_dict(out / MARK, max_bytes=1 << 20)
     return d if d is not None and d.get("tool") == "rfidstudy" else None
+
+
+def check_marker_file(out: str | Path, name: str) -> None:
+    """Stop unless ``out/name`` (a marker: ``placement.json``, ``sweep.json``) is missing
+    or a regular file: a symbolic link there is never followed to decide whose the folder
+    is, and a FIFO is never opened.
+
+    Raises
+    ------
+    ConfigError
+        ``--out <out>: <out/name>: a symbolic link, not followed ...`` or ``... not a
+        regular file (a FIFO) ...`` (:func:`pipeline.runpaths.not_regular`).
+    """
+    from pipeline.runpaths import not_regular
+
+    why = not_regular(Path(out) / name)
+    if why is not None:
+        raise ConfigError(f"--out {out}: {why}; the folder is not used")
 
 
 def check_output_dir(out: str | Path, kind: str, names=()) -> Path:
@@ -69,6 +87,7 @@ def check_output_dir(out: str | Path, kind: str, names=()) -> Path:
                               "run's folders are its stages' and its report's)")
     if not entries:
         return res
+    check_marker_file(out, MARK)
     mark = _marker(out)
     if mark is None:
         shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")

@@ -41,7 +41,7 @@ from pipeline.runstore import (
     UnsafePathError,
     atomic_write_text,
     read_run_json,
-    regular_file,
+    read_run_text,
     run_files,
 )
 
@@ -79,13 +79,41 @@ def _load_json(path: Path) -> dict | None:
     return data
 
 
+#: Keys of a run's config.toml the report computes with, checked as ``load_config``
+#: checks them (the rest it only shows, escaped).
+_COMPUTED_KEYS = ("frequency_hz",)
+
+
+def _checked_config(cfg: dict, path: Path) -> dict:
+    """``cfg`` (a run's config.toml) with the keys of :data:`_COMPUTED_KEYS` checked as
+    :func:`pipeline.config.load_config` checks them (an absent key stays absent).
+
+    The whole file is not validated: a run directory of an older version may hold keys
+    since renamed, and the report must still read it.
+
+    Raises
+    ------
+    ValueError
+        One line naming ``path`` and the key: ``frequency_hz = 0`` (``nan``, a string,
+        ``1e30``) is refused, not extrapolated to.
+    """
+    from pipeline.config import ConfigError, config_from_mapping
+
+    given = {k: cfg[k] for k in _COMPUTED_KEYS if k in cfg}
+    try:
+        checked = config_from_mapping(given, source=str(path))
+    except ConfigError as exc:
+        raise ValueError(str(exc)) from None
+    return {**cfg, **{k: getattr(checked, k) for k in given}}
+
+
 def _methods_html(run: Path, cfg: dict) -> list[str]:
     """Methods: materials (P.2040 fits extrapolated to the study frequency), radio geometry
     and the held-out design, from scene/scene.json and config.toml."""
     from scenes.materials import extrapolated_materials
 
     info = _load_json(run / "scene" / "scene.json") or {}
-    f_hz = float(cfg.get("frequency_hz", 865e6))
+    f_hz = float(cfg.get("frequency_hz", 865e6))  # checked by _checked_config
     out = ["<h2>Methods</h2>",
            "<p>Walls, floor and ceiling are traced as one radio surface per physical layer "
            "carrying its thickness (a stud partition as two plasterboard leaves); Sionna RT "
@@ -266,13 +294,12 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
 
         return write_recorded_report(run, metrics, out or run / "report.html")
     cfg_path = run / "config.toml"
-    if os.path.lexists(cfg_path) and not regular_file(cfg_path):
-        raise ValueError(f"{cfg_path}: not a regular file (a link or a special file): not read")
+    cfg_text = read_run_text(cfg_path) if os.path.lexists(cfg_path) else ""  # no link, no FIFO
     try:
-        cfg_text = cfg_path.read_text(encoding="utf-8") if cfg_path.exists() else ""
         cfg = tomllib.loads(cfg_text) if cfg_text else {}
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{cfg_path}: not a valid TOML file: {exc}") from None
+    cfg = _checked_config(cfg, cfg_path)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         "<meta name='viewport' content='width=device-width, initial-scale=1'>",

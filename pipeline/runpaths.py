@@ -3,15 +3,17 @@
 Nothing in a run directory is trusted to point elsewhere. :func:`inside` turns a
 relative path of the run directory into a path that stays inside it (relative, no
 ``..``, no component a symbolic link: a link is never followed); :func:`regular_file`,
-:func:`run_files`, :func:`read_run_json` and :func:`file_sha256` read or hash regular
-files only (a FIFO or device would hang or leak), opened without following a final
-link and checked on the descriptor they read. A path that fails raises
-:class:`UnsafePathError`, naming it. :mod:`pipeline.runstore` builds the run directory's
-writes on these and re-exports them.
+:func:`run_files`, :func:`read_run_json`, :func:`read_run_text` and :func:`file_sha256`
+read or hash regular files only (a FIFO or device would hang or leak): checked by
+``lstat`` before they are opened (:func:`not_regular` names what is there instead),
+opened without following a final link and checked again on the descriptor they read.
+A path that fails raises :class:`UnsafePathError`, naming it. :mod:`pipeline.runstore`
+builds the run directory's writes on these and re-exports them.
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
@@ -19,8 +21,8 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["RunDirError", "UnsafePathError", "file_sha256", "inside", "json_dict",
-           "read_run_json", "regular_file", "run_files", "tool_marker"]
+__all__ = ["RunDirError", "UnsafePathError", "file_sha256", "inside", "json_dict", "not_regular",
+           "read_run_json", "read_run_text", "regular_file", "run_files", "tool_marker"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +92,36 @@ def regular_file(path: str | Path) -> bool:
         return False
 
 
+_KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a device"),
+          (stat.S_ISBLK, "a device"), (stat.S_ISSOCK, "a socket"))
+
+
+def not_regular(path: str | Path) -> str | None:
+    """Why ``path`` may not be read as a run-directory file, or None (a regular file, or
+    nothing there): a message naming it, from ``lstat`` alone (nothing is opened: a FIFO
+    would wait for a writer, a device may act on being opened).
+
+    Returns
+    -------
+    str or None
+        ``"<path>: a symbolic link ..."``, ``"<path>: not a regular file (a FIFO)"`` (a
+        folder, a device, a socket), ``"<path>: cannot be inspected (...)"``, or None.
+    """
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        return f"{path}: cannot be inspected ({exc.strerror or type(exc).__name__})"
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISLNK(mode):
+        return (f"{path}: a symbolic link, not followed (rfidstudy never reads through links in "
+                "its folders; put the real file in its place)")
+    kind = next((k for test, k in _KINDS if test(mode)), "a special file")
+    return f"{path}: not a regular file ({kind}): not read"
+
+
 def run_files(root: str | Path, folder: str, pattern: str) -> list[Path]:
     """The regular files of run-directory ``folder`` matching ``pattern``, sorted.
 
@@ -110,20 +142,62 @@ def run_files(root: str | Path, folder: str, pattern: str) -> list[Path]:
 
 
 def _open_regular(path: str | Path):
-    """A binary file object of ``path``, opened without following a final link and
-    without blocking (a FIFO is then refused by ``fstat``, not waited on); the check and
-    the read are on one descriptor, so the file cannot be swapped between them.
+    """A binary file object of ``path``, checked by ``lstat`` before it is opened
+    (:func:`not_regular`: a FIFO, a device or a link is never opened), then opened
+    without following a final link and without blocking and checked again on the
+    descriptor it reads (the file cannot be swapped for a FIFO or a link in between).
 
     Raises
     ------
     UnsafePathError
-        ``path`` is not a regular file.
+        ``path`` is a link or not a regular file (the message names it and what it is).
+    FileNotFoundError
+        Nothing is there.
     """
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    why = not_regular(path)
+    if why is not None:
+        raise UnsafePathError(why)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:  # made a link since the lstat
+            raise UnsafePathError(not_regular(path) or f"{path}: a symbolic link, not followed") from None
+        raise
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
-        raise UnsafePathError(f"{path} is not a regular file: not read")
+        raise UnsafePathError(not_regular(path) or f"{path}: not a regular file: not read")
     return os.fdopen(fd, "rb")
+
+
+def read_run_text(path: str | Path, max_bytes: int = 16 << 20) -> str:
+    """The UTF-8 text of a run-directory file (``config.toml``), read as from a stranger.
+
+    Parameters
+    ----------
+    path : path
+        The file (a regular file; a link or special file is refused unopened).
+    max_bytes : int
+        Largest size read [bytes].
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: a link, not a regular file (a FIFO, a folder, a
+        device), missing, unreadable, larger than ``max_bytes``, or not UTF-8.
+    """
+    try:
+        with _open_regular(path) as fh:
+            data = fh.read(max_bytes + 1)
+    except RunDirError as exc:
+        raise ValueError(str(exc)) from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or type(exc).__name__})") from None
+    if len(data) > max_bytes:
+        raise ValueError(f"{path}: larger than {max_bytes >> 20} MiB: not read")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not UTF-8 text") from None
 
 
 def read_run_json(path: str | Path, max_bytes: int = 64 << 20):
@@ -148,7 +222,9 @@ def read_run_json(path: str | Path, max_bytes: int = 64 << 20):
         if len(data) > max_bytes:
             raise ValueError(f"larger than {max_bytes >> 20} MiB")
         return json.loads(data.decode("utf-8"))
-    except (OSError, ValueError, RecursionError, RunDirError) as exc:
+    except RunDirError as exc:  # a link or a special file: the message names it
+        raise ValueError(str(exc)) from None
+    except (OSError, ValueError, RecursionError) as exc:
         raise ValueError(f"{path}: cannot read JSON: {exc}") from None
 
 

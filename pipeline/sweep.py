@@ -49,7 +49,7 @@ from pipeline.config import (
     replace_path,
 )
 from pipeline.configschema import from_dict
-from pipeline.outdirs import own_marker
+from pipeline.outdirs import check_marker_file, own_marker
 from pipeline.parallel import WORKERS_ENV, usable_cpus
 from pipeline.runstore import atomic_write_bytes, atomic_write_json
 
@@ -338,6 +338,7 @@ def check_sweep_dir(out_dir: str | Path) -> Path:
     if entries:
         # sweep.json is written before the first point runs and says whose it is: a
         # sweep.json of the user's (the same name) does not make the folder ours
+        check_marker_file(out_dir, "sweep.json")  # a link is refused by name, never followed
         ours = own_marker(out / "sweep.json", "sweep", ("source", "parameters", "runs"))
         if entries and not ours:
             shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")

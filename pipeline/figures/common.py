@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -124,9 +123,10 @@ def require(run_dir, *relpaths: str) -> Path:
 
     Only a regular file reached without a symbolic link counts
     (:func:`pipeline.runstore.inside`): a figure never reads a file outside the run
-    directory, and a link there is reported like a missing input, naming it.
+    directory. A link, FIFO, folder or device there is reported like a missing input,
+    naming it and what it is (:func:`pipeline.runstore.not_regular`).
     """
-    from pipeline.runstore import UnsafePathError, inside, regular_file
+    from pipeline.runstore import UnsafePathError, inside, not_regular, regular_file
 
     run_dir = Path(run_dir)
     refused = []
@@ -138,8 +138,12 @@ def require(run_dir, *relpaths: str) -> Path:
             continue
         if regular_file(path):
             return path
-    why = f" ({'; '.join(refused)})" if refused else ""
-    raise MissingInput(f"{run_dir}: none of {list(relpaths)} exists{why}")
+        why = not_regular(path)
+        if why is not None:
+            refused.append(why)
+    if refused:
+        raise MissingInput("; ".join(refused))
+    raise MissingInput(f"{run_dir}: none of {list(relpaths)} exists")
 
 
 def find_first(run_dir, *relpaths: str) -> Path | None:
@@ -255,11 +259,10 @@ def model_metrics(run_dir) -> dict:
     run directories from before it). Older run directories (one ``models`` section,
     in-sample) are read as they are.
     """
+    from pipeline.runstore import read_run_json  # size-capped, a regular file, no link
+
     path = require(run_dir, "metrics.json")
-    try:
-        m = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    m = read_run_json(path)
     if isinstance(m, dict) and isinstance(m.get("heldout"), dict):
         held = m["heldout"]
         out = {k: dict(v) for k, v in held.get("models", {}).items()}

@@ -108,30 +108,32 @@ def _fig7_table(run_dir: Path) -> pd.DataFrame:
 
 def _training_d_max(run_dir: Path) -> float | None:
     """config.toml ``[training] d_max_m`` [m] (the Fig. 7 training domain); None if absent."""
-    import tomllib
-
-    p = run_dir / "config.toml"
-    if not p.is_file():
-        return None
-    try:
-        v = tomllib.loads(p.read_text()).get("training", {}).get("d_max_m")
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    v = _run_config(run_dir).get("training", {}).get("d_max_m")
     return None if v is None else float(v)
 
 
 def _tilts(run_dir: Path) -> dict | float:
     """Antenna index -> tilt [rad] from config.toml ``[[robot.antennas]] tilt_deg``; else 0."""
+    ants = _run_config(run_dir).get("robot", {}).get("antennas", [])
+    return {i: float(np.radians(a.get("tilt_deg", 0.0))) for i, a in enumerate(ants)} or 0.0
+
+
+def _run_config(run_dir: Path) -> dict:
+    """The run's config.toml as a table ({} where there is none); ValueError naming it
+    when it is a link, a FIFO or another special file (never followed, never waited on:
+    :func:`pipeline.runstore.read_run_text`) or not TOML."""
+    import os
     import tomllib
 
-    p = run_dir / "config.toml"
-    if not p.is_file():
-        return 0.0
+    from pipeline.runstore import read_run_text
+
+    p = Path(run_dir) / "config.toml"
+    if not os.path.lexists(p):
+        return {}
     try:
-        ants = tomllib.loads(p.read_text()).get("robot", {}).get("antennas", [])
+        return tomllib.loads(read_run_text(p))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
-    return {i: float(np.radians(a.get("tilt_deg", 0.0))) for i, a in enumerate(ants)} or 0.0
 
 
 def fig_fig7_error(run_dir, out_dir=None) -> list[Path]:

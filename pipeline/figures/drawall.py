@@ -53,15 +53,15 @@ def _run_banner(run_dir: Path) -> str:
     """The smoke-scale banner of a run (:mod:`pipeline.smokescale`) from its config.toml."""
     import tomllib
 
-    from pipeline.runstore import regular_file
+    from pipeline.runstore import read_run_text, regular_file
     from pipeline.smokescale import smoke_banner
 
     path = run_dir / "config.toml"
-    if not regular_file(path):
+    if not regular_file(path):  # a link or a FIFO: the report names it
         return ""
     try:
-        return smoke_banner(tomllib.loads(path.read_text(encoding="utf-8")))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return smoke_banner(tomllib.loads(read_run_text(path)))
+    except (ValueError, tomllib.TOMLDecodeError):
         return ""
 
 

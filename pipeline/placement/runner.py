@@ -121,8 +121,9 @@ def _prepare_dir(out: Path) -> None:
     marker = out / MARKER
     # the lock files alone (a first run stopped before its marker) are not someone's files
     theirs = out.is_dir() and any(p.name not in HOUSEKEEPING for p in out.iterdir())
-    from pipeline.outdirs import own_marker
+    from pipeline.outdirs import check_marker_file, own_marker
 
+    check_marker_file(out, MARKER)  # a link is refused by name, never followed
     if theirs and not own_marker(marker, "placement", ("source", "file", "replicates", "candidates")):
         raise ConfigError(f"--out {out}: a non-empty directory that is not a placement study "
                           f"(no {MARKER}); choose a new or empty directory")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import os
 from pathlib import Path
 
 import pytest
@@ -87,3 +89,49 @@ def test_a_users_sweep_json_or_placement_json_is_not_the_tools_marker(tmp_path):
     (own / "sweep.json").write_text('{"tool": "rfidstudy", "kind": "placement"}')
     with pytest.raises(ConfigError):
         check_sweep_dir(own)
+
+
+@pytest.mark.parametrize("name", ["placement.json", "sweep.json"])
+@pytest.mark.parametrize("kind", ["link to the tool's marker", "link to /dev/zero", "fifo"])
+def test_a_marker_that_is_a_link_or_fifo_is_refused_by_name_never_followed(tmp_path, name, kind):
+    """A placement.json (sweep.json) that is a symbolic link, even to a marker of the
+    tool's, does not make the folder the tool's: refused naming the link, its target
+    unread and unchanged, nothing written (issue 54: "no placement.json")."""
+    from pipeline.placement.runner import _prepare_dir
+
+    check = _prepare_dir if name == "placement.json" else check_sweep_dir
+    mark = tmp_path / "elsewhere.json"
+    mark.write_text(json.dumps({"tool": "rfidstudy", "kind": name.split(".")[0], "source": "s.toml",
+                                "parameters": {}, "runs": [], "file": "p.toml", "replicates": 3,
+                                "candidates": []}))
+    before = mark.read_bytes()
+    d = tmp_path / "out"
+    d.mkdir()
+    (d / "summary.csv").write_text("my,table\n")
+    if kind == "fifo":
+        os.mkfifo(d / name)
+        words = "not a regular file (a FIFO)"
+    else:
+        if kind == "link to /dev/zero" and not Path("/dev/zero").exists():
+            pytest.skip("no /dev/zero")
+        (d / name).symlink_to(mark if kind.endswith("marker") else "/dev/zero")
+        words = "a symbolic link, not followed"
+    with pytest.raises(ConfigError) as err:
+        check(d)
+    assert f"{d / name}: {words}" in str(err.value) and "\n" not in str(err.value)
+    assert mark.read_bytes() == before
+    assert sorted(p.name for p in d.iterdir()) == sorted([name, "summary.csv"])
+
+
+def test_placement_out_with_a_linked_placement_json_is_one_line(tmp_path):
+    d = tmp_path / "out"
+    d.mkdir()
+    mark = tmp_path / "elsewhere.json"
+    mark.write_text('{"tool": "rfidstudy", "kind": "placement"}')
+    (d / "placement.json").symlink_to(mark)
+    res = CliRunner().invoke(app, ["placement", str(ROOT / "configs" / "placement_example.toml"),
+                                   "--out", str(d)])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "placement.json: a symbolic link, not followed" in errors[0], res.output
+    assert sorted(p.name for p in d.iterdir()) == ["placement.json"]
