@@ -8,13 +8,13 @@ config (:mod:`pipeline.stages.calibration`); the table gives each parameter plan
 recovered with its 95 % interval, and the control's, and the held-out RSSI MAE before
 and after calibration.
 
-``--mcl`` keeps the robot's MCL (the recording's poses are then estimates, as a real
-robot's are); without it the poses are the true ones, so the ray tracer sees exactly the
-links that were read and only the planted differences and the reader's noise remain.
+Two variants, one table each: the recording's poses *true* (the ray tracer then sees
+exactly the links that were read: only the planted differences and the reader's noise
+remain), and the robot's *MCL estimates* (as a real robot's are; ``--true-only`` skips it).
 
-    python bench/calibration_twin.py [--mcl] [--length 10] [--out /tmp/twin]
+    python bench/calibration_twin.py [--true-only] [--length 10] [--out /tmp/calibration_twin]
 
-Prints the table and writes ``twin.json`` under ``--out``.
+Writes ``twin.json`` under ``--out/<variant>``.
 """
 
 from __future__ import annotations
@@ -60,18 +60,23 @@ def _fmt(v: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mcl", action="store_true", help="keep MCL: the recorded poses are estimates")
+    ap.add_argument("--true-only", action="store_true", help="only the variant with true poses")
     ap.add_argument("--length", type=float, default=10.0, help="tour length [m]")
     ap.add_argument("--out", type=Path, default=Path("/tmp/calibration_twin"))
     args = ap.parse_args()
+    for mcl in (False,) if args.true_only else (False, True):
+        twin(args.out / ("mcl" if mcl else "true_poses"), mcl=mcl, length_m=args.length)
 
+
+def twin(out: Path, *, mcl: bool, length_m: float) -> dict:
+    """One variant: the control and the planted twin, simulated, exported, calibrated."""
     from pipeline.config import load_config, replace_path
 
     root = Path(__file__).resolve().parents[1]
     base = load_config(root / "configs" / "tiny.toml")
-    base = replace_path(base, "tour.max_length_m", args.length)
-    base = replace_path(base, "tracing.cache_dir", str(args.out / "cache"))
-    if not args.mcl:
+    base = replace_path(base, "tour.max_length_m", length_m)
+    base = replace_path(base, "tracing.cache_dir", str(out / "cache"))
+    if not mcl:
         base = replace_path(base, "localisation.enabled", False)
     ants = list(base.robot.antennas)
     ants[1] = dataclasses.replace(ants[1], cable_loss_db=3.0)
@@ -79,10 +84,10 @@ def main() -> None:
     planted = replace_path(planted, "reader.tag_sensitivity_dbm", base.reader.tag_sensitivity_dbm - 2.0)
     res = {}
     for name, cfg in (("control", base), ("planted", planted)):
-        d = args.out / name
+        d = out / name
         res[name] = _study(cfg, d / "sim", d / "rec", d / "recorded")
         res[name].update(_recorded(base, d / "rec", d / "recorded"))
-    print(f"calibration twin ({'MCL poses' if args.mcl else 'true poses'}, {args.length} m of corridor)")
+    print(f"\ncalibration twin ({'MCL poses' if mcl else 'true poses'}, {length_m} m of corridor)")
     print(f"{'parameter':28s} {'planted':>8s}  {'recovered [95 %]':>24s}  {'control [95 %]':>24s}")
     cp, pp = res["control"]["calibration"]["parameters"], res["planted"]["calibration"]["parameters"]
     for key in pp:
@@ -93,7 +98,8 @@ def main() -> None:
         print(f"{name}: held-out RSSI MAE before {h['before']['estimate']:.2f} dB, after "
               f"{h['after']['estimate']:.2f} dB ({h['difference']['verdict']}; {h['n_tags']} tags); "
               f"simulate {res[name]['simulate_s']:.0f} s, recorded study {res[name]['recorded_s']:.0f} s")
-    (args.out / "twin.json").write_text(json.dumps(res, indent=1, default=str))
+    (out / "twin.json").write_text(json.dumps(res, indent=1, default=str))
+    return res
 
 
 if __name__ == "__main__":

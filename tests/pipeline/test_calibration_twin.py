@@ -15,9 +15,10 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.mark.slow
 def test_calibration_finds_what_was_planted(tmp_path):
-    subprocess.run([sys.executable, str(ROOT / "bench" / "calibration_twin.py"), "--out", str(tmp_path)],
+    subprocess.run([sys.executable, str(ROOT / "bench" / "calibration_twin.py"), "--out", str(tmp_path),
+                    "--true-only"],
                    check=True, cwd=ROOT, timeout=3600)
-    res = json.loads((tmp_path / "twin.json").read_text())
+    res = json.loads((tmp_path / "true_poses" / "twin.json").read_text())
     planted = res["planted"]["calibration"]
     for key, want in (("antenna_offset_db[1]", -3.0), ("tag_sensitivity_offset_db", -2.0),
                       ("rssi_offset_db", 0.0)):
