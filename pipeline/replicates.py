@@ -89,6 +89,7 @@ def stage_replicates(ctx) -> dict:
     rows = run_studies(args, scheduler=rep.scheduler or None, workers=rep.workers or None,
                        on_done=lambda i, row: update(advance=1) and False,
                        command="run --replicates")
+    _check_no_writer(dirs, rows)
     entries = []
     for k, (c, d, row) in enumerate(zip(configs, dirs, rows, strict=True)):
         ok = row.get("status") == "complete"
@@ -106,6 +107,25 @@ def stage_replicates(ctx) -> dict:
     if n_ok == 0:
         raise StageError(f"no replicate completed: {entries[0]['error']}")
     return {"complete": n_ok, "failed": [e["k"] for e in entries if e["status"] != "complete"]}
+
+
+def _check_no_writer(dirs: list, rows: list) -> None:
+    """Pool nothing while another process writes a replicate: a worker of an earlier,
+    killed run still alive holds the replicate's lock (its study here refused to start),
+    and pooling the others would say "2 of 3 replicates" with exit 0.
+
+    Raises
+    ------
+    StageError
+        Naming the replicate's folder and the process (its PID, as its lock says)
+        (:func:`pipeline.runstore.check_no_writer`).
+    """
+    from pipeline.runstore import RunDirLocked, check_no_writer
+
+    try:
+        check_no_writer(dirs, "pooling the replicates", rows)
+    except RunDirLocked as exc:
+        raise StageError(str(exc)) from None
 
 
 def stage_pooled(ctx) -> dict:

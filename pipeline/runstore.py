@@ -31,7 +31,9 @@ One writer: :meth:`RunStore.lock` holds an exclusive ``filelock`` lock on
 ``.rfidstudy.lock`` for a whole run (or a ``figures`` / ``report`` rewrite); a second
 writer is refused with the holder's process id, command and start time. The lock is
 an ``flock``: the kernel releases it when its process dies, so a stale lock is taken
-over by the next writer.
+over by the next writer. :func:`lock_holder` asks who holds it without writing: a
+replicated run or a placement pools or ranks its studies only when no process (a
+worker of an earlier, killed run) still writes one (:func:`check_no_writer`).
 """
 
 from __future__ import annotations
@@ -73,11 +75,13 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
+    "check_no_writer",
     "file_sha256",
     "final_name",
     "inside",
     "is_run_dir",
     "json_hash",
+    "lock_holder",
     "not_regular",
     "open_run_dir",
     "read_run_json",
@@ -116,6 +120,68 @@ class RunDirLocked(RunDirError):
 
 
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.[^.]+\.tmp(?:\.[A-Za-z0-9]+)?$")
+
+
+def lock_holder(root: str | Path) -> str | None:
+    """Who holds run directory ``root``'s lock now, or None (free, or never locked).
+
+    The lock is tried without waiting and released at once; nothing is written (a
+    missing lock file, or one that is a link, is "never locked": nothing is created).
+
+    Returns
+    -------
+    str or None
+        ``"process 1234 (rfidstudy run ..., since 2026-...)"`` as the holder's owner file
+        says (``"another process"`` without one).
+    """
+    from filelock import FileLock, Timeout
+
+    root = Path(root)
+    if not regular_file(root / LOCK_FILE):
+        return None
+    lock = FileLock(str(root / LOCK_FILE), timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        return RunStore(root)._owner()
+    except OSError:  # unreadable: not this check's to judge; the writer's own lock says
+        return None
+    lock.release()
+    return None
+
+
+def check_no_writer(dirs, what: str, rows=None) -> None:
+    """Stop before ``what`` (pooling, ranking) reads ``dirs`` while a process writes one.
+
+    Parameters
+    ----------
+    dirs : sequence of path
+        Run directories (replicates, candidates' replicates); missing ones pass.
+    what : str
+        What would read them (for the message).
+    rows : sequence of dict, optional
+        The studies' rows (:func:`pipeline.sweep.run_point`), one per directory: a study
+        refused for a lock (``kind`` ``RunDirLocked``) whose holder has ended since
+        stops ``what`` too (its directory is not complete yet).
+
+    Raises
+    ------
+    RunDirLocked
+        Naming the first directory whose lock another process holds and that process
+        (:func:`lock_holder`: a worker of an earlier, killed run still writing it), or
+        whose study was refused for a lock.
+    """
+    for d in dirs:
+        holder = lock_holder(d) if Path(d).is_dir() else None
+        if holder is not None:
+            raise RunDirLocked(f"{d} is still being written by {holder} (a worker of an "
+                               f"earlier run?): {what} refused; wait for it to end, or stop "
+                               "it, and rerun")
+    for d, row in zip(dirs, rows or (), strict=False):
+        if isinstance(row, dict) and row.get("kind") == "RunDirLocked":
+            cause = str(row.get("error") or "").split(": one writer", 1)[0]
+            raise RunDirLocked(f"{cause or d} when this run tried {d} (a worker of an earlier "
+                               f"run?): {what} refused; rerun")
 
 
 def final_name(path) -> str:

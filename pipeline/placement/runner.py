@@ -258,6 +258,7 @@ class _Runner:
             self._run_batch(wave, range(n, 2 * n), self.confirmed)
 
     def _run_batch(self, todo: list[Candidate], ks=None, book: dict | None = None) -> None:
+        from pipeline.runstore import check_no_writer
         from pipeline.sweep import run_studies
 
         from .objectives import traced_counts
@@ -306,8 +307,10 @@ class _Runner:
                                             self.expected, elapsed, traced, failed, eta, ran))
             return stop
 
-        run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
-                    client=self.client, on_done=on_done, command="placement", upto=self.upto)
+        rows = run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
+                           client=self.client, on_done=on_done, command="placement", upto=self.upto)
+        # a worker of an earlier, killed run still writing a replicate: nothing is ranked
+        check_no_writer([a[1] for a in args], "ranking the candidates", rows)
         self.wall_s += time.monotonic() - t0
         self.n_run += batch_done[0]
         if self.stop:
@@ -341,9 +344,10 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
     ConfigError
         The directory is not a placement directory; no candidate finished.
     pipeline.runstore.RunDirLocked
-        Another process runs a placement study in it.
+        Another process runs a placement study in it, or still writes a candidate's
+        study (a worker of an earlier, killed run): nothing is ranked.
     """
-    from pipeline.runstore import RunStore
+    from pipeline.runstore import RunStore, check_no_writer
 
     from .summary import write_outputs
 
@@ -365,6 +369,9 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                 if t.name not in {c.name for c in cands}:
                     cands.append(t)
             _write_marker(out, spec, cands)
+        # the candidates on disk (earlier runs' too): none may still be written while ranked
+        check_no_writer([d for d in sorted(out.glob("candidates/*/*"))  # never through a link
+                         if not d.is_symlink() and not d.parent.is_symlink()], "ranking the candidates")
         top, summary = [], None
         if spec.settings.confirm_top:
             from .summary import summarise, top_candidates
