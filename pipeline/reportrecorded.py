@@ -176,7 +176,13 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
                              f"</td><td>{_fmt(val['after'], 3)}</td><td>{_fmt(diff, 3)}"
                              f"{_verdict(diff)}</td></tr>")
         parts.append("</table>")
+    from pipeline.runpaths import not_regular
+
     links_p, tags_p = inside(run, "sim_vs_real/links.parquet"), inside(run, "scene/tags.parquet")
+    for p in (links_p, tags_p):  # a link or a FIFO is refused, never followed
+        why = not_regular(p)
+        if why:
+            raise ValueError(why)
     if links_p.is_file() and tags_p.is_file():
         for fig, cap in zip(draw_sim_vs_real(pd.read_parquet(links_p), pd.read_parquet(tags_p)),
                             ("Ray-traced against measured mean RSSI per (tag, antenna) link.",

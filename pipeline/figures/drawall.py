@@ -72,9 +72,14 @@ def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:
     import pandas as pd
 
     from pipeline.reportrecorded import draw_sim_vs_real
+    from pipeline.runpaths import not_regular
     from pipeline.runstore import inside
 
     links, tags = inside(run_dir, "sim_vs_real/links.parquet"), inside(run_dir, "scene/tags.parquet")
+    for p in (links, tags):  # a link or a FIFO in a stranger's run is refused, never followed
+        why = not_regular(p)
+        if why:
+            raise ValueError(why)
     if not (links.is_file() and tags.is_file()):
         log.warning("recorded study without sim_vs_real/links.parquet: no figures")
         return []
