@@ -31,5 +31,18 @@ def calibrate(
     """Fit the simulated reader to a recording: OUT/calibration.json (each value with its
     95 % interval, held-out residuals before and after) and OUT/calibrated.toml (the study
     with the calibrated reader, for `rfidstudy run` or a placement study)."""
+    if recording is None:  # the study's own [recording], or nothing to calibrate to
+        from pipeline.config import ConfigError
+        from pipeline.targets import resolve_target
+
+        try:
+            enabled = resolve_target(target, list(set_ or []), None).recording.enabled
+        except ConfigError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        if not enabled:
+            typer.echo(f"error: {target}: no recording to calibrate to: give --recording or a "
+                       "[recording] section (docs/recordings.md)", err=True)
+            raise typer.Exit(2)
     run(target=target, out=out, set_=set_, recording=recording, progress=progress)
     typer.echo(f"calibration: {out / 'calibration.json'}\ncalibrated study: {out / 'calibrated.toml'}")

@@ -121,13 +121,16 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
         parts.append(f"<tr><td>{label}</td><td>{esc(str(rec.get(key, '–')))}</td></tr>")
     parts.append("</table>")
     lag = rec.get("pose_lag")
-    if lag:
+    if lag and lag.get("lag_s") is not None:
         note = (f"The reads fit the poses best {lag['lag_s']:+.1f} s shifted (RSSI residual "
                 f"{lag['rmse_db_at_zero']:.2f} dB at 0 s, {lag['rmse_db']:.2f} dB there): check the "
                 f"reader's and the robot's clocks; <code>recording.time_offset_s = {lag['lag_s']:.1f}"
                 "</code> applies it." if abs(lag["lag_s"]) >= 0.3 else
                 f"No clock offset between reads and poses found (best {lag['lag_s']:+.1f} s).")
         parts.append(f"<p class='muted'>{note} (pipeline.recording.lag)</p>")
+    elif lag:
+        parts.append("<p class='muted'>No clock offset between reads and poses could be "
+                     f"estimated from {lag.get('n_reads')} training reads (pipeline.recording.lag).</p>")
     if rec.get("unknown_epcs"):
         parts.append("<p class='muted'>Unknown EPCs (reads): " + ", ".join(
             f"{esc(k)} ({v})" for k, v in rec["unknown_epcs"].items()) + "</p>")

@@ -112,9 +112,6 @@ class ReaderConfig:
     )
     rssi_noise_db: float = option(1.0, "Reader RSSI noise standard deviation [dB].")
     rssi_resolution_db: float = option(0.5, "Reader RSSI quantisation step [dB].")
-    rssi_offset_db: float = option(
-        0.0, "Offset of the reported RSSI from the received power [dB] (a reader's calibration; "
-        "rfidstudy calibrate fits it).")
     anticollision_miss_probability: float = option(
         0.05, "Probability that a powered, audible tag is still missed in a cycle ('fixed' inventory)."
     )

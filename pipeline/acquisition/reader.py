@@ -143,7 +143,7 @@ def reader_response(
         seen = np.asarray(inventory(powered, heard), dtype=np.int64).reshape(g.shape)
         read = powered & heard & (seen > 0)
         collided = powered & heard & ~read
-    rssi = p_rx + reader.rssi_offset_db + reader.rssi_noise_db * z
+    rssi = p_rx + reader.rssi_noise_db * z
     if reader.rssi_resolution_db > 0:
         rssi = np.round(rssi / reader.rssi_resolution_db) * reader.rssi_resolution_db
     rssi = np.where(read, rssi, np.nan)

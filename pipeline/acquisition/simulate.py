@@ -192,14 +192,16 @@ def simulate_reads(
     pop = draw_population(tags, reader, aux, surface_materials(scene, tags))
     offsets = phase_offsets(len(mounts), len(plan.channels_hz), aux)
     d_true = antenna_frame_angles(att.true_antenna, tags.positions_m).d_m
-    # the lowest channel reaches farthest; a more sensitive tag too
-    extra_db = np.maximum(0.0, -pop.sensitivity_offset_db)[None, :]
+    # the lowest channel reaches farthest; a more sensitive tag too, and an antenna whose
+    # cable loss is negative (a calibrated antenna stronger than nominal)
+    loss = np.array([float(getattr(a, "cable_loss_db", 0.0)) for a in mounts])
+    extra_db = (np.maximum(0.0, -pop.sensitivity_offset_db)[None, :]
+                + np.maximum(0.0, -loss[att.antenna])[:, None])
     mask = in_range_mask(d_true, reader, float(plan.channels_hz.min()), extra_db)
     links = _trace_gains(scene, tags, att.true_antenna, mask, budget.frequency_hz, trace,
                          cache_dir=cache_dir, progress=progress, channel_hz=att.frequency_hz)
     info: dict = {}
     gain = links.gain_db
-    loss = np.array([float(getattr(a, "cable_loss_db", 0.0)) for a in mounts])
     if np.any(loss != 0.0):  # the gain from the reader port: the antenna's cable loss off
         gain = np.where(links.traced, gain - loss[att.antenna][:, None], gain)
     reads = reads_from_gains(att, tags, gain, links.traced, reader, rng, h=links.h,

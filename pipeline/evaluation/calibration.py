@@ -29,16 +29,19 @@ absorb); a read's RSSI ``~ N(P_rx(g') + r, sigma_r)``. The likelihood of every
 attempt (read or not) and every read's RSSI is maximised with ``scipy.optimize.minimize``
 (L-BFGS-B; a handful of parameters, so numerical gradients).
 
-**What the data cannot tell apart** (and so what is fixed): a gain common to every
-antenna is the same, in the reads, as a tag sensitivity offset plus twice that in the
-reader's RSSI offset (``delta_a + t``, ``delta_s + t``, ``r - 2t`` give the same
-likelihood), so antenna 0's offset is 0 and the others are relative to it. Material
+**What the data cannot tell apart** (and so what is fixed): where the tag's side limits
+the link (the usual UHF case), a gain common to every antenna is the same, in the reads,
+as a tag sensitivity offset plus twice that in the reader's RSSI offset (``delta_a + t``,
+``delta_s + t``, ``r - 2t`` give the same likelihood), so antenna 0's offset is 0 and the
+others are relative to it. Attempts the tracer found no path for have no gain to offset
+and are left out (counted). Material
 parameters (a wall's permittivity) would need the path geometry re-weighted per trial;
 they are not fitted here.
 
 Intervals: every parameter's 95 % percentile interval from refits on the training tags
 resampled with replacement (the tag the unit, :data:`N_BOOT` resamples, each from the
-point estimate). The held-out comparison, before (the uncalibrated hard threshold of
+point estimate; none below :data:`MIN_TAGS` tags). A percentile interval, not BCa: each
+resample is a whole maximum-likelihood fit, so the jackknife's n more fits are not spent. The held-out comparison, before (the uncalibrated hard threshold of
 :mod:`.simreal`) and after, is :func:`.simreal.sim_vs_real`'s on the same tags.
 """
 
@@ -53,8 +56,10 @@ from scipy.special import log_ndtr, ndtr
 
 __all__ = ["N_BOOT", "CalibrationFit", "calibrate", "fit_calibration", "predict"]
 
-#: Bootstrap resamples of the training tags behind each interval.
-N_BOOT = 100
+#: Bootstrap resamples of the training tags behind each interval (5 per tail at 95 %).
+N_BOOT = 200
+#: Fewest training tags an interval is drawn from.
+MIN_TAGS = 5
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
@@ -114,10 +119,20 @@ def _nll(x, gain, antenna, read, rssi, weight, budget, n_ant):
 
 
 def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.05,
-                    weight=None, start=None) -> CalibrationFit:
+                    weight=None, start=None, strict: bool = True) -> CalibrationFit:
     """Maximum-likelihood :class:`CalibrationFit` on attempts ``att`` (``gain_db`` finite,
     ``antenna``, ``read``, ``rssi_dbm``); ``weight`` per row (a bootstrap's multiplicities);
-    ``miss_probability`` the start of its fit."""
+    ``miss_probability`` the start of its fit.
+
+    Raises
+    ------
+    ValueError
+        (``strict``) The optimiser did not converge, or an offset or spread ended on the
+        edge of its range (+-30 dB; 30 dB): a failed fit, not a calibration.
+    """
+    if not np.all(np.isfinite(att["gain_db"].to_numpy(np.float64))):
+        raise ValueError("calibration: attempts without a traced gain cannot be fitted "
+                         "(drop them first: calibrate() does)")
     gain = att["gain_db"].to_numpy(np.float64)
     antenna = att["antenna"].to_numpy(np.int64)
     read = att["read"].to_numpy(bool)
@@ -134,6 +149,22 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
     res = minimize(_nll, x0, args=(gain, antenna, read, rssi, w, budget, n_antennas),
                    method="L-BFGS-B", bounds=bounds)
     fit = CalibrationFit.from_vector(res.x, n_antennas)
+    if strict:
+        if not res.success or not np.isfinite(res.fun):
+            raise ValueError(f"calibration: the maximum-likelihood fit did not converge "
+                             f"({str(res.message)[:80]}); the recording may hold too few reads")
+        edge = [name for name, v, hi in
+                [(f"antenna_offset_db[{i + 1}]", abs(x), 30.0) for i, x in enumerate(res.x[:k])]
+                + [("tag_sensitivity_offset_db", abs(res.x[k]), 30.0),
+                   ("rssi_offset_db", abs(res.x[k + 1]), 30.0),
+                   ("rssi_noise_db", float(np.exp(res.x[k + 2])), 30.0),
+                   ("detection_spread_db", float(np.exp(res.x[k + 3])), 30.0)]
+                if v >= hi * (1 - 1e-6)]
+        if edge:
+            raise ValueError(f"calibration: {', '.join(edge)} ended on the edge of its range "
+                             "(30 dB): the traced building and the recording disagree beyond "
+                             "what the reader's parameters can explain (check the mounts, "
+                             "the poses' frame, recording.antenna_ports)")
     object.__setattr__(fit, "_x", res.x)
     return fit
 
@@ -144,7 +175,7 @@ def _bootstrap(att, budget, n_ant, point, rng, n_boot):
     rows = []
     for _ in range(n_boot):
         mult = np.bincount(rng.integers(0, len(units), len(units)), minlength=len(units))
-        f = fit_calibration(att, budget, n_ant, weight=mult[code],
+        f = fit_calibration(att, budget, n_ant, weight=mult[code], strict=False,
                             start=point._x)  # noqa: SLF001 - our own start vector
         rows.append(f.as_dict())
     return pd.DataFrame(rows)
@@ -175,17 +206,27 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     """
     from .simreal import sim_vs_real
 
+    q = float(np.mean(miss_probability))
+    traced = np.isfinite(att["gain_db"].to_numpy(np.float64))
+    # an attempt the tracer found no path for has no gain to offset: left out, counted
+    n_untraced = int((~traced).sum())
+    n_untraced_reads = int((~traced & att["read"].to_numpy(bool)).sum())
+    att = att[traced]
     train = att[att["split"] == "train"].reset_index(drop=True)
     held = att[att["split"] == "eval"].reset_index(drop=True)
-    q = float(np.mean(miss_probability))
     fit = fit_calibration(train, budget, n_antennas, miss_probability=max(q, 0.05))
-    boot = _bootstrap(train, budget, n_antennas, fit, np.random.default_rng([int(seed), 53]),
-                      int(n_boot))
+    n_tags = int(train["tag_id"].nunique())
+    boot = (_bootstrap(train, budget, n_antennas, fit, np.random.default_rng([int(seed), 53]),
+                       int(n_boot)) if n_tags >= MIN_TAGS else None)
     params = {}
     for key, value in fit.as_dict().items():
-        lo, hi = np.percentile(boot[key].to_numpy(np.float64), [2.5, 97.5])
-        params[key] = {"value": value, "low": float(lo), "high": float(hi),
+        lo, hi = (np.percentile(boot[key].to_numpy(np.float64), [2.5, 97.5]) if boot is not None
+                  else (None, None))
+        params[key] = {"value": value, "low": None if lo is None else float(lo),
+                       "high": None if hi is None else float(hi),
                        "unit": "" if key == "miss_probability" else "dB"}
+        if boot is None:
+            params[key]["note"] = f"{n_tags} training tags: an interval needs at least {MIN_TAGS}"
     params["antenna_offset_db[0]"].update(low=0.0, high=0.0, note="fixed: the reference antenna")
     p_after, rssi_after = predict(fit, held["gain_db"], held["antenna"], budget)
     rx_before = np.asarray(budget.reader_rssi_dbm(held["gain_db"].to_numpy(np.float64)), np.float64)
@@ -201,6 +242,7 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
         "parameters": params,
         "fixed": "antenna 0's offset is 0: a gain common to all antennas equals a tag "
                  "sensitivity offset plus twice that in the RSSI offset",
-        "heldout": heldout, "n_train_tags": int(train["tag_id"].nunique()), "n_boot": int(n_boot),
+        "heldout": heldout, "n_train_tags": n_tags, "n_boot": int(n_boot) if boot is not None else 0,
+        "n_attempts_untraced": n_untraced, "n_reads_untraced": n_untraced_reads,
         "simulated_miss_probability": q,
     }

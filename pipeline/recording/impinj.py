@@ -122,7 +122,8 @@ def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:
     RecordingError
         Naming ``file:line`` and the column: no EPC / port / time / RSSI column, a value
         that is no number, a port below 1, an EPC that is not hex, a channel index outside
-        the region's table, time running backwards; an empty file.
+        the region's table; an empty file. Rows out of time order are sorted (a reader
+        reports in report order) and counted: ``attrs["n_reordered"]``.
     """
     head = impinj_header(path)
     cols: dict[str, tuple[str, float | None]] = {}
@@ -136,7 +137,6 @@ def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:
                                  f"{','.join(head)[:120]}")
     names = tuple(c for c, _ in cols.values())
     out: dict[str, list] = {k: [] for k in cols}
-    last = -math.inf
     for line, r in _rows(path, names):
         for field, (col, scale) in cols.items():
             text = r[col]
@@ -158,13 +158,8 @@ def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:
                 out[field].append(v)
                 continue
             v = _number(path, line, col, text) * scale if text else float("nan")
-            if field == "t_s":
-                if not text:
-                    raise RecordingError(f"{path}:{line}: column {col!r}: empty")
-                if v < last:
-                    raise RecordingError(f"{path}:{line}: column {col!r}: {text[:30]} is before "
-                                         "the row above: time runs backwards")
-                last = v
+            if field == "t_s" and not text:
+                raise RecordingError(f"{path}:{line}: column {col!r}: empty")
             out[field].append(v)
     if not out["t_s"]:
         raise RecordingError(f"{path}: no reads after the header")
@@ -180,7 +175,15 @@ def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:
     frame["phase_rad"] = np.mod(frame["phase_rad"], 2.0 * np.pi)
     frame["seen_count"] = (np.asarray(out["seen_count"], np.int64) if "seen_count" in out
                            else np.ones(n, np.int64))
-    return pd.DataFrame(frame)
+    df = pd.DataFrame(frame)
+    # a reader's reports come in report order, not LastSeen order (a tag report summarises
+    # sightings; several antennas' reports interleave): sorted by time, the reordered counted
+    t = df["t_s"].to_numpy()
+    n_back = int(np.sum(t < np.maximum.accumulate(t)))
+    if n_back:
+        df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
+    df.attrs["n_reordered"] = n_back
+    return df
 
 
 def write_impinj_csv(reads: pd.DataFrame, path: str | Path, region: str) -> Path:

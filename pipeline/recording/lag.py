@@ -9,7 +9,10 @@ model with the antenna pattern's first two harmonics in the bearing and a per-an
 offset fitted by least squares (the pattern carries the lag: a misplaced read sees its
 tag at the wrong bearing); the lag whose residual is smallest is the estimate.
 It is *reported* (``recording/import.json`` ``pose_lag``), never applied: a user who
-agrees sets ``recording.time_offset_s``.
+agrees sets ``recording.time_offset_s``. No lag is reported (``lag_s`` None) from fewer
+than :data:`MIN_READS` reads, or where the best lag's residual is not at least
+:data:`MIN_GAIN_DB` below zero lag's (a robot standing still fits every lag alike). The
+recording stage gives it the training tags' reads only.
 """
 
 from __future__ import annotations
@@ -21,6 +24,10 @@ __all__ = ["LAGS_S", "pose_lag_profile"]
 
 #: Candidate lags [s]: +-2 s in 0.1 s steps.
 LAGS_S = np.round(np.arange(-2.0, 2.0001, 0.1), 3)
+#: Fewest reads a lag is estimated from.
+MIN_READS = 50
+#: Least improvement of the RSSI residual over zero lag for a lag to be reported [dB].
+MIN_GAIN_DB = 0.1
 
 
 def pose_lag_profile(reads: pd.DataFrame, poses: pd.DataFrame, tags, mounts, ports,
@@ -44,7 +51,8 @@ def pose_lag_profile(reads: pd.DataFrame, poses: pd.DataFrame, tags, mounts, por
     Returns
     -------
     dict
-        ``lag_s`` (the best), ``rmse_db`` at it and at zero lag (``rmse_db_at_zero``),
+        ``lag_s`` (the best; None: none found, module doc), ``rmse_db`` at the best and
+        at zero lag (``rmse_db_at_zero``),
         ``profile`` ({lag: rmse}), ``n_reads`` (reads inside the poses' span at every lag).
     """
     from pipeline.robot.kinematics import antenna_poses
@@ -74,7 +82,11 @@ def pose_lag_profile(reads: pd.DataFrame, poses: pd.DataFrame, tags, mounts, por
                              *[(ant == k).astype(float) for k in range(1, len(mounts))]])
         res = rssi - X @ np.linalg.lstsq(X, rssi, rcond=None)[0]
         profile[float(lag)] = float(np.sqrt(np.mean(res ** 2))) if len(res) else float("nan")
-    best = min(profile, key=lambda k: profile[k])
     zero = min(profile, key=lambda k: abs(k))
-    return {"lag_s": best, "rmse_db": profile[best], "rmse_db_at_zero": profile[zero],
-            "profile": profile, "n_reads": int(keep.sum())}
+    finite = {k: v for k, v in profile.items() if np.isfinite(v)}
+    best = min(finite, key=lambda k: finite[k]) if finite else zero
+    n = int(keep.sum())
+    found = (n >= MIN_READS and best in finite and zero in finite
+             and finite[zero] - finite[best] >= MIN_GAIN_DB)
+    return {"lag_s": best if found else None, "rmse_db": profile[best],
+            "rmse_db_at_zero": profile[zero], "profile": profile, "n_reads": n}

@@ -135,6 +135,7 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
         raw["seen_count"] = 1
     else:
         raw = read_impinj_csv(rcfg.reads, rcfg.region or region)
+    n_reordered = int(raw.attrs.get("n_reordered", 0))
     raw = raw[list(READ_FIELDS)]
     if rcfg.time_offset_s:
         raw["t_s"] = raw["t_s"] + float(rcfg.time_offset_s)
@@ -157,7 +158,9 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
     info = {"format": fmt, "n_reads_in_file": int(len(raw)), "n_tags": int(len(tags)),
             "n_reads_unknown_epc": int((~known).sum()),
             "unknown_epcs": {str(k): int(v) for k, v in unknown.head(LISTED).items()},
-            "n_unknown_epcs": int(len(unknown))}
+            "n_unknown_epcs": int(len(unknown)), "n_reads_reordered": n_reordered,
+            "n_tags_normal_guessed": int((~np.all(np.isfinite(
+                tags[["nx", "ny", "nz"]].to_numpy(np.float64)), axis=1)).sum())}
     reads = raw.loc[known].reset_index(drop=True)
     poses = read_poses_csv(rcfg.poses) if rcfg.poses else bag_poses
     if poses is not None:

@@ -142,6 +142,32 @@ def stages_upto(name: str | None, config: StudyConfig | None = None) -> tuple[St
     return stages[:names.index(name) + 1]
 
 
+def _check_cable_losses(config: StudyConfig, upto: str | None) -> None:
+    """Antenna cable losses enter the reads (their gains), not the traced truth (Fig. 6
+    points, tag sites, RSSI fields: a lossless antenna's), so a study that runs the truth
+    stages with them would score models against a truth their reads were not drawn from:
+    refused. A placement study ranked by its reads, or a recording's, may use them.
+
+    Raises
+    ------
+    pipeline.config.ConfigError
+        Naming the antenna and what to do.
+    """
+    from pipeline.config import ConfigError
+
+    lossy = [(i, a) for i, a in enumerate(config.robot.antennas) if a.cable_loss_db != 0.0]
+    if not lossy or config.recording.enabled:
+        return
+    names = [s.name for s in (STAGES if config.replicates.n > 1 else stages_upto(upto, config))]
+    if "truth_traces" in names or "truth" in names:
+        i, a = lossy[0]
+        raise ConfigError(
+            f"robot.antennas[{i}].cable_loss_db = {a.cable_loss_db} ({a.name!r}): cable losses "
+            "enter the reads but not the traced truth, so a full study would score its models "
+            "against a truth of lossless antennas; use them in a placement study ranked by its "
+            "reads (inventory objectives) or set them to 0")
+
+
 def run_full_study(config: StudyConfig, run_dir: str | Path, *, upto: str | None = None,
                    **kwargs) -> StudyResult:
     """Run (or resume) the whole study into ``run_dir``: :func:`pipeline.study.run_study`
@@ -153,6 +179,7 @@ def run_full_study(config: StudyConfig, run_dir: str | Path, *, upto: str | None
     ``manifest_extra=None``)."""
     kwargs.setdefault("checks", RECORDED_CHECKS if config.recording.enabled else CHECKS)
     kwargs.setdefault("manifest_extra", manifest_info)
+    _check_cable_losses(config, upto)
     if config.recording.enabled and config.replicates.n > 1:
         raise ValueError("replicates.n > 1 with a [recording]: a recording is one tour; its "
                          "intervals are over its held-out tags (set replicates.n = 1)")

@@ -10,10 +10,11 @@ to fit, held-out tags to score before and after. Writes into the run directory
 - ``calibrated.toml``: the study's config with the fitted values laid over it and no
   ``[recording]``, so that a simulated study (a placement study) runs with the calibrated
   reader in the same building: each antenna's ``cable_loss_db`` less its gain offset,
-  ``reader.tag_sensitivity_dbm`` plus the sensitivity offset, ``reader.rssi_offset_db``
-  plus the RSSI offset, ``reader.rssi_noise_db`` the fitted spread less the quantisation's
-  (``rssi_resolution_db^2 / 12``). The detection spread has no key of the simulated
-  reader and is reported only.
+  ``reader.tag_sensitivity_dbm`` plus the sensitivity offset,
+  ``reader.rssi_noise_db`` the fitted spread less the quantisation's
+  (``rssi_resolution_db^2 / 12``). The RSSI offset, the detection spread and the miss
+  probability are reported only: the simulated reader has no key for them (its truth is
+  the received power, so an offset key would bias every model against it).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def calibrated_config(cfg, fit):
     noise = float(np.sqrt(max(fit.rssi_noise_db ** 2 - r.rssi_resolution_db ** 2 / 12.0, 0.0)))
     reader = dataclasses.replace(
         r, tag_sensitivity_dbm=float(r.tag_sensitivity_dbm + fit.tag_sensitivity_offset_db),
-        rssi_offset_db=float(r.rssi_offset_db + fit.rssi_offset_db), rssi_noise_db=noise)
+        rssi_noise_db=noise)
     return dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, antennas=antennas),
                                reader=reader, recording=RecordingConfig())
 

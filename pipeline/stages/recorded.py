@@ -71,6 +71,29 @@ def recorded_scene(cfg):
     return dataclasses.replace(scenes.load(cfg.scene), tags=tags), split
 
 
+def _check_channels(rec, cfg) -> None:
+    """The channels the reader reported are channels of the study's reader: the ray tracer
+    traces the reader's plan (``reader.region``), so a log from another region stops here.
+
+    Raises
+    ------
+    pipeline.recording.RecordingError
+    """
+    from pipeline.recording import RecordingError
+
+    f = rec.reads["frequency_hz"].to_numpy(np.float64)
+    f = np.unique(f[np.isfinite(f)])
+    if not len(f):
+        return
+    plan = np.asarray(cfg.reader.channel_plan(cfg.frequency_hz).channels_hz, np.float64)
+    off = f[np.min(np.abs(f[:, None] - plan[None, :]), axis=1) > 1e3]  # 1 kHz: a channel's own
+    if len(off):
+        raise RecordingError(
+            f"{cfg.recording.reads}: the reader reported {len(off)} channel(s) outside "
+            f"reader.region = {cfg.reader.region!r}'s plan (e.g. {off[0] / 1e6:.3f} MHz): set "
+            "reader.region (and recording.region) to the region the reader ran")
+
+
 def stage_recording(ctx) -> dict:
     """Read the recording, rebuild its attempts; write the read logs and the tracks.
 
@@ -87,6 +110,7 @@ def stage_recording(ctx) -> dict:
     sc = load_scene(ctx)
     split = ctx.memo["tag_split"]
     rec = _load(cfg)
+    _check_channels(rec, cfg)
     mounts = build_robot(cfg).antennas
     table, poses, att_info = recorded_read_table(rec, sc.tags, mounts, cfg.reader,
                                                  frequency_hz=cfg.frequency_hz)
@@ -94,7 +118,9 @@ def stage_recording(ctx) -> dict:
     if rec.poses is not None:  # a clock offset between reads and poses, estimated, reported
         from pipeline.recording.lag import pose_lag_profile
 
-        info["pose_lag"] = pose_lag_profile(rec.reads, rec.poses, sc.tags, mounts, rec.info["ports"])
+        train = set(np.asarray(sc.tags.ids)[split == "train"].tolist())  # no held-out read
+        info["pose_lag"] = pose_lag_profile(rec.reads[rec.reads["epc"].isin(train)], rec.poses,
+                                            sc.tags, mounts, rec.info["ports"])
     held = set(np.asarray(sc.tags.ids)[split == "eval"].tolist())
     is_held = table["tag_id"].astype(str).isin(held).to_numpy()
     meta = {"source": "recording", "reads_file": cfg.recording.reads, "format": rec.format,

@@ -73,7 +73,71 @@ def test_calibrated_overlay_is_a_study_with_the_fitted_reader():
     back = config_from_mapping(__import__("tomllib").loads(config_to_toml(out)))
     assert [a.cable_loss_db for a in back.robot.antennas] == [0.0, 3.0]
     assert back.reader.tag_sensitivity_dbm == cfg.reader.tag_sensitivity_dbm - 2.0
-    assert back.reader.rssi_offset_db == 1.5
     # the fitted spread less the 0.5 dB quantisation's own (0.5^2 / 12)
     assert back.reader.rssi_noise_db == pytest.approx(np.sqrt(1.2 ** 2 - 0.25 / 12))
     assert not back.recording.enabled
+
+
+def test_untraced_attempts_are_left_out_and_counted():
+    """A read on a link the tracer found no path for (gain -inf) would make the likelihood
+    infinite and stall the fit at its start: such attempts are left out and counted."""
+    att = _attempts(np.random.default_rng(4), n_tags=20, per_tag=60)
+    bad = att.iloc[:3].assign(gain_db=-np.inf, read=True, rssi_dbm=-70.0)
+    fit, rep = calibrate(pd.concat([att, bad], ignore_index=True), BUDGET, 2, seed=1, n_boot=20)
+    assert rep["n_attempts_untraced"] == 3 and rep["n_reads_untraced"] == 3
+    assert fit.antenna_offsets_db[1] == pytest.approx(-3.0, abs=0.7)  # not the start value 0
+    with pytest.raises(ValueError, match="without a traced gain"):
+        fit_calibration(bad, BUDGET, 2)
+
+
+def test_a_fit_that_cannot_explain_the_reads_stops():
+    """Reads where the budget says no tag can wake (40 dB below the threshold) drive the
+    offsets to the edge of their range: a failed fit, stopped with a message."""
+    att = _attempts(np.random.default_rng(5), n_tags=10, per_tag=40)
+    att = att.assign(gain_db=att["gain_db"] - 60.0)
+    with pytest.raises(ValueError, match="edge of its range"):
+        fit_calibration(att, BUDGET, 2)
+
+
+def test_cable_losses_are_refused_where_the_truth_would_not_see_them(tmp_path):
+    import dataclasses
+
+    from pipeline.config import ConfigError
+    from pipeline.stages import run_full_study
+
+    cfg = StudyConfig()
+    ants = list(cfg.robot.antennas)
+    ants[1] = dataclasses.replace(ants[1], cable_loss_db=3.0)
+    lossy = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, antennas=tuple(ants)))
+    with pytest.raises(ConfigError, match=r"robot.antennas\[1\].cable_loss_db = 3.0"):
+        run_full_study(lossy, tmp_path / "run")
+    assert not (tmp_path / "run").exists()  # refused before the run directory is made
+
+
+def test_calibrate_without_a_recording_stops_before_running(tmp_path):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    res = CliRunner().invoke(app, ["calibrate", "configs/tiny.toml", "--out", str(tmp_path / "c")])
+    assert res.exit_code == 2 and "no recording to calibrate to" in res.output
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_log_from_another_region_stops():
+    from pipeline.recording import Recording, RecordingError
+    from pipeline.stages.recorded import _check_channels
+
+    reads = pd.DataFrame({"t_s": [0.0], "antenna_port": [1], "rssi_dbm": [-60.0], "epc": ["AB"],
+                          "phase_rad": [0.0], "frequency_hz": [915.25e6], "doppler_hz": [0.0],
+                          "seen_count": [1]})
+    rec = Recording(reads, None, pd.DataFrame(), "impinj", {})
+    with pytest.raises(RecordingError, match=r"reader.region = 'ETSI'.*915.250 MHz"):
+        _check_channels(rec, StudyConfig())
+    _check_channels(rec, StudyConfig().__class__(reader=dataclasses_replace_region("FCC")))
+
+
+def dataclasses_replace_region(region):
+    import dataclasses
+
+    return dataclasses.replace(StudyConfig().reader, region=region)
