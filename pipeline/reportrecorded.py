@@ -102,6 +102,7 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
 
     from pipeline.report import _CSS
     from pipeline.runstore import atomic_write_text, inside
+    from pipeline.sensormodels.registry import model_label
 
     run = Path(run_dir)
     rec = metrics.get("recording", {})
@@ -142,7 +143,7 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
         parts.append(f"<h3>{esc(sec.get('label', key))}</h3><div class='tw'><table><tr><th>model"
                      "</th><th>estimate [95 % interval]</th></tr>")
         for model, iv in sec.get("models", {}).items():
-            parts.append(f"<tr><td>{esc(model)}</td><td>{_fmt(iv, 3)}"
+            parts.append(f"<tr><td>{esc(model_label(model))}</td><td>{_fmt(iv, 3)}"
                          f"{_verdict(comps.get(key, {}).get(model))}</td></tr>")
         parts.append("</table></div>")
     svr = metrics.get("sim_vs_real", {}).get("heldout", {})
