@@ -19,6 +19,10 @@ the function it runs; helpers they share are in :mod:`pipeline.stages.common`. T
 engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` hands it
 :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info`.
 
+A study with a ``[recording]`` runs :data:`RECORDED_STAGES` instead
+(:mod:`pipeline.stages.recorded`): the recording stands in for the tour and the reads,
+then ``sim_vs_real``, ``calibration`` and ``recorded_eval``.
+
 The scene stage always runs (it is cheap) so an edited scene file changes its
 outputs' digest and everything downstream re-runs. ``truth_traces`` runs in a process
 of its own beside ``tour`` and ``reads``, whose outputs it does not read

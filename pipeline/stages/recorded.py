@@ -7,6 +7,7 @@ With ``recording.reads`` set the study's stages are :data:`RECORDED_STAGES`::
     training_sets   as simulated, on the recorded poses
     models          as simulated (MCL poses only: a recording knows one pose)
     sim_vs_real     the recorded antenna poses traced in the scene, compared           [reader, tracing]
+    calibration     the simulated reader fitted to the log: calibration.json           [reader, robot]
     recorded_eval   every model on the held-out tags' recorded reads, intervals -> metrics.json
     report          report.html
 
