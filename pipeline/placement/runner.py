@@ -351,7 +351,10 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
 
     from .summary import write_outputs
 
-    out = Path(out_dir).resolve()
+    try:
+        out = Path(out_dir).resolve()
+    except (OSError, RuntimeError) as exc:  # a symbolic link loop (ELOOP), no permission
+        raise ConfigError(f"--out {out_dir}: cannot be used as a placement directory: {exc}") from None
     _prepare_dir(out)
     # the run directories' own lock: one writer, the holder named to a second one
     with RunStore(out).lock(command="rfidstudy placement"):

@@ -235,6 +235,12 @@ def test_a_symlink_loop_as_out_is_one_line(tmp_path):
         _run(loop / "run")
     res = CliRunner().invoke(app, ["report", str(loop)])
     assert res.exit_code == 2 and "Traceback" not in res.output and len(res.output.splitlines()) == 1
+    # placement --out through the loop: one line too (it was a RuntimeError traceback)
+    for out in (loop, loop / "x"):
+        res = CliRunner().invoke(app, ["placement", "configs/placement_example.toml", "--out", str(out)])
+        assert res.exit_code == 2, res.output
+        err = [line for line in res.output.splitlines() if line.startswith("error:")]
+        assert len(err) == 1 and "Symlink loop" in err[0] and "Traceback" not in res.output
 
 
 @pytest.mark.parametrize("manifest", ["[" * 100_000 + "]" * 100_000,
