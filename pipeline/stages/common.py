@@ -240,7 +240,7 @@ def load_scene(ctx):
         if ctx.config.recording.enabled:  # the building with the recording's tags
             from pipeline.stages.recorded import recorded_scene  # imports this module
 
-            sc, split = recorded_scene(ctx.config)
+            sc, split = recorded_scene(ctx.config, ctx.memo)
         else:
             sc, split = study_scene(ctx.config)
         ctx.memo["scene"] = sc

@@ -37,8 +37,15 @@ def _load(cfg):
                           n_mounts=len(cfg.robot.antennas))
 
 
-def recorded_scene(cfg):
+def recorded_scene(cfg, memo: dict | None = None):
     """The study's building with the recording's tags, and each tag's split.
+
+    Parameters
+    ----------
+    cfg : StudyConfig
+    memo : dict, optional
+        Receives the loaded :class:`~pipeline.recording.Recording` under ``"recording"``
+        (a run's memo: the recording stage then need not read the files again).
 
     Returns
     -------
@@ -59,6 +66,8 @@ def recorded_scene(cfg):
     from pipeline.robot.kinematics import antenna_poses
 
     rec = _load(cfg)
+    if memo is not None:  # the recording stage reads it from here, not the files again
+        memo["recording"] = rec
     mounts = build_robot(cfg).antennas
     ant_xy = antenna_poses(np.zeros((1, 3)), list(mounts))[0, :, :2]
     tags = recorded_tagset(rec, ant_xy)
@@ -110,7 +119,7 @@ def stage_recording(ctx) -> dict:
     cfg = ctx.config
     sc = load_scene(ctx)
     split = ctx.memo["tag_split"]
-    rec = _load(cfg)
+    rec = ctx.memo.get("recording") or _load(cfg)  # load_scene read it (recorded_scene)
     _check_channels(rec, cfg)
     mounts = build_robot(cfg).antennas
     table, poses, att_info = recorded_read_table(rec, sc.tags, mounts, cfg.reader,
