@@ -22,7 +22,7 @@ localisation's estimate, as a real robot has it). **Tags**: header ``epc,x_m,y_m
 and optionally ``nx,ny,nz`` (the normal into free space).
 
 Every reader stops at the first row it cannot take with one line naming ``file:line``
-and the column; the reads must come in time order; an empty file is an error.
+and the column; reads out of time order are sorted (counted); an empty file is an error.
 Hand-written with the standard ``csv`` module rather than ``pandas.read_csv``: the
 errors must name the line of the file, which pandas does not report for a bad value.
 """
@@ -107,27 +107,27 @@ def read_sllurp_csv(path: str | Path) -> pd.DataFrame:
     -------
     pandas.DataFrame
         ``t_s`` [s since 1970], ``reader`` (str), ``antenna_port`` (int, 1-based),
-        ``rssi_dbm`` (float64), ``epc`` (str, upper-case hex), in file order.
+        ``rssi_dbm`` (float64), ``epc`` (str, upper-case hex), in time order.
 
     Raises
     ------
     RecordingError
         Naming ``file:line`` and the column: a missing column, a value that is no number,
-        a port below 1, an EPC that is not hex, time running backwards; an empty file.
+        a port below 1, an EPC that is not hex; an empty file. An EPC written as Python
+        bytes (``b'3034...'``, as sllurp on Python 3 does) is taken as its hex digits; rows
+        out of time order are sorted and counted (``attrs["n_reordered"]``).
     """
     out = {"t_s": [], "reader": [], "antenna_port": [], "rssi_dbm": [], "epc": []}
-    last = -math.inf
     for line, r in _rows(path, SLLURP_COLUMNS):
         t = _number(path, line, "timestamp", r["timestamp"])
-        if t < last:
-            raise RecordingError(f"{path}:{line}: column 'timestamp': {t} is before the row "
-                                 f"above ({last}): time runs backwards")
-        last = t
         port = int(_number(path, line, "antenna", r["antenna"], integer=True))
         if port < 1:
             raise RecordingError(f"{path}:{line}: column 'antenna': port {port}; LLRP ports "
                                  "start at 1")
-        epc = r["epc"].upper()
+        epc = r["epc"]
+        if len(epc) > 3 and epc[:2] in ("b'", 'b"') and epc[-1] == epc[1]:
+            epc = epc[2:-1]  # sllurp on Python 3 writes the EPC's bytes repr: b'3034...'
+        epc = epc.upper()
         if not epc or any(ch not in "0123456789ABCDEF" for ch in epc):
             raise RecordingError(f"{path}:{line}: column 'epc': {r['epc'][:40]!r} is not hex")
         out["t_s"].append(t)
@@ -137,9 +137,17 @@ def read_sllurp_csv(path: str | Path) -> pd.DataFrame:
         out["epc"].append(epc)
     if not out["t_s"]:
         raise RecordingError(f"{path}: no reads after the header")
-    return pd.DataFrame({"t_s": np.asarray(out["t_s"], np.float64), "reader": out["reader"],
-                         "antenna_port": np.asarray(out["antenna_port"], np.int64),
-                         "rssi_dbm": np.asarray(out["rssi_dbm"], np.float64), "epc": out["epc"]})
+    df = pd.DataFrame({"t_s": np.asarray(out["t_s"], np.float64), "reader": out["reader"],
+                       "antenna_port": np.asarray(out["antenna_port"], np.int64),
+                       "rssi_dbm": np.asarray(out["rssi_dbm"], np.float64), "epc": out["epc"]})
+    # the host's clock at each report batch: batches of several ports interleave (a real
+    # R420 log does), so the rows are sorted by time and the reordered ones counted
+    t = df["t_s"].to_numpy()
+    n_back = int(np.sum(t < np.maximum.accumulate(t)))
+    if n_back:
+        df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
+    df.attrs["n_reordered"] = n_back
+    return df
 
 
 def _write_csv(path, header, rows) -> Path:

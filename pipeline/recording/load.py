@@ -129,13 +129,15 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
         raw, bag_poses = read_rosbag(rcfg.reads, reads_topic=rcfg.reads_topic,
                                      pose_topic="" if rcfg.poses else rcfg.pose_topic)
     elif fmt == "sllurp":
-        raw = read_sllurp_csv(rcfg.reads).drop(columns=["reader"])
+        raw = read_sllurp_csv(rcfg.reads)
+        n_sorted = int(raw.attrs.get("n_reordered", 0))
+        raw = raw.drop(columns=["reader"])
         for c in ("phase_rad", "frequency_hz", "doppler_hz"):
             raw[c] = np.nan
         raw["seen_count"] = 1
     else:
         raw = read_impinj_csv(rcfg.reads, rcfg.region or region)
-    n_reordered = int(raw.attrs.get("n_reordered", 0))
+    n_reordered = n_sorted if fmt == "sllurp" else int(raw.attrs.get("n_reordered", 0))
     raw = raw[list(READ_FIELDS)]
     if rcfg.time_offset_s:
         raw["t_s"] = raw["t_s"] + float(rcfg.time_offset_s)
