@@ -45,7 +45,7 @@ from propagation.sionna_paths import to_source_paths
 from propagation.sionna_scene import load_sionna_scene
 
 __all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "METHODS", "PathSet", "TraceMethod", "TraceOptions",
-           "padded_target_count", "trace_paths"]
+           "MAX_SOURCES_PER_CALL", "padded_target_count", "padding_point", "trace_paths"]
 
 logger = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ DEFAULT_MAX_DEPTH = 5
 #: Default rays per antenna position (1e5 rays costs 3.8x for 0.2 dB median gain); about
 #: 260 links/s on 2 shared cores at these defaults.
 DEFAULT_SAMPLES_PER_SRC = 30_000
-_MAX_SOURCES_PER_CALL = 128
+MAX_SOURCES_PER_CALL = 128
 #: Planes of at least this area are completed by the image method (completion_order,
 #: TraceOptions.completion_min_area_m2's default): walls, floor, ceiling and furniture
 #: faces; 22 planes on corridor_lab (16 at 1 m^2, before issue 37: the metal cabinets'
@@ -243,7 +243,7 @@ def padded_target_count(n_targets: int) -> int:
     return -(-n // step) * step
 
 
-def _padding_point(rt_scene) -> np.ndarray:
+def padding_point(rt_scene) -> np.ndarray:
     """Where padding receivers go: 1 m below the scene's lowest point.
 
     Only paths through the floor reach it: on corridor_lab at 3e4 rays, depth 5, a
@@ -263,7 +263,7 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
 
     n_pad = padded_target_count(len(receivers)) - len(receivers)
     place_devices(rt_scene, sources, np.vstack([np.asarray(receivers, float).reshape(-1, 3),
-                                                np.tile(_padding_point(rt_scene), (n_pad, 1))]))
+                                                np.tile(padding_point(rt_scene), (n_pad, 1))]))
     solver = rt.PathSolver()
     paths = solver(
         rt_scene,
@@ -354,7 +354,7 @@ def _trace_sharing(rt_scene, positions, receivers, radius_m, shared_samples, lon
     for level in np.unique(extra[extra > 0]):
         grp_all = np.flatnonzero(extra == level)
         per_call = lone_per_call if budget_bytes is None else max(
-            1, min(_MAX_SOURCES_PER_CALL, int(budget_bytes) // bytes_per_source(int(level), max_depth,
+            1, min(MAX_SOURCES_PER_CALL, int(budget_bytes) // bytes_per_source(int(level), max_depth,
                                                                                  len(receivers))))
         for c0 in range(0, len(grp_all), per_call):
             grp = grp_all[c0:c0 + per_call]
@@ -521,12 +521,12 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
     budget = int(opt.memory_budget_bytes) if opt.memory_budget_bytes else _default_budget()
     # a call's candidate buffer grows with its tags (at most every tag of this trace)
     n_tgt = len(np.unique(np.concatenate(missing))) if todo else 1
-    per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth, n_tgt)))
+    per_chunk = max(1, min(MAX_SOURCES_PER_CALL, budget // bytes_per_source(samples_per_src, max_depth, n_tgt)))
     lone_samples = max(samples_per_src, opt.min_samples) if shared else samples_per_src
-    lone_per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // bytes_per_source(lone_samples, max_depth, n_tgt)))
+    lone_per_chunk = max(1, min(MAX_SOURCES_PER_CALL, budget // bytes_per_source(lone_samples, max_depth, n_tgt)))
     if shared:  # chunks of positions that share: fewer rays each, but the candidate
         # buffer is held twice (candidates and their solved copy)
-        per_chunk = max(1, min(_MAX_SOURCES_PER_CALL, budget // (
+        per_chunk = max(1, min(MAX_SOURCES_PER_CALL, budget // (
             2 * bytes_per_source(int(opt.shared_samples_per_src), max_depth, n_tgt))))
     n_calls, t_trace = 0, 0.0
     if todo:

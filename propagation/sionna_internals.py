@@ -7,8 +7,9 @@ whole. Those stages (``SBCandidateGenerator``, ``ImageMethod``, ``FieldCalculato
 signatures changed between sionna-rt 1.0 and 2.2 (``FieldCalculator.__call__`` lost
 ``scene`` and gained a positional ``diffraction``; ``ImageMethod.__call__`` gained
 ``diffraction`` and ``diffraction_lit_region``; ``PathsBuffer`` gained ``_k_tx_*``,
-``_k_rx_*``, ``_probs``). This module is the only place that touches them, so an
-upgrade of Sionna is reviewed here and nowhere else:
+``_k_rx_*``, ``_probs``). This module and :mod:`propagation.sionna_refield` (the
+solver's stages split where the materials enter) are the only places that touch them, so
+an upgrade of Sionna is reviewed here and nowhere else:
 
 - :func:`check_versions` refuses, in one line, any sionna-rt / mitsuba / drjit other
   than :data:`TESTED_VERSIONS`, naming the way out (``tracing.method = "direct"``, which
