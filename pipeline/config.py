@@ -31,6 +31,7 @@ from pipeline.recording.config import RecordingConfig
 from pipeline.robot.kinematics import default_antennas
 from pipeline.robot.simulate import LocalisationConfig
 from pipeline.robot.trajectory import TourConfig
+from pipeline.sceneconfig import MaterialConfig, material_overrides
 from propagation.linkbudget import LinkBudget
 from propagation.patterns import PATTERNS, POLARIZATIONS
 from propagation.raybudget import memory_shortfall
@@ -46,6 +47,7 @@ __all__ = [
     "DownstreamConfig",
     "EvaluationConfig",
     "LocalisationConfig",
+    "MaterialConfig",
     "ReaderConfig",
     "RecordingConfig",
     "ReplicatesConfig",
@@ -418,6 +420,9 @@ class StudyConfig:
                                           factory=ReplicatesConfig)
     recording: RecordingConfig = option(doc="A real reader's log the study runs on instead of "
                                         "simulating (docs/recordings.md).", factory=RecordingConfig)
+    materials: tuple[MaterialConfig, ...] = option(
+        doc="Radio properties laid over the building's materials ([[materials]] tables; a "
+            "calibration's calibrated.toml writes them).", factory=tuple, max=64)
 
     def __post_init__(self):
         if not self.scene:
@@ -427,6 +432,7 @@ class StudyConfig:
                               f"from it), got {self.seed!r}")
         if not 1e8 <= self.frequency_hz <= 1e10:
             raise ConfigError(f"frequency_hz must be in [1e8, 1e10] Hz, got {self.frequency_hz!r}")
+        material_overrides(self.materials)  # one entry per material, or ConfigError
 
 
 def config_from_mapping(data: dict, source: str = "<config>", base_dir: Path | None = None) -> StudyConfig:

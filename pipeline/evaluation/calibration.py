@@ -20,7 +20,7 @@ miss_probability            share of closing attempts the reader still misses (s
                             collisions, a dwell too short for the tag population)
 ==========================  ===========================================================
 
-The model of an attempt of antenna a with traced gain g: ``g' = g + delta_a``;
+The model of an attempt of antenna a with traced gain g: ``g' = g + delta_a + dg(theta)``;
 ``P(read) = (1 - q) Phi(m / sigma_t)`` with the margin ``m = min(P_tag(g') - (S_tag +
 delta_s), P_rx(g') - S_reader)`` (:class:`propagation.LinkBudget`) and q the reader's
 miss probability (fitted: the simulated reader's own estimate missed 13 % of the
@@ -34,9 +34,21 @@ the link (the usual UHF case), a gain common to every antenna is the same, in th
 as a tag sensitivity offset plus twice that in the reader's RSSI offset (``delta_a + t``,
 ``delta_s + t``, ``r - 2t`` give the same likelihood), so antenna 0's offset is 0 and the
 others are relative to it. Attempts the tracer found no path for have no gain to offset
-and are left out (counted). Material
-parameters (a wall's permittivity) would need the path geometry re-weighted per trial;
-they are not fitted here.
+and are left out (counted).
+
+**Constructions** (:class:`MaterialModel`): the relative permittivity and conductivity of
+the few radio materials that carry most of the traced path power, each as ``theta``, the
+log of its ratio to the traced value. ``dg(theta)``, each attempt's gain change, comes
+from the traced paths re-fielded at ``theta`` (:mod:`propagation.refield`: the geometry
+kept, no ray shot again). The likelihood sees it linearised,
+``dg(theta) ~ dg(theta_0) + J (theta - theta_0)`` (J by forward differences of
+:data:`MATERIAL_STEP`), and the linearisation is moved to the fitted value and the fit
+repeated until theta moves by less than :data:`MATERIAL_TOL` (Gauss-Newton on the
+re-fielded gains; each step within :data:`MATERIAL_TRUST` of the last): the point
+estimate is that of the exact re-fielded gains, the bootstrap refits use the last
+linearisation. A construction's value on the edge of its range (permittivity x4 or /4,
+at least 1; conductivity x10 or /10) is reported as not identified, not refused: few
+recordings see a wall's conductivity (it matters through the wall, little off it).
 
 Intervals: every parameter's 95 % percentile interval from refits on the training tags
 resampled with replacement (the tag the unit, :data:`N_BOOT` resamples, each from the
@@ -47,6 +59,7 @@ resample is a whole maximum-likelihood fit, so the jackknife's n more fits are n
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,13 +67,79 @@ import pandas as pd
 from scipy.optimize import minimize
 from scipy.special import log_ndtr, ndtr
 
-__all__ = ["N_BOOT", "CalibrationFit", "calibrate", "fit_calibration", "predict"]
+__all__ = ["N_BOOT", "CalibrationFit", "MaterialModel", "MaterialTerms", "calibrate",
+           "fit_calibration", "predict"]
 
 #: Bootstrap resamples of the training tags behind each interval (5 per tail at 95 %).
 N_BOOT = 200
 #: Fewest training tags an interval is drawn from.
 MIN_TAGS = 5
 _LOG_2PI = float(np.log(2.0 * np.pi))
+#: Forward-difference step of the construction parameters' Jacobian (log ratio: 5 %).
+MATERIAL_STEP = 0.05
+#: The Gauss-Newton iteration stops when no construction parameter moves more (1 %).
+MATERIAL_TOL = 0.01
+#: Largest move of a construction parameter per iteration (log ratio: x1.5).
+MATERIAL_TRUST = float(np.log(1.5))
+#: Most Gauss-Newton iterations.
+MATERIAL_ITERATIONS = 8
+
+
+@dataclass(frozen=True)
+class MaterialModel:
+    """Construction parameters and how they move each attempt's gain (module doc).
+
+    Attributes
+    ----------
+    names : tuple of str
+        ``<radio material>.relative_permittivity`` / ``.conductivity``, one per parameter.
+    nominal : numpy.ndarray
+        (k,) the traced values (dimensionless / S/m).
+    lower, upper : numpy.ndarray
+        (k,) range of ``theta`` (log ratio to ``nominal``).
+    delta_db : callable
+        ``delta_db(theta)`` -> (n,) each attempt's gain change [dB] at ``theta`` against
+        the traced gain, for the rows of the attempts given to :func:`calibrate`.
+    info : dict
+        What chose the constructions (their power shares), reported as is.
+    """
+
+    names: tuple
+    nominal: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    delta_db: object
+    info: dict
+
+
+@dataclass(frozen=True)
+class MaterialTerms:
+    """:class:`MaterialModel`'s gain change linearised at ``at``: ``base_db + jac_db (theta - at)``
+    ((n,), (n, k) dB per unit log ratio; ``at`` (k,); ``lower``/``upper`` the fit's range)."""
+
+    at: np.ndarray
+    base_db: np.ndarray
+    jac_db: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def delta_db(self, theta) -> np.ndarray:
+        return self.base_db + self.jac_db @ (np.asarray(theta, np.float64) - self.at)
+
+    def rows(self, mask) -> MaterialTerms:
+        return MaterialTerms(self.at, self.base_db[mask], self.jac_db[mask], self.lower, self.upper)
+
+
+def _linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray) -> MaterialTerms:
+    base = np.asarray(model.delta_db(at), np.float64)[rows]
+    jac = np.empty((len(base), len(at)))
+    for j in range(len(at)):
+        step = np.zeros(len(at))
+        step[j] = MATERIAL_STEP if at[j] + MATERIAL_STEP <= model.upper[j] else -MATERIAL_STEP
+        jac[:, j] = (np.asarray(model.delta_db(at + step), np.float64)[rows] - base) / step[j]
+    lo = np.maximum(model.lower, at - MATERIAL_TRUST)
+    hi = np.minimum(model.upper, at + MATERIAL_TRUST)
+    return MaterialTerms(at.copy(), base, jac, lo, hi)
 
 
 @dataclass(frozen=True)
@@ -73,19 +152,23 @@ class CalibrationFit:
     rssi_noise_db: float
     detection_spread_db: float
     miss_probability: float = 0.0
+    #: Construction parameters, log ratio to the traced value (:class:`MaterialModel`).
+    material_log_ratios: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def from_vector(cls, x: np.ndarray, n_antennas: int) -> CalibrationFit:
         k = n_antennas - 1
         return cls(np.r_[0.0, x[:k]], float(x[k]), float(x[k + 1]), float(np.exp(x[k + 2])),
-                   float(np.exp(x[k + 3])), float(1.0 / (1.0 + np.exp(-x[k + 4]))))
+                   float(np.exp(x[k + 3])), float(1.0 / (1.0 + np.exp(-x[k + 4]))),
+                   np.asarray(x[k + 5:], np.float64))
 
     def as_dict(self) -> dict:
         return {f"antenna_offset_db[{i}]": float(v) for i, v in enumerate(self.antenna_offsets_db)} | {
             "tag_sensitivity_offset_db": self.tag_sensitivity_offset_db,
             "rssi_offset_db": self.rssi_offset_db, "rssi_noise_db": self.rssi_noise_db,
             "detection_spread_db": self.detection_spread_db,
-            "miss_probability": self.miss_probability}
+            "miss_probability": self.miss_probability} | {
+            f"theta[{j}]": float(v) for j, v in enumerate(self.material_log_ratios)}
 
 
 def _margin(gain, antenna, offsets, dsens, budget):
@@ -95,15 +178,21 @@ def _margin(gain, antenna, offsets, dsens, budget):
     return np.minimum(tag, rx - budget.reader_sensitivity_dbm), rx
 
 
-def predict(fit: CalibrationFit, gain_db, antenna, budget):
-    """Read probability and expected RSSI [dBm] of attempts under ``fit`` (module doc)."""
-    m, rx = _margin(np.asarray(gain_db, np.float64), np.asarray(antenna, np.int64),
+def predict(fit: CalibrationFit, gain_db, antenna, budget, terms: MaterialTerms | None = None):
+    """Read probability and expected RSSI [dBm] of attempts under ``fit`` (module doc);
+    ``terms`` the construction parameters' gain change for these rows."""
+    g = np.asarray(gain_db, np.float64)
+    if terms is not None:
+        g = g + terms.delta_db(fit.material_log_ratios)
+    m, rx = _margin(g, np.asarray(antenna, np.int64),
                     fit.antenna_offsets_db, fit.tag_sensitivity_offset_db, budget)
     return (1.0 - fit.miss_probability) * ndtr(m / fit.detection_spread_db), rx + fit.rssi_offset_db
 
 
-def _nll(x, gain, antenna, read, rssi, weight, budget, n_ant):
+def _nll(x, gain, antenna, read, rssi, weight, budget, n_ant, terms):
     f = CalibrationFit.from_vector(x, n_ant)
+    if terms is not None:
+        gain = gain + terms.delta_db(f.material_log_ratios)
     q = f.miss_probability
     m, rx = _margin(gain, antenna, f.antenna_offsets_db, f.tag_sensitivity_offset_db, budget)
     z = m / f.detection_spread_db
@@ -119,10 +208,12 @@ def _nll(x, gain, antenna, read, rssi, weight, budget, n_ant):
 
 
 def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.05,
-                    weight=None, start=None, strict: bool = True) -> CalibrationFit:
+                    weight=None, start=None, strict: bool = True,
+                    terms: MaterialTerms | None = None) -> CalibrationFit:
     """Maximum-likelihood :class:`CalibrationFit` on attempts ``att`` (``gain_db`` finite,
     ``antenna``, ``read``, ``rssi_dbm``); ``weight`` per row (a bootstrap's multiplicities);
-    ``miss_probability`` the start of its fit.
+    ``miss_probability`` the start of its fit; ``terms`` the construction parameters' gain
+    change for these rows (fitted within ``terms.lower``/``upper``).
 
     Raises
     ------
@@ -139,14 +230,17 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
     rssi = att["rssi_dbm"].to_numpy(np.float64)
     w = np.ones(len(att)) if weight is None else np.asarray(weight, np.float64)
     q0 = float(np.clip(miss_probability, 0.01, 0.5))
-    x0 = (np.r_[np.zeros(n_antennas - 1), 0.0, 0.0, np.log(2.0), np.log(2.0), np.log(q0 / (1 - q0))]
-          if start is None else start)
+    theta0 = np.zeros(0) if terms is None else terms.at
+    x0 = (np.r_[np.zeros(n_antennas - 1), 0.0, 0.0, np.log(2.0), np.log(2.0), np.log(q0 / (1 - q0)),
+                theta0] if start is None else np.r_[start[:n_antennas + 4], theta0])
     k = n_antennas - 1
     # offsets within +-30 dB, spreads within [0.05, 30] dB, misses within [1e-4, 0.9]: a
     # value on such a bound is a failed fit
     bounds = ([(-30.0, 30.0)] * (k + 2) + [(np.log(0.05), np.log(30.0))] * 2
-              + [(np.log(1e-4 / (1 - 1e-4)), np.log(0.9 / 0.1))])
-    res = minimize(_nll, x0, args=(gain, antenna, read, rssi, w, budget, n_antennas),
+              + [(np.log(1e-4 / (1 - 1e-4)), np.log(0.9 / 0.1))]
+              + ([] if terms is None else list(zip(terms.lower, terms.upper, strict=True))))
+    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
+    res = minimize(_nll, x0, args=(gain, antenna, read, rssi, w, budget, n_antennas, terms),
                    method="L-BFGS-B", bounds=bounds)
     fit = CalibrationFit.from_vector(res.x, n_antennas)
     if strict:
@@ -169,20 +263,53 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
     return fit
 
 
-def _bootstrap(att, budget, n_ant, point, rng, n_boot):
+def _bootstrap(att, budget, n_ant, point, rng, n_boot, terms):
     tags = att["tag_id"].astype(str).to_numpy()
     units, code = np.unique(tags, return_inverse=True)
     rows = []
     for _ in range(n_boot):
         mult = np.bincount(rng.integers(0, len(units), len(units)), minlength=len(units))
         f = fit_calibration(att, budget, n_ant, weight=mult[code], strict=False,
-                            start=point._x)  # noqa: SLF001 - our own start vector
+                            start=point._x, terms=terms)  # noqa: SLF001 - our own start vector
         rows.append(f.as_dict())
     return pd.DataFrame(rows)
 
 
+def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.ndarray):
+    """Gauss-Newton on the re-fielded gains (module doc): the fit and its last linearisation."""
+    at = np.zeros(len(model.names))
+    fit, iterations = None, []
+    for _ in range(MATERIAL_ITERATIONS):
+        terms = _linearise(model, at, rows)
+        fit = fit_calibration(train, budget, n_antennas, miss_probability=q, terms=terms,
+                              start=None if fit is None else fit._x)  # noqa: SLF001
+        move = fit.material_log_ratios - at
+        iterations.append([float(v) for v in fit.material_log_ratios])
+        at = fit.material_log_ratios.copy()
+        if np.max(np.abs(move), initial=0.0) < MATERIAL_TOL:
+            break
+    else:
+        raise ValueError(f"calibration: the construction parameters did not settle in "
+                         f"{MATERIAL_ITERATIONS} Gauss-Newton steps (last log ratios {iterations[-1]})")
+    return fit, terms, iterations
+
+
+def _material_entry(model: MaterialModel, j: int, entry: dict) -> dict:
+    """A construction parameter's report entry in its own units (module doc)."""
+    nom = float(model.nominal[j])
+    out = {k: (None if entry[k] is None else nom * float(np.exp(entry[k])))
+           for k in ("value", "low", "high")}
+    out.update(traced=nom, unit="S/m" if model.names[j].endswith(".conductivity") else "")
+    v = entry["value"]
+    if min(v - model.lower[j], model.upper[j] - v) < 1e-3:
+        out["note"] = ("on the edge of its range: not identified by this recording "
+                       f"(range x{np.exp(model.lower[j]):.3g} to x{np.exp(model.upper[j]):.3g})")
+    return out
+
+
 def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.0,
-              seed: int, n_boot: int = N_BOOT) -> tuple[CalibrationFit, dict]:
+              seed: int, n_boot: int = N_BOOT,
+              materials: MaterialModel | None = None) -> tuple[CalibrationFit, dict]:
     """Fit on the training attempts, intervals by resampling training tags, and the held-out
     residual before and after (module doc).
 
@@ -195,6 +322,8 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     miss_probability : array_like
         The simulated reader's miss probability of each attempt: its mean starts the fit.
     seed : int
+    materials : MaterialModel, optional
+        Construction parameters to fit too; its ``delta_db`` gives a value per row of ``att``.
 
     Returns
     -------
@@ -202,7 +331,8 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     report : dict
         ``parameters`` (each: value, low, high, unit), ``fixed`` (what the data cannot
         separate), ``heldout`` (:func:`.simreal.sim_vs_real` with ``after`` the calibrated
-        and ``before`` the uncalibrated prediction), ``n_train_tags``, ``n_boot``.
+        and ``before`` the uncalibrated prediction), ``n_train_tags``, ``n_boot``;
+        with ``materials`` also ``constructions`` (what chose them, the Gauss-Newton steps).
     """
     from .simreal import sim_vs_real
 
@@ -211,24 +341,38 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     # an attempt the tracer found no path for has no gain to offset: left out, counted
     n_untraced = int((~traced).sum())
     n_untraced_reads = int((~traced & att["read"].to_numpy(bool)).sum())
+    split = att["split"].to_numpy()
+    is_train, is_held = traced & (split == "train"), traced & (split == "eval")
     att = att[traced]
     train = att[att["split"] == "train"].reset_index(drop=True)
     held = att[att["split"] == "eval"].reset_index(drop=True)
-    fit = fit_calibration(train, budget, n_antennas, miss_probability=max(q, 0.05))
+    terms = held_terms = None
+    if materials is None or not len(materials.names):
+        fit = fit_calibration(train, budget, n_antennas, miss_probability=max(q, 0.05))
+    else:
+        fit, terms, steps = _fit_materials(train, budget, n_antennas, max(q, 0.05), materials,
+                                           np.flatnonzero(is_train))
+        held_terms = _linearise(materials, fit.material_log_ratios, np.flatnonzero(is_held))
     n_tags = int(train["tag_id"].nunique())
     boot = (_bootstrap(train, budget, n_antennas, fit, np.random.default_rng([int(seed), 53]),
-                       int(n_boot)) if n_tags >= MIN_TAGS else None)
+                       int(n_boot), terms) if n_tags >= MIN_TAGS and n_boot > 0 else None)
     params = {}
     for key, value in fit.as_dict().items():
         lo, hi = (np.percentile(boot[key].to_numpy(np.float64), [2.5, 97.5]) if boot is not None
                   else (None, None))
-        params[key] = {"value": value, "low": None if lo is None else float(lo),
-                       "high": None if hi is None else float(hi),
-                       "unit": "" if key == "miss_probability" else "dB"}
+        entry = {"value": value, "low": None if lo is None else float(lo),
+                 "high": None if hi is None else float(hi),
+                 "unit": "" if key == "miss_probability" else "dB"}
+        if key.startswith("theta["):
+            j = int(key[6:-1])
+            key, entry = materials.names[j], _material_entry(materials, j, entry)
+        params[key] = entry
         if boot is None:
-            params[key]["note"] = f"{n_tags} training tags: an interval needs at least {MIN_TAGS}"
+            why = (f"{n_tags} training tags: an interval needs at least {MIN_TAGS}"
+                   if n_boot > 0 else "no interval asked for (n_boot = 0)")
+            params[key]["note"] = "; ".join(filter(None, [params[key].get("note"), why]))
     params["antenna_offset_db[0]"].update(low=0.0, high=0.0, note="fixed: the reference antenna")
-    p_after, rssi_after = predict(fit, held["gain_db"], held["antenna"], budget)
+    p_after, rssi_after = predict(fit, held["gain_db"], held["antenna"], budget, held_terms)
     rx_before = np.asarray(budget.reader_rssi_dbm(held["gain_db"].to_numpy(np.float64)), np.float64)
     cmp_att = held.assign(p_base=held["p_sim"], rssi_base_dbm=rx_before,
                           p_sim=p_after, rssi_sim_dbm=rssi_after)
@@ -238,7 +382,13 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
             sec["after"], sec["before"] = sec.pop("ray_tracer"), sec.pop("baseline")
             sec["difference"]["compares"] = "after - before" + (
                 " (|bias|)" if sec["difference"].get("compares") == "|bias|" else "")
+    extra = {} if terms is None else {"constructions": {
+        **materials.info, "parameters": list(materials.names),
+        "gauss_newton_log_ratios": steps,
+        "how": "each parameter the log of its ratio to the traced value; the traced paths "
+               "re-fielded (propagation.refield), linearised, refitted until settled"}}
     return fit, {
+        **extra,
         "parameters": params,
         "fixed": "antenna 0's offset is 0: a gain common to all antennas equals a tag "
                  "sensitivity offset plus twice that in the RSSI offset",

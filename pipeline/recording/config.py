@@ -61,6 +61,10 @@ class RecordingConfig:
         0.0, "Added to every read's time before it meets the poses [s]: a known offset "
         "between the reader's clock and the robot's (import.json's pose_lag estimates it).")
     max_tags: int = option(100_000, "Largest tag layout taken.", max=1_000_000)
+    calibrate_constructions: int = option(
+        2, "Constructions (radio materials) whose permittivity and conductivity the "
+        "calibration fits: the N that carry most of the traced path power, metal left out "
+        "(0: the reader's parameters only).", max=8)
 
     def __post_init__(self):
         if self.format not in FORMATS:
@@ -71,6 +75,9 @@ class RecordingConfig:
                               "header epc,x_m,y_m,z_m)")
         if not abs(self.time_offset_s) <= 86_400.0:  # NaN fails too
             raise ConfigError(f"recording.time_offset_s must be within a day, got {self.time_offset_s!r}")
+        if isinstance(self.calibrate_constructions, bool) or self.calibrate_constructions < 0:
+            raise ConfigError(f"recording.calibrate_constructions must be 0 or more, got "
+                              f"{self.calibrate_constructions!r}")
         if not 0.0 < self.heldout_fraction < 1.0:
             raise ConfigError(f"recording.heldout_fraction must be in (0, 1), got "
                               f"{self.heldout_fraction!r}")

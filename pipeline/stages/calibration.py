@@ -1,20 +1,25 @@
-"""Stage ``calibration``: the simulated reader fitted to the recording (``calibration.json``,
-``calibrated.toml``).
+"""Stage ``calibration``: the simulated reader and building fitted to the recording
+(``calibration.json``, ``calibrated.toml``).
 
 The fit and its intervals are :func:`pipeline.evaluation.calibration.calibrate`'s, on the
 traced twins of the recorded attempts (``sim_vs_real/attempts.parquet``): training tags
-to fit, held-out tags to score before and after. Writes into the run directory
+to fit, held-out tags to score before and after. With ``recording.calibrate_constructions``
+> 0 the permittivity and conductivity of the constructions that carry most of the traced
+path power are fitted too (:func:`construction_model`: the recorded links traced once,
+their paths re-fielded per trial by :mod:`propagation.refield`). Writes into the run
+directory
 
 - ``calibration.json``: each parameter with its 95 % interval, what is fixed, and the
   held-out residuals before and after with paired intervals;
 - ``calibrated.toml``: the study's config with the fitted values laid over it and no
   ``[recording]``, so that a simulated study (a placement study) runs with the calibrated
-  reader in the same building: each antenna's ``cable_loss_db`` less its gain offset,
-  ``reader.tag_sensitivity_dbm`` plus the sensitivity offset,
+  reader in the calibrated building: each antenna's ``cable_loss_db`` less its gain
+  offset, ``reader.tag_sensitivity_dbm`` plus the sensitivity offset,
   ``reader.rssi_noise_db`` the fitted spread less the quantisation's
-  (``rssi_resolution_db^2 / 12``). The RSSI offset, the detection spread and the miss
-  probability are reported only: the simulated reader has no key for them (its truth is
-  the received power, so an offset key would bias every model against it).
+  (``rssi_resolution_db^2 / 12``), and a ``[[materials]]`` table per fitted construction's
+  material (its permittivity and conductivity). The RSSI offset, the detection spread and
+  the miss probability are reported only: the simulated reader has no key for them (its
+  truth is the received power, so an offset key would bias every model against it).
 """
 
 from __future__ import annotations
@@ -25,16 +30,98 @@ import numpy as np
 import pandas as pd
 
 from pipeline.runstore import atomic_write_json
-from pipeline.stages.common import link_budget
+from pipeline.stages.common import TRACING_KEYS, link_budget, load_scene, trace_options
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "calibrated_config", "stage_calibration"]
+__all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model", "stage_calibration"]
+
+#: Smallest share of the traced path power a construction must carry to be fitted.
+MIN_POWER_SHARE = 0.02
+#: Above this conductivity [S/m] a material is a conductor (metal): nothing to fit.
+_CONDUCTOR_S_PER_M = 1e3
 
 
-def calibrated_config(cfg, fit):
+def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
+    """The :class:`~pipeline.evaluation.calibration.MaterialModel` of the recorded links
+    (module doc), or None where no construction carries :data:`MIN_POWER_SHARE`.
+
+    The antenna positions of the traced attempts (``ant_*`` columns) are traced once to
+    their tags with the direct tracer at the study's ``[tracing]`` depth, rays and seed
+    (:func:`propagation.refield.freeze_paths`); ``delta_db(theta)`` re-fields them and
+    gives each attempt's gain change against the re-fielded gain as traced (0 where
+    either has no path). Radio material names are ``uhf-<material>-t<thickness>``."""
+    from pipeline.evaluation.calibration import MaterialModel
+    from propagation.refield import freeze_paths, material_shares, refield_gains_db
+    from propagation.tracing import tag_dipole_axes
+
+    cfg = ctx.config
+    sc = load_scene(ctx)
+    rows = np.flatnonzero(np.isfinite(att["gain_db"].to_numpy(np.float64)))
+    xyz = att[["ant_x_m", "ant_y_m", "ant_z_m"]].to_numpy(np.float64)[rows]
+    uniq, pos_index = np.unique(xyz, axis=0, return_inverse=True)
+    col = {str(t): i for i, t in enumerate(sc.tags.ids)}
+    tag_index = att["tag_id"].astype(str).map(col).to_numpy()[rows].astype(np.int64)
+    need = np.zeros((len(uniq), len(col)), bool)
+    need[pos_index.reshape(-1), tag_index] = True
+    opts = dataclasses.replace(trace_options(cfg), method="direct")
+    frozen = freeze_paths(sc, uniq, sc.tags.positions_m, need, frequency_hz=cfg.frequency_hz, options=opts)
+    shares = material_shares(frozen)
+    chosen = [n for n, v in sorted(shares.items(), key=lambda kv: -kv[1])
+              if v >= MIN_POWER_SHARE and frozen.materials[n][1] < _CONDUCTOR_S_PER_M][:n_constructions]
+    info = {"power_share": {k: round(v, 4) for k, v in shares.items()},
+            "n_positions_traced": len(uniq), "n_links_traced": int(need.sum())}
+    if not chosen:
+        return None, info
+    tilt = np.deg2rad([a.tilt_deg for a in cfg.robot.antennas])
+    ant = att["antenna"].to_numpy(np.int64)[rows]
+    yaw = att["ant_yaw_rad"].to_numpy(np.float64)[rows]
+    poses = np.column_stack([xyz, yaw, tilt[ant], np.zeros(len(rows))])
+    freq = att["frequency_hz"].to_numpy(np.float64)[rows]
+    axes = tag_dipole_axes(sc.tags.normals, len(col))
+
+    def gains(materials):
+        return refield_gains_db(frozen, materials, pos_index.reshape(-1), tag_index, poses,
+                                frequency_hz=freq, options=opts, tag_axes=axes)
+
+    g0 = gains(None)
+    names, nominal, lower, upper, keys = [], [], [], [], []
+    for n in chosen:
+        eps, sigma = frozen.materials[n]
+        names.append(f"{n}.relative_permittivity")
+        nominal.append(eps)
+        lower.append(max(np.log(1.0 / eps), np.log(0.25)))  # eps_r >= 1
+        upper.append(np.log(4.0))
+        keys.append((n, 0))
+        if sigma > 0.0:
+            names.append(f"{n}.conductivity")
+            nominal.append(sigma)
+            lower.append(np.log(0.1))
+            upper.append(np.log(10.0))
+            keys.append((n, 1))
+
+    def delta_db(theta):
+        mats = {n: list(frozen.materials[n]) for n in chosen}
+        for (n, j), t, v in zip(keys, theta, nominal, strict=True):
+            mats[n][j] = v * float(np.exp(t))
+        g = gains({n: tuple(v) for n, v in mats.items()})
+        out = np.zeros(len(att))
+        ok = np.isfinite(g) & np.isfinite(g0)
+        out[rows[ok]] = (g - g0)[ok]
+        return out
+
+    info["n_links_without_path"] = int((~np.isfinite(g0)).sum())
+    return MaterialModel(tuple(names), np.asarray(nominal), np.asarray(lower), np.asarray(upper),
+                         delta_db, info), info
+
+
+def calibrated_config(cfg, fit, constructions: dict | None = None):
     """``cfg`` with ``fit`` (:class:`~pipeline.evaluation.calibration.CalibrationFit`) laid
-    over it and the recording removed (module doc)."""
+    over it and the recording removed (module doc); ``constructions`` {radio material name
+    ``uhf-<material>-t<thickness>``: (relative permittivity, conductivity)} become
+    ``[[materials]]`` tables (a material fitted in two thicknesses keeps the larger
+    construction's values: the overlay is per material)."""
     from pipeline.recording.config import RecordingConfig
+    from pipeline.sceneconfig import MaterialConfig
 
     antennas = tuple(dataclasses.replace(a, cable_loss_db=float(a.cable_loss_db - d))
                      for a, d in zip(cfg.robot.antennas, fit.antenna_offsets_db, strict=True))
@@ -43,30 +130,59 @@ def calibrated_config(cfg, fit):
     reader = dataclasses.replace(
         r, tag_sensitivity_dbm=float(r.tag_sensitivity_dbm + fit.tag_sensitivity_offset_db),
         rssi_noise_db=noise)
+    mats = {m.name: m for m in cfg.materials}
+    for name, (eps, sigma) in (constructions or {}).items():
+        material = name.removeprefix("uhf-").rsplit("-t", 1)[0]
+        mats[material] = MaterialConfig(name=material, relative_permittivity=float(eps),
+                                        conductivity_s_per_m=float(sigma))
     return dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, antennas=antennas),
-                               reader=reader, recording=RecordingConfig())
+                               reader=reader, recording=RecordingConfig(),
+                               materials=tuple(mats.values()))
+
+
+def _fitted_constructions(report: dict) -> dict:
+    """{radio material: (permittivity, conductivity)} of the fitted construction parameters;
+    one on the edge of its range (not identified) keeps its traced value, a conductivity
+    not fitted is -1 (the library's)."""
+    out: dict = {}
+    for key, p in report["parameters"].items():
+        name, _, what = key.rpartition(".")
+        if what in ("relative_permittivity", "conductivity"):
+            value = p["traced"] if "note" in p and "edge" in p["note"] else p["value"]
+            out.setdefault(name, {})[what] = value
+    return {k: (v["relative_permittivity"], v.get("conductivity", -1.0)) for k, v in out.items()}
 
 
 def stage_calibration(ctx) -> dict:
-    """Fit the reader to the recording; write ``calibration.json`` and ``calibrated.toml``."""
+    """Fit the reader (and constructions) to the recording; write ``calibration.json`` and
+    ``calibrated.toml``."""
     from pipeline.config import config_to_toml
     from pipeline.evaluation.calibration import calibrate
     from scenes.fileio import atomic_write_text
 
     cfg = ctx.config
     att = pd.read_parquet(ctx.input("sim_vs_real/attempts.parquet"))
+    model, info = None, None
+    if cfg.recording.calibrate_constructions:
+        model, info = construction_model(ctx, att, cfg.recording.calibrate_constructions)
     fit, report = calibrate(att, link_budget(cfg), len(cfg.robot.antennas),
                             miss_probability=att["miss_probability"].to_numpy(np.float64),
-                            seed=cfg.seed)
+                            seed=cfg.seed, materials=model)
+    if model is None and info is not None:
+        report["constructions"] = {**info, "note": f"no construction other than a conductor "
+                                   f"carries {MIN_POWER_SHARE:.0%} of the traced path power"}
     report["antennas"] = [a.name for a in cfg.robot.antennas]
     atomic_write_json(ctx.out("calibration.json"), report)
     atomic_write_text(ctx.out("calibrated.toml"),
                       "# the study's config with the reader calibrated to the recording "
-                      "(calibration.json)\n" + config_to_toml(calibrated_config(cfg, fit)))
+                      "(calibration.json)\n"
+                      + config_to_toml(calibrated_config(cfg, fit, _fitted_constructions(report))))
     mae = report["heldout"]["rssi_mae_db"]
     return {"parameters": {k: round(v["value"], 3) for k, v in report["parameters"].items()},
             "heldout_rssi_mae_db": {"before": mae["before"]["estimate"], "after": mae["after"]["estimate"]}}
 
 
-STAGE = Stage("calibration", stage_calibration, ("seed", "reader", "robot"), ("sim_vs_real",),
-              description="calibrate the reader to the recording")
+STAGE = Stage("calibration", stage_calibration,
+              ("seed", "reader", "robot", "recording.calibrate_constructions") + TRACING_KEYS,
+              ("scene", "sim_vs_real"), version=2,  # 2: construction parameters
+              description="calibrate the reader and building to the recording")

@@ -42,6 +42,7 @@ __all__ = [
     "spread_evenly",
     "stage_rng",
     "tag_candidates",
+    "study_building",
     "study_route",
     "study_scene",
     "trace_options",
@@ -106,6 +107,23 @@ def tag_candidates(scene, cfg: StudyConfig):
                      between_m=EVAL_TAG_SPACING_M)
 
 
+def study_building(cfg: StudyConfig):
+    """``scenes.load(cfg.scene)`` with the study's ``[[materials]]`` laid over the scene's own
+    material overrides (:func:`pipeline.sceneconfig.material_overrides`)."""
+    import dataclasses
+
+    import scenes
+    from pipeline.sceneconfig import material_overrides
+
+    sc = scenes.load(cfg.scene)
+    if not cfg.materials:
+        return sc
+    ov = {k: dict(v) for k, v in sc.metadata.get("material_overrides", {}).items()}
+    for name, entry in material_overrides(cfg.materials).items():
+        ov.setdefault(name, {}).update(entry)
+    return dataclasses.replace(sc, metadata={**sc.metadata, "material_overrides": ov})
+
+
 def study_scene(cfg: StudyConfig):
     """The scene with the study's two tag layouts, and which tag belongs to which.
 
@@ -126,11 +144,10 @@ def study_scene(cfg: StudyConfig):
     """
     import dataclasses
 
-    import scenes
     from scenes.scene import TagSet
     from scenes.tagsites import draw_tags, tag_sites
 
-    sc = map_route(scenes.load(cfg.scene), build_robot(cfg))
+    sc = map_route(study_building(cfg), build_robot(cfg))
     ev = cfg.evaluation
     train = sc.tags
     # a map with racks: the held-out tags are shelf tags too (on the front beams, at every

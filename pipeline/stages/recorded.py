@@ -24,7 +24,7 @@ import dataclasses
 import numpy as np
 
 from pipeline.runstore import atomic_write_json, save_npz
-from pipeline.stages.common import build_robot, load_scene, stage_rng
+from pipeline.stages.common import build_robot, load_scene, stage_rng, study_building
 from pipeline.study import Stage
 
 __all__ = ["STAGE", "recorded_scene", "stage_recording"]
@@ -50,7 +50,7 @@ def recorded_scene(cfg, memo: dict | None = None):
     Returns
     -------
     scene : scenes.Scene
-        ``scenes.load(cfg.scene)`` with ``tags`` the recording's (ids = EPCs).
+        ``study_building(cfg)`` with ``tags`` the recording's (ids = EPCs).
     split : numpy.ndarray of str
         ``"train"`` or ``"eval"`` per tag: ``round(heldout_fraction * n)`` tags (at least
         one, at most n - 1) held out, drawn from ``stage_rng(cfg, "recording_split")``.
@@ -60,7 +60,6 @@ def recorded_scene(cfg, memo: dict | None = None):
     pipeline.recording.RecordingError
         A recording file cannot be read; fewer than two tags.
     """
-    import scenes
     from pipeline.recording import RecordingError
     from pipeline.recording.load import recorded_tagset
     from pipeline.robot.kinematics import antenna_poses
@@ -78,7 +77,7 @@ def recorded_scene(cfg, memo: dict | None = None):
     held = stage_rng(cfg, "recording_split").choice(n, size=k, replace=False)
     split = np.full(n, "train", dtype="<U5")
     split[held] = "eval"
-    return dataclasses.replace(scenes.load(cfg.scene), tags=tags), split
+    return dataclasses.replace(study_building(cfg), tags=tags), split
 
 
 def _check_channels(rec, cfg) -> None:

@@ -45,7 +45,7 @@ def stage_scene(ctx) -> dict:
     return {"scene": sc.name, "n_tags": len(sc.tags), "content_hash": summary["content_hash"][:16]}
 
 
-STAGE = Stage("scene", stage_scene, ("scene", "seed", "tour.max_length_m", "evaluation.n_eval_tags",
+STAGE = Stage("scene", stage_scene, ("scene", "materials", "seed", "tour.max_length_m", "evaluation.n_eval_tags",
                                      "evaluation.eval_tag_min_separation_m",
                                      "evaluation.eval_tag_heights_m", "training.d_max_m"),
               (), version=2,  # 2: held-out tag layout (tags.parquet split)

@@ -6,7 +6,8 @@ and ``[tracing]``): its attempt schedule is the one the recording's attempts wer
 rebuilt on (:mod:`pipeline.recording.attempts`), so every recorded attempt has its
 traced twin, joined on (cycle, antenna, tag). The comparison and the baseline are
 :mod:`pipeline.evaluation.simreal`'s. Writes ``sim_vs_real/attempts.parquet`` (per
-attempt in range: split, read, measured and predicted RSSI, predicted probabilities),
+attempt in range: split, read, measured and predicted RSSI, predicted probabilities, the
+antenna's traced pose and channel),
 ``sim_vs_real/links.parquet`` (:func:`~pipeline.evaluation.simreal.link_rates`, per
 tag and antenna, with ``split``) and ``sim_vs_real/summary.json``.
 """
@@ -72,6 +73,9 @@ def stage_sim_vs_real(ctx) -> dict:
     pred = pd.DataFrame({
         "cycle": s["cycle"].to_numpy(), "antenna": s["antenna"].to_numpy(),
         "tag_id": s["tag_id"].astype(str).to_numpy(), "in_range": s["in_range"].to_numpy(bool),
+        # where the traced antenna stood (the calibration re-fields these links)
+        **{f"ant_{c}": s[f"true_ant_{c}"].to_numpy(np.float64) for c in ("x_m", "y_m", "z_m", "yaw_rad")},
+        "frequency_hz": s["frequency_hz"].to_numpy(np.float64),
         "gain_db": gain, "miss_probability": q, "p_sim": np.where(closed, 1.0 - q, 0.0),
         "rssi_sim_dbm": np.where(closed, true_rssi_dbm(gain, budget), np.nan)})
     rec = _recorded(ctx)
@@ -113,4 +117,5 @@ def stage_sim_vs_real(ctx) -> dict:
 
 
 STAGE = Stage("sim_vs_real", stage_sim_vs_real, ("seed", "robot", "reader") + TRACING_KEYS,
-              ("scene", "recording"), description="simulation against the recording")
+              ("scene", "recording"), version=2,  # 2: the antenna's pose and channel per attempt
+              description="simulation against the recording")
