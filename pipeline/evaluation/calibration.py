@@ -42,10 +42,10 @@ log of its ratio to the traced value. ``dg(theta)``, each attempt's gain change,
 from the traced paths re-fielded at ``theta`` (:mod:`propagation.refield`: the geometry
 kept, no ray shot again). The likelihood sees it linearised,
 ``dg(theta) ~ dg(theta_0) + J (theta - theta_0)`` (J by forward differences of
-:data:`MATERIAL_STEP`), and the linearisation is moved to the fitted value and the fit
-repeated until theta moves by less than :data:`MATERIAL_TOL` (Gauss-Newton on the
-re-fielded gains; each step within :data:`MATERIAL_TRUST` of the last): the point
-estimate is that of the exact re-fielded gains, the bootstrap refits use the last
+:data:`MATERIAL_STEP`); the linearised fit proposes a step (within :data:`MATERIAL_TRUST`),
+taken when the exact likelihood (re-fielded gains, the reader refitted) improves, halved
+otherwise, until theta moves by less than :data:`MATERIAL_TOL` (damped Gauss-Newton): the
+point estimate is that of the exact re-fielded gains, the bootstrap refits use the last
 linearisation. A construction's value on the edge of its range (permittivity x4 or /4,
 at least 1; conductivity x10 or /10) is reported as not identified, not refused: few
 recordings see a wall's conductivity (it matters through the wall, little off it).
@@ -81,7 +81,7 @@ MATERIAL_STEP = 0.05
 MATERIAL_TOL = 0.01
 #: Largest move of a construction parameter per iteration (log ratio: x1.5).
 MATERIAL_TRUST = float(np.log(1.5))
-#: Most Gauss-Newton iterations.
+#: Most Gauss-Newton iterations (each: 1 + k re-fields for the Jacobian, 1-5 for the step).
 MATERIAL_ITERATIONS = 8
 
 
@@ -260,6 +260,7 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
                              "what the reader's parameters can explain (check the mounts, "
                              "the poses' frame, recording.antenna_ports)")
     object.__setattr__(fit, "_x", res.x)
+    object.__setattr__(fit, "_nll", float(res.fun))
     return fit
 
 
@@ -276,22 +277,46 @@ def _bootstrap(att, budget, n_ant, point, rng, n_boot, terms):
 
 
 def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.ndarray):
-    """Gauss-Newton on the re-fielded gains (module doc): the fit and its last linearisation."""
+    """Damped Gauss-Newton on the re-fielded gains (module doc): the fit at the last
+    accepted theta (the reader's parameters fitted to the exact gains there) and the
+    linearisation there, and the accepted steps.
+
+    A step (the linearised fit's theta) is taken when the exact likelihood at it, the
+    reader's parameters refitted, beats the current one; else it is halved, up to four
+    times; the iteration ends when a step moves no parameter more than MATERIAL_TOL or no
+    halving improves."""
+    gain = train["gain_db"].to_numpy(np.float64)
+
+    def exact(theta):  # the reader fitted to the gains re-fielded at theta
+        g = gain + np.asarray(model.delta_db(theta), np.float64)[rows]
+        return fit_calibration(train.assign(gain_db=g), budget, n_antennas, miss_probability=q,
+                               strict=False)
+
     at = np.zeros(len(model.names))
-    fit, iterations = None, []
+    best = exact(at)
+    steps = [at.tolist()]
     for _ in range(MATERIAL_ITERATIONS):
         terms = _linearise(model, at, rows)
-        fit = fit_calibration(train, budget, n_antennas, miss_probability=q, terms=terms,
-                              start=None if fit is None else fit._x)  # noqa: SLF001
-        move = fit.material_log_ratios - at
-        iterations.append([float(v) for v in fit.material_log_ratios])
-        at = fit.material_log_ratios.copy()
-        if np.max(np.abs(move), initial=0.0) < MATERIAL_TOL:
+        proposal = fit_calibration(train, budget, n_antennas, miss_probability=q, terms=terms,
+                                   start=best._x, strict=False)  # noqa: SLF001 - our own vectors
+        step = proposal.material_log_ratios - at
+        for _ in range(5):
+            trial = exact(at + step)
+            if trial._nll < best._nll:  # noqa: SLF001
+                break
+            step = step / 2.0
+        else:
+            break  # no step along the linearised direction improves: settled
+        at, best = at + step, trial
+        steps.append(at.tolist())
+        if np.max(np.abs(step), initial=0.0) < MATERIAL_TOL:
             break
-    else:
-        raise ValueError(f"calibration: the construction parameters did not settle in "
-                         f"{MATERIAL_ITERATIONS} Gauss-Newton steps (last log ratios {iterations[-1]})")
-    return fit, terms, iterations
+    fit = dataclasses.replace(best, material_log_ratios=at.copy())
+    object.__setattr__(fit, "_x", np.r_[best._x, at])  # noqa: SLF001
+    if not np.isfinite(best._nll):  # noqa: SLF001
+        raise ValueError("calibration: the likelihood is not finite at the fitted construction "
+                         "parameters; the recording may hold too few reads")
+    return fit, _linearise(model, at, rows), steps
 
 
 def _material_entry(model: MaterialModel, j: int, entry: dict) -> dict:
@@ -352,7 +377,9 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     else:
         fit, terms, steps = _fit_materials(train, budget, n_antennas, max(q, 0.05), materials,
                                            np.flatnonzero(is_train))
-        held_terms = _linearise(materials, fit.material_log_ratios, np.flatnonzero(is_held))
+        base = np.asarray(materials.delta_db(fit.material_log_ratios), np.float64)[is_held]
+        held_terms = MaterialTerms(fit.material_log_ratios, base, np.zeros((len(base), len(materials.names))),
+                                   materials.lower, materials.upper)
     n_tags = int(train["tag_id"].nunique())
     boot = (_bootstrap(train, budget, n_antennas, fit, np.random.default_rng([int(seed), 53]),
                        int(n_boot), terms) if n_tags >= MIN_TAGS and n_boot > 0 else None)

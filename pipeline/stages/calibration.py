@@ -106,7 +106,7 @@ def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
         g = gains({n: tuple(v) for n, v in mats.items()})
         out = np.zeros(len(att))
         ok = np.isfinite(g) & np.isfinite(g0)
-        out[rows[ok]] = (g - g0)[ok]
+        out[rows[ok]] = g[ok] - g0[ok]
         return out
 
     info["n_links_without_path"] = int((~np.isfinite(g0)).sum())
