@@ -2,7 +2,8 @@
 
 Sections: what the import read and left out (:mod:`pipeline.recording.load`), every
 model on the held-out tags' recorded reads with 95 % intervals and the paired verdict
-against the chapter's ANFIS, and the simulation against the recording
+against the chapter's ANFIS, the held-out tags localised with every model (the
+downstream stage, where it ran), and the simulation against the recording
 (:mod:`pipeline.evaluation.simreal`) with its two figures, drawn here from
 ``sim_vs_real/links.parquet`` and ``scene/tags.parquet``: predicted against measured
 mean RSSI per (tag, antenna) link, and a top view of each tag's mean residual.
@@ -96,6 +97,54 @@ def draw_sim_vs_real(links, tags):
     return [f1, f2]
 
 
+#: The tag localisation table's columns: (interval key, heading, digits).
+_TAG_COLUMNS = (("tag_localisation.median_m", "median [m]", 2),
+                ("tag_localisation.p90_m", "p90 [m]", 2),
+                ("tag_localisation.within_0_5m", "share within 0.5 m", 2))
+
+
+def _tag_localisation_html(metrics: dict) -> list[str]:
+    """The held-out tags localised with each model (the downstream stage on a recording):
+    the MAP error against the recording's tag layout with 95 % intervals over tags, the
+    verdict against ANFIS on the median; sources that did not run, and why."""
+    from pipeline.sensormodels.registry import model_label
+
+    esc = html.escape
+    tl = metrics.get("tag_localisation")
+    if not isinstance(tl, dict) or not tl:
+        return []
+    ivs, comps = metrics.get("intervals", {}), metrics.get("comparisons", {}).get("metrics", {})
+    out = ["<h2>Held-out tags localised</h2><p class='muted'>Each held-out tag's most likely "
+           "site among the candidates on the building's surfaces, from the recording's reads "
+           "of it on the recorded poses; 3-D error against the recording's tag layout, 95 % "
+           "intervals over held-out tags; ▲/▼ on the median: better/worse than ANFIS.</p>"
+           "<div class='tw'><table><tr><th>model</th>"
+           + "".join(f"<th>{h}</th>" for _, h, _ in _TAG_COLUMNS) + "<th>tags</th></tr>"]
+    skipped = []
+    for model, s in tl.items():
+        if not isinstance(s, dict) or "not_run" in s:
+            skipped.append((model, s.get("not_run") if isinstance(s, dict) else s))
+            continue
+        cells = []
+        for key, _, digits in _TAG_COLUMNS:
+            iv = ivs.get(key, {}).get("models", {}).get(model)
+            if iv is None:  # no interval table: the stage's own estimate
+                iv = {"estimate": s.get(key.split(".", 1)[1])}
+            cells.append(_fmt(iv, digits) + (_verdict(comps.get(key, {}).get(model))
+                                             if key.endswith("median_m") else ""))
+        out.append(f"<tr><td>{esc(model_label(model))}</td>" + "".join(f"<td>{c}</td>" for c in cells)
+                   + f"<td>{esc(str(s.get('n_tags', '–')))}</td></tr>")
+    out.append("</table></div>")
+    robot = metrics.get("robot_localisation")
+    notes = [f"{esc(model_label(m))}: {esc(str(why))}" for m, why in skipped]
+    if isinstance(robot, str):
+        notes.append(f"RFID-only robot localisation not run: {esc(robot.removeprefix('not run: '))}"
+                     if robot.startswith("not run: ") else f"robot localisation: {esc(robot)}")
+    if notes:
+        out.append("<p class='muted'>" + "<br>".join(notes) + "</p>")
+    return out
+
+
 def write_recorded_report(run_dir, metrics: dict, out) -> Path:
     """Write the recorded study's self-contained ``report.html`` (module doc)."""
     import pandas as pd
@@ -140,12 +189,15 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
                  "than the chapter's ANFIS on the same tags.</p>")
     ivs, comps = metrics.get("intervals", {}), metrics.get("comparisons", {}).get("metrics", {})
     for key, sec in ivs.items():
+        if key.startswith("tag_localisation."):  # their own table (_tag_localisation_html)
+            continue
         parts.append(f"<h3>{esc(sec.get('label', key))}</h3><div class='tw'><table><tr><th>model"
                      "</th><th>estimate [95 % interval]</th></tr>")
         for model, iv in sec.get("models", {}).items():
             parts.append(f"<tr><td>{esc(model_label(model))}</td><td>{_fmt(iv, 3)}"
                          f"{_verdict(comps.get(key, {}).get(model))}</td></tr>")
         parts.append("</table></div>")
+    parts += _tag_localisation_html(metrics)
     svr = metrics.get("sim_vs_real", {}).get("heldout", {})
     parts.append("<h2>Simulation against the recording</h2><p class='muted'>The ray tracer's "
                  "prediction of each held-out attempt, against a log-distance model with a "

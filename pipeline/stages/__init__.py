@@ -21,7 +21,8 @@ engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` han
 
 A study with a ``[recording]`` runs :data:`RECORDED_STAGES` instead
 (:mod:`pipeline.stages.recorded`): the recording stands in for the tour and the reads,
-then ``sim_vs_real``, ``calibration`` and ``recorded_eval``.
+then ``sim_vs_real``, ``calibration``, ``downstream`` (the held-out tags alone) and
+``recorded_eval``.
 
 The scene stage always runs (it is cheap) so an edited scene file changes its
 outputs' digest and everything downstream re-runs. ``truth_traces`` runs in a process
@@ -99,7 +100,9 @@ STAGES: tuple[Stage, ...] = (
 
 
 #: The recorded study's stages (:mod:`pipeline.stages.recorded`): the recording stands
-#: in for the tour and the reads; no truth, downstream or figures stages.
+#: in for the tour and the reads; no truth or figures stages; ``downstream`` localises the
+#: held-out tags alone, against the recording's tag layout (no robot filter, no oracle:
+#: :mod:`pipeline.stages.downstream`).
 RECORDED_STAGES: tuple[Stage, ...] = (
     scene.STAGE,
     recorded.STAGE,
@@ -107,6 +110,9 @@ RECORDED_STAGES: tuple[Stage, ...] = (
     dataclasses.replace(models.STAGE, upstream=("training_sets", "recording")),
     sim_vs_real.STAGE,
     calibration.STAGE,
+    dataclasses.replace(downstream.STAGE, upstream=("scene", "recording", "models"),
+                        config_keys=("seed", "downstream", "training.d_max_m", "robot"),
+                        description="held-out tags localised (recording)"),
     recorded_eval.STAGE,
     dataclasses.replace(report.STAGE, upstream=("recorded_eval",)),
 )

@@ -3,7 +3,28 @@ the ray-traced oracle and, where the read table has phases, the phase estimator
 (:mod:`pipeline.localisation.phase`; ``tag_localisation.phase`` says why when it did not
 run); writes ``downstream/scores.json``, ``downstream/tag_errors.parquet`` and
 ``downstream/robot_error.parquet``, which the evaluation stage copies into ``metrics.json``
-(``tag_localisation.<model>``, ``robot_localisation.<model>``)."""
+(``tag_localisation.<model>``, ``robot_localisation.<model>``).
+
+On a recorded study (``[recording]``, :data:`pipeline.stages.RECORDED_STAGES`) the stage
+localises the held-out tags only (:func:`_recorded_downstream`), with every fitted model
+and the same candidates, from the recording's reads of them on the recorded poses (the
+``est_`` columns; a recording's ``true_`` columns are the same poses, and the models see
+``d_est_m``), scored against the positions in the recording's tags CSV: the ground truth a
+real user has. What it leaves out, and why, is written in ``scores.json``:
+
+- the robot filter (not run): it is scored against the true robot track, and a
+  recording's poses are the only track there is, the best estimate of where the robot
+  was (the filter's error would be its distance to another estimate, not to the truth;
+  the recorded ``eval_poses.parquet`` has no odometry to drive it either).
+  ``robot_localisation`` is a sentence saying so (:data:`RECORDED_ROBOT`);
+- the oracle (not run, whatever ``downstream.oracle`` says): it could run, the scene is
+  known and the recorded poses can be traced, but on a recording it is no oracle (its
+  likelihood is the simulated reader's given traced gains, not what wrote the log) and
+  it costs minutes of tracing; ``sim_vs_real`` scores the tracer against the log. With
+  ``downstream.oracle = true`` ``tag_localisation.oracle`` says it was not run;
+- the phase estimator runs where the recording's reads have phases (Impinj reports and
+  ROS 2 bags may; a ``sllurp log`` CSV has none): else ``phase`` / ``phase_anfis`` say
+  why, as in a simulated study whose reads carry none."""
 
 from __future__ import annotations
 
@@ -26,7 +47,11 @@ from pipeline.stages.common import (
 )
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "stage_downstream"]
+__all__ = ["RECORDED_ROBOT", "STAGE", "stage_downstream"]
+
+#: Why a recorded study does not localise the robot (``scores.json``, ``metrics.json``).
+RECORDED_ROBOT = ("not run: a recording's poses are the only track, so there is no truth to "
+                  "score an RFID-only robot filter against")
 
 
 def _models(ctx) -> dict:
@@ -109,13 +134,17 @@ def _robot_oracle(ctx, eval_tags, free):
     return FieldLikelihood(oracle, field), field.n_traced_links
 
 
-def _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources) -> tuple:
+def _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources, *,
+              no_phase: str | None = None) -> tuple:
     """The held-out tags' candidates and posteriors of every model and of the phase
-    estimator (NumPy only: safe in a forked process)."""
+    estimator (NumPy only: safe in a forked process); ``no_phase``: why the phase
+    estimator does not run (it then does not)."""
     from pipeline.localisation import localise_tags
     from pipeline.localisation.benchmark import phase_posteriors
     cand = tag_candidates(load_scene(ctx), ctx.config)
     posts = localise_tags(obs, cand, sources)
+    if no_phase is not None:
+        return cand, posts, {"run": False, "reason": no_phase}
     # the phase estimator's candidates: within the farthest training read of a pose that
     # read the tag; sub-apertures of 1 m of antenna travel (MCL drifts: on the tiny study
     # they halve the horizontal error against whole-track groups, on exact poses they
@@ -129,8 +158,60 @@ def _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources) -> tuple:
     return cand, posts, phase_info
 
 
+def _tag_scores(ctx, posts, eval_tags, phase_info) -> dict:
+    """Each source's tag localisation scores (``phase`` / ``phase_anfis`` saying why they
+    did not run); writes every tag's error to ``downstream/tag_errors.parquet``."""
+    import pandas as pd
+
+    from pipeline.evaluation.tables import write_parquet_atomic
+    from pipeline.localisation.benchmark import tag_localisation_scores
+
+    tag_scores = tag_localisation_scores(posts, eval_tags)
+    if not phase_info["run"]:  # recorded, never silently left out
+        for name in ("phase", "phase_anfis"):
+            tag_scores[name] = {"not_run": phase_info["reason"]}
+    rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
+            for t, e in s.pop("per_tag_m", {}).items()]
+    write_parquet_atomic(pd.DataFrame(rows), ctx.out("downstream/tag_errors.parquet"))
+    return tag_scores
+
+
+def _recorded_downstream(ctx) -> dict:
+    """A recorded study's held-out tags localised with every model (module doc): writes
+    ``downstream/scores.json`` and ``downstream/tag_errors.parquet``."""
+    from pipeline.localisation import observations_from_reads
+    from pipeline.localisation.benchmark import model_sources
+
+    cfg = ctx.config
+    eval_tags = split_tags(ctx, "eval")
+    reads, _ = read_reads(ctx)
+    eval_reads, meta = read_reads(ctx, "eval_")
+    sources = model_sources(_models(ctx), reads, cfg.training.d_max_m)
+    obs = observations_from_reads(eval_reads, "est", tag_ids=list(eval_tags.ids),
+                                  pitch_rad=antenna_tilts(cfg))
+    phase = eval_reads["phase_rad"].to_numpy(np.float64)[eval_reads["read"].to_numpy(bool)]
+    no_phase = None if np.isfinite(phase).any() else (
+        "the recording's reads of the held-out tags carry no backscatter phase "
+        f"(a {(meta or {}).get('format', 'recording')} log without phases), so the phase "
+        "estimator cannot run")
+    cand, posts, phase_info = _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources,
+                                        no_phase=no_phase)
+    info = {"n_tags": int(len(eval_tags)), "n_candidates": int(len(cand)), "phase": phase_info,
+            "truth": "the held-out tags' positions in the recording's tags file"}
+    tag_scores = _tag_scores(ctx, posts, eval_tags, phase_info)
+    if cfg.downstream.oracle:
+        tag_scores["oracle"] = {"not_run": "not run on a recording: the traced likelihood is "
+                                "no oracle of a real log (sim_vs_real scores the tracer against "
+                                "it; pipeline.stages.downstream)"}
+    atomic_write_json(ctx.out("downstream/scores.json"),
+                      {"tag_localisation": tag_scores, "robot_localisation": RECORDED_ROBOT,
+                       "info": info})
+    return info
+
+
 def stage_downstream(ctx) -> dict:
-    """Tag localisation (every model + oracle) and RFID-only robot localisation."""
+    """Tag localisation (every model + oracle) and RFID-only robot localisation; on a
+    recording the held-out tags alone, without the oracle (module doc)."""
     import pandas as pd
 
     from pipeline.evaluation.tables import write_parquet_atomic
@@ -142,7 +223,6 @@ def stage_downstream(ctx) -> dict:
     from pipeline.localisation.benchmark import (
         RobotRuns,
         model_sources,
-        tag_localisation_scores,
     )
     from pipeline.parallel import map_forked
     from pipeline.robot import collision_map
@@ -151,6 +231,8 @@ def stage_downstream(ctx) -> dict:
     dn = cfg.downstream
     if not dn.enabled:
         return {"enabled": False}
+    if cfg.recording.enabled:
+        return _recorded_downstream(ctx)
     select_backend(cfg)
     sc = load_scene(ctx)
     robot = build_robot(cfg)
@@ -188,14 +270,8 @@ def stage_downstream(ctx) -> dict:
         info["oracle"]["robot_field_links"] = robot_field_links
         posts.update(post_o)
     update(advance=1)
-    tag_scores = tag_localisation_scores(posts, eval_tags)
-    if not info["phase"]["run"]:  # recorded, never silently left out
-        for name in ("phase", "phase_anfis"):
-            tag_scores[name] = {"not_run": info["phase"]["reason"]}
+    tag_scores = _tag_scores(ctx, posts, eval_tags, info["phase"])
     update(advance=1)
-    rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
-            for t, e in s.pop("per_tag_m", {}).items()]
-    write_parquet_atomic(pd.DataFrame(rows), ctx.out("downstream/tag_errors.parquet"))
     rrows, steps = [], []
     for n, s in robot_scores.items():
         t, e = s.pop("t_s"), s.pop("error_m")

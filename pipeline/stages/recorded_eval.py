@@ -15,7 +15,11 @@ with the chapter's ANFIS (:func:`pipeline.evaluation.headline.headline_intervals
 ``metrics.json`` holds ``source = "recording"``, ``heldout`` (estimates, against
 ``"measured"``), ``intervals``, ``comparisons``, ``recording`` (what the import
 counted), ``sim_vs_real`` (:mod:`pipeline.stages.sim_vs_real`), ``calibration``
-(:mod:`pipeline.stages.calibration`) and ``model_fits``.
+(:mod:`pipeline.stages.calibration`) and ``model_fits``; with the downstream stage on,
+``tag_localisation`` and ``robot_localisation`` as a simulated study's evaluation stage
+copies them (:mod:`pipeline.stages.downstream`: the held-out tags localised against the
+recording's tag layout; the robot's a sentence saying why it was not run), the tags'
+errors among the intervals' tables (``tag_localisation.*``, over held-out tags).
 """
 
 from __future__ import annotations
@@ -99,6 +103,9 @@ def stage_recorded_eval(ctx) -> dict:
                                   rssi_names=rssi_names, detection_names=det_names, dz_m=dz)
     for name in ("rssi_links", "detection_attempts", "detection_cells", "fig7_groups"):
         write_parquet_atomic(getattr(tables, name), ctx.out(u.TABLES[name]))
+    tag_errors = ctx.store.path(u.TABLES["tag_errors"])
+    if tag_errors.is_file():  # the downstream stage's (absent when it is disabled)
+        tables.tag_errors = pd.read_parquet(tag_errors).rename(columns={"tag_id": "unit"})
     ivs = headline_intervals(tables, seed=cfg.seed, min_attempts=tr.min_attempts)
     est = headline_estimates(tables, min_attempts=tr.min_attempts)
     metrics = {
@@ -112,6 +119,11 @@ def stage_recorded_eval(ctx) -> dict:
         "calibration": json.loads(ctx.input("calibration.json").read_text()),
         "model_fits": model_fits({n: sensors[n] for n in COMPETITORS}),
     }
+    scores = ctx.store.path("downstream/scores.json")
+    if scores.is_file():  # as the simulated study's evaluation stage copies them
+        down = json.loads(scores.read_text())
+        metrics["tag_localisation"] = down["tag_localisation"]
+        metrics["robot_localisation"] = down["robot_localisation"]
     atomic_write_json(ctx.out("metrics.json"), metrics)
     return {"models": sorted(sensors)}
 
@@ -119,4 +131,6 @@ def stage_recorded_eval(ctx) -> dict:
 STAGE = Stage("recorded_eval", stage_recorded_eval,
               ("seed", "training.d_max_m", "training.d_bin_m", "training.alpha_bin_deg",
                "training.min_attempts"),
-              ("recording", "models", "sim_vs_real", "calibration"), description="held-out scores on the recording")
+              ("recording", "models", "sim_vs_real", "calibration", "downstream"),
+              version=2,  # 2: tag_localisation / robot_localisation, tag_errors' intervals
+              description="held-out scores on the recording")

@@ -125,7 +125,8 @@ def _metric_columns(metrics: dict) -> dict:
         # the downstream score: an antenna-placement what-if judged by localisation
         for name in (m.get("tag_localisation") or {}):
             paths[f"tag_localisation.{name}.median_m"] = ("tag_localisation", name, "median_m")
-        for name in (m.get("robot_localisation") or {}):
+        robot = m.get("robot_localisation")  # a sentence on a recording: not run
+        for name in (robot if isinstance(robot, dict) else {}):
             paths[f"robot_localisation.{name}.median_m"] = ("robot_localisation", name, "median_m")
     else:
         paths = {k: ("models", "anfis", *v) for k, v in {
