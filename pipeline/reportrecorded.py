@@ -220,10 +220,27 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
                      f"training tags ({cal.get('n_train_tags')} tags; 95 % intervals from "
                      f"{cal.get('n_boot')} refits on resampled tags). {esc(cal.get('fixed', ''))}. "
                      "The calibrated study: <code>calibrated.toml</code>.</p><table><tr><th>"
-                     "parameter</th><th>value [95 % interval]</th></tr>")
+                     "parameter</th><th>value [95 % interval]</th><th>unit</th><th>as traced</th>"
+                     "<th>note</th></tr>")
         for key, v in cal.get("parameters", {}).items():
-            parts.append(f"<tr><td>{esc(key)}</td><td>{_fmt({'estimate': v['value'], **v}, 2)}</td></tr>")
-        parts.append("</table><table><tr><th>held-out</th><th>before</th><th>after</th>"
+            digits = 4 if v.get("unit") == "S/m" else 2
+            traced = "" if v.get("traced") is None else f"{v['traced']:.{digits}f}"
+            parts.append(f"<tr><td>{esc(key)}</td><td>{_fmt({'estimate': v['value'], **v}, digits)}</td>"
+                         f"<td>{esc(v.get('unit', ''))}</td><td>{traced}</td>"
+                         f"<td>{esc(v.get('note', ''))}</td></tr>")
+        parts.append("</table>")
+        vs = cal.get("constructions", {}).get("heldout_against_reader_only", {})
+        if vs:
+            parts.append("<p class='muted'>The same held-out tags with the constructions fitted "
+                         "and with the reader's parameters alone:</p><table><tr><th>held-out</th>"
+                         "<th>reader only</th><th>with constructions</th><th>difference</th></tr>")
+            for key, val in vs.items():
+                diff = val.get("difference", {})
+                parts.append(f"<tr><td>{esc(val.get('label', key))}</td><td>{_fmt(val['reader_only'], 3)}"
+                             f"</td><td>{_fmt(val['with_constructions'], 3)}</td><td>{_fmt(diff, 3)}"
+                             f"{_verdict(diff)}</td></tr>")
+            parts.append("</table>")
+        parts.append("<table><tr><th>held-out</th><th>before</th><th>after</th>"
                      "<th>after - before</th></tr>")
         for key, val in cal.get("heldout", {}).items():
             if isinstance(val, dict) and "after" in val:

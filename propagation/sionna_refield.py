@@ -99,6 +99,10 @@ def field_chunk(rt_scene, chunk: FrozenChunk) -> dict:
     antenna arrays must be the ones the chunk was frozen with."""
     check_versions()
     _fields(rt_scene, chunk)
+    # every field of the buffer evaluated with the transfer matrices: the calculator also
+    # updates others (validity) lazily, and a chain of such updates across trials makes
+    # each trial's kernel new (a compile, ~1.3 s) where an evaluated buffer reuses it
+    chunk.buffer.schedule()
     out: dict = {k: [] for k in ("a", "src", "tgt", "tau", "k_tx", "k_rx")}
     collect_paths(chunk.buffer, out)
     if out["tgt"]:

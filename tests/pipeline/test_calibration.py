@@ -181,6 +181,7 @@ def test_a_planted_wall_permittivity_is_recovered_through_the_nonlinear_gains():
     assert p["low"] <= eps_true <= p["high"], p
     assert p["value"] == pytest.approx(eps_true, rel=0.15)
     assert len(rep["constructions"]["gauss_newton_log_ratios"]) >= 2  # it had to re-linearise
-    # without the wall the reader's offsets cannot absorb an interference pattern: worse
-    _, rep0 = calibrate(att, BUDGET, 2, seed=3, n_boot=0)
-    assert rep["heldout"]["rssi_mae_db"]["after"]["estimate"] < rep0["heldout"]["rssi_mae_db"]["after"]["estimate"]
+    # the reader's offsets alone cannot absorb an interference pattern: on the same held-out
+    # tags the fit with the wall is better, by an interval
+    vs = rep["constructions"]["heldout_against_reader_only"]["rssi_mae_db"]
+    assert vs["difference"]["verdict"] == "better", vs
