@@ -100,10 +100,17 @@ def twin(out: Path, *, mcl: bool, length_m: float) -> dict:
         plant = f"{want:8.3g}" if want is not None else " " * 8
         print(f"{key:42s} {plant}  {_fmt(pp[key]):>24s}  {_fmt(cp.get(key, pp[key])):>24s}")
     for name in ("control", "planted"):
-        h = res[name]["calibration"]["heldout"]["rssi_mae_db"]
+        cal = res[name]["calibration"]
+        h = cal["heldout"]["rssi_mae_db"]
         print(f"{name}: held-out RSSI MAE before {h['before']['estimate']:.2f} dB, after "
               f"{h['after']['estimate']:.2f} dB ({h['difference']['verdict']}; {h['n_tags']} tags); "
               f"simulate {res[name]['simulate_s']:.0f} s, recorded study {res[name]['recorded_s']:.0f} s")
+        vs = cal.get("constructions", {}).get("heldout_against_reader_only", {}).get("rssi_mae_db")
+        if vs:
+            print(f"  constructions fitted against the reader alone: RSSI MAE "
+                  f"{vs['with_constructions']['estimate']:.2f} vs {vs['reader_only']['estimate']:.2f} dB "
+                  f"({vs['difference']['verdict']}); in calibrated.toml: "
+                  f"{cal['constructions'].get('in_calibrated_toml') is True}")
     (out / "twin.json").write_text(json.dumps(res, indent=1, default=str))
     return res
 

@@ -265,15 +265,21 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
 
 
 def _bootstrap(att, budget, n_ant, point, rng, n_boot, terms):
+    """``n_boot`` refits on the training tags resampled with replacement, in forked
+    processes (:func:`pipeline.parallel.map_forked`); the resamples are drawn here first, so
+    the result does not depend on the number of workers."""
+    from pipeline.parallel import map_forked
+
     tags = att["tag_id"].astype(str).to_numpy()
     units, code = np.unique(tags, return_inverse=True)
-    rows = []
-    for _ in range(n_boot):
-        mult = np.bincount(rng.integers(0, len(units), len(units)), minlength=len(units))
-        f = fit_calibration(att, budget, n_ant, weight=mult[code], strict=False,
-                            start=point._x, terms=terms)  # noqa: SLF001 - our own start vector
-        rows.append(f.as_dict())
-    return pd.DataFrame(rows)
+    mult = [np.bincount(rng.integers(0, len(units), len(units)), minlength=len(units))
+            for _ in range(n_boot)]
+
+    def refit(i):
+        return fit_calibration(att, budget, n_ant, weight=mult[i][code], strict=False,
+                               start=point._x, terms=terms).as_dict()  # noqa: SLF001 - our own start
+
+    return pd.DataFrame(map_forked(refit, n_boot))
 
 
 def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.ndarray):

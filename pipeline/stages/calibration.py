@@ -17,7 +17,9 @@ directory
   offset, ``reader.tag_sensitivity_dbm`` plus the sensitivity offset,
   ``reader.rssi_noise_db`` the fitted spread less the quantisation's
   (``rssi_resolution_db^2 / 12``), and a ``[[materials]]`` table per fitted construction's
-  material (its permittivity and conductivity). The RSSI offset, the detection spread and
+  material (its permittivity and conductivity), where the constructions beat the reader's
+  parameters alone on the held-out tags (:func:`_constructions_help`; a gate on the
+  overlay, not on the numbers reported: those are all in ``calibration.json``). The RSSI offset, the detection spread and
   the miss probability are reported only: the simulated reader has no key for them (its
   truth is the received power, so an offset key would bias every model against it).
 """
@@ -153,6 +155,14 @@ def _fitted_constructions(report: dict) -> dict:
     return {k: (v["relative_permittivity"], v.get("conductivity", -1.0)) for k, v in out.items()}
 
 
+def _constructions_help(report: dict) -> bool:
+    """The fitted constructions beat the reader's parameters alone on the held-out tags:
+    one of RSSI MAE and Brier score better by its interval, neither worse."""
+    vs = report.get("constructions", {}).get("heldout_against_reader_only", {})
+    verdicts = [v.get("difference", {}).get("verdict") for v in vs.values()]
+    return "better" in verdicts and "worse" not in verdicts
+
+
 def stage_calibration(ctx) -> dict:
     """Fit the reader (and constructions) to the recording; write ``calibration.json`` and
     ``calibrated.toml``."""
@@ -172,11 +182,16 @@ def stage_calibration(ctx) -> dict:
         report["constructions"] = {**info, "note": f"no construction other than a conductor "
                                    f"carries {MIN_POWER_SHARE:.0%} of the traced path power"}
     report["antennas"] = [a.name for a in cfg.robot.antennas]
+    overlay = _fitted_constructions(report) if _constructions_help(report) else {}
+    if model is not None:
+        report["constructions"]["in_calibrated_toml"] = bool(overlay) or (
+            "no: on the held-out tags they did not beat the reader's parameters alone (one "
+            "verdict better, none worse, is asked for); the recorded poses' error, or too "
+            "few attempts, can make them absorb what is not the building")
     atomic_write_json(ctx.out("calibration.json"), report)
     atomic_write_text(ctx.out("calibrated.toml"),
                       "# the study's config with the reader calibrated to the recording "
-                      "(calibration.json)\n"
-                      + config_to_toml(calibrated_config(cfg, fit, _fitted_constructions(report))))
+                      "(calibration.json)\n" + config_to_toml(calibrated_config(cfg, fit, overlay)))
     mae = report["heldout"]["rssi_mae_db"]
     return {"parameters": {k: round(v["value"], 3) for k, v in report["parameters"].items()},
             "heldout_rssi_mae_db": {"before": mae["before"]["estimate"], "after": mae["after"]["estimate"]}}

@@ -1,5 +1,6 @@
-"""The calibration twin (bench/calibration_twin.py) as a test: planted differences are
-recovered inside their intervals and the held-out residual falls to the control's."""
+"""The calibration twin (bench/calibration_twin.py) as a test: planted differences (an
+antenna's cable loss, the tags' sensitivity, the concrete's permittivity) are recovered
+inside their intervals and the held-out residual falls to the control's."""
 
 from __future__ import annotations
 
@@ -21,9 +22,19 @@ def test_calibration_finds_what_was_planted(tmp_path):
     res = json.loads((tmp_path / "true_poses" / "twin.json").read_text())
     planted = res["planted"]["calibration"]
     for key, want in (("antenna_offset_db[1]", -3.0), ("tag_sensitivity_offset_db", -2.0),
-                      ("rssi_offset_db", 0.0)):
+                      ("rssi_offset_db", 0.0),
+                      ("uhf-concrete-t0p200.relative_permittivity", 1.5 * 5.24),  # planted x1.5
+                      ("uhf-brick-t0p120.relative_permittivity", 3.91)):  # not planted: as traced
         p = planted["parameters"][key]
         assert p["low"] <= want <= p["high"], (key, p)
+    # the unplanted control finds the traced permittivities (conductivities are seen less:
+    # only their value, not their interval, is asserted, within a factor 1.6)
+    control_p = res["control"]["calibration"]["parameters"]
+    for key in ("uhf-concrete-t0p200.relative_permittivity", "uhf-brick-t0p120.relative_permittivity"):
+        p = control_p[key]
+        assert p["low"] <= p["traced"] <= p["high"], (key, p)
+    for key in ("uhf-concrete-t0p200.conductivity", "uhf-brick-t0p120.conductivity"):
+        assert 1 / 1.6 < control_p[key]["value"] / control_p[key]["traced"] < 1.6, (key, control_p[key])
     control = res["control"]["calibration"]["heldout"]["rssi_mae_db"]
     after = planted["heldout"]["rssi_mae_db"]
     assert after["difference"]["verdict"] == "better"
