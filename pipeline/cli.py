@@ -10,6 +10,7 @@
     rfidstudy sweep SWEEP.toml --out sweeps/x [--scheduler tcp://host:8786] [--workers N]
     rfidstudy placement PLACEMENT.toml --out runs/placement [--workers N | --scheduler ADDR]
     rfidstudy export RUN --format csv --out DIR                # the tour as a recording
+    rfidstudy calibrate STUDY.toml --recording REC --out DIR   # the reader fitted to a recording
     rfidstudy scenes list | show NAME [--png top.png]
     rfidstudy config [CONFIG.toml]                     # print the resolved (or reference) config
 
@@ -21,7 +22,6 @@ during ``run`` exits 130 after naming the stage it interrupted.
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import logging
 import sys
@@ -31,6 +31,8 @@ from typing import Annotated
 
 import typer
 
+from pipeline.clicommon import WRITE_ERRNOS, fail, fail_os
+from pipeline.cliscenes import scenes_app
 from pipeline.config import (
     ConfigError,
     config_to_toml,
@@ -42,7 +44,6 @@ __all__ = ["app", "resolve_target"]  # resolve_target: pipeline.targets, re-expo
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Ray-traced UHF RFID sensor-model study (Cicirelli, Milella & Di Paola 2011).")
-scenes_app = typer.Typer(no_args_is_help=True, help="Bundled scenes.")
 app.add_typer(scenes_app, name="scenes")
 
 log = logging.getLogger("pipeline.cli")
@@ -64,23 +65,6 @@ def _setup_logging(verbose: bool) -> None:
     # project's loggers pass INFO so that run.log (pipeline.runlog) holds every INFO line
     for name in ("pipeline", "scenes", "propagation", "fuzzymodel"):
         logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.INFO)
-
-
-def _fail(msg: str, code: int = 2):
-    typer.echo(f"error: {msg}", err=True)
-    raise typer.Exit(code)
-
-
-def _fail_os(exc: OSError, what: str, code: int = 2):
-    """One line for a file-system error (read-only, permissions, a file for a folder)."""
-    from pipeline.runstore import final_name
-
-    where = final_name(exc.filename) if exc.filename is not None else what
-    _fail(f"cannot write {where}: {exc.strerror or exc}", code)
-
-
-_WRITE_ERRNOS = {errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT,
-                 errno.ENOTDIR, errno.EISDIR, errno.EEXIST}
 
 
 @app.command()
@@ -134,15 +118,15 @@ def run(
             [f"replicates.n={replicates}"] if replicates is not None else []), *(
             [f"tracing.scheduler={json.dumps(scheduler)}"] if scheduler else [])], backend)
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except KeyboardInterrupt:
-        _fail("interrupted before the run started", code=130)
+        fail("interrupted before the run started", code=130)
     try:  # a bad map or a budget over ulimit -v stops here, before the run directory is made
         from pipeline.preflight import check_before_run
 
         check_before_run(cfg)
     except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     t0 = time.perf_counter()
     try:
         res = run_full_study(cfg, out, progress=progress, force=force or [], command_line=sys.argv,
@@ -154,15 +138,15 @@ def run(
         typer.echo("interrupted; rerun the same command to resume", err=True)
         raise typer.Exit(130) from None
     except RunDirError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except StageError as exc:
-        _fail(str(exc), code=1)
+        fail(str(exc), code=1)
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except OSError as exc:
-        if exc.errno not in _WRITE_ERRNOS:
+        if exc.errno not in WRITE_ERRNOS:
             raise
-        _fail_os(exc, str(out))
+        fail_os(exc, str(out))
     import textwrap
 
     typer.echo(f"run directory: {res.run_dir}")
@@ -182,9 +166,9 @@ def _existing_run_dir(run_dir: Path, command: str):
     from pipeline.runstore import RunStore, is_run_dir
 
     if not run_dir.is_dir():
-        _fail(f"{run_dir}: not a directory")
+        fail(f"{run_dir}: not a directory")
     if not is_run_dir(run_dir):
-        _fail(f"{run_dir}: not a run directory of rfidstudy (no manifest.json of rfidstudy's): "
+        fail(f"{run_dir}: not a run directory of rfidstudy (no manifest.json of rfidstudy's): "
               f"`rfidstudy {command}` rewrites files only in a run directory")
     return RunStore(run_dir)
 
@@ -196,7 +180,7 @@ def _claim(out: Path, kind: str, files: list[str]) -> None:
     try:
         check_output_dir(out, kind, files)
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 def _scheduler(address: str | None) -> str | None:
@@ -208,7 +192,7 @@ def _scheduler(address: str | None) -> str | None:
     try:
         return check_scheduler(address)
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 def _csv_option(value: str | None) -> list[str] | None:
@@ -234,13 +218,13 @@ def _output_errors(where: str, data_errors=(FileNotFoundError, ValueError)):
     try:
         yield
     except RunDirError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except data_errors as exc:
-        _fail(str(exc), code=1)
+        fail(str(exc), code=1)
     except OSError as exc:
-        if exc.errno not in _WRITE_ERRNOS:
+        if exc.errno not in WRITE_ERRNOS:
             raise
-        _fail_os(exc, where)
+        fail_os(exc, where)
 
 
 @app.command()
@@ -278,21 +262,21 @@ def figures(
     try:
         output = _figure_output(format_, dpi)
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     names = _csv_option(only)
     if names is not None:
         unknown = [n for n in names if n not in FIGURES]
         if unknown or not names:
-            _fail(f"--only: unknown figure(s) {unknown}; known: {', '.join(FIGURES)}")
+            fail(f"--only: unknown figure(s) {unknown}; known: {', '.join(FIGURES)}")
     store = _existing_run_dir(run_dir, "figures")
     try:
         # a link planted at RUN/paper_figures is refused, not followed (runstore.inside)
         target = out if out is not None else store.path("paper_figures" if custom else "figures")
     except RunDirError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     study_figures = target.resolve() == (run_dir / "figures").resolve()
     if study_figures and custom:
-        _fail("--format, --dpi and --only do not write into the study's own figures/ (its "
+        fail("--format, --dpi and --only do not write into the study's own figures/ (its "
               "stage record hashes them): leave out --out, or give another directory")
     own_out = out is not None and not study_figures  # a folder of the user's choosing
     if own_out:
@@ -327,11 +311,11 @@ def compare(
 
     for d in run_dirs:
         if not d.is_dir() or not is_run_dir(d):
-            _fail(f"{d}: not a run directory of rfidstudy")
+            fail(f"{d}: not a run directory of rfidstudy")
     try:
         output = _figure_output(format_, dpi)
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     _claim(out, "compare", ["compare.csv", *(f"compare.{e}" for e in output.formats)])
     with _output_errors(str(out)):
         with figure_output(output):
@@ -364,7 +348,7 @@ def export(
     try:
         files = export_recording(run_dir, out, format_)
     except (ConfigError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     typer.echo(f"{len(files)} files in {out}: {', '.join(p.name for p in files)}")
 
 
@@ -381,7 +365,7 @@ def config(
     try:
         typer.echo(config_to_toml(resolve_target(target, set_)), nl=False)
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 @app.command()
@@ -416,12 +400,12 @@ def sweep(
     from pipeline.sweep import check_sweep_dir, load_sweep, run_sweep
 
     if workers is not None and workers < 1:
-        _fail(f"--workers {workers}: at least 1")
+        fail(f"--workers {workers}: at least 1")
     try:
         plan = load_sweep(sweep_file)
         check_sweep_dir(out)
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     scheduler = _scheduler(scheduler)
     typer.echo(f"{len(plan.configs)} runs: {', '.join(plan.names)}")
     t0 = time.perf_counter()
@@ -447,7 +431,7 @@ def sweep(
                    "command to resume (finished points are not run again)", err=True)
         raise typer.Exit(130) from None
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     typer.echo(_sweep_table(res.summary, list(plan.parameters)))
     typer.echo(f"summary: {res.out_dir / 'summary.csv'}")
     if (res.summary["status"] != "complete").any():
@@ -497,12 +481,12 @@ def placement(
     from pipeline.runstore import RunDirError
 
     if workers is not None and workers < 1:
-        _fail(f"--workers {workers}: at least 1")
+        fail(f"--workers {workers}: at least 1")
     scheduler = _scheduler(scheduler)
     try:
         spec = load_placement(placement_file)
     except ConfigError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     from pipeline.placement.objectives import needed_stage
 
     n = len(candidates_of(spec))
@@ -522,7 +506,7 @@ def placement(
     try:
         res = run_placement(spec, out, workers=workers, scheduler=scheduler, progress=progress)
     except (ConfigError, RunDirError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     from pipeline.placement.report import answer_lines
 
     table = ranking_table(res.summary, s)
@@ -533,67 +517,28 @@ def placement(
     typer.echo(f"report: {res.out_dir / 'placement' / 'report.html'}")
 
 
-@scenes_app.command("list")
-def scenes_list():
-    """List the bundled scenes."""
-    import scenes
-
-    for name in scenes.list_bundled():
-        typer.echo(name)
-
-
-@scenes_app.command("show")
-def scenes_show(
-    name: Annotated[str, typer.Argument(help="Bundled scene name or scene path.")],
-    png: Annotated[Path | None, typer.Option(
-        help="Write a top-view picture here (a .png file; nothing else is written).")] = None,
+@app.command()
+def calibrate(
+    target: Annotated[str, typer.Argument(help="Study TOML: the building, the robot and the reader.")],
+    recording: Annotated[Path | None, typer.Option(help="A recording folder (reads.csv, tags.csv, "
+        "poses.csv) or reads file; default: the study's [recording].")] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Run directory.")] = Path("runs/calibration"),
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", "-s", help="Override a config key (repeatable).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
 ):
-    """Describe a scene (size, materials, tags) and optionally draw its top view."""
-    import scenes
-
-    if png is not None and png.suffix.lower() != ".png":
-        _fail(f"--png {png}: the top view is written as PNG; give a file name ending in .png")
-    if png is not None and png.is_dir():
-        _fail(f"--png {png}: is a directory; give a file name ending in .png")
-    if png is not None and any(p.exists() and not p.is_dir() for p in png.parents):
-        _fail(f"--png {png}: a file stands where its folder would be")
-    try:
-        sc = scenes.load(name)
-    except (FileNotFoundError, KeyError, ValueError) as exc:
-        _fail(str(exc))
-    route_note = ""
-    if sc.route_m is None and sc.rosmap is not None:  # a map: the route a study would plan
-        from pipeline.robot import Robot
-        from pipeline.stages.common import map_route
-
+    """Fit the simulated reader to a recording: OUT/calibration.json (each value with its
+    95 % interval, held-out residuals before and after) and OUT/calibrated.toml (the study
+    with the calibrated reader, for `rfidstudy run` or a placement study)."""
+    if recording is None:  # the study's own [recording], or nothing to calibrate to
         try:
-            sc = map_route(sc, Robot())
-        except ValueError as exc:  # shown, not fatal: the map itself is fine to look at
-            route_note = f"  route: none planned ({exc})"
-    lo, hi = sc.bounds_m
-    typer.echo(f"scene {sc.name} ({sc.source})")
-    typer.echo(f"  bounds: x {lo[0]:.2f}..{hi[0]:.2f} m, y {lo[1]:.2f}..{hi[1]:.2f} m, "
-               f"z {lo[2]:.2f}..{hi[2]:.2f} m")
-    typer.echo(f"  materials: {', '.join(sc.materials)}")
-    typer.echo(f"  tags: {len(sc.tags)}")
-    if sc.route_m is not None:
-        typer.echo(f"  route: {len(sc.route_m)} points")
-    elif route_note:
-        typer.echo(route_note)
-    from scenes.mapsites import describe_map_scene
-
-    for line in describe_map_scene(sc):
-        typer.echo(line)
-    typer.echo(f"  content hash: {sc.content_hash()[:16]}")
-    if png is not None:
-        from pipeline.stages import draw_scene_top_view
-
-        try:
-            typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")
-        except OSError as exc:
-            if exc.errno not in _WRITE_ERRNOS:
-                raise
-            _fail_os(exc, str(png))
-
-
-from pipeline import clicalibrate  # noqa: E402, F401 - registers `rfidstudy calibrate`
+            enabled = resolve_target(target, list(set_ or []), None).recording.enabled
+        except ConfigError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        if not enabled:
+            typer.echo(f"error: {target}: no recording to calibrate to: give --recording or a "
+                       "[recording] section (docs/recordings.md)", err=True)
+            raise typer.Exit(2)
+    run(target=target, out=out, set_=set_, recording=recording, progress=progress)
+    typer.echo(f"calibration: {out / 'calibration.json'}\ncalibrated study: {out / 'calibrated.toml'}")

@@ -1,7 +1,7 @@
 """Checks of a study against this process, run before the run directory is made.
 
 :func:`check_before_run` is what ``rfidstudy run`` checks once the config is read: the
-occupancy-grid map behind the scene (:func:`scenes.mapscene.check_map_source`) and the
+occupancy-grid map behind the scene (:func:`scenes.catalog.check_map_source`) and the
 tracer's memory budget against the address-space limit (``ulimit -v``) the process
 runs under (:func:`check_address_space`). Under a limit below the budget a study used to
 die in the tracer with a segmentation fault (exit 139) and no message (issue 54).
@@ -85,6 +85,6 @@ def check_before_run(cfg) -> None:
         A bad occupancy-grid map behind ``cfg.scene``.
     """
     check_address_space(cfg.tracing.memory_budget_mb)
-    from scenes.mapscene import check_map_source
+    from scenes.catalog import check_map_source
 
     check_map_source(cfg.scene)

@@ -24,7 +24,9 @@ import tomllib
 from pathlib import Path
 
 from pipeline.figures.captions import CAPTIONS, SECTIONS
+from pipeline.reportrecorded import write_recorded_report
 from pipeline.reporttables import (
+    REPORT_CSS,
     budget_html,
     downstream_html,
     flatten_scalars,
@@ -48,24 +50,6 @@ from pipeline.runstore import (
 __all__ = ["figure_captions", "write_pooled_report", "write_report"]
 
 log = logging.getLogger(__name__)
-
-_CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
-padding:0 1em;color:#222;line-height:1.45}
-h1{font-size:1.6em}.smoke{border:2px solid #b00020;color:#b00020;padding:.6em;margin:1em 0}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
-h3{font-size:1.05em;margin-bottom:.3em}
-.tw{max-width:100%;overflow-x:auto}
-table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em;max-width:100%}
-th,td{border:1px solid #ccc;padding:.2em .5em;text-align:right;overflow-wrap:anywhere}
-th{background:#f3f3f3;font-weight:600}td:first-child,th:first-child{text-align:left}
-table.headline td{white-space:nowrap}table.headline td:first-child{white-space:normal}
-.ci{color:#666;font-size:.9em}.up{color:#1a7f37}.down{color:#c62828}
-figure{margin:1.4em 0;text-align:center}figure img{max-width:100%;height:auto;border:1px solid #eee}
-figcaption{font-size:.9em;color:#333;margin-top:.4em;text-align:left}
-details{margin:.8em 0}summary{cursor:pointer;font-weight:600}
-pre{background:#f7f7f7;padding:.8em;overflow:auto;font-size:.8em;max-height:30em}
-.muted{color:#666;font-size:.9em}
-"""
 
 
 def _load_json(path: Path) -> dict | None:
@@ -154,7 +138,7 @@ def write_pooled_report(metrics: dict, out: str | Path) -> Path:
     rep = metrics.get("replicates") or {}
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
              "<title>rfidstudy report: replicated study</title>",
-             f"<style>{_CSS}</style></head><body>",
+             f"<style>{REPORT_CSS}</style></head><body>",
              f"<h1>Replicated study: {html.escape(str(rep.get('covers', '?')))}</h1>",
              "<p>The same study run on independent seed streams (tour noise, MCL, reader "
              "noise, held-out tag layout, robot filter runs); every number below pools the "
@@ -290,8 +274,6 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     manifest = _load_json(run / "manifest.json") or {}
     metrics = _load_json(run / "metrics.json")
     if (metrics or {}).get("source") == "recording":  # a recorded study's own report
-        from pipeline.reportrecorded import write_recorded_report
-
         return write_recorded_report(run, metrics, out or run / "report.html")
     cfg_path = run / "config.toml"
     cfg_text = read_run_text(cfg_path) if os.path.lexists(cfg_path) else ""  # no link, no FIFO
@@ -304,7 +286,7 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         "<meta name='viewport' content='width=device-width, initial-scale=1'>",
         f"<title>rfidstudy report: {html.escape(str(cfg.get('scene', run.name)))}</title>",
-        f"<style>{_CSS}</style></head><body>",
+        f"<style>{REPORT_CSS}</style></head><body>",
         f"<h1>RFID sensor-model study: {html.escape(str(cfg.get('scene', '?')))}</h1>",
         "<p>Ray-traced UHF RFID sensor model (Cicirelli, Milella &amp; Di Paola 2011): "
         "RSSI model f<sub>s</sub>(d, &alpha;) and detection model f<sub>T</sub>(d, &alpha;), "

@@ -18,6 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.reporttables import REPORT_CSS
+from pipeline.runpaths import not_regular
+from pipeline.runstore import atomic_write_text, inside
+
 __all__ = ["draw_sim_vs_real", "write_recorded_report"]
 
 
@@ -149,15 +153,13 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
     """Write the recorded study's self-contained ``report.html`` (module doc)."""
     import pandas as pd
 
-    from pipeline.report import _CSS
-    from pipeline.runstore import atomic_write_text, inside
     from pipeline.sensormodels.registry import model_label
 
     run = Path(run_dir)
     rec = metrics.get("recording", {})
     esc = html.escape
     parts = ["<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-             "<title>rfidstudy: recorded study</title>", f"<style>{_CSS}</style></head><body>",
+             "<title>rfidstudy: recorded study</title>", f"<style>{REPORT_CSS}</style></head><body>",
              "<h1>RFID sensor-model study on a recording</h1>",
              "<p>The chapter's experiment (Cicirelli, Milella &amp; Di Paola 2011) on a real "
              "reader's log: FCM + ANFIS and the competitors fitted on the training tags' reads, "
@@ -249,8 +251,6 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
                              f"</td><td>{_fmt(val['after'], 3)}</td><td>{_fmt(diff, 3)}"
                              f"{_verdict(diff)}</td></tr>")
         parts.append("</table>")
-    from pipeline.runpaths import not_regular
-
     links_p, tags_p = inside(run, "sim_vs_real/links.parquet"), inside(run, "scene/tags.parquet")
     for p in (links_p, tags_p):  # a link or a FIFO is refused, never followed
         why = not_regular(p)

@@ -16,9 +16,28 @@ import re
 
 from pipeline.evaluation.headline import METRICS
 
-__all__ = ["budget_html", "downstream_html", "flatten_scalars", "fmt_cell",
+__all__ = ["REPORT_CSS", "budget_html", "downstream_html", "flatten_scalars", "fmt_cell",
            "heldout_html", "intervals_html", "mcl_html", "metrics_tables",
            "model_comparison_tables", "sites_html", "table_html"]
+
+#: The style sheet of every report (:mod:`pipeline.report`, :mod:`pipeline.reportrecorded`).
+REPORT_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
+padding:0 1em;color:#222;line-height:1.45}
+h1{font-size:1.6em}.smoke{border:2px solid #b00020;color:#b00020;padding:.6em;margin:1em 0}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+h3{font-size:1.05em;margin-bottom:.3em}
+.tw{max-width:100%;overflow-x:auto}
+table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em;max-width:100%}
+th,td{border:1px solid #ccc;padding:.2em .5em;text-align:right;overflow-wrap:anywhere}
+th{background:#f3f3f3;font-weight:600}td:first-child,th:first-child{text-align:left}
+table.headline td{white-space:nowrap}table.headline td:first-child{white-space:normal}
+.ci{color:#666;font-size:.9em}.up{color:#1a7f37}.down{color:#c62828}
+figure{margin:1.4em 0;text-align:center}figure img{max-width:100%;height:auto;border:1px solid #eee}
+figcaption{font-size:.9em;color:#333;margin-top:.4em;text-align:left}
+details{margin:.8em 0}summary{cursor:pointer;font-weight:600}
+pre{background:#f7f7f7;padding:.8em;overflow:auto;font-size:.8em;max-height:30em}
+.muted{color:#666;font-size:.9em}
+"""
 
 
 _SHARE = re.compile(r"(share|fraction|within_\d|within \d|converged_share|recovered_share)",

@@ -134,7 +134,7 @@ def _trace_task(job, scene):
     """On a worker: the chunk's fresh paths and the worker's address."""
     from distributed import get_worker
 
-    from propagation.chunkjobs import run_chunk_job
+    from propagation.chunkworker import run_chunk_job
 
     return run_chunk_job(dataclasses.replace(job, scene=scene)), get_worker().address
 

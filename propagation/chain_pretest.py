@@ -15,14 +15,11 @@ import os
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from propagation.plane_cover import covered
-
-if TYPE_CHECKING:
-    from propagation.completion import Planes
+from propagation.planes import Planes
 
 __all__ = ["BOX_SLACK_M", "candidate_chains", "chains", "iter_candidate_chains"]
 

@@ -38,7 +38,8 @@ import numpy as np
 from propagation.chain_pretest import BOX_SLACK_M, iter_candidate_chains
 from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
-from propagation.plane_cover import PlaneCover, plane_cover
+from propagation.plane_cover import plane_cover
+from propagation.planes import Planes
 from propagation.sionna_paths import path_copies, points, to_source_paths
 
 logger = logging.getLogger(__name__)
@@ -59,48 +60,6 @@ SAME_IMAGE_OFFSET_M = 5e-3
 _CANDIDATES_PER_CALL = 1 << 20
 #: (source, target) pairs per line-of-sight call (every pair of the call is solved).
 _LOS_PAIRS_PER_CALL = 1 << 18
-
-
-@dataclass(frozen=True)
-class Planes:
-    """Large planes of a loaded Sionna scene (:func:`large_planes`).
-
-    Attributes
-    ----------
-    normal : numpy.ndarray
-        Unit normals (p, 3), float64 (sign of the representative triangle).
-    offset_m : numpy.ndarray
-        Plane offsets ``normal . x`` (p,), float64, metres.
-    area_m2 : numpy.ndarray
-        Total triangle area of each plane (p,), m^2.
-    lo_m, hi_m : numpy.ndarray
-        Bounding box of each plane's triangles (p, 3), metres.
-    shape : numpy.ndarray
-        Representative shape, index into ``rt_scene.mi_scene.shapes()`` (p,), int64.
-    primitive : numpy.ndarray
-        Representative triangle (the plane's largest) of that shape (p,), int64.
-    point_m : numpy.ndarray
-        First vertex of the representative triangle (p, 3), float64, metres.
-    shape_ids : tuple of tuple of str
-        Per plane, the ids of the shapes whose triangles it holds.
-    cover : PlaneCover or None
-        Which cells of each plane its triangles cover (:mod:`propagation.plane_cover`),
-        for the pre-test; ``None``: the bounding boxes alone.
-    """
-
-    normal: np.ndarray
-    offset_m: np.ndarray
-    area_m2: np.ndarray
-    lo_m: np.ndarray
-    hi_m: np.ndarray
-    shape: np.ndarray
-    primitive: np.ndarray
-    point_m: np.ndarray
-    shape_ids: tuple
-    cover: PlaneCover | None = None
-
-    def __len__(self) -> int:
-        return len(self.offset_m)
 
 
 def large_planes(rt_scene, min_area_m2: float = 1.0, normal_tol: float = 1e-4,

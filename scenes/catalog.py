@@ -10,11 +10,13 @@ import numpy as np
 
 from scenes.generator import build_corridor
 from scenes.importers import MESH_SUFFIXES, import_mesh, load_mitsuba_xml
+from scenes.mapscene import build_map_scene, load_map
+from scenes.rosmap import read_map
 from scenes.scene import Scene
 from scenes.spec import SceneSpec
 from scenes.spec_toml import load_spec, overrides_metadata, spec_to_dict
 
-__all__ = ["SceneSummary", "build", "load", "list_bundled", "bundled_path", "summarize"]
+__all__ = ["SceneSummary", "build", "bundled_path", "check_map_source", "list_bundled", "load", "summarize"]
 
 
 def _data_dir() -> Path:
@@ -53,8 +55,6 @@ def build(spec: SceneSpec) -> Scene:
     if spec.corridor is not None:
         return build_corridor(spec)
     if spec.map is not None:
-        from scenes.mapscene import build_map_scene
-
         scene = build_map_scene(spec.map, name=spec.name, base_dir=spec.base_dir, tags=spec.tags,
                                 tag_layout=spec.tag_layout, route_m=spec.route_m,
                                 source=spec.source or spec.name,
@@ -105,8 +105,6 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
     if not looks_like_path:
         path = bundled_path(text)
         if path.suffix == ".yaml":
-            from scenes.mapscene import load_map
-
             return load_map(path, **kwargs)
         return build(load_spec(path))
     if not path.is_file():
@@ -117,13 +115,38 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
     if suffix == ".xml":
         return load_mitsuba_xml(path, **kwargs)
     if suffix in (".yaml", ".yml"):
-        from scenes.mapscene import load_map
-
         return load_map(path, **kwargs)
     if suffix in MESH_SUFFIXES:
         return import_mesh(path, **kwargs)
     raise ValueError(f"{text}: unsupported scene file type {suffix!r} (.toml, .xml, .yaml, "
                      f"{', '.join(MESH_SUFFIXES)})")
+
+
+def check_map_source(name_or_path: str | Path) -> None:
+    """Read the map behind a scene reference, if there is one: a cheap check before a run.
+
+    ``name_or_path`` as for :func:`scenes.load`; a ``.yaml`` map, a scene TOML with
+    ``[map]`` or a bundled map scene has its TOML (if any) and its map read, so a bad map
+    stops with its one-line error before anything is written. Other scenes pass.
+
+    Raises
+    ------
+    scenes.rosmap.RosMapError, SpecError, FileNotFoundError
+    """
+    text = str(name_or_path)
+    p = Path(text)
+    if not p.suffix and len(p.parts) == 1:
+        try:
+            p = bundled_path(text)
+        except ValueError:
+            return
+    if p.suffix.lower() in (".yaml", ".yml"):
+        read_map(p)
+    elif p.suffix.lower() == ".toml" and p.is_file():
+        spec = load_spec(p)
+        if spec.map is not None:
+            base = Path(spec.base_dir)
+            read_map(Path(spec.map.path) if Path(spec.map.path).is_absolute() else base / spec.map.path)
 
 
 @dataclass(frozen=True)

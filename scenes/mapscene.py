@@ -52,7 +52,7 @@ from scenes.scene import Scene, TagSet
 from scenes.spec import SpecError, TagSpec
 from scenes.tags import MAX_TAGS, make_tags, validate_tags
 
-__all__ = ["BARE_MAP_TAG_SPACING_M", "bare_map_tags", "build_map_scene", "check_map_source", "load_map",
+__all__ = ["BARE_MAP_TAG_SPACING_M", "bare_map_tags", "build_map_scene", "load_map",
            "rack_frames", "shelf_tags", "wall_tags"]
 
 
@@ -560,33 +560,3 @@ def bare_map_tags(spec: MapSpec) -> TagLayoutSpec:
     mids = np.asarray(spec.shelf_levels_m, dtype=float) + spec.beam_height_m / 2
     h = float(mids[int(np.argmin(np.abs(mids - 1.0)))])
     return TagLayoutSpec(heights_m=(h,), spacing_m=BARE_MAP_TAG_SPACING_M)
-
-
-def check_map_source(name_or_path: str | Path) -> None:
-    """Read the map behind a scene reference, if there is one: a cheap check before a run.
-
-    ``name_or_path`` as for :func:`scenes.load`; a ``.yaml`` map, a scene TOML with
-    ``[map]`` or a bundled map scene has its TOML (if any) and its map read, so a bad map
-    stops with its one-line error before anything is written. Other scenes pass.
-
-    Raises
-    ------
-    scenes.rosmap.RosMapError, SpecError, FileNotFoundError
-    """
-    from scenes.catalog import bundled_path
-    from scenes.spec_toml import load_spec
-
-    text = str(name_or_path)
-    p = Path(text)
-    if not p.suffix and len(p.parts) == 1:
-        try:
-            p = bundled_path(text)
-        except ValueError:
-            return
-    if p.suffix.lower() in (".yaml", ".yml"):
-        read_map(p)
-    elif p.suffix.lower() == ".toml" and p.is_file():
-        spec = load_spec(p)
-        if spec.map is not None:
-            base = Path(spec.base_dir)
-            read_map(Path(spec.map.path) if Path(spec.map.path).is_absolute() else base / spec.map.path)

@@ -4,6 +4,10 @@ a ranked answer and an optimiser that reuses the traces.
 ``rfidstudy placement PLACEMENT.toml --out DIR`` (:func:`run_placement`); the file's
 format is :mod:`pipeline.placement.spec`'s, the objectives
 :mod:`pipeline.placement.objectives`', the outputs :mod:`pipeline.placement.summary`'s.
+Within the package the imports flow one way: :mod:`.runner` -> :mod:`.optimise` /
+:mod:`.summary` -> :mod:`.figures` / :mod:`.report` -> :mod:`.results` (run directories,
+bands, the ranked table, :class:`PlacementResult`) -> :mod:`.objectives`; :mod:`.spec`
+-> :mod:`.candidates`.
 """
 
 from .candidates import Candidate, candidates_of, check_candidate, mount_antennas

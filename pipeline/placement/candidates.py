@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pipeline.config import AntennaMountConfig, ConfigError, StudyConfig
 
 __all__ = [
+    "MOUNT_FIELDS",
     "Candidate",
     "candidate_from_trial",
     "candidate_from_values",
@@ -28,6 +29,10 @@ __all__ = [
     "check_ranges",
     "mount_antennas",
 ]
+
+#: Mount fields a grid or a range may vary (``*_right_*``: the right antenna's own value).
+MOUNT_FIELDS = ("x_m", "y_m", "z_m", "yaw_deg", "tilt_deg", "z_right_m", "tilt_right_deg",
+                "yaw_right_deg", "y_right_m", "count")
 
 # short labels of the mount fields in candidate names
 _LABEL = {"x_m": "x", "y_m": "y", "z_m": "z", "yaw_deg": "yaw", "tilt_deg": "tilt",
@@ -78,7 +83,7 @@ def mount_antennas(mount, values: dict | None = None) -> tuple[AntennaMountConfi
     ----------
     mount : MountConfig
     values : dict, optional
-        Mount field -> value (:data:`~.spec.MOUNT_FIELDS`).
+        Mount field -> value (:data:`MOUNT_FIELDS`).
 
     Returns
     -------
@@ -110,8 +115,6 @@ def candidate_from_values(spec, values: dict, origin: str = "grid", prefix: str 
 def candidates_of(spec) -> list[Candidate]:
     """The grid's candidates (Cartesian product of the non-empty ``[grid]`` fields) and
     the presets, in file order; names are unique (a clash is an error)."""
-    from .spec import MOUNT_FIELDS
-
     s = spec.settings
     grid = {k: list(getattr(s.grid, k)) for k in MOUNT_FIELDS if getattr(s.grid, k)}
     out = []
@@ -212,8 +215,6 @@ def check_ranges(spec, ranges: dict) -> None:
 def candidate_from_trial(spec, values: dict) -> Candidate:
     """The optimiser's candidate for ``values`` (rounded to 1 mm / 0.1 deg: a mount is
     built to that precision, and equal rounded values share one run directory)."""
-    from .spec import MOUNT_FIELDS
-
     vals = {k: round(float(v), 3 if k.endswith("_m") else 1) for k, v in values.items()
             if k in MOUNT_FIELDS}
     c = candidate_from_values(spec, vals, origin="optimiser", prefix="opt_")

@@ -22,9 +22,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.runstore import atomic_write_bytes
+from pipeline.runstore import atomic_write_bytes, inside
+from scenes.fileio import read_npz
 
+from .candidates import MOUNT_FIELDS
 from .objectives import OBJECTIVES
+from .results import band_key, candidate_dir, height_bands
 
 __all__ = ["draw_figures", "route_distance_m"]
 
@@ -46,8 +49,6 @@ def _err(df: pd.DataFrame, key: str) -> np.ndarray:
 
 
 def _grid_fields(df: pd.DataFrame) -> list[str]:
-    from .spec import MOUNT_FIELDS
-
     g = df[df["origin"] == "grid"]
     return [k for k in MOUNT_FIELDS if k in g and g[k].notna().any() and g[k].nunique() > 1]
 
@@ -60,7 +61,6 @@ def draw_figures(spec, out: Path, df: pd.DataFrame, datas: dict, answer: dict) -
     import matplotlib.pyplot as plt
 
     s = spec.settings
-    from pipeline.runstore import inside
 
     fdir = inside(out, "placement/figures")  # a planted link is refused, never followed
     fdir.mkdir(parents=True, exist_ok=True)
@@ -137,9 +137,7 @@ def draw_figures(spec, out: Path, df: pd.DataFrame, datas: dict, answer: dict) -
         ax.grid(alpha=0.3)
         files.append(_save(fig, fdir / "pareto.png"))
 
-    from .summary import _bands, band_key
-
-    bands = _bands(s.height_bands_m)
+    bands = height_bands(s.height_bands_m)
     top = df[df["completeness"].notna()].head(6)
     if len(top):
         fig, ax = plt.subplots(figsize=(6.0, 3.5))
@@ -162,8 +160,6 @@ def draw_figures(spec, out: Path, df: pd.DataFrame, datas: dict, answer: dict) -
 
     for name in (answer.get("recommended"), answer.get("runner_up")):
         if name:
-            from .runner import candidate_dir
-
             run = candidate_dir(out, name, 0)
             for p in (_read_map(run, fdir / f"readmap_{name}.png", name),
                       _never_read_map(run, fdir / f"never_read_{name}.png", name)):
@@ -199,9 +195,6 @@ def _read_map(run: Path, path: Path, name: str) -> Path | None:
     the robot passes them closest; drawn as an image so that a warehouse's hundreds of
     tags and a long route stay one readable page (tick labels only for a few tags)."""
     import matplotlib.pyplot as plt
-
-    from pipeline.runstore import inside
-    from scenes.fileio import read_npz
 
     try:
         reads = pd.read_parquet(inside(run, "reads.parquet"), columns=["time_s", "tag_id", "read"])
@@ -253,9 +246,6 @@ def _never_read_map(run: Path, path: Path, name: str) -> Path | None:
     """Top view: the building's walls, the driven tour, every tag, the tags the tour
     never read marked (replicate 0)."""
     import matplotlib.pyplot as plt
-
-    from pipeline.runstore import inside
-    from scenes.fileio import read_npz
 
     try:
         reads = pd.read_parquet(inside(run, "reads.parquet"), columns=["tag_id", "read"])

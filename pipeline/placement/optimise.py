@@ -27,6 +27,10 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
+from .candidates import MOUNT_FIELDS, Candidate, candidate_from_trial
+from .objectives import OBJECTIVES, load_candidate_data, objective_estimate
+from .results import complete_dirs
+
 __all__ = ["optimise", "search"]
 
 log = logging.getLogger(__name__)
@@ -124,11 +128,6 @@ def optimise(spec, runner, out) -> list:
     candidate with every replicate); return the trials' candidates in trial order."""
     from pipeline.stages.common import link_budget
 
-    from .candidates import Candidate, candidate_from_trial
-    from .objectives import OBJECTIVES, load_candidate_data, objective_estimate
-    from .spec import MOUNT_FIELDS
-    from .summary import _complete_dirs
-
     s = spec.settings
     opt = s.optimise
     ranges = {k: tuple(getattr(opt.ranges, k)) for k in MOUNT_FIELDS
@@ -141,7 +140,7 @@ def optimise(spec, runner, out) -> list:
         trials.append(cand)
         runner.run([cand])
         # the runs that hold what the ranking needs (a study may stop at its reads)
-        dirs = _complete_dirs(out, cand.name, s.replicates, runner.required)
+        dirs = complete_dirs(out, cand.name, s.replicates, runner.required)
         constraints = list(s.constraint)
         if not dirs:
             return (float("nan"), [float("nan")] * len(constraints)) if constraints \

@@ -11,7 +11,7 @@ import numpy as np
 from pipeline.runstore import atomic_write_bytes
 
 from .objectives import OBJECTIVES
-from .summary import ranking_table
+from .results import ranking_table
 
 __all__ = ["answer_lines", "confirmation_sentence", "engineering_sentence", "margin_sentence", "write_report"]
 

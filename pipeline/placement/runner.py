@@ -37,15 +37,25 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.config import ConfigError, config_to_dict, replace_path
-from pipeline.runstore import atomic_write_json
+from pipeline.outdirs import check_marker_file, own_marker
+from pipeline.runstore import (
+    HOUSEKEEPING,
+    RunStore,
+    UnsafePathError,
+    atomic_write_json,
+    check_no_writer,
+)
 
 from .candidates import Candidate, candidates_of
-from .objectives import OBJECTIVES
+from .objectives import OBJECTIVES, needed_stage, traced_counts
+from .optimise import optimise
+from .results import PlacementResult, candidate_dir
 from .spec import PlacementSpec
+from .summary import summarise, top_candidates, write_outputs
 
 __all__ = ["PlacementResult", "PlacementStopped", "ProgressEvent", "candidate_dir",
            "position_waves", "run_placement"]
@@ -91,38 +101,12 @@ class ProgressEvent:
     n_stages_run: int = 0
 
 
-@dataclass
-class PlacementResult:
-    """Outcome of :func:`run_placement`.
-
-    Attributes
-    ----------
-    out_dir : pathlib.Path
-    summary : pandas.DataFrame
-        One row per candidate (:func:`pipeline.placement.summary.summarise`).
-    answer : dict
-        Recommendation, margin to the runner-up and its verdict, Pareto front.
-    files : list of pathlib.Path
-    """
-
-    out_dir: Path
-    summary: object
-    answer: dict
-    files: list = field(default_factory=list)
-
-
 def _prepare_dir(out: Path) -> None:
-    from pipeline.runstore import UnsafePathError
-
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
-    from pipeline.runstore import HOUSEKEEPING
-
     marker = out / MARKER
     # the lock files alone (a first run stopped before its marker) are not someone's files
     theirs = out.is_dir() and any(p.name not in HOUSEKEEPING for p in out.iterdir())
-    from pipeline.outdirs import check_marker_file, own_marker
-
     check_marker_file(out, MARKER)  # a link is refused by name, never followed
     if theirs and not own_marker(marker, "placement", ("source", "file", "replicates", "candidates")):
         raise ConfigError(f"--out {out}: a non-empty directory that is not a placement study "
@@ -133,15 +117,6 @@ def _prepare_dir(out: Path) -> None:
             raise UnsafePathError(f"{p} is a symbolic link: a placement directory's folders "
                                   "must be its own")
     out.mkdir(parents=True, exist_ok=True)
-
-
-def candidate_dir(out: Path, name: str, k: int) -> Path:
-    """``out/candidates/<name>/<k>``, checked to stay inside ``out`` without passing a
-    symbolic link (:func:`pipeline.runstore.inside`): a link planted in a placement
-    directory never leads a study's writes, or the summary's reads, elsewhere."""
-    from pipeline.runstore import inside
-
-    return inside(out, f"candidates/{name}/{int(k)}")
 
 
 def _replicate_config(spec: PlacementSpec, cand: Candidate, k: int, cache_dir: str):
@@ -188,8 +163,6 @@ class _Runner:
 
     def __init__(self, spec, out, workers, scheduler, client, progress):
         from pipeline.stages import resolve_cache_dir
-
-        from .objectives import needed_stage
 
         self.spec, self.out = spec, out
         self.workers, self.scheduler, self.client = workers, scheduler, client
@@ -258,10 +231,7 @@ class _Runner:
             self._run_batch(wave, range(n, 2 * n), self.confirmed)
 
     def _run_batch(self, todo: list[Candidate], ks=None, book: dict | None = None) -> None:
-        from pipeline.runstore import check_no_writer
         from pipeline.sweep import run_studies
-
-        from .objectives import traced_counts
 
         if self.stop:
             raise PlacementStopped(self.stop)
@@ -347,10 +317,6 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
         Another process runs a placement study in it, or still writes a candidate's
         study (a worker of an earlier, killed run): nothing is ranked.
     """
-    from pipeline.runstore import RunStore, check_no_writer
-
-    from .summary import write_outputs
-
     try:
         out = Path(out_dir).resolve()
     except (OSError, RuntimeError) as exc:  # a symbolic link loop (ELOOP), no permission
@@ -365,8 +331,6 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
         runner.expected = len(cands) + spec.settings.optimise.n_trials
         runner.run(cands)
         if spec.settings.optimise.n_trials:
-            from .optimise import optimise
-
             trials = optimise(spec, runner, out)
             for t in trials:  # a trial rounded onto an earlier one is that candidate
                 if t.name not in {c.name for c in cands}:
@@ -377,8 +341,6 @@ def run_placement(spec: PlacementSpec, out_dir: str | Path, *, workers: int | No
                          if not d.is_symlink() and not d.parent.is_symlink()], "ranking the candidates")
         top, summary = [], None
         if spec.settings.confirm_top:
-            from .summary import summarise, top_candidates
-
             summary = summarise(spec, out, cands)  # the selection's: reused for the answer
             top = top_candidates(spec, cands, spec.settings.confirm_top, summary)
             if len(top) >= 2:

@@ -60,6 +60,7 @@ from pathlib import Path
 from pipeline.config import AntennaMountConfig, ConfigError, StudyConfig, base_config, read_toml
 from pipeline.configschema import check_bounds, from_dict, option, section
 
+from .candidates import MOUNT_FIELDS, candidates_of, check_candidate, check_ranges
 from .objectives import OBJECTIVES
 
 __all__ = [
@@ -83,10 +84,6 @@ MAX_CANDIDATES = 500
 
 #: Objectives a placement can rank by or constrain (pipeline.placement.objectives).
 OBJECTIVE_KEYS = tuple(OBJECTIVES)
-
-#: Mount fields a grid or a range may vary (``*_right_*``: the right antenna's own value).
-MOUNT_FIELDS = ("x_m", "y_m", "z_m", "yaw_deg", "tilt_deg", "z_right_m", "tilt_right_deg",
-                "yaw_right_deg", "y_right_m", "count")
 
 #: Objectives only the downstream stage computes (refused with [downstream] off).
 DOWNSTREAM_OBJECTIVES = tuple(k for k, o in OBJECTIVES.items()
@@ -273,8 +270,6 @@ def _pair(source: str, key: str, v: tuple) -> tuple[float, float]:
 
 def check_placement(spec: PlacementSpec) -> None:
     """Every check that needs no tracing; raises :class:`ConfigError` naming the key."""
-    from .candidates import candidates_of, check_candidate
-
     s, src = spec.settings, spec.source
     if s.replicates < 1:
         raise _fail(src, f"replicates = {s.replicates}: at least 1")
@@ -365,6 +360,4 @@ def check_placement(spec: PlacementSpec) -> None:
     for c in cands:
         check_candidate(c, spec)
     if opt.n_trials:  # the corners of the search box must be valid mounts too
-        from .candidates import check_ranges
-
         check_ranges(spec, ranges)

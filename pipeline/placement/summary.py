@@ -34,58 +34,39 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.runstore import atomic_write_bytes, atomic_write_json
+from pipeline.config import ConfigError
+from pipeline.runstore import (
+    atomic_write_bytes,
+    atomic_write_json,
+    inside,
+    read_run_json,
+    run_files,
+)
 
+from .candidates import MOUNT_FIELDS
+from .figures import draw_figures
 from .objectives import (
     OBJECTIVES,
     compare_objective,
     load_candidate_data,
+    needed_stage,
     objective_interval,
     traced_counts,
 )
-from .spec import MOUNT_FIELDS
+from .report import write_report
+from .results import (
+    PlacementResult,
+    band_key,
+    complete_dirs,
+    height_bands,
+    ranking_table,
+)
 
 __all__ = ["FEASIBILITY", "SELECTION_RULE", "evidence", "feasibility", "pareto_front",
            "rank_candidates", "summarise", "write_outputs"]
 
 
-def usable_run(run: Path, required: str) -> bool:
-    """Whether a candidate's study holds what the ranking needs: its manifest says it
-    completed, or failed at a stage after ``required`` (a model that could not be fitted
-    leaves the tour's reads standing), and ``required``'s record is there. A study that
-    failed earlier, was interrupted or is running is not used: its older stage records
-    may belong to another config."""
-    from pipeline.runstore import inside, read_run_json, regular_file
-    from pipeline.stages import stage_names
-
-    try:
-        man = read_run_json(inside(run, "manifest.json"))
-    except (OSError, ValueError):
-        return False
-    if not isinstance(man, dict) or not regular_file(inside(run, f"stages/{required}.json")):
-        return False
-    order = stage_names()
-    if man.get("status") == "complete":
-        return True
-    failed = (man.get("failure") or {}).get("stage") if isinstance(man.get("failure"), dict) else None
-    return (man.get("status") == "failed" and failed in order
-            and order.index(failed) > order.index(required))
-
-
-def _complete_dirs(out: Path, name: str, n: int, required: str = "reads", ks=None) -> dict:
-    from .runner import candidate_dir
-
-    dirs = {}
-    for k in (range(n) if ks is None else ks):
-        d = candidate_dir(out, name, k)
-        if usable_run(d, required):
-            dirs[k] = d
-    return dirs
-
-
 def _compute_s(run_dir: Path) -> float:
-    from pipeline.runstore import read_run_json, run_files
-
     total = 0.0
     for p in run_files(run_dir, "stages", "*.json"):  # regular files only, never a link
         try:
@@ -100,15 +81,6 @@ def _antennas_text(c) -> str:
                      f"tilt {a.tilt_deg:g} deg" for a in c.antennas)
 
 
-def _bands(edges) -> list[tuple[float, float]]:
-    return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-
-
-def band_key(band: tuple[float, float]) -> str:
-    """Column name of the completeness of a tag-height band."""
-    return f"completeness_{band[0]:g}_{band[1]:g}m"
-
-
 def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
     """The summary table and each candidate's data (``{name: CandidateData}``)."""
     from pipeline.stages.common import link_budget
@@ -119,7 +91,7 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
     required = _required(spec)
     rows, datas = [], {}
     for c in cands:
-        dirs = _complete_dirs(out, c.name, s.replicates, required)
+        dirs = complete_dirs(out, c.name, s.replicates, required)
         row = {"candidate": c.name, "origin": c.origin, "antennas": _antennas_text(c),
                "n_antennas": len(c.antennas), "n_replicates": len(dirs)}
         for k in MOUNT_FIELDS:
@@ -136,7 +108,7 @@ def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
                 iv = objective_interval(data, key, seed=seed, candidate=c.name,
                                         min_reads=s.min_reads)
                 row[key], row[f"{key}_low"], row[f"{key}_high"] = iv.estimate, iv.low, iv.high
-            bands = _bands(s.height_bands_m)
+            bands = height_bands(s.height_bands_m)
             for j, band in enumerate(bands):
                 # the last band holds its upper edge too (a tag at the top edge counts)
                 sel = (band[0], float(np.nextafter(band[1], np.inf))) if j == len(bands) - 1 else band
@@ -249,8 +221,6 @@ def pareto_front(df: pd.DataFrame, a: str, b: str) -> list[str]:
 
 
 def _required(spec) -> str:
-    from .objectives import needed_stage
-
     s = spec.settings
     return needed_stage([s.primary, *(c.objective for c in s.constraint)])
 
@@ -282,7 +252,7 @@ def confirmation(spec, out: Path, names: list[str]) -> dict | None:
     seed = int(spec.base.seed)
     datas = {}
     for n in names:
-        dirs = _complete_dirs(out, n, s.replicates, _required(spec), ks=fresh)
+        dirs = complete_dirs(out, n, s.replicates, _required(spec), ks=fresh)
         if dirs:
             datas[n] = load_candidate_data(dirs, budget)
     if len(datas) < 2 or names[0] not in datas:
@@ -301,18 +271,12 @@ def confirmation(spec, out: Path, names: list[str]) -> dict | None:
 def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "evaluation",
                   dropped: list | None = None, confirmed: list | None = None,
                   summary: tuple | None = None):
-    """Summarise, rank, compare, draw and report; return a :class:`~.runner.PlacementResult`.
+    """Summarise, rank, compare, draw and report; return a :class:`~.results.PlacementResult`.
 
     ``upto`` is the last stage the candidates' studies ran, ``dropped`` why they stopped
     earlier than the objectives asked, ``confirmed`` the candidates run again on fresh
     replicates (all go into ``answer.json``); ``summary``, :func:`summarise` already
     computed (the confirmation's replicates do not enter it)."""
-    from pipeline.config import ConfigError
-
-    from .figures import draw_figures
-    from .report import write_report
-    from .runner import PlacementResult
-
     s = spec.settings
     df, datas = summary if summary is not None else summarise(spec, out, cands)
     if not datas:
@@ -360,8 +324,6 @@ def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "eval
         "n_candidates": int(len(df)),
         "comparisons_vs_recommended": comparisons,
     }
-    from pipeline.runstore import inside
-
     pdir = inside(out, "placement")
     pdir.mkdir(exist_ok=True)
     buf = io.BytesIO()
@@ -374,29 +336,3 @@ def write_outputs(spec, out: Path, cands: list, done: dict, *, upto: str = "eval
     files.extend(figs)
     files.append(write_report(spec, out, df, answer, figs))
     return PlacementResult(out_dir=out, summary=df, answer=answer, files=files)
-
-
-def ranking_table(df: pd.DataFrame, settings) -> pd.DataFrame:
-    """The ranked table as people read it: candidate, feasibility, each objective as
-    ``estimate [low, high]``, the primary's difference to the best with its verdict."""
-    def fmt(v, lo, hi):
-        if v is None or not np.isfinite(v):
-            return "–"
-        if lo is None or hi is None or not (np.isfinite(lo) and np.isfinite(hi)):
-            return f"{v:.3g}"
-        return f"{v:.3g} [{lo:.3g}, {hi:.3g}]"
-
-    rows = []
-    for _, r in df.iterrows():
-        row = {"rank": int(r["rank"]), "candidate": r["candidate"],
-               "feasible": r.get("feasibility", "yes" if r["feasible"] else "no")}
-        for key in OBJECTIVES:
-            row[key] = fmt(r.get(key), r.get(f"{key}_low"), r.get(f"{key}_high"))
-        row[f"{settings.primary} minus best"] = (
-            "(recommended)" if r["rank"] == 1 else fmt(r["diff_vs_best"], r["diff_vs_best_low"],
-                                                       r["diff_vs_best_high"]))
-        row["verdict"] = r.get("verdict_vs_best", "")
-        row["new antenna positions traced"] = int(r["n_sources_traced"])
-        row["compute [s]"] = f"{r['compute_s']:.0f}"
-        rows.append(row)
-    return pd.DataFrame(rows)

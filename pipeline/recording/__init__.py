@@ -10,11 +10,12 @@
   detection model's counts rest on);
 - :mod:`.config` - the ``[recording]`` section;
 - :mod:`.rosbag` - a ROS 2 bag's reads and poses (:func:`read_rosbag`, with ``rosbags``:
-  MCAP and sqlite3, no ROS install), and a run written as a bag (:func:`export_mcap`;
-  the writer is :mod:`.rosbag_export`); the message type ``rfidstudy_msgs/msg/RfidRead``
+  MCAP and sqlite3, no ROS install); :mod:`.rosbag_export` - a run written as a bag
+  (:func:`export_mcap`); the message type ``rfidstudy_msgs/msg/RfidRead``
   is ``rfidmsg/RfidRead.msg``;
 - :mod:`.export` - a finished study's training tour written as such a recording
-  (``rfidstudy export RUN --format csv|mcap --out DIR``).
+  (``rfidstudy export RUN --format csv|mcap --out DIR``); :mod:`.runtour` - what the
+  exports read from the run and share.
 
 The recorded study's stages are :mod:`pipeline.stages.recorded`,
 :mod:`pipeline.stages.sim_vs_real` and :mod:`pipeline.stages.recorded_eval`. Not here
@@ -36,7 +37,8 @@ from .csvformats import (
 from .export import export_csv, export_recording
 from .impinj import read_impinj_csv, write_impinj_csv
 from .load import Recording, load_recording, recorded_tagset
-from .rosbag import export_mcap, read_rosbag
+from .rosbag import read_rosbag
+from .rosbag_export import export_mcap
 
 __all__ = [
     "Recording",

@@ -36,9 +36,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["POSE_COLUMNS", "SLLURP_COLUMNS", "TAG_COLUMNS", "RecordingError", "align_reads",
+__all__ = ["POSE_COLUMNS", "READ_FIELDS", "SLLURP_COLUMNS", "TAG_COLUMNS", "RecordingError", "align_reads",
            "read_poses_csv", "read_sllurp_csv", "read_tags_csv", "write_poses_csv",
            "write_sllurp_csv", "write_tags_csv"]
+
+#: Columns of a recording's reads (:attr:`.load.Recording.reads`).
+READ_FIELDS = ("t_s", "antenna_port", "rssi_dbm", "epc", "phase_rad", "frequency_hz",
+               "doppler_hz", "seen_count")
 
 #: Header of the CSV ``sllurp log`` writes.
 SLLURP_COLUMNS = ("timestamp", "reader", "antenna", "rssi", "epc")

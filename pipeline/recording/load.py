@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .csvformats import (
+    READ_FIELDS,
     SLLURP_COLUMNS,
     RecordingError,
     read_poses_csv,
@@ -25,13 +26,10 @@ from .csvformats import (
     read_tags_csv,
 )
 from .impinj import IMPINJ_FIELDS, impinj_header, read_impinj_csv
+from .rosbag import read_rosbag
 
 __all__ = ["READ_FIELDS", "Recording", "detect_format", "is_rosbag", "load_recording",
            "recorded_tagset"]
-
-#: Columns of :attr:`Recording.reads`.
-READ_FIELDS = ("t_s", "antenna_port", "rssi_dbm", "epc", "phase_rad", "frequency_hz",
-               "doppler_hz", "seen_count")
 
 #: EPCs listed by name in the import's summary (the rest counted).
 LISTED = 20
@@ -124,8 +122,6 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
     fmt = detect_format(rcfg.reads) if rcfg.format == "auto" else rcfg.format
     bag_poses = None
     if fmt == "rosbag":
-        from .rosbag import read_rosbag
-
         raw, bag_poses = read_rosbag(rcfg.reads, reads_topic=rcfg.reads_topic,
                                      pose_topic="" if rcfg.poses else rcfg.pose_topic)
     elif fmt == "sllurp":

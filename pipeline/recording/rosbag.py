@@ -26,9 +26,9 @@ message without a header (``String``) or with a zero stamp takes the time the ba
 recorded it. Reads are returned in time order; poses strictly increasing in time (a
 repeated stamp is dropped).
 
-**Writing** (:func:`export_mcap`, ``rfidstudy export RUN --format mcap``): a finished
-simulated study's training tour as a bag in MCAP storage that Foxglove and ``ros2 bag``
-(Iron and later: metadata version 8) open; see :data:`TOPICS`. There is no ``/scan``:
+**Writing** (:func:`.rosbag_export.export_mcap`, ``rfidstudy export RUN --format mcap``):
+a finished simulated study's training tour as a bag in MCAP storage that Foxglove and
+``ros2 bag`` (Iron and later: metadata version 8) open; see :data:`TOPICS`. There is no ``/scan``:
 a run stores no laser scans.
 
 Every error is one line naming the bag and the topic (:class:`.csvformats.RecordingError`).
@@ -44,10 +44,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .csvformats import POSE_COLUMNS, RecordingError
+from .csvformats import POSE_COLUMNS, READ_FIELDS, RecordingError
 
 __all__ = ["JSON_KEYS", "MSG_FILE", "POSE_TYPES", "READ_TYPES", "RFID_READ", "TOPICS",
-           "export_mcap", "read_rosbag", "rfid_typestore"]
+           "read_rosbag", "rfid_typestore"]
 
 #: The project's message type for one tag report.
 RFID_READ = "rfidstudy_msgs/msg/RfidRead"
@@ -67,7 +67,7 @@ JSON_KEYS = (("t_s", "s since 1970 (UTC)", "the time the bag recorded the messag
              ("frequency_hz", "Hz", "NaN"),
              ("doppler_hz", "Hz", "NaN"),
              ("seen_count", "reports (int)", "1"))
-#: Topics :func:`export_mcap` writes: (topic, type, content).
+#: Topics :func:`.rosbag_export.export_mcap` writes: (topic, type, content).
 TOPICS = (("/tf", "tf2_msgs/msg/TFMessage", "map -> base_link at every estimated pose; "
            "map -> odom where the odometry is known (so /odom shows in the map)"),
           ("/tf_static", "tf2_msgs/msg/TFMessage", "base_link -> rfid_antenna_<port>: the mounts"),
@@ -197,8 +197,6 @@ def _check_read(path, topic, n, row):
 
 
 def _reads(rd, path, topic) -> pd.DataFrame:
-    from .load import READ_FIELDS
-
     conns, _ = _topic(rd, path, topic, READ_TYPES, "reads")
     rows = []
     for n, ns, m in _messages(rd, path, topic, conns):
@@ -337,32 +335,3 @@ def read_rosbag(path: str | Path, *, reads_topic: str = "/rfid/reads",
     finally:
         rd.close()
     return reads, poses
-
-
-def export_mcap(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
-    """Write a finished simulated run's training tour as a ROS 2 bag in MCAP storage.
-
-    Writes ``out_dir/bag/`` (``metadata.yaml``, ``bag.mcap``) with the topics of
-    :data:`TOPICS` (no ``/scan``: a run stores no laser scans), on the clock of the CSV
-    export (:data:`.export.EPOCH_S` + the tour's time) with its EPCs (:func:`.export.epc_of`),
-    and beside it ``tags.csv`` and ``mounts.toml`` as :func:`.export.export_csv` writes
-    them, so that the folder is a complete recording (``rfidstudy run STUDY --recording
-    out_dir``). ``out_dir`` must be new, empty, or an earlier export
-    (:func:`pipeline.outdirs.check_output_dir`); the bag is written beside it and moved
-    into place, so a failed export leaves no half-written bag.
-
-    Returns
-    -------
-    list of Path
-        ``out_dir/bag``, ``out_dir/tags.csv``, ``out_dir/mounts.toml``.
-
-    Raises
-    ------
-    pipeline.config.ConfigError
-        ``out_dir`` may not be written.
-    ValueError
-        A run file is missing or unreadable (named).
-    """
-    from .rosbag_export import write_bag
-
-    return write_bag(run_dir, out_dir)

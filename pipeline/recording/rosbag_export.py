@@ -1,7 +1,7 @@
-"""The writer behind :func:`.rosbag.export_mcap`: a run's training tour as a ROS 2 bag.
+"""A run's training tour as a ROS 2 bag (:func:`export_mcap`; the reader is :mod:`.rosbag`).
 
 Each message is stamped (header and bag time alike) on the CSV export's clock,
-:data:`.export.EPOCH_S` + the tour's time, in whole nanoseconds. Frames: ``map`` (the
+:data:`.runtour.EPOCH_S` + the tour's time, in whole nanoseconds. Frames: ``map`` (the
 scene frame), ``odom``, ``base_link`` (the robot base), ``rfid_antenna_<port>`` (a
 reader antenna, port = the study's antenna index + 1, at its mount: x, y, z, yaw, and
 the tilt as a negative pitch, ROS's pitch being nose down). The bag is written in MCAP
@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .export import EPOCH_S, run_tour, write_layout
 from .rosbag import RFID_READ, TOPICS, rfid_typestore
+from .runtour import EPOCH_S, run_tour, write_layout
 
-__all__ = ["MAP_HEIGHT_KEY", "MAP_MARGIN_M", "MAP_RESOLUTION_M", "occupancy_grid", "write_bag"]
+__all__ = ["MAP_HEIGHT_KEY", "MAP_MARGIN_M", "MAP_RESOLUTION_M", "export_mcap", "occupancy_grid",
+           "write_bag"]
 
 #: Cell size of ``/map`` [m].
 MAP_RESOLUTION_M = 0.05
@@ -188,7 +189,7 @@ def _fill(bag: _Bag, tour, segments) -> None:
 
 
 def write_bag(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
-    """:func:`.rosbag.export_mcap` (its docstring)."""
+    """:func:`export_mcap` (its docstring)."""
     from pipeline.outdirs import check_output_dir, mark_output_dir
     from pipeline.runstore import inside
     from scenes.fileio import read_npz
@@ -217,3 +218,30 @@ def write_bag(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     files = [out / "bag", *write_layout(tour, out)]
     mark_output_dir(out, "export", files)
     return files
+
+
+def export_mcap(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
+    """Write a finished simulated run's training tour as a ROS 2 bag in MCAP storage.
+
+    Writes ``out_dir/bag/`` (``metadata.yaml``, ``bag.mcap``) with the topics of
+    :data:`.rosbag.TOPICS` (no ``/scan``: a run stores no laser scans), on the clock of the CSV
+    export (:data:`.runtour.EPOCH_S` + the tour's time) with its EPCs (:func:`.runtour.epc_of`),
+    and beside it ``tags.csv`` and ``mounts.toml`` as :func:`.export.export_csv` writes
+    them, so that the folder is a complete recording (``rfidstudy run STUDY --recording
+    out_dir``). ``out_dir`` must be new, empty, or an earlier export
+    (:func:`pipeline.outdirs.check_output_dir`); the bag is written beside it and moved
+    into place, so a failed export leaves no half-written bag.
+
+    Returns
+    -------
+    list of Path
+        ``out_dir/bag``, ``out_dir/tags.csv``, ``out_dir/mounts.toml``.
+
+    Raises
+    ------
+    pipeline.config.ConfigError
+        ``out_dir`` may not be written.
+    ValueError
+        A run file is missing or unreadable (named).
+    """
+    return write_bag(run_dir, out_dir)

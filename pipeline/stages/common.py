@@ -7,6 +7,7 @@ Orchestration only: these helpers turn the study config into the packages' objec
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.metadata as _md
 import logging
 import os
@@ -29,12 +30,14 @@ __all__ = [
     "build_robot",
     "link_budget",
     "load_scene",
+    "load_study_recording",
     "manifest_info",
     "map_route",
     "pose_sources",
     "preferred_backend",
     "read_reads",
     "read_track",
+    "recorded_scene",
     "resolve_cache_dir",
     "select_backend",
     "source_revision",
@@ -110,8 +113,6 @@ def tag_candidates(scene, cfg: StudyConfig):
 def study_building(cfg: StudyConfig):
     """``scenes.load(cfg.scene)`` with the study's ``[[materials]]`` laid over the scene's own
     material overrides (:func:`pipeline.sceneconfig.material_overrides`)."""
-    import dataclasses
-
     import scenes
     from pipeline.sceneconfig import material_overrides
 
@@ -142,8 +143,6 @@ def study_scene(cfg: StudyConfig):
     split : numpy.ndarray, shape (n_tags,), str
         ``"train"`` or ``"eval"`` per tag, in ``scene.tags`` order.
     """
-    import dataclasses
-
     from scenes.scene import TagSet
     from scenes.tagsites import draw_tags, tag_sites
 
@@ -195,8 +194,6 @@ def map_route(scene, robot):
     ``scene.metadata["route"]["skipped"]``: a tag the robot never passes would only be
     a tag never read.
     """
-    import dataclasses
-
     if scene.route_m is not None or getattr(scene, "rosmap", None) is None:
         return scene
     from pipeline.robot import plan_coverage_route
@@ -250,13 +247,62 @@ def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(xy[:, None, :] - proj, axis=2), axis=1)
 
 
+def load_study_recording(cfg):
+    """The study's ``[recording]`` read (:func:`pipeline.recording.load.load_recording`)."""
+    from pipeline.recording.load import load_recording
+
+    return load_recording(cfg.recording, region=cfg.reader.region,
+                          n_mounts=len(cfg.robot.antennas))
+
+
+def recorded_scene(cfg, memo: dict | None = None):
+    """The study's building with the recording's tags, and each tag's split.
+
+    Parameters
+    ----------
+    cfg : StudyConfig
+    memo : dict, optional
+        Receives the loaded :class:`~pipeline.recording.Recording` under ``"recording"``
+        (a run's memo: the recording stage then need not read the files again).
+
+    Returns
+    -------
+    scene : scenes.Scene
+        ``study_building(cfg)`` with ``tags`` the recording's (ids = EPCs).
+    split : numpy.ndarray of str
+        ``"train"`` or ``"eval"`` per tag: ``round(heldout_fraction * n)`` tags (at least
+        one, at most n - 1) held out, drawn from ``stage_rng(cfg, "recording_split")``.
+
+    Raises
+    ------
+    pipeline.recording.RecordingError
+        A recording file cannot be read; fewer than two tags.
+    """
+    from pipeline.recording import RecordingError
+    from pipeline.recording.load import recorded_tagset
+    from pipeline.robot.kinematics import antenna_poses
+
+    rec = load_study_recording(cfg)
+    if memo is not None:  # the recording stage reads it from here, not the files again
+        memo["recording"] = rec
+    mounts = build_robot(cfg).antennas
+    ant_xy = antenna_poses(np.zeros((1, 3)), list(mounts))[0, :, :2]
+    tags = recorded_tagset(rec, ant_xy)
+    n = len(tags)
+    if n < 2:
+        raise RecordingError(f"{cfg.recording.tags}: {n} tag(s); a held-out split needs two")
+    k = int(min(max(round(cfg.recording.heldout_fraction * n), 1), n - 1))
+    held = stage_rng(cfg, "recording_split").choice(n, size=k, replace=False)
+    split = np.full(n, "train", dtype="<U5")
+    split[held] = "eval"
+    return dataclasses.replace(study_building(cfg), tags=tags), split
+
+
 def load_scene(ctx):
     """The study's scene with both tag layouts (:func:`study_scene`), memoised per run."""
     sc = ctx.memo.get("scene")
     if sc is None:
         if ctx.config.recording.enabled:  # the building with the recording's tags
-            from pipeline.stages.recorded import recorded_scene  # imports this module
-
             sc, split = recorded_scene(ctx.config, ctx.memo)
         else:
             sc, split = study_scene(ctx.config)

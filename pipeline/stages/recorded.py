@@ -19,65 +19,13 @@ attempts, ``eval_reads.parquet`` the held-out ones'.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from pipeline.runstore import atomic_write_json, save_npz
-from pipeline.stages.common import build_robot, load_scene, stage_rng, study_building
+from pipeline.stages.common import build_robot, load_scene, load_study_recording, recorded_scene
 from pipeline.study import Stage
 
-__all__ = ["STAGE", "recorded_scene", "stage_recording"]
-
-
-def _load(cfg):
-    from pipeline.recording.load import load_recording
-
-    return load_recording(cfg.recording, region=cfg.reader.region,
-                          n_mounts=len(cfg.robot.antennas))
-
-
-def recorded_scene(cfg, memo: dict | None = None):
-    """The study's building with the recording's tags, and each tag's split.
-
-    Parameters
-    ----------
-    cfg : StudyConfig
-    memo : dict, optional
-        Receives the loaded :class:`~pipeline.recording.Recording` under ``"recording"``
-        (a run's memo: the recording stage then need not read the files again).
-
-    Returns
-    -------
-    scene : scenes.Scene
-        ``study_building(cfg)`` with ``tags`` the recording's (ids = EPCs).
-    split : numpy.ndarray of str
-        ``"train"`` or ``"eval"`` per tag: ``round(heldout_fraction * n)`` tags (at least
-        one, at most n - 1) held out, drawn from ``stage_rng(cfg, "recording_split")``.
-
-    Raises
-    ------
-    pipeline.recording.RecordingError
-        A recording file cannot be read; fewer than two tags.
-    """
-    from pipeline.recording import RecordingError
-    from pipeline.recording.load import recorded_tagset
-    from pipeline.robot.kinematics import antenna_poses
-
-    rec = _load(cfg)
-    if memo is not None:  # the recording stage reads it from here, not the files again
-        memo["recording"] = rec
-    mounts = build_robot(cfg).antennas
-    ant_xy = antenna_poses(np.zeros((1, 3)), list(mounts))[0, :, :2]
-    tags = recorded_tagset(rec, ant_xy)
-    n = len(tags)
-    if n < 2:
-        raise RecordingError(f"{cfg.recording.tags}: {n} tag(s); a held-out split needs two")
-    k = int(min(max(round(cfg.recording.heldout_fraction * n), 1), n - 1))
-    held = stage_rng(cfg, "recording_split").choice(n, size=k, replace=False)
-    split = np.full(n, "train", dtype="<U5")
-    split[held] = "eval"
-    return dataclasses.replace(study_building(cfg), tags=tags), split
+__all__ = ["STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: stages.common's
 
 
 def _check_channels(rec, cfg) -> None:
@@ -118,7 +66,7 @@ def stage_recording(ctx) -> dict:
     cfg = ctx.config
     sc = load_scene(ctx)
     split = ctx.memo["tag_split"]
-    rec = ctx.memo.get("recording") or _load(cfg)  # load_scene read it (recorded_scene)
+    rec = ctx.memo.get("recording") or load_study_recording(cfg)  # load_scene read it (recorded_scene)
     _check_channels(rec, cfg)
     mounts = build_robot(cfg).antennas
     table, poses, att_info = recorded_read_table(rec, sc.tags, mounts, cfg.reader,
