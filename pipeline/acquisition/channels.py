@@ -27,7 +27,7 @@ import numpy as np
 from pipeline.configschema import ConfigError
 
 __all__ = ["REGIONS", "ChannelPlan", "RegionProfile", "channel_plan", "channel_schedule",
-           "hop_sequence"]
+           "hop_sequence", "reported_channels"]
 
 
 @dataclass(frozen=True)
@@ -174,3 +174,36 @@ def channel_schedule(time_s, plan: ChannelPlan, t0_s: float = 0.0) -> np.ndarray
         return np.zeros(t.shape, np.int64)
     k = np.floor((t - t0_s) / plan.dwell_s + 1e-9).astype(np.int64)
     return np.mod(k, len(plan.channels_hz))
+
+
+def reported_channels(time_s, cycle, antenna, plan: ChannelPlan, reported: dict):
+    """Each attempt slot's channel as a reader reported it: ``(channel_index, frequency_hz,
+    counts)``, shapes (n,), (n,) and a dict.
+
+    ``reported`` maps (cycle, antenna) to the channel [Hz] of a read in that slot (a
+    recording's). A slot without a read takes the channel of the nearest reported slot in
+    time when it lies within half the plan's dwell (a reader stays on a channel for the
+    dwell; where the dwell is unbounded, any reported slot); else it keeps NaN, index -1:
+    the caller keeps its own hop there. Each channel is matched to the plan's nearest
+    (the recording stage checked that they are the plan's, within 1 kHz).
+    """
+    t = np.asarray(time_s, np.float64)
+    f = np.array([reported.get((int(c), int(a)), np.nan) for c, a in zip(cycle, antenna, strict=True)],
+                 np.float64)
+    have = np.flatnonzero(np.isfinite(f))
+    n_reported = len(have)
+    if n_reported and n_reported < len(f):
+        tk = t[have]
+        pos = np.clip(np.searchsorted(tk, t), 1, len(tk)) if len(tk) > 1 else np.ones(len(t), np.int64)
+        left, right = have[np.maximum(pos - 1, 0)], have[np.minimum(pos, len(have) - 1)]
+        near = np.where(np.abs(t[left] - t) <= np.abs(t[right] - t), left, right)
+        reach = np.inf if not np.isfinite(plan.dwell_s) else plan.dwell_s / 2.0
+        fill = ~np.isfinite(f) & (np.abs(t[near] - t) <= reach)
+        f[fill] = f[near[fill]]
+    ok = np.isfinite(f)
+    chans = np.asarray(plan.channels_hz, np.float64)
+    index = np.where(ok, np.argmin(np.abs(np.where(ok, f, 0.0)[:, None] - chans[None, :]), axis=1), -1)
+    freq = np.where(ok, chans[np.maximum(index, 0)], np.nan)
+    return index, freq, {"n_slots": int(len(f)), "reported": n_reported,
+                         "filled_within_dwell": int(ok.sum()) - n_reported,
+                         "hop_sequence": int((~ok).sum())}

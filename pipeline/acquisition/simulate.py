@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.acquisition.channels import hop_sequence
+from pipeline.acquisition.channels import hop_sequence, reported_channels
 from pipeline.acquisition.config import ReaderConfig, reader_metadata
 from pipeline.acquisition.phase import phase_offsets
 from pipeline.acquisition.population import draw_population, surface_materials
@@ -121,6 +121,7 @@ def simulate_reads(
     progress=None,
     tags=None,
     frequency_hz: float | None = None,
+    slot_channels_hz: dict | None = None,
 ) -> ReadLog:
     """Simulate the reader along a robot track in a ray-traced scene.
 
@@ -155,6 +156,11 @@ def simulate_reads(
         Carrier frequency [Hz] (default: :class:`propagation.LinkBudget`'s): the traces
         and their materials are made there; each attempt's gain, phase and Doppler are
         those of its channel (``reader.region``).
+    slot_channels_hz : dict, optional
+        (cycle, antenna) -> the channel [Hz] a recording reported in that slot: the
+        attempts use it (:func:`pipeline.acquisition.channels.reported_channels`: a slot
+        without a read takes its nearest reported neighbour's within half the dwell), the
+        hop sequence only where neither is known; counted in ``metadata["channels"]``.
 
     Returns
     -------
@@ -187,6 +193,13 @@ def simulate_reads(
     plan = hop_sequence(reader.channel_plan(budget.frequency_hz), aux)
     _check_eirp(reader, budget, plan)
     att = read_attempts(trk, mounts, reader, plan=plan)
+    recorded_channels = None
+    if slot_channels_hz is not None:  # a recording's own channels where it knows them
+        index, freq, recorded_channels = reported_channels(att.time_s, att.cycle, att.antenna, plan,
+                                                           slot_channels_hz)
+        use = index >= 0
+        att = dataclasses.replace(att, channel_index=np.where(use, index, att.channel_index),
+                                  frequency_hz=np.where(use, freq, att.frequency_hz))
     tags = scene.tags if tags is None else tags
     n, m = len(att.time_s), len(tags)
     pop = draw_population(tags, reader, aux, surface_materials(scene, tags))
@@ -224,7 +237,8 @@ def simulate_reads(
         "max_excess_over_free_space_db": excess_db,
         "channels": {"region": plan.region.name, "hop_sequence_hz": plan.channels_hz.tolist(),
                      "dwell_s": plan.dwell_s if np.isfinite(plan.dwell_s) else None,
-                     "max_eirp_dbm": plan.region.max_eirp_dbm},
+                     "max_eirp_dbm": plan.region.max_eirp_dbm,
+                     **({} if recorded_channels is None else {"recorded": recorded_channels})},
         "tag_population": pop.to_dict(),
         **info,
     }

@@ -2,7 +2,9 @@
 
 The recorded poses (``tour/train_track.npz``) and tag layout are run through the
 simulated reader (:func:`pipeline.acquisition.simulate_reads`, the study's ``[reader]``
-and ``[tracing]``): its attempt schedule is the one the recording's attempts were
+and ``[tracing]``), each attempt on the channel the reader reported in its slot (a slot
+without a read: its nearest reported slot's within half the hop dwell, else the
+simulated hop; ``summary.json`` ``channels`` counts them): its attempt schedule is the one the recording's attempts were
 rebuilt on (:mod:`pipeline.recording.attempts`), so every recorded attempt has its
 traced twin, joined on (cycle, antenna, tag). The comparison and the baseline are
 :mod:`pipeline.evaluation.simreal`'s. Writes ``sim_vs_real/attempts.parquet`` (per
@@ -42,9 +44,19 @@ def _recorded(ctx) -> pd.DataFrame:
     parts = []
     for prefix, split in (("", "train"), ("eval_", "eval")):
         df, _ = read_reads(ctx, prefix)
-        parts.append(df[[*_KEY, "read", "rssi_dbm", "d_est_m"]].assign(
+        parts.append(df[[*_KEY, "read", "rssi_dbm", "d_est_m", "frequency_hz"]].assign(
             tag_id=df["tag_id"].astype(str), split=split))
     return pd.concat(parts, ignore_index=True)
+
+
+def _slot_channels(rec: pd.DataFrame) -> dict:
+    """(cycle, antenna) -> the channel [Hz] the reader reported in that slot (its most
+    frequent one where reads of one slot disagree)."""
+    r = rec[rec["read"].to_numpy(bool) & np.isfinite(rec["frequency_hz"].to_numpy(np.float64))]
+    if r.empty:
+        return {}
+    mode = r.groupby(["cycle", "antenna"])["frequency_hz"].agg(lambda f: f.mode().iloc[0])
+    return {(int(c), int(a)): float(f) for (c, a), f in mode.items()}
 
 
 def stage_sim_vs_real(ctx) -> dict:
@@ -61,11 +73,13 @@ def stage_sim_vs_real(ctx) -> dict:
     cache = resolve_cache_dir(cfg)
     cache.mkdir(parents=True, exist_ok=True)
     budget = link_budget(cfg)
+    rec = _recorded(ctx)
     with trace_tasks(cfg) as tasks:
         sim = simulate_reads(sc, robot, read_track(ctx, "train"), cfg.reader,
                              stage_rng(cfg, "sim_vs_real"), trace=trace_options(cfg),
                              cache_dir=cache, progress=ctx.progress("tracing the recorded tour"),
-                             tags=sc.tags, frequency_hz=cfg.frequency_hz)
+                             tags=sc.tags, frequency_hz=cfg.frequency_hz,
+                             slot_channels_hz=_slot_channels(rec))
     s = sim.reads
     gain = s["gain_db"].to_numpy(np.float64)
     closed = true_detected(gain, budget)
@@ -78,8 +92,7 @@ def stage_sim_vs_real(ctx) -> dict:
         "frequency_hz": s["frequency_hz"].to_numpy(np.float64),
         "gain_db": gain, "miss_probability": q, "p_sim": np.where(closed, 1.0 - q, 0.0),
         "rssi_sim_dbm": np.where(closed, true_rssi_dbm(gain, budget), np.nan)})
-    rec = _recorded(ctx)
-    att = rec.merge(pred, on=_KEY, how="left", validate="one_to_one")
+    att = rec.drop(columns="frequency_hz").merge(pred, on=_KEY, how="left", validate="one_to_one")
     if att["in_range"].isna().any():
         n = int(att["in_range"].isna().sum())
         raise ValueError(f"{n} recorded attempts have no traced twin: the recording stage and "
@@ -98,6 +111,7 @@ def stage_sim_vs_real(ctx) -> dict:
         "baseline": base.to_dict(),
         "n_attempts_in_range": int(len(att)),
         "n_attempts_not_traced": int(len(rec) - len(att)),
+        "channels": sim.metadata["channels"].get("recorded"),
         "how": "per held-out attempt within the traced range: predicted read probability "
                "(traced link closes x (1 - miss probability)) and noise-free RSSI against the "
                "recorded read and RSSI; intervals over held-out tags; the baseline fitted on "
@@ -117,5 +131,5 @@ def stage_sim_vs_real(ctx) -> dict:
 
 
 STAGE = Stage("sim_vs_real", stage_sim_vs_real, ("seed", "robot", "reader") + TRACING_KEYS,
-              ("scene", "recording"), version=2,  # 2: the antenna's pose and channel per attempt
+              ("scene", "recording"), version=3,  # 2: the antenna's pose and channel per attempt; 3: recorded channels
               description="simulation against the recording")

@@ -96,6 +96,17 @@ def test_recorded_study_scores_models_and_the_ray_tracer(recorded_run):
     # outcomes better than the log-distance baseline fitted on the training tags
     assert svr["brier"]["ray_tracer"]["estimate"] < svr["brier"]["baseline"]["estimate"]
     assert svr["brier"]["ray_tracer"]["estimate"] < 0.1
+    # every read attempt was traced on the channel the reader reported for it
+    att = pd.read_parquet(recorded_run / "sim_vs_real" / "attempts.parquet")
+    rec = pd.concat([pd.read_parquet(recorded_run / f) for f in ("reads.parquet", "eval_reads.parquet")],
+                    ignore_index=True)[["cycle", "antenna", "tag_id", "read", "frequency_hz"]]
+    rec["tag_id"] = rec["tag_id"].astype(str)
+    both = att[["cycle", "antenna", "tag_id", "frequency_hz"]].merge(
+        rec[rec["read"]], on=["cycle", "antenna", "tag_id"], suffixes=("_traced", "_reported"))
+    assert len(both) > 50
+    np.testing.assert_allclose(both["frequency_hz_traced"], both["frequency_hz_reported"], atol=1.0)
+    ch = json.loads((recorded_run / "sim_vs_real" / "summary.json").read_text())["channels"]
+    assert ch["reported"] > 0 and ch["reported"] + ch["filled_within_dwell"] + ch["hop_sequence"] == ch["n_slots"]
     tags = pd.read_parquet(recorded_run / "scene" / "tags.parquet")
     held = set(tags.loc[tags["split"] == "eval", "tag_id"].astype(str))
     train = set(pd.read_parquet(recorded_run / "reads.parquet")["tag_id"].astype(str))

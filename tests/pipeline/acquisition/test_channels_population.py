@@ -105,3 +105,28 @@ def test_regions_table_is_consistent():
         if prof.band_hz is not None:
             lo, hi = prof.band_hz
             assert all(lo <= c <= hi for c in prof.channels_hz), name
+
+
+def test_reported_channels_fill_within_half_a_dwell_by_hand():
+    from pipeline.acquisition.channels import channel_plan, reported_channels
+
+    plan = channel_plan("ETSI", channel_dwell_s=4.0)
+    chans = np.asarray(plan.channels_hz)
+    t = np.arange(12) * 0.5  # slots every 0.5 s, antenna 0
+    cycle, antenna = np.arange(12), np.zeros(12, int)
+    # reads in slot 2 (t 1.0 s) on channel 1, and in slot 10 (t 5.0 s) on channel 3 (+300 Hz
+    # of the reader's rounding: still that channel)
+    reported = {(2, 0): float(chans[1]), (10, 0): float(chans[3]) + 300.0}
+    index, freq, counts = reported_channels(t, cycle, antenna, plan, reported)
+    # half the dwell (2 s): slots 0-6 (t <= 3.0 s, nearest slot 2) take channel 1; slots
+    # 7-11 (t >= 3.5 s, nearest slot 10, within 2 s from 3.0 s on) take channel 3
+    assert index.tolist() == [1] * 7 + [3] * 5
+    assert freq[10] == chans[3]
+    assert counts == {"n_slots": 12, "reported": 2, "filled_within_dwell": 10, "hop_sequence": 0}
+    # a slot farther than half a dwell from every report keeps the hop sequence (-1)
+    index, freq, counts = reported_channels(np.r_[t, 20.0], np.r_[cycle, 12], np.r_[antenna, 0],
+                                            plan, reported)
+    assert index[-1] == -1 and np.isnan(freq[-1]) and counts["hop_sequence"] == 1
+    # nothing reported: every slot keeps its hop
+    index, _, counts = reported_channels(t, cycle, antenna, plan, {})
+    assert (index == -1).all() and counts["reported"] == 0
