@@ -17,6 +17,15 @@ sllurp writes the file once, when the inventory ends (a killed logger leaves non
 only reads: a failed attempt is no row. :func:`read_sllurp_csv` returns the rows as they
 are, with ``t_s`` the timestamp; ``rssi_dbm`` is the value as written (whole dBm).
 
+sllurp's own logger writes no more columns (sllurp 2.x ``CsvLogger``; its
+``--impinj-reports`` is an option of ``sllurp inventory``, which prints the reports to
+its log). Users who want phase and channel add Impinj's report fields to the logger's
+rows; such a file (e.g. a public R420 project's: ``timestamp,reader,antenna,rssi,epc,
+phase_angle,channel_index,doppler_frequency``) is read with those columns in the
+reader's raw units (:mod:`.units`): ``phase_angle`` 0-4095 -> rad (x 2 pi / 4096),
+``channel_index`` 1-based -> Hz by the region's table, ``doppler_frequency`` 1/16 Hz ->
+Hz. A row leaving one empty gets NaN there.
+
 **Poses**: header ``t_s,x_m,y_m,yaw_rad`` (the robot base in the scene frame; the
 localisation's estimate, as a real robot has it). **Tags**: header ``epc,x_m,y_m,z_m``
 and optionally ``nx,ny,nz`` (the normal into free space).
@@ -36,7 +45,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["POSE_COLUMNS", "READ_FIELDS", "SLLURP_COLUMNS", "TAG_COLUMNS", "RecordingError", "align_reads",
+from .units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
+
+__all__ = ["POSE_COLUMNS", "READ_FIELDS", "SLLURP_COLUMNS", "SLLURP_IMPINJ_COLUMNS", "TAG_COLUMNS", "RecordingError", "align_reads",
            "read_poses_csv", "read_sllurp_csv", "read_tags_csv", "write_poses_csv",
            "write_sllurp_csv", "write_tags_csv"]
 
@@ -46,6 +57,8 @@ READ_FIELDS = ("t_s", "antenna_port", "rssi_dbm", "epc", "phase_rad", "frequency
 
 #: Header of the CSV ``sllurp log`` writes.
 SLLURP_COLUMNS = ("timestamp", "reader", "antenna", "rssi", "epc")
+#: Impinj report fields users add to sllurp's logger (module doc), raw units.
+SLLURP_IMPINJ_COLUMNS = ("phase_angle", "channel_index", "doppler_frequency")
 #: Header of a poses CSV.
 POSE_COLUMNS = ("t_s", "x_m", "y_m", "yaw_rad")
 #: Header of a tag layout CSV (``nx, ny, nz`` optional).
@@ -104,25 +117,34 @@ def _number(path, line, col, text, *, integer=False) -> float:
     return v
 
 
-def read_sllurp_csv(path: str | Path) -> pd.DataFrame:
+def read_sllurp_csv(path: str | Path, region: str = "") -> pd.DataFrame:
     """The reads of a ``sllurp log`` CSV (module doc).
+
+    Parameters
+    ----------
+    region : str
+        The channel table a ``channel_index`` column refers to (``recording.region``).
 
     Returns
     -------
     pandas.DataFrame
         ``t_s`` [s since 1970], ``reader`` (str), ``antenna_port`` (int, 1-based),
-        ``rssi_dbm`` (float64), ``epc`` (str, upper-case hex), in time order.
+        ``rssi_dbm`` (float64), ``epc`` (str, upper-case hex), ``phase_rad`` [0, 2 pi),
+        ``frequency_hz``, ``doppler_hz`` (float64; NaN without the Impinj columns), in
+        time order.
 
     Raises
     ------
     RecordingError
         Naming ``file:line`` and the column: a missing column, a value that is no number,
-        a port below 1, an EPC that is not hex; an empty file. An EPC written as Python
+        a port below 1, an EPC that is not hex, a phase outside 0-4095, a channel index
+        outside the region's table (or no region); an empty file. An EPC written as Python
         bytes (``b'3034...'``, as sllurp on Python 3 does) is taken as its hex digits; rows
         out of time order are sorted and counted (``attrs["n_reordered"]``).
     """
-    out = {"t_s": [], "reader": [], "antenna_port": [], "rssi_dbm": [], "epc": []}
-    for line, r in _rows(path, SLLURP_COLUMNS):
+    out = {"t_s": [], "reader": [], "antenna_port": [], "rssi_dbm": [], "epc": [],
+           "phase_rad": [], "frequency_hz": [], "doppler_hz": []}
+    for line, r in _rows(path, SLLURP_COLUMNS, optional=SLLURP_IMPINJ_COLUMNS):
         t = _number(path, line, "timestamp", r["timestamp"])
         port = int(_number(path, line, "antenna", r["antenna"], integer=True))
         if port < 1:
@@ -139,11 +161,14 @@ def read_sllurp_csv(path: str | Path) -> pd.DataFrame:
         out["antenna_port"].append(port)
         out["rssi_dbm"].append(_number(path, line, "rssi", r["rssi"]))
         out["epc"].append(epc)
+        _impinj_fields(path, line, r, region, out)
     if not out["t_s"]:
         raise RecordingError(f"{path}: no reads after the header")
     df = pd.DataFrame({"t_s": np.asarray(out["t_s"], np.float64), "reader": out["reader"],
                        "antenna_port": np.asarray(out["antenna_port"], np.int64),
-                       "rssi_dbm": np.asarray(out["rssi_dbm"], np.float64), "epc": out["epc"]})
+                       "rssi_dbm": np.asarray(out["rssi_dbm"], np.float64), "epc": out["epc"],
+                       **{c: np.asarray(out[c], np.float64)
+                          for c in ("phase_rad", "frequency_hz", "doppler_hz")}})
     # the host's clock at each report batch: batches of several ports interleave (a real
     # R420 log does), so the rows are sorted by time and the reordered ones counted
     t = df["t_s"].to_numpy()
@@ -152,6 +177,28 @@ def read_sllurp_csv(path: str | Path) -> pd.DataFrame:
         df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
     df.attrs["n_reordered"] = n_back
     return df
+
+
+def _impinj_fields(path, line, r, region, out) -> None:
+    """A sllurp row's Impinj columns (module doc) into ``out``, in SI; NaN where absent."""
+    phase = freq = doppler = math.nan
+    if r.get("phase_angle", "").strip():
+        raw = _number(path, line, "phase_angle", r["phase_angle"], integer=True)
+        if not 0 <= raw < PHASE_STEPS:
+            raise RecordingError(f"{path}:{line}: column 'phase_angle': {raw:.0f} is outside "
+                                 f"0-{PHASE_STEPS - 1} (Impinj's 12-bit phase)")
+        phase = raw * 2.0 * math.pi / PHASE_STEPS
+    if r.get("channel_index", "").strip():
+        index = int(_number(path, line, "channel_index", r["channel_index"], integer=True))
+        try:
+            freq = channel_frequency_hz(index, region)
+        except ValueError as exc:
+            raise RecordingError(f"{path}:{line}: column 'channel_index': {exc}") from None
+    if r.get("doppler_frequency", "").strip():
+        doppler = _number(path, line, "doppler_frequency", r["doppler_frequency"]) / DOPPLER_STEPS_PER_HZ
+    out["phase_rad"].append(phase)
+    out["frequency_hz"].append(freq)
+    out["doppler_hz"].append(doppler)
 
 
 def _write_csv(path, header, rows) -> Path:

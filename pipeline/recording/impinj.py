@@ -45,14 +45,10 @@ import numpy as np
 import pandas as pd
 
 from .csvformats import RecordingError, _number, _rows, _write_csv
+from .units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
 
 __all__ = ["IMPINJ_FIELDS", "PHASE_STEPS", "channel_frequency_hz", "impinj_header",
            "read_impinj_csv", "write_impinj_csv"]
-
-#: Steps of the 12-bit phase over one turn.
-PHASE_STEPS = 4096
-#: Doppler steps per Hz.
-DOPPLER_STEPS_PER_HZ = 16.0
 
 #: field -> ((column, scale to SI), ...) in order of preference; scale None: special.
 IMPINJ_FIELDS: dict[str, tuple[tuple[str, float | None], ...]] = {
@@ -78,27 +74,6 @@ def impinj_header(path: str | Path) -> list[str]:
             return [h.strip() for h in next(csv.reader(fh), [])]
     except (OSError, csv.Error, UnicodeDecodeError):
         return []
-
-
-def channel_frequency_hz(index: int, region: str) -> float:
-    """Frequency [Hz] of Impinj channel ``index`` (1-based) in ``region``'s table.
-
-    Raises
-    ------
-    ValueError
-        Region without a channel table, or an index outside it.
-    """
-    from pipeline.acquisition.channels import REGIONS
-
-    prof = REGIONS.get(region)
-    if prof is None or not prof.channels_hz:
-        raise ValueError(f"a channel index needs the region's channel table: recording.region "
-                         f"(or reader.region) must be one of "
-                         f"{', '.join(k for k, v in REGIONS.items() if v.channels_hz)}, got {region!r}")
-    table = sorted(prof.channels_hz)
-    if not 1 <= index <= len(table):
-        raise ValueError(f"channel index {index} is outside {region}'s table of {len(table)} channels")
-    return float(table[index - 1])
 
 
 def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:

@@ -125,11 +125,9 @@ def load_recording(rcfg, *, region: str = "", n_mounts: int) -> Recording:
         raw, bag_poses = read_rosbag(rcfg.reads, reads_topic=rcfg.reads_topic,
                                      pose_topic="" if rcfg.poses else rcfg.pose_topic)
     elif fmt == "sllurp":
-        raw = read_sllurp_csv(rcfg.reads)
+        raw = read_sllurp_csv(rcfg.reads, rcfg.region or region)
         n_sorted = int(raw.attrs.get("n_reordered", 0))
         raw = raw.drop(columns=["reader"])
-        for c in ("phase_rad", "frequency_hz", "doppler_hz"):
-            raw[c] = np.nan
         raw["seen_count"] = 1
     else:
         raw = read_impinj_csv(rcfg.reads, rcfg.region or region)

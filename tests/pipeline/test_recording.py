@@ -111,10 +111,33 @@ def test_a_real_sllurp_log_reads(tmp_path):
                  "1746738549.279919,192.168.0.219:5084,1,-52,b'303435fc8803d056d15b963f',3292,2,39\n"
                  "1746738549.188597,192.168.0.219:5084,2,-63,b'303435fc8803d056d15b963f',3932,2,2367\n"
                  "1746738549.251187,192.168.0.219:5084,4,-62,b'303435fc8803d056d15b963f',4064,3,839\n")
-    r = read_sllurp_csv(p)
+    r = read_sllurp_csv(p, region="FCC")  # its channel indices run to 50: the FCC table
     assert r["epc"].tolist() == ["303435FC8803D056D15B963F"] * 3
     assert r["antenna_port"].tolist() == [2, 4, 1] and r["t_s"].is_monotonic_increasing
     assert r.attrs["n_reordered"] == 2
     p.write_text("timestamp,reader,antenna,rssi,epc\n1.0,r:1,1,-50,b'XYZ'\n")
     with pytest.raises(RecordingError, match=":2: column 'epc'"):
         read_sllurp_csv(p)
+
+
+def test_sllurp_impinj_columns_in_si_by_hand(tmp_path):
+    """The Impinj fields users add to sllurp's logger (a public R420 project's layout), in
+    the reader's raw units: phase 3468/4096 of a turn, channel 7 of the FCC table (902.75
+    MHz + 6 x 0.5 MHz), Doppler -127/16 Hz; an empty field is NaN."""
+    p = tmp_path / "reads.csv"
+    head = "timestamp,reader,antenna,rssi,epc,phase_angle,channel_index,doppler_frequency\n"
+    p.write_text(head + "1747166391.767558,192.168.0.219:5084,1,-67,b'303435fc8803d056d15b963f',3468,7,-127\n"
+                 "1747166391.80,192.168.0.219:5084,2,-36,b'303435fc8803d056d15b963f',,,\n")
+    r = read_sllurp_csv(p, region="FCC")
+    assert r["phase_rad"].iloc[0] == pytest.approx(3468 * 2 * np.pi / 4096)  # 5.3198 rad
+    assert r["frequency_hz"].iloc[0] == pytest.approx(905.75e6)
+    assert r["doppler_hz"].iloc[0] == pytest.approx(-7.9375)
+    assert r[["phase_rad", "frequency_hz", "doppler_hz"]].iloc[1].isna().all()
+    with pytest.raises(RecordingError, match=r":2: column 'channel_index': .*recording.region"):
+        read_sllurp_csv(p)  # a channel index needs the region's table
+    p.write_text(head + "1.0,r:1,1,-50,3034,4096,7,0\n")
+    with pytest.raises(RecordingError, match=r":2: column 'phase_angle': 4096 is outside 0-4095"):
+        read_sllurp_csv(p, region="FCC")
+    p.write_text(head + "1.0,r:1,1,-50,3034,1,51,0\n")
+    with pytest.raises(RecordingError, match=r":2: column 'channel_index': channel index 51 is outside FCC"):
+        read_sllurp_csv(p, region="FCC")
