@@ -154,6 +154,9 @@ class CalibrationFit:
     miss_probability: float = 0.0
     #: Construction parameters, log ratio to the traced value (:class:`MaterialModel`).
     material_log_ratios: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    #: With construction parameters: the reader's parameters fitted alone (no construction
+    #: changed), for a calibrated study that leaves the building as traced.
+    reader_only: CalibrationFit | None = None
 
     @classmethod
     def from_vector(cls, x: np.ndarray, n_antennas: int) -> CalibrationFit:
@@ -283,46 +286,63 @@ def _bootstrap(att, budget, n_ant, point, rng, n_boot, terms):
 
 
 def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.ndarray):
-    """Damped Gauss-Newton on the re-fielded gains (module doc): the fit at the last
-    accepted theta (the reader's parameters fitted to the exact gains there) and the
-    linearisation there, and the accepted steps.
+    """Damped Gauss-Newton on the re-fielded gains (module doc).
 
     A step (the linearised fit's theta) is taken when the exact likelihood at it, the
     reader's parameters refitted, beats the current one; else it is halved, up to four
-    times; the iteration ends when a step moves no parameter more than MATERIAL_TOL or no
-    halving improves."""
+    times. The iteration has converged when the *undamped* proposal moves no parameter more
+    than MATERIAL_TOL; it also ends when no halving improves (settled along the linearised
+    direction) or after MATERIAL_ITERATIONS (reported as not converged).
+
+    Returns
+    -------
+    fit : CalibrationFit
+        At the last accepted theta, the reader's parameters fitted to the exact gains there
+        (strictly checked: a reader offset on its range's edge stops the stage).
+    terms : MaterialTerms
+        The linearisation there, over each parameter's whole range (the bootstrap's: its
+        refits are not held in the trust region).
+    how : dict
+        ``steps`` (the accepted thetas), ``converged``, ``ended`` (why it stopped).
+    """
     gain = train["gain_db"].to_numpy(np.float64)
 
-    def exact(theta):  # the reader fitted to the gains re-fielded at theta
+    def exact(theta, strict=False):  # the reader fitted to the gains re-fielded at theta
         g = gain + np.asarray(model.delta_db(theta), np.float64)[rows]
         return fit_calibration(train.assign(gain_db=g), budget, n_antennas, miss_probability=q,
-                               strict=False)
+                               strict=strict)
 
     at = np.zeros(len(model.names))
     best = exact(at)
-    steps = [at.tolist()]
+    steps, converged, ended, terms = [at.tolist()], False, "iterations", None
     for _ in range(MATERIAL_ITERATIONS):
         terms = _linearise(model, at, rows)
         proposal = fit_calibration(train, budget, n_antennas, miss_probability=q, terms=terms,
                                    start=best._x, strict=False)  # noqa: SLF001 - our own vectors
         step = proposal.material_log_ratios - at
+        if np.max(np.abs(step), initial=0.0) < MATERIAL_TOL:
+            converged, ended = True, "the linearised fit stays where it is"
+            break
         for _ in range(5):
             trial = exact(at + step)
             if trial._nll < best._nll:  # noqa: SLF001
                 break
             step = step / 2.0
         else:
-            break  # no step along the linearised direction improves: settled
-        at, best = at + step, trial
-        steps.append(at.tolist())
-        if np.max(np.abs(step), initial=0.0) < MATERIAL_TOL:
+            ended = "no step along the linearised fit's direction improves the exact likelihood"
             break
-    fit = dataclasses.replace(best, material_log_ratios=at.copy())
-    object.__setattr__(fit, "_x", np.r_[best._x, at])  # noqa: SLF001
+        at, best, terms = at + step, trial, None
+        steps.append(at.tolist())
+    if terms is None or not np.array_equal(terms.at, at):
+        terms = _linearise(model, at, rows)
+    best = exact(at, strict=True)  # the reported reader: its own checks apply
     if not np.isfinite(best._nll):  # noqa: SLF001
         raise ValueError("calibration: the likelihood is not finite at the fitted construction "
                          "parameters; the recording may hold too few reads")
-    return fit, _linearise(model, at, rows), steps
+    fit = dataclasses.replace(best, material_log_ratios=at.copy())
+    object.__setattr__(fit, "_x", np.r_[best._x, at])  # noqa: SLF001
+    whole = MaterialTerms(terms.at, terms.base_db, terms.jac_db, model.lower, model.upper)
+    return fit, whole, {"steps": steps, "converged": converged, "ended": ended}
 
 
 def _renamed(cmp: dict, ours: str, theirs: str) -> dict:
@@ -341,10 +361,15 @@ def _material_entry(model: MaterialModel, j: int, entry: dict) -> dict:
     out = {k: (None if entry[k] is None else nom * float(np.exp(entry[k])))
            for k in ("value", "low", "high")}
     out.update(traced=nom, unit="S/m" if model.names[j].endswith(".conductivity") else "")
-    v = entry["value"]
-    if min(v - model.lower[j], model.upper[j] - v) < 1e-3:
-        out["note"] = ("on the edge of its range: not identified by this recording "
-                       f"(range x{np.exp(model.lower[j]):.3g} to x{np.exp(model.upper[j]):.3g})")
+    rng = f"range x{np.exp(model.lower[j]):.3g} to x{np.exp(model.upper[j]):.3g}"
+    edge = [k for k in ("value", "low", "high") if entry[k] is not None
+            and min(entry[k] - model.lower[j], model.upper[j] - entry[k]) < 1e-3]
+    if "value" in edge:
+        # the likelihood pushes past the range: a misfit the construction absorbs (the
+        # poses' error, a missing path), not a measurement of it
+        out["note"] = f"on the edge of its range ({rng}): the recording pushes it past what a wall can be"
+    elif edge:
+        out["note"] = f"its interval reaches the edge of its range ({rng}): weakly determined"
     return out
 
 
@@ -391,8 +416,8 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     if materials is None or not len(materials.names):
         fit = fit_calibration(train, budget, n_antennas, miss_probability=max(q, 0.05))
     else:
-        fit, terms, steps = _fit_materials(train, budget, n_antennas, max(q, 0.05), materials,
-                                           np.flatnonzero(is_train))
+        fit, terms, how = _fit_materials(train, budget, n_antennas, max(q, 0.05), materials,
+                                         np.flatnonzero(is_train))
         base = np.asarray(materials.delta_db(fit.material_log_ratios), np.float64)[is_held]
         held_terms = MaterialTerms(fit.material_log_ratios, base, np.zeros((len(base), len(materials.names))),
                                    materials.lower, materials.upper)
@@ -424,12 +449,19 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     if terms is not None:
         # the same held-out tags under the reader's parameters alone: did the constructions help?
         alone = fit_calibration(train, budget, n_antennas, miss_probability=max(q, 0.05))
+        x = fit._x  # noqa: SLF001 - our own vector, not a field
+        fit = dataclasses.replace(fit, reader_only=alone)
+        object.__setattr__(fit, "_x", x)
         p_alone, rssi_alone = predict(alone, held["gain_db"], held["antenna"], budget)
         against = _renamed(sim_vs_real(cmp_att.assign(p_base=p_alone, rssi_base_dbm=rssi_alone),
                                        seed=seed), "with_constructions", "reader_only")
         extra = {"constructions": {
             **materials.info, "parameters": list(materials.names),
-            "gauss_newton_log_ratios": steps,
+            "gauss_newton_log_ratios": how["steps"], "converged": how["converged"],
+            "ended": how["ended"],
+            # dB of gain per unit log ratio, RMS over the training attempts: ~0 = unseen
+            "sensitivity_db": {n: float(np.sqrt(np.mean(terms.jac_db[:, j] ** 2)))
+                               for j, n in enumerate(materials.names)},
             "heldout_against_reader_only": {k: against[k] for k in ("rssi_mae_db", "brier") if k in against},
             "how": "each parameter the log of its ratio to the traced value; the traced paths "
                    "re-fielded (propagation.refield), linearised, a step taken where the "

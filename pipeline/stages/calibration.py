@@ -18,8 +18,9 @@ directory
   ``reader.rssi_noise_db`` the fitted spread less the quantisation's
   (``rssi_resolution_db^2 / 12``), and a ``[[materials]]`` table per fitted construction's
   material (its permittivity and conductivity), where the constructions beat the reader's
-  parameters alone on the held-out tags (:func:`_constructions_help`; a gate on the
-  overlay, not on the numbers reported: those are all in ``calibration.json``). The RSSI offset, the detection spread and
+  parameters alone on the held-out tags and none is on the edge of its range
+  (:func:`_overlay_refusal`; else the reader's parameters fitted alone, the building as
+  traced; every number is in ``calibration.json`` either way). The RSSI offset, the detection spread and
   the miss probability are reported only: the simulated reader has no key for them (its
   truth is the received power, so an offset key would bias every model against it).
 """
@@ -39,6 +40,8 @@ __all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model"
 
 #: Smallest share of the traced path power a construction must carry to be fitted.
 MIN_POWER_SHARE = 0.02
+#: A link that loses every path at a trial value counts as this much weaker [dB].
+VANISHED_DB = 100.0
 #: Above this conductivity [S/m] a material is a conductor (metal): nothing to fit.
 _CONDUCTOR_S_PER_M = 1e3
 
@@ -50,8 +53,9 @@ def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
     The antenna positions of the traced attempts (``ant_*`` columns) are traced once to
     their tags with the direct tracer at the study's ``[tracing]`` depth, rays and seed
     (:func:`propagation.refield.freeze_paths`); ``delta_db(theta)`` re-fields them and
-    gives each attempt's gain change against the re-fielded gain as traced (0 where
-    either has no path). Radio material names are ``uhf-<material>-t<thickness>``."""
+    gives each attempt's gain change against the re-fielded gain as traced, added to the
+    study tracer's gain (0 where the re-trace found no path; :data:`VANISHED_DB` down where
+    a trial value leaves none; ``info`` reports how far the two tracers' gains are). Radio material names are ``uhf-<material>-t<thickness>``."""
     from pipeline.evaluation.calibration import MaterialModel
     from propagation.refield import freeze_paths, material_shares, refield_gains_db
     from propagation.tracing import tag_dipole_axes
@@ -107,11 +111,19 @@ def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
             mats[n][j] = v * float(np.exp(t))
         g = gains({n: tuple(v) for n, v in mats.items()})
         out = np.zeros(len(att))
-        ok = np.isfinite(g) & np.isfinite(g0)
-        out[rows[ok]] = g[ok] - g0[ok]
+        ok = np.isfinite(g0)
+        # a link whose every path vanishes at a trial value (a reflection at eps 1, sigma
+        # 0 is exactly zero) counts as VANISHED_DB weaker, not as unchanged
+        out[rows[ok]] = np.maximum(np.where(np.isfinite(g), g, -np.inf) - g0, -VANISHED_DB)[ok]
         return out
 
-    info["n_links_without_path"] = int((~np.isfinite(g0)).sum())
+    # attempts the direct re-trace found no path for keep their study gain (change 0)
+    info["n_attempts_without_path"] = int((~np.isfinite(g0)).sum())
+    study = att["gain_db"].to_numpy(np.float64)[rows]
+    both = np.isfinite(g0)
+    # the change is added to the study tracer's gain: how far the two traces' gains are
+    info["median_abs_gain_difference_db"] = (float(np.median(np.abs(g0[both] - study[both])))
+                                             if both.any() else None)
     return MaterialModel(tuple(names), np.asarray(nominal), np.asarray(lower), np.asarray(upper),
                          delta_db, info), info
 
@@ -119,11 +131,13 @@ def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
 def calibrated_config(cfg, fit, constructions: dict | None = None):
     """``cfg`` with ``fit`` (:class:`~pipeline.evaluation.calibration.CalibrationFit`) laid
     over it and the recording removed (module doc); ``constructions`` {radio material name
-    ``uhf-<material>-t<thickness>``: (relative permittivity, conductivity)} become
-    ``[[materials]]`` tables (a material fitted in two thicknesses keeps the larger
-    construction's values: the overlay is per material)."""
+    ``uhf-<material>-t<thickness>``: (relative permittivity, conductivity or None)}, in
+    order of their power share, become ``[[materials]]`` tables. The overlay is per
+    material: a material fitted in two thicknesses takes the first (larger share)
+    construction's values; a conductivity not fitted (None) keeps the study's own."""
     from pipeline.recording.config import RecordingConfig
     from pipeline.sceneconfig import MaterialConfig
+    from scenes import resolve_material_name
 
     antennas = tuple(dataclasses.replace(a, cable_loss_db=float(a.cable_loss_db - d))
                      for a, d in zip(cfg.robot.antennas, fit.antenna_offsets_db, strict=True))
@@ -132,35 +146,52 @@ def calibrated_config(cfg, fit, constructions: dict | None = None):
     reader = dataclasses.replace(
         r, tag_sensitivity_dbm=float(r.tag_sensitivity_dbm + fit.tag_sensitivity_offset_db),
         rssi_noise_db=noise)
-    mats = {m.name: m for m in cfg.materials}
+    mats = {resolve_material_name(m.name): m for m in cfg.materials}
+    laid: set = set()
     for name, (eps, sigma) in (constructions or {}).items():
-        material = name.removeprefix("uhf-").rsplit("-t", 1)[0]
-        mats[material] = MaterialConfig(name=material, relative_permittivity=float(eps),
-                                        conductivity_s_per_m=float(sigma))
+        material = resolve_material_name(name.removeprefix("uhf-").rsplit("-t", 1)[0])
+        if material in laid:
+            continue
+        laid.add(material)
+        own = mats.get(material)
+        mats[material] = MaterialConfig(
+            name=material, relative_permittivity=float(eps),
+            conductivity_s_per_m=float(sigma) if sigma is not None
+            else (own.conductivity_s_per_m if own is not None else -1.0))
     return dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, antennas=antennas),
                                reader=reader, recording=RecordingConfig(),
                                materials=tuple(mats.values()))
 
 
 def _fitted_constructions(report: dict) -> dict:
-    """{radio material: (permittivity, conductivity)} of the fitted construction parameters;
-    one on the edge of its range (not identified) keeps its traced value, a conductivity
-    not fitted is -1 (the library's)."""
+    """{radio material: (permittivity, conductivity or None)} of the fitted construction
+    parameters, in the report's order (descending power share)."""
     out: dict = {}
     for key, p in report["parameters"].items():
         name, _, what = key.rpartition(".")
         if what in ("relative_permittivity", "conductivity"):
-            value = p["traced"] if "note" in p and "edge" in p["note"] else p["value"]
-            out.setdefault(name, {})[what] = value
-    return {k: (v["relative_permittivity"], v.get("conductivity", -1.0)) for k, v in out.items()}
+            out.setdefault(name, {})[what] = p["value"]
+    return {k: (v["relative_permittivity"], v.get("conductivity")) for k, v in out.items()}
 
 
-def _constructions_help(report: dict) -> bool:
-    """The fitted constructions beat the reader's parameters alone on the held-out tags:
-    one of RSSI MAE and Brier score better by its interval, neither worse."""
-    vs = report.get("constructions", {}).get("heldout_against_reader_only", {})
-    verdicts = [v.get("difference", {}).get("verdict") for v in vs.values()]
-    return "better" in verdicts and "worse" not in verdicts
+def _overlay_refusal(report: dict) -> str | None:
+    """Why the fitted constructions are not laid over ``calibrated.toml`` (None: they are).
+
+    They are where they beat the reader's parameters alone on the held-out tags (one of
+    RSSI MAE and Brier score better by its interval, neither worse: a choice made on the
+    held-out tags, so the reported gain is the chosen model's, optimistic) and none sits
+    on the edge of its range."""
+    cons = report.get("constructions", {})
+    verdicts = [v.get("difference", {}).get("verdict")
+                for v in cons.get("heldout_against_reader_only", {}).values()]
+    edge = [k for k in cons.get("parameters", []) if "past" in report["parameters"][k].get("note", "")]
+    if edge:
+        return f"{', '.join(edge)} on the edge of its range: a misfit, not a wall"
+    if not ("better" in verdicts and "worse" not in verdicts):
+        return ("on the held-out tags they did not beat the reader's parameters alone (one "
+                "verdict better, none worse, is asked for); the recorded poses' error, or too "
+                "few attempts, can make them absorb what is not the building")
+    return None
 
 
 def stage_calibration(ctx) -> dict:
@@ -182,16 +213,18 @@ def stage_calibration(ctx) -> dict:
         report["constructions"] = {**info, "note": f"no construction other than a conductor "
                                    f"carries {MIN_POWER_SHARE:.0%} of the traced path power"}
     report["antennas"] = [a.name for a in cfg.robot.antennas]
-    overlay = _fitted_constructions(report) if _constructions_help(report) else {}
+    overlay, reader_fit = {}, fit
     if model is not None:
-        report["constructions"]["in_calibrated_toml"] = bool(overlay) or (
-            "no: on the held-out tags they did not beat the reader's parameters alone (one "
-            "verdict better, none worse, is asked for); the recorded poses' error, or too "
-            "few attempts, can make them absorb what is not the building")
+        why = _overlay_refusal(report)
+        if why is None:
+            overlay = _fitted_constructions(report)
+        else:  # the building as traced, and the reader fitted to it
+            reader_fit = fit.reader_only
+        report["constructions"]["in_calibrated_toml"] = True if why is None else f"no: {why}"
     atomic_write_json(ctx.out("calibration.json"), report)
     atomic_write_text(ctx.out("calibrated.toml"),
                       "# the study's config with the reader calibrated to the recording "
-                      "(calibration.json)\n" + config_to_toml(calibrated_config(cfg, fit, overlay)))
+                      "(calibration.json)\n" + config_to_toml(calibrated_config(cfg, reader_fit, overlay)))
     mae = report["heldout"]["rssi_mae_db"]
     return {"parameters": {k: round(v["value"], 3) for k, v in report["parameters"].items()},
             "heldout_rssi_mae_db": {"before": mae["before"]["estimate"], "after": mae["after"]["estimate"]}}

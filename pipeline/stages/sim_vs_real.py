@@ -2,9 +2,10 @@
 
 The recorded poses (``tour/train_track.npz``) and tag layout are run through the
 simulated reader (:func:`pipeline.acquisition.simulate_reads`, the study's ``[reader]``
-and ``[tracing]``), each attempt on the channel the reader reported in its slot (a slot
-without a read: its nearest reported slot's within half the hop dwell, else the
-simulated hop; ``summary.json`` ``channels`` counts them): its attempt schedule is the one the recording's attempts were
+and ``[tracing]``), each attempt on the channel the reader reported in its slot for a
+training tag (a slot without such a read: its nearest reported slot's within half the
+hop dwell, else the simulated hop; ``summary.json`` ``channels`` counts them): its
+attempt schedule is the one the recording's attempts were
 rebuilt on (:mod:`pipeline.recording.attempts`), so every recorded attempt has its
 traced twin, joined on (cycle, antenna, tag). The comparison and the baseline are
 :mod:`pipeline.evaluation.simreal`'s. Writes ``sim_vs_real/attempts.parquet`` (per
@@ -51,8 +52,10 @@ def _recorded(ctx) -> pd.DataFrame:
 
 def _slot_channels(rec: pd.DataFrame) -> dict:
     """(cycle, antenna) -> the channel [Hz] the reader reported in that slot (its most
-    frequent one where reads of one slot disagree)."""
-    r = rec[rec["read"].to_numpy(bool) & np.isfinite(rec["frequency_hz"].to_numpy(np.float64))]
+    frequent one where reads of one slot disagree), from the training tags' reads only: a
+    held-out read's own channel would tell its attempt's prediction that it was read."""
+    r = rec[rec["read"].to_numpy(bool) & np.isfinite(rec["frequency_hz"].to_numpy(np.float64))
+            & (rec["split"] == "train").to_numpy()]
     if r.empty:
         return {}
     mode = r.groupby(["cycle", "antenna"])["frequency_hz"].agg(lambda f: f.mode().iloc[0])
@@ -131,5 +134,5 @@ def stage_sim_vs_real(ctx) -> dict:
 
 
 STAGE = Stage("sim_vs_real", stage_sim_vs_real, ("seed", "robot", "reader") + TRACING_KEYS,
-              ("scene", "recording"), version=3,  # 2: the antenna's pose and channel per attempt; 3: recorded channels
+              ("scene", "recording"), version=4,  # 2: pose, channel; 3: recorded channels; 4: from training reads
               description="simulation against the recording")
