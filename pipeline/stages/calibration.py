@@ -114,7 +114,7 @@ def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
         ok = np.isfinite(g0)
         # a link whose every path vanishes at a trial value (a reflection at eps 1, sigma
         # 0 is exactly zero) counts as VANISHED_DB weaker, not as unchanged
-        out[rows[ok]] = np.maximum(np.where(np.isfinite(g), g, -np.inf) - g0, -VANISHED_DB)[ok]
+        out[rows[ok]] = np.maximum(g[ok] - g0[ok], -VANISHED_DB)  # -inf - finite: -inf
         return out
 
     # attempts the direct re-trace found no path for keep their study gain (change 0)
