@@ -38,7 +38,7 @@ def main(argv=None) -> None:
     from pipeline.placement.candidates import candidates_of
     from pipeline.placement.objectives import traced_counts
     from pipeline.placement.runner import _replicate_config
-    from pipeline.sweep import run_point
+    from pipeline.studypool import run_point
 
     out = Path(args.out).resolve()
     if out.exists() and any(out.iterdir()):

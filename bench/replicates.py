@@ -40,8 +40,8 @@ def main(argv=None) -> None:
 
     from pipeline.config import config_to_dict, load_config, replace_path
     from pipeline.replicates import replicate_configs
-    from pipeline.stages import run_full_study
-    from pipeline.sweep import run_point
+    from pipeline.studypool import run_point
+    from pipeline.studyrun import run_full_study
 
     cfg = load_config(args.config)
     if args.n:

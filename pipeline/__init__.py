@@ -1,10 +1,11 @@
 """Pipeline: robot and localisation, reader acquisition, evaluation, figures and orchestration.
 
 The study itself: ``pipeline.load_config(path)`` -> :class:`StudyConfig`,
-``pipeline.run_full_study(config, run_dir)`` -> :class:`StudyResult` (cached, resumable
-stages: the engine :mod:`pipeline.study`, ``run_study(config, run_dir, stages)``, runs
-the stage list of :mod:`pipeline.stages`); sweeps in :mod:`pipeline.sweep`; the
-``rfidstudy`` command line in :mod:`pipeline.cli`.
+``pipeline.run_full_study(config, run_dir)`` -> :class:`StudyResult` (one study or its
+replicates, :mod:`pipeline.studyrun`; cached, resumable stages: the engine
+:mod:`pipeline.study`, ``run_study(config, run_dir, stages)``, runs the stage list of
+:mod:`pipeline.stages`); sweeps in :mod:`pipeline.sweep`; the ``rfidstudy`` command line
+in :mod:`pipeline.cli`.
 """
 
 from pipeline.config import ConfigError, StudyConfig, load_config
@@ -16,9 +17,9 @@ __all__ = ["ConfigError", "StageError", "StudyConfig", "StudyResult", "load_conf
 
 def __getattr__(name: str):
     # the stages are loaded on first use: importing the engine (or anything in pipeline)
-    # does not import the stage package
+    # does not import the stage package (pipeline.studyrun imports it)
     if name == "run_full_study":
-        from pipeline.stages import run_full_study
+        from pipeline.studyrun import run_full_study
 
         return run_full_study
     raise AttributeError(f"module 'pipeline' has no attribute {name!r}")

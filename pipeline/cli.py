@@ -108,8 +108,8 @@ def run(
     """
     _setup_logging(verbose)
     from pipeline.recording.config import recording_overrides
-    from pipeline.stages import run_full_study
     from pipeline.study import RunDirError, StageError, StudyInterrupted
+    from pipeline.studyrun import run_full_study
 
     scheduler = _scheduler(scheduler)
     try:

@@ -13,7 +13,7 @@ directory of its own, resumable and cached stage by stage), and the run director
 - the replicates share the scene and the propagation cache (every trace one of them
   made that another needs is read, not traced again);
 - they run in local worker processes or on the Dask scheduler the sweeps use
-  (:func:`pipeline.sweep.run_studies`);
+  (:func:`pipeline.studypool.run_studies`);
 - the pooled intervals resample (replicate, tag) and (replicate, filter run) units
   (:mod:`pipeline.evaluation.headline`); each replicate's own headline numbers are kept
   beside them (``per_replicate``), so the spread between replicates is visible;
@@ -22,7 +22,9 @@ directory of its own, resumable and cached stage by stage), and the run director
 
 The engine is the study's (:func:`pipeline.study.run_study`) with the stages
 :data:`STAGES`: ``replicates`` (runs the N studies; always, each skips what it has),
-``pooled`` (``metrics.json``) and ``report``.
+``pooled`` (``metrics.json``) and ``report``; :func:`pipeline.studyrun.run_full_study`
+runs them for ``n > 1``, and the stage package (:mod:`pipeline.stages`) does not know
+this module.
 """
 
 from __future__ import annotations
@@ -39,7 +41,9 @@ from pipeline.runstore import (
     read_run_json,
     regular_file,
 )
+from pipeline.stages import resolve_cache_dir
 from pipeline.study import Stage, StageError
+from pipeline.studypool import run_studies
 
 __all__ = ["STAGES", "replicate_configs", "replicate_seed", "stage_pooled", "stage_replicates"]
 
@@ -67,8 +71,6 @@ def replicate_seed(seed: int, k: int) -> int:
 def replicate_configs(cfg: StudyConfig) -> list[StudyConfig]:
     """The N single-study configs of a replicated study: replicate seeds, ``n = 1``, and
     the propagation cache pinned to one absolute directory for all."""
-    from pipeline.stages import resolve_cache_dir
-
     base = replace_path(cfg, "replicates.n", 1)
     base = replace_path(base, "tracing.cache_dir", str(resolve_cache_dir(cfg)))
     return [replace_path(base, "seed", replicate_seed(cfg.seed, k))
@@ -77,8 +79,6 @@ def replicate_configs(cfg: StudyConfig) -> list[StudyConfig]:
 
 def stage_replicates(ctx) -> dict:
     """Run (or resume) every replicate into ``replicates/<k>/``; write the index."""
-    from pipeline.sweep import run_studies
-
     cfg = ctx.config
     rep = cfg.replicates
     configs = replicate_configs(cfg)

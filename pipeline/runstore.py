@@ -160,7 +160,7 @@ def check_no_writer(dirs, what: str, rows=None) -> None:
     what : str
         What would read them (for the message).
     rows : sequence of dict, optional
-        The studies' rows (:func:`pipeline.sweep.run_point`), one per directory: a study
+        The studies' rows (:func:`pipeline.studypool.run_point`), one per directory: a study
         refused for a lock (``kind`` ``RunDirLocked``) whose holder has ended since
         stops ``what`` too (its directory is not complete yet).
 

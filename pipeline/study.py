@@ -30,7 +30,7 @@ The run directory never lies:
   on its scene fails before anything is traced.
 
 The engine takes its stage list as an argument and imports no stage: the study's
-stages are :data:`pipeline.stages.STAGES` (:func:`pipeline.stages.run_full_study` runs
+stages are :data:`pipeline.stages.STAGES` (:func:`pipeline.studyrun.run_full_study` runs
 them); they call ``scenes``, ``propagation``, ``fuzzymodel`` and the ``pipeline``
 sub-packages. What a stage is and when it must run (:class:`Stage`,
 :class:`StageContext`, the inputs hash) is :mod:`pipeline.stagedef`, which this runner and
@@ -210,7 +210,7 @@ def run_study(config: StudyConfig, run_dir: str | Path, stages: Sequence[Stage],
         ``config.toml`` and ``manifest.json`` are (re)written there.
     stages : sequence of Stage
         The stages, in order (the full study: :data:`pipeline.stages.STAGES`, or call
-        :func:`pipeline.stages.run_full_study`).
+        :func:`pipeline.studyrun.run_full_study`).
     progress : bool
         Draw rich progress bars on stderr.
     force : sequence of str

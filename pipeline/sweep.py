@@ -18,7 +18,9 @@ only change antenna orientation, power or sensitivity trace nothing new where th
 propagation package caches per antenna position.
 
 Runs go to local worker processes (``concurrent.futures``, spawn context) or, with
-``scheduler``, to a Dask distributed cluster (``distributed.Client(address)``). The
+``scheduler``, to a Dask distributed cluster (``distributed.Client(address)``), by
+:func:`pipeline.studypool.run_studies`; each point is run by
+:func:`pipeline.studyrun.run_full_study` (a replicated point: its replicates). The
 summary (one row per point: parameters, read rate, completeness per pass, coverage
 along the route at the tags, model errors; a replicated point: the replicates' mean
 and ``n_replicates``) is written as Parquet and CSV, with one plot per swept
@@ -28,12 +30,9 @@ over replicates and tags, use ``rfidstudy placement`` (:mod:`pipeline.placement`
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import dataclasses
 import itertools
 import logging
-import multiprocessing
-import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,8 +49,8 @@ from pipeline.config import (
 )
 from pipeline.configschema import from_dict
 from pipeline.outdirs import check_marker_file, own_marker
-from pipeline.parallel import WORKERS_ENV, usable_cpus
 from pipeline.runstore import atomic_write_bytes, atomic_write_json
+from pipeline.studypool import run_studies
 
 __all__ = [
     "PARAMETERS",
@@ -60,8 +59,6 @@ __all__ = [
     "apply_parameter",
     "expand_sweep",
     "load_sweep",
-    "run_point",
-    "run_studies",
     "run_sweep",
 ]
 
@@ -256,50 +253,6 @@ def load_sweep(path: str | Path) -> SweepPlan:
     return expand_sweep(base, params, mode=data.get("mode", "grid"), source=str(path))
 
 
-def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | None = None) -> dict:
-    """Run one sweep point (in a worker process) and return its summary row.
-
-    Parameters
-    ----------
-    config : dict
-        The point's study config as a nested dict (:func:`config_to_dict`).
-    run_dir : str
-        Its run directory.
-    command : str
-        The command named in the point's manifest.
-    upto : str, optional
-        The last stage to run (:func:`pipeline.stages.stages_upto`; None: all of them).
-
-    Returns
-    -------
-    dict
-        ``status`` ("complete" or "failed"), ``error``, ``elapsed_s`` and the summary
-        numbers of :func:`pipeline.stages.run_summary`; a failed point's ``stage`` and
-        ``kind`` (the exception's type) where a stage failed.
-    """
-    from pipeline.stages import run_full_study, run_summary
-
-    cfg = from_dict(StudyConfig, config, source=f"sweep point {run_dir}")
-    try:
-        res = run_full_study(cfg, run_dir, progress=False, upto=upto,
-                             command_line=["rfidstudy", command, "(point)"])
-    except Exception as exc:  # one failed point must not sink the sweep
-        log.error("sweep point %s failed: %s", run_dir, exc)
-        return {"status": "failed", "error": str(exc), "elapsed_s": float("nan"),
-                "stage": getattr(exc, "stage", None),
-                "kind": getattr(exc, "kind", None) or type(exc).__name__}
-    row = {"status": "complete", "error": "", "elapsed_s": res.elapsed_s,
-           "stages_ran": len(res.ran)}
-    if upto is not None:  # a partial study: the summary reads what it has
-        return row
-    try:
-        row.update(run_summary(run_dir))
-    except Exception as exc:  # a summary that cannot be read fails its point, not the sweep
-        log.error("sweep point %s: its summary failed: %s", run_dir, exc)
-        row.update(status="failed", error=f"summary: {exc}")
-    return row
-
-
 @dataclass
 class SweepResult:
     """Outcome of :func:`run_sweep`.
@@ -369,6 +322,9 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     """
     import pandas as pd
 
+    # the stage package (its import is most of a second): loaded when points run
+    from pipeline.studyrun import run_full_study
+
     out = check_sweep_dir(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     # the marker first: an interrupted sweep's directory is recognised as ours on rerun
@@ -377,8 +333,9 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
                                            "runs": plan.names})
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]
+    # a point may be a replicated study: run_full_study runs its replicates
     rows = run_studies(args, scheduler=scheduler, workers=workers, client=client,
-                       on_done=on_done)
+                       on_done=on_done, runner=run_full_study)
     table = []
     for name, point, row in zip(plan.names, plan.points, rows, strict=True):
         r = {"run": name}
@@ -390,90 +347,11 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     return SweepResult(out_dir=out, summary=df, files=files)
 
 
-def run_studies(args: list, *, scheduler: str | None = None, workers: int | None = None,
-                client=None, on_done: Callable[[int, dict], bool | None] | None = None,
-                command: str = "sweep", upto: str | None = None) -> list[dict | None]:
-    """Run studies side by side: :func:`run_point` on each ``(config dict, run dir)`` of
-    ``args``, in local spawned worker processes (``workers``, default min(len, 2); the
-    CPUs shared between them) or on a Dask cluster (``client`` or ``scheduler``).
-
-    Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
-    called after each; when it returns True the local studies not yet started are
-    cancelled (their rows stay None) and those under way finish. On a Dask cluster every
-    submitted study runs to its end (a stop is not passed on). Local workers inherit the
-    address-space limit: a tracer budget it cannot hold is a ConfigError before any
-    starts (:func:`pipeline.preflight.check_address_space`)."""
-    if client is not None or scheduler:
-        return _run_dask(args, scheduler, client, on_done, command, upto)
-    from pipeline.preflight import check_address_space
-
-    # the workers inherit ulimit -v: a budget over it would segfault each one, silently
-    budgets = [a[0].get("tracing", {}).get("memory_budget_mb", 0.0) for a in args]
-    check_address_space(max(budgets, default=0.0))
-    rows: list = [None] * len(args)
-    n_workers = workers or min(len(args), 2)
-    ctx = multiprocessing.get_context("spawn")
-    # studies side by side share the CPUs (never more side by side than studies)
-    nested = max(1, usable_cpus() // max(1, min(n_workers, len(args))))
-    with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
-                                initializer=_cap_nested_workers,
-                                initargs=(nested,)) as ex:
-        futs = {ex.submit(run_point, *a, command, upto): i for i, a in enumerate(args)}
-        for fut in cf.as_completed(futs):
-            if fut.cancelled():
-                continue
-            i = futs[fut]
-            rows[i] = fut.result()
-            if on_done and on_done(i, rows[i]):
-                for f in futs:
-                    f.cancel()  # not started: never run; under way: finishes
-    return rows
-
-
-def _cap_nested_workers(cap: int) -> None:
-    """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs,
-    and the worker ends with the sweep, placement or replicated run that started it
-    (:func:`pipeline.parallel.die_with_parent`)."""
-    from pipeline.parallel import die_with_parent
-
-    die_with_parent()
-    current = os.environ.get(WORKERS_ENV, "").strip()
-    # a user's smaller cap stands; anything else (unset, larger, not a count) is replaced
-    if not (current.isdecimal() and 1 <= int(current) <= cap):
-        os.environ[WORKERS_ENV] = str(cap)
-
-
 def _shared_cache(cfg: StudyConfig, out: Path) -> StudyConfig:
     """Pin the propagation cache to one absolute directory for every point."""
     from pipeline.stages import resolve_cache_dir
 
     return replace_path(cfg, "tracing.cache_dir", str(resolve_cache_dir(cfg)))
-
-
-def _run_dask(args, scheduler, client, on_done, command="sweep", upto=None):
-    from distributed import Client, as_completed
-
-    own = client is None
-    if own:
-        client = Client(scheduler)
-    try:
-        futs = [client.submit(run_point, *a, command, upto, pure=False,
-                              key=f"rfidstudy-point-{i}-{Path(a[1]).name}")
-                for i, a in enumerate(args)]
-        index = {f.key: i for i, f in enumerate(futs)}
-        rows: list = [None] * len(args)
-        # a stop asked by on_done is not passed on: Dask cannot interrupt a study under
-        # way on a worker, and one cancelled there would still hold its run directory's
-        # lock when the caller submits it again; every submitted study runs to its end
-        for fut in as_completed(futs):
-            i = index[fut.key]
-            rows[i] = fut.result()
-            if on_done:
-                on_done(i, rows[i])
-        return rows
-    finally:
-        if own:
-            client.close()
 
 
 def _write_summary(df, out: Path, plan: SweepPlan) -> list[Path]:

@@ -49,6 +49,7 @@ from pipeline.runstore import (
     atomic_write_json,
     check_no_writer,
 )
+from pipeline.studypool import run_studies
 
 from .candidates import Candidate, candidates_of
 from .objectives import OBJECTIVES, needed_stage, traced_counts
@@ -231,8 +232,6 @@ class _Runner:
             self._run_batch(wave, range(n, 2 * n), self.confirmed)
 
     def _run_batch(self, todo: list[Candidate], ks=None, book: dict | None = None) -> None:
-        from pipeline.sweep import run_studies
-
         if self.stop:
             raise PlacementStopped(self.stop)
 

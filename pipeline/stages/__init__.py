@@ -1,4 +1,4 @@
-"""The study's stages, in order, and what the CLI and sweeps need around them.
+"""The study's stages, in order, and one study run with them (the stage engine's input).
 
 Stages, one module each (inputs in brackets; each also depends on its upstream stages)::
 
@@ -16,8 +16,11 @@ Stages, one module each (inputs in brackets; each also depends on its upstream s
 
 Each module defines its ``STAGE`` (name, config keys, upstream stages, version) beside
 the function it runs; helpers they share are in :mod:`pipeline.stages.common`. The
-engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_full_study` hands it
-:data:`STAGES`, :data:`CHECKS` and :func:`manifest_info`.
+engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_study_stages` hands it
+:data:`STAGES`, :data:`CHECKS` and :func:`manifest_info` for one study. This package
+imports neither replicates nor sweeps: a replicated study (``replicates.n > 1``) is run
+from above, by :func:`pipeline.studyrun.run_full_study`; what sweeps read from a finished
+run directory is :mod:`pipeline.stages.summary`.
 
 A study with a ``[recording]`` runs :data:`RECORDED_STAGES` instead
 (:mod:`pipeline.stages.recorded`): the recording stands in for the tour and the reads,
@@ -37,7 +40,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from pipeline.config import StudyConfig
+from pipeline.config import ConfigError, StudyConfig
 from pipeline.stages import (
     calibration,
     downstream,
@@ -64,7 +67,6 @@ from pipeline.stages.checks import (
 )
 from pipeline.stages.common import manifest_info, resolve_cache_dir
 from pipeline.stages.figures import draw_figures, draw_scene_top_view
-from pipeline.stages.summary import corridor_coverage, run_summary
 from pipeline.study import Stage, StudyResult, run_study
 
 __all__ = [
@@ -72,13 +74,12 @@ __all__ = [
     "RECORDED_STAGES",
     "STAGES",
     "check_antenna_mounts",
-    "corridor_coverage",
+    "check_cable_losses",
     "draw_figures",
     "draw_scene_top_view",
     "manifest_info",
     "resolve_cache_dir",
-    "run_full_study",
-    "run_summary",
+    "run_study_stages",
     "stage_names",
     "stages_upto",
 ]
@@ -152,7 +153,7 @@ def stages_upto(name: str | None, config: StudyConfig | None = None) -> tuple[St
     return stages[:names.index(name) + 1]
 
 
-def _check_cable_losses(config: StudyConfig, upto: str | None) -> None:
+def check_cable_losses(config: StudyConfig, upto: str | None) -> None:
     """Antenna cable losses enter the reads (their gains), not the traced truth (Fig. 6
     points, tag sites, RSSI fields: a lossless antenna's), so a study that runs the truth
     stages with them would score models against a truth their reads were not drawn from:
@@ -163,8 +164,6 @@ def _check_cable_losses(config: StudyConfig, upto: str | None) -> None:
     pipeline.config.ConfigError
         Naming the antenna and what to do.
     """
-    from pipeline.config import ConfigError
-
     lossy = [(i, a) for i, a in enumerate(config.robot.antennas) if a.cable_loss_db != 0.0]
     if not lossy or config.recording.enabled:
         return
@@ -178,25 +177,24 @@ def _check_cable_losses(config: StudyConfig, upto: str | None) -> None:
             "reads (inventory objectives) or set them to 0")
 
 
-def run_full_study(config: StudyConfig, run_dir: str | Path, *, upto: str | None = None,
-                   **kwargs) -> StudyResult:
-    """Run (or resume) the whole study into ``run_dir``: :func:`pipeline.study.run_study`
-    with :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info` (package versions and the
-    Dr.Jit backend in the manifest); with ``replicates.n > 1`` the stages of
-    :mod:`pipeline.replicates` (the study run into ``replicates/<k>/`` n times, pooled).
-    ``upto`` stops after that stage (:func:`stages_upto`; not with replicates). Keyword
-    arguments go to ``run_study`` and override those (``checks=()``,
-    ``manifest_extra=None``)."""
+def run_study_stages(config: StudyConfig, run_dir: str | Path, *, upto: str | None = None,
+                     **kwargs) -> StudyResult:
+    """Run (or resume) one study into ``run_dir``: :func:`pipeline.study.run_study` with
+    :data:`STAGES` (:data:`RECORDED_STAGES` for a recording), :data:`CHECKS` and
+    :func:`manifest_info` (package versions and the Dr.Jit backend in the manifest).
+    ``upto`` stops after that stage (:func:`stages_upto`). Keyword arguments go to
+    ``run_study`` and override those (``checks=()``, ``manifest_extra=None``).
+
+    Raises
+    ------
+    ValueError
+        ``replicates.n > 1``: a replicated study is N studies, pooled
+        (:func:`pipeline.studyrun.run_full_study` runs it).
+    """
+    if config.replicates.n > 1:
+        raise ValueError(f"replicates.n = {config.replicates.n}: a replicated study is run by "
+                         "pipeline.studyrun.run_full_study, not as one study")
     kwargs.setdefault("checks", RECORDED_CHECKS if config.recording.enabled else CHECKS)
     kwargs.setdefault("manifest_extra", manifest_info)
-    _check_cable_losses(config, upto)
-    if config.recording.enabled and config.replicates.n > 1:
-        raise ValueError("replicates.n > 1 with a [recording]: a recording is one tour; its "
-                         "intervals are over its held-out tags (set replicates.n = 1)")
-    if config.replicates.n > 1:  # N studies in replicates/<k>/, pooled (pipeline.replicates)
-        if upto is not None:
-            raise ValueError("upto is for one study; replicates run every stage")
-        from pipeline import replicates
-
-        return run_study(config, run_dir, replicates.STAGES, **kwargs)
+    check_cable_losses(config, upto)
     return run_study(config, run_dir, stages_upto(upto, config), **kwargs)

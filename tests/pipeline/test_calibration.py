@@ -127,7 +127,7 @@ def test_cable_losses_are_refused_where_the_truth_would_not_see_them(tmp_path):
     import dataclasses
 
     from pipeline.config import ConfigError
-    from pipeline.stages import run_full_study
+    from pipeline.studyrun import run_full_study
 
     cfg = StudyConfig()
     ants = list(cfg.robot.antennas)

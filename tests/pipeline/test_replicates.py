@@ -44,7 +44,7 @@ def test_bad_replicate_counts_are_refused(value, match):
 
 
 def test_two_replicates_pooled_then_a_third_that_fails(tmp_path):
-    from pipeline.stages import run_full_study
+    from pipeline.studyrun import run_full_study
 
     cfg = load_config(ROOT / "configs" / "tiny.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(tmp_path / "cache"))

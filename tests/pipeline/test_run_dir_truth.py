@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.config import load_config, replace_path
-from pipeline.stages import run_full_study
+from pipeline.studyrun import run_full_study
 
 ROOT = Path(__file__).resolve().parents[2]
 

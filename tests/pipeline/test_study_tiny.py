@@ -24,8 +24,10 @@ import pandas as pd
 import pytest
 
 from pipeline.config import load_config, replace_path
-from pipeline.stages import run_full_study, run_summary, stage_names
+from pipeline.stages import stage_names
+from pipeline.stages.summary import run_summary
 from pipeline.study import run_study
+from pipeline.studyrun import run_full_study
 from tests.conftest import copy_run
 
 ROOT = Path(__file__).resolve().parents[2]

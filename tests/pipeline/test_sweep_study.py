@@ -73,7 +73,7 @@ def test_zip_mode_needs_equal_lengths():
 
 def test_a_sweep_worker_caps_its_studys_forks(monkeypatch):
     from pipeline.parallel import WORKERS_ENV
-    from pipeline.sweep import _cap_nested_workers
+    from pipeline.studypool import _cap_nested_workers
 
     for before, after in ((None, "2"), ("1", "1"), ("2", "2"), ("8", "2"), ("0", "2"),
                           ("two", "2"), ("²", "2")):  # "²".isdigit() but not a count

@@ -20,7 +20,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR
 
 PARENT = textwrap.dedent("""
     import concurrent.futures as cf, multiprocessing, os, sys, time
-    from pipeline.sweep import _cap_nested_workers
+    from pipeline.studypool import _cap_nested_workers
     if __name__ == "__main__":
         ctx = multiprocessing.get_context("spawn")
         with cf.ProcessPoolExecutor(1, mp_context=ctx, initializer=_cap_nested_workers,

@@ -173,7 +173,7 @@ def test_the_default_study_completes_on_a_real_robot_map(tmp_path):
     every stage with the map-scale profile, the first 12 m of the route (about 2 min on
     two cores; the whole nav2 warehouse took 14.5 min, bench/real_maps.py)."""
     from pipeline.cli import resolve_target
-    from pipeline.stages import run_full_study
+    from pipeline.studyrun import run_full_study
 
     cfg = resolve_target(str(LAB), ["tour.max_length_m=12", "localisation.n_particles=100",
                                     f"tracing.cache_dir={str(tmp_path / 'cache')!r}"])
