@@ -221,7 +221,9 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
         parts.append("<h2>Calibration</h2><p class='muted'>The simulated reader fitted to the "
                      f"training tags ({cal.get('n_train_tags')} tags; 95 % intervals from "
                      f"{cal.get('n_boot')} refits on resampled tags). {esc(cal.get('fixed', ''))}. "
-                     "The calibrated study: <code>calibrated.toml</code>.</p><table><tr><th>"
+                     "The calibrated study: <code>calibrated.toml</code>.</p>"
+                     + (f"<p><b>Warning:</b> {esc(cal['warning'])}</p>" if cal.get("warning") else "")
+                     + "<table><tr><th>"
                      "parameter</th><th>value [95 % interval]</th><th>unit</th><th>as traced</th>"
                      "<th>note</th></tr>")
         for key, v in cal.get("parameters", {}).items():

@@ -28,6 +28,7 @@ directory
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 import pandas as pd
@@ -36,7 +37,10 @@ from pipeline.runstore import atomic_write_json
 from pipeline.stages.common import TRACING_KEYS, link_budget, load_scene, trace_options
 from pipeline.study import Stage
 
-__all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model", "stage_calibration"]
+__all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model", "heldout_worse",
+           "stage_calibration"]
+
+log = logging.getLogger(__name__)
 
 #: Smallest share of the traced path power a construction must carry to be fitted.
 MIN_POWER_SHARE = 0.02
@@ -221,13 +225,35 @@ def stage_calibration(ctx) -> dict:
         else:  # the building as traced, and the reader fitted to it
             reader_fit = fit.reader_only
         report["constructions"]["in_calibrated_toml"] = True if why is None else f"no: {why}"
+    worse = heldout_worse(report)
+    if worse:
+        report["warning"] = worse
+        log.warning("calibration: %s", worse)
     atomic_write_json(ctx.out("calibration.json"), report)
+    head = "# the study's config with the reader calibrated to the recording (calibration.json)\n"
+    if worse:
+        head += f"# WARNING: {worse}\n"
     atomic_write_text(ctx.out("calibrated.toml"),
-                      "# the study's config with the reader calibrated to the recording "
-                      "(calibration.json)\n" + config_to_toml(calibrated_config(cfg, reader_fit, overlay)))
+                      head + config_to_toml(calibrated_config(cfg, reader_fit, overlay)))
     mae = report["heldout"]["rssi_mae_db"]
     return {"parameters": {k: round(v["value"], 3) for k, v in report["parameters"].items()},
-            "heldout_rssi_mae_db": {"before": mae["before"]["estimate"], "after": mae["after"]["estimate"]}}
+            "heldout_rssi_mae_db": {"before": mae["before"]["estimate"], "after": mae["after"]["estimate"]},
+            **({"warning": worse} if worse else {})}
+
+
+def heldout_worse(report: dict) -> str | None:
+    """A sentence when the calibrated reader predicts the held-out tags worse than the
+    uncalibrated one (a verdict ``worse`` by its interval), else None: the fit then
+    absorbed what its model does not hold (the poses' error, links the tracer misses; its
+    Gaussian RSSI spread is not robust to them), and ``calibrated.toml`` says so."""
+    bad = [f"{v.get('label', k)} {v['before']['estimate']:.3g} -> {v['after']['estimate']:.3g}"
+           for k, v in report.get("heldout", {}).items()
+           if isinstance(v, dict) and v.get("difference", {}).get("verdict") == "worse"]
+    if not bad:
+        return None
+    return ("the calibrated reader predicts the held-out tags worse than the uncalibrated one ("
+            + "; ".join(bad) + "): check the recorded poses and calibration.json before using "
+            "this config")
 
 
 STAGE = Stage("calibration", stage_calibration,

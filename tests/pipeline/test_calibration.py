@@ -212,3 +212,15 @@ def test_a_planted_wall_permittivity_is_recovered_through_the_nonlinear_gains():
     # tags the fit with the wall is better, by an interval
     vs = rep["constructions"]["heldout_against_reader_only"]["rssi_mae_db"]
     assert vs["difference"]["verdict"] == "better", vs
+
+
+def test_a_calibration_worse_on_held_out_tags_is_named():
+    from pipeline.stages.calibration import heldout_worse
+
+    def sec(before, after, verdict):
+        return {"label": "RSSI MAE [dB]", "before": {"estimate": before}, "after": {"estimate": after},
+                "difference": {"verdict": verdict}}
+
+    assert heldout_worse({"heldout": {"rssi_mae_db": sec(5.0, 1.0, "better")}}) is None
+    msg = heldout_worse({"heldout": {"rssi_mae_db": sec(5.31, 7.08, "worse"), "n_tags": 58}})
+    assert "RSSI MAE [dB] 5.31 -> 7.08" in msg and "calibrated.toml" not in msg
