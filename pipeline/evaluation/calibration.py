@@ -463,6 +463,8 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
             "sensitivity_db": {n: float(np.sqrt(np.mean(terms.jac_db[:, j] ** 2)))
                                for j, n in enumerate(materials.names)},
             "heldout_against_reader_only": {k: against[k] for k in ("rssi_mae_db", "brier") if k in against},
+            # what calibrated.toml holds when the constructions are not laid over
+            "reader_only_parameters": alone.as_dict(),
             "how": "each parameter the log of its ratio to the traced value; the traced paths "
                    "re-fielded (propagation.refield), linearised, a step taken where the "
                    "exact likelihood improves"}}
