@@ -19,12 +19,27 @@ from scenes.fileio import atomic_write_bytes
 from scenes.materials import get_material, material
 from scenes.radio import radio_groups, thickness_token
 
-__all__ = ["export_mitsuba", "material_bsdf_id"]
+__all__ = ["export_mitsuba", "material_bsdf_id", "material_of_bsdf_id"]
 
 
 def material_bsdf_id(name: str, thickness_m: float) -> str:
     """The Mitsuba ``<bsdf>`` id of library material ``name`` at slab ``thickness_m`` [m]."""
     return f"uhf-{get_material(name).name}-{thickness_token(thickness_m)}"
+
+
+def material_of_bsdf_id(bsdf_id: str) -> str:
+    """The library material of a :func:`material_bsdf_id` (``"uhf-brick-t0p120"`` ->
+    ``"brick"``).
+
+    Raises
+    ------
+    ValueError
+        Not an id :func:`material_bsdf_id` makes.
+    """
+    name, sep, _ = bsdf_id.removeprefix("uhf-").rpartition("-t")
+    if not (bsdf_id.startswith("uhf-") and sep and name):
+        raise ValueError(f"{bsdf_id!r} is not a radio material id of this export (uhf-<material>-t<thickness>)")
+    return get_material(name).name
 
 
 def export_mitsuba(scene, directory: str | Path, frequency_hz: float) -> Path:

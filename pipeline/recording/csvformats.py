@@ -171,6 +171,12 @@ def read_sllurp_csv(path: str | Path, region: str = "") -> pd.DataFrame:
                           for c in ("phase_rad", "frequency_hz", "doppler_hz")}})
     # the host's clock at each report batch: batches of several ports interleave (a real
     # R420 log does), so the rows are sorted by time and the reordered ones counted
+    return sorted_by_time(df)
+
+
+def sorted_by_time(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` in ``t_s`` order (a stable sort), ``attrs["n_reordered"]`` the rows that came
+    earlier than one before them (a reader's report batches interleave)."""
     t = df["t_s"].to_numpy()
     n_back = int(np.sum(t < np.maximum.accumulate(t)))
     if n_back:

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .csvformats import RecordingError, _number, _rows, _write_csv
+from .csvformats import RecordingError, _number, _rows, _write_csv, sorted_by_time
 from .units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
 
 __all__ = ["IMPINJ_FIELDS", "PHASE_STEPS", "channel_frequency_hz", "impinj_header",
@@ -153,12 +153,7 @@ def read_impinj_csv(path: str | Path, region: str = "") -> pd.DataFrame:
     df = pd.DataFrame(frame)
     # a reader's reports come in report order, not LastSeen order (a tag report summarises
     # sightings; several antennas' reports interleave): sorted by time, the reordered counted
-    t = df["t_s"].to_numpy()
-    n_back = int(np.sum(t < np.maximum.accumulate(t)))
-    if n_back:
-        df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
-    df.attrs["n_reordered"] = n_back
-    return df
+    return sorted_by_time(df)
 
 
 def write_impinj_csv(reads: pd.DataFrame, path: str | Path, region: str) -> Path:

@@ -142,6 +142,7 @@ def calibrated_config(cfg, fit, constructions: dict | None = None):
     from pipeline.recording.config import RecordingConfig
     from pipeline.sceneconfig import MaterialConfig
     from scenes import resolve_material_name
+    from scenes.export import material_of_bsdf_id
 
     antennas = tuple(dataclasses.replace(a, cable_loss_db=float(a.cable_loss_db - d))
                      for a, d in zip(cfg.robot.antennas, fit.antenna_offsets_db, strict=True))
@@ -153,7 +154,7 @@ def calibrated_config(cfg, fit, constructions: dict | None = None):
     mats = {resolve_material_name(m.name): m for m in cfg.materials}
     laid: set = set()
     for name, (eps, sigma) in (constructions or {}).items():
-        material = resolve_material_name(name.removeprefix("uhf-").rsplit("-t", 1)[0])
+        material = material_of_bsdf_id(name)
         if material in laid:
             continue
         laid.add(material)

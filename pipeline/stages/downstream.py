@@ -176,9 +176,9 @@ def _tag_scores(ctx, posts, eval_tags, phase_info) -> dict:
     return tag_scores
 
 
-def _recorded_downstream(ctx) -> dict:
-    """A recorded study's held-out tags localised with every model (module doc): writes
-    ``downstream/scores.json`` and ``downstream/tag_errors.parquet``."""
+def _tag_inputs(ctx) -> tuple:
+    """The held-out tags, both read logs (the held-out one's metadata), every model's
+    likelihood source and the held-out tags' observations on the estimated poses."""
     from pipeline.localisation import observations_from_reads
     from pipeline.localisation.benchmark import model_sources
 
@@ -189,6 +189,15 @@ def _recorded_downstream(ctx) -> dict:
     sources = model_sources(_models(ctx), reads, cfg.training.d_max_m)
     obs = observations_from_reads(eval_reads, "est", tag_ids=list(eval_tags.ids),
                                   pitch_rad=antenna_tilts(cfg))
+    return eval_tags, reads, eval_reads, meta, sources, obs
+
+
+def _recorded_downstream(ctx) -> dict:
+    """A recorded study's held-out tags localised with every model (module doc): writes
+    ``downstream/scores.json`` and ``downstream/tag_errors.parquet``."""
+
+    cfg = ctx.config
+    eval_tags, reads, eval_reads, meta, sources, obs = _tag_inputs(ctx)
     phase = eval_reads["phase_rad"].to_numpy(np.float64)[eval_reads["read"].to_numpy(bool)]
     no_phase = None if np.isfinite(phase).any() else (
         "the recording's reads of the held-out tags carry no backscatter phase "
@@ -218,11 +227,9 @@ def stage_downstream(ctx) -> dict:
     from pipeline.localisation import (
         RfidMCLConfig,
         as_free_space,
-        observations_from_reads,
     )
     from pipeline.localisation.benchmark import (
         RobotRuns,
-        model_sources,
     )
     from pipeline.parallel import map_forked
     from pipeline.robot import collision_map
@@ -236,12 +243,7 @@ def stage_downstream(ctx) -> dict:
     select_backend(cfg)
     sc = load_scene(ctx)
     robot = build_robot(cfg)
-    eval_tags = split_tags(ctx, "eval")
-    reads, _ = read_reads(ctx)
-    eval_reads, _ = read_reads(ctx, "eval_")
-    sources = model_sources(_models(ctx), reads, cfg.training.d_max_m)
-    obs = observations_from_reads(eval_reads, "est", tag_ids=list(eval_tags.ids),
-                                  pitch_rad=antenna_tilts(cfg))
+    eval_tags, reads, eval_reads, _, sources, obs = _tag_inputs(ctx)
     update = ctx.progress("tags and robot", total=3)
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
     free = as_free_space(collision_map(sc, robot))
