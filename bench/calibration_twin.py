@@ -34,8 +34,8 @@ PLANTED = {"antenna_offset_db[1]": -3.0, "tag_sensitivity_offset_db": -2.0,
 
 
 def _study(cfg, run: Path, rec: Path, recorded: Path) -> dict:
+    from pipeline.apps.studyrun import run_full_study
     from pipeline.recording import export_csv
-    from pipeline.studyrun import run_full_study
 
     t0 = time.perf_counter()
     run_full_study(cfg, run, command_line=["bench"], upto="reads")
@@ -44,8 +44,8 @@ def _study(cfg, run: Path, rec: Path, recorded: Path) -> dict:
 
 
 def _recorded(base, rec: Path, out: Path) -> dict:
+    from pipeline.apps.studyrun import run_full_study
     from pipeline.config import replace_path
-    from pipeline.studyrun import run_full_study
 
     cfg = base
     for key, name in (("recording.tags", "tags.csv"), ("recording.poses", "poses.csv"),

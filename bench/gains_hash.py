@@ -40,7 +40,7 @@ def fixed_links(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def main() -> None:
     import argparse
 
-    from pipeline.cli import resolve_target
+    from pipeline.apps.cli import resolve_target
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")

@@ -33,12 +33,12 @@ def main(argv=None) -> None:
     ap.add_argument("--out", required=True, help="new directory for both halves")
     args = ap.parse_args(argv)
 
+    from pipeline.apps.placement import load_placement, run_placement
+    from pipeline.apps.placement.candidates import candidates_of
+    from pipeline.apps.placement.objectives import traced_counts
+    from pipeline.apps.placement.runner import _replicate_config
+    from pipeline.apps.studypool import run_point
     from pipeline.config import config_to_dict, replace_path
-    from pipeline.placement import load_placement, run_placement
-    from pipeline.placement.candidates import candidates_of
-    from pipeline.placement.objectives import traced_counts
-    from pipeline.placement.runner import _replicate_config
-    from pipeline.studypool import run_point
 
     out = Path(args.out).resolve()
     if out.exists() and any(out.iterdir()):

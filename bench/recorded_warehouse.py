@@ -17,9 +17,9 @@ from pathlib import Path
 
 
 def main() -> None:
+    from pipeline.apps.studyrun import run_full_study
     from pipeline.config import load_config, replace_path
     from pipeline.recording import export_csv
-    from pipeline.studyrun import run_full_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("/tmp/recorded_warehouse"))

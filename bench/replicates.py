@@ -1,4 +1,4 @@
-"""Time, memory and shared traces of a replicated study (pipeline.replicates).
+"""Time, memory and shared traces of a replicated study (pipeline.apps.replicates).
 
 Runs a study config with ``replicates.n`` replicates one after the other (``workers =
 1``, so that the propagation cache can be counted between them) into a fresh run
@@ -38,10 +38,10 @@ def main(argv=None) -> None:
     ap.add_argument("-n", type=int, default=None, help="replicates (default: the config's)")
     args = ap.parse_args(argv)
 
+    from pipeline.apps.replicates import replicate_configs
+    from pipeline.apps.studypool import run_point
+    from pipeline.apps.studyrun import run_full_study
     from pipeline.config import config_to_dict, load_config, replace_path
-    from pipeline.replicates import replicate_configs
-    from pipeline.studypool import run_point
-    from pipeline.studyrun import run_full_study
 
     cfg = load_config(args.config)
     if args.n:

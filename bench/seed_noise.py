@@ -150,7 +150,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
-    from pipeline.cli import resolve_target
+    from pipeline.apps.cli import resolve_target
     from pipeline.stages.common import trace_options
 
     P.select_variant("llvm")

@@ -82,7 +82,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
-    from pipeline.cli import resolve_target
+    from pipeline.apps.cli import resolve_target
     from pipeline.stages.common import trace_options
     from propagation.completion import complete_specular, large_planes
     from propagation.constants import SPEED_OF_LIGHT

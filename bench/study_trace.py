@@ -225,7 +225,7 @@ def seed_noise(scene, run: Path, overrides: dict, config: Path | None) -> tuple[
     CONFIG --set KEY=VALUE`` resolves them), seeds 1 and 2 (fresh caches). Poses are
     (x, y, z, yaw): the default antennas are not tilted."""
     import propagation as P
-    from pipeline.cli import resolve_target
+    from pipeline.apps.cli import resolve_target
     from pipeline.stages.common import trace_options
 
     cfg = resolve_target(None if config is None else str(config),
@@ -296,7 +296,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     import propagation as P
     import scenes
-    from pipeline.cli import resolve_target
+    from pipeline.apps.cli import resolve_target
     from pipeline.config import load_config
 
     if args.naive_only:

@@ -2,6 +2,6 @@
 installed (e.g. the package on ``PYTHONPATH`` of a machine without the project's venv)."""
 
 if __name__ == "__main__":
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     app(prog_name="rfidstudy")

@@ -165,7 +165,7 @@ class TracingConfig:
     scheduler: str = option(
         "", "Dask scheduler address (tcp://host:8786) the study's ray tracing runs on: the "
         "reads and truth_traces stages send their chunks of antenna positions there as Dask "
-        "tasks (pipeline.tracetasks; the same paths as traced here). '' = trace in this process. "
+        "tasks (pipeline.engine.tracetasks; the same paths as traced here). '' = trace in this process. "
         "Not part of any stage's inputs: where a study traces does not change its results.")
     field_cell_m: float = option(0.1, "Cell size of the planar RSSI field [m].")
     field_samples_per_tx: int = option(1_000_000, "Rays per transmitter for the RSSI field.", max=50_000_000)
@@ -327,7 +327,7 @@ class DownstreamConfig:
 
 @section
 class ReplicatesConfig:
-    """Independent replicates of the study, pooled with 95 % intervals (pipeline.replicates).
+    """Independent replicates of the study, pooled with 95 % intervals (pipeline.apps.replicates).
 
     The same scene and config, each replicate with its own seed stream (tour noise, MCL, reader noise,
     held-out tag layout, robot filter), run into ``replicates/<k>/``; the run

@@ -71,7 +71,7 @@ def check_output_dir(out: str | Path, kind: str, names=()) -> Path:
         a non-empty folder without the tool's marker, or with another kind's; holds a
         user's file under a name in ``names``.
     """
-    from pipeline.runstore import is_run_dir
+    from pipeline.runpaths import is_run_dir
 
     out = Path(out)
     try:

@@ -7,7 +7,7 @@ relative path of the run directory into a path that stays inside it (relative, n
 read or hash regular files only (a FIFO or device would hang or leak): checked by
 ``lstat`` before they are opened (:func:`not_regular` names what is there instead),
 opened without following a final link and checked again on the descriptor they read.
-A path that fails raises :class:`UnsafePathError`, naming it. :mod:`pipeline.runstore`
+A path that fails raises :class:`UnsafePathError`, naming it. :mod:`pipeline.engine.runstore`
 builds the run directory's writes on these and re-exports them.
 """
 
@@ -21,7 +21,7 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["RunDirError", "UnsafePathError", "file_sha256", "inside", "json_dict", "not_regular",
+__all__ = ["MANIFEST", "RECORD_DIR", "RUN_KIND", "TOOL", "RunDirError", "is_run_dir", "UnsafePathError", "file_sha256", "inside", "json_dict", "not_regular",
            "read_run_json", "read_run_text", "regular_file", "run_files", "tool_marker"]
 
 log = logging.getLogger(__name__)
@@ -260,3 +260,40 @@ def tool_marker(path: str | Path, kind: str, legacy_keys=(), max_bytes: int = 64
     if d.get("tool") == "rfidstudy":
         return d.get("kind") == kind
     return bool(legacy_keys) and set(legacy_keys) <= set(d)
+
+
+#: The folder of a run directory holding its stage records, and its manifest file.
+RECORD_DIR = "stages"
+MANIFEST = "manifest.json"
+
+#: What ``manifest.json`` says to mark a run directory as this tool's (``"tool"``, ``"kind"``).
+TOOL, RUN_KIND = "rfidstudy", "run"
+#: The keys of a manifest written before it carried ``"tool"`` (all of them present).
+_LEGACY_MANIFEST_KEYS = frozenset({"command_line", "started_utc", "status", "stages", "files"})
+
+
+def is_run_dir(root: str | Path) -> bool:
+    """Whether ``root`` is a run directory of this tool: its ``manifest.json`` (a regular
+    file; a link does not count) says ``"tool": "rfidstudy"`` and ``"kind": "run"`` (or is
+    an older run's, with every key of :data:`_LEGACY_MANIFEST_KEYS`), or, the manifest
+    damaged, ``stages/`` holds a stage record of this tool (``stage``, ``inputs_hash``,
+    ``outputs``). A folder with someone's ``manifest.json`` (a web app's) or an empty
+    ``stages/`` is not a run directory, so no command writes into it as if it were."""
+    root = Path(root)
+    man = json_dict(root / MANIFEST, max_bytes=16 << 20)
+    if man is not None and man.get("tool") == TOOL:  # another kind of the tool's: not a run
+        return man.get("kind") == RUN_KIND
+    if tool_marker(root / MANIFEST, RUN_KIND, _LEGACY_MANIFEST_KEYS, max_bytes=16 << 20):
+        return True
+    try:
+        records = run_files(root, RECORD_DIR, "*.json")
+    except (OSError, RunDirError):
+        return False
+    for rec in records[:50]:
+        try:
+            d = read_run_json(rec, max_bytes=1 << 20)
+        except (OSError, ValueError):
+            continue
+        if isinstance(d, dict) and {"stage", "inputs_hash", "outputs"} <= set(d):
+            return True
+    return False

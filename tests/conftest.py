@@ -26,7 +26,7 @@ class TinyStudy:
     base: Path
     """Folder holding ``run/`` and ``cache/`` (the study's own propagation cache)."""
     result: object
-    """What :func:`pipeline.studyrun.run_full_study` returned for the first run."""
+    """What :func:`pipeline.apps.studyrun.run_full_study` returned for the first run."""
 
     @property
     def run(self) -> Path:
@@ -36,8 +36,8 @@ class TinyStudy:
 
 @pytest.fixture(scope="session")
 def tiny_study(tmp_path_factory) -> TinyStudy:
+    from pipeline.apps.studyrun import run_full_study
     from pipeline.config import load_config, replace_path
-    from pipeline.studyrun import run_full_study
 
     base = tmp_path_factory.mktemp("tiny")
     cfg = load_config(ROOT / "configs" / "tiny.toml")

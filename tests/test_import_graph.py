@@ -159,3 +159,41 @@ def test_no_import_cycles_but_the_known():
         f"known cycle(s) no longer present, remove them from KNOWN: "
         f"{[sorted(c) for c in gone]}\n{report}"
     )
+
+
+# The layers of `pipeline/` (docs/architecture.md): the study library and the shared
+# foundation below, the application (engine, stages, outputs, apps) above. Every pipeline
+# module belongs to exactly one; a new top-level module or folder must be placed here.
+FOUNDATION = ("pipeline.config", "pipeline.configschema", "pipeline.sceneconfig",
+              "pipeline.parallel", "pipeline.runpaths", "pipeline.outdirs")
+LIBRARY = ("pipeline.robot", "pipeline.acquisition", "pipeline.localisation",
+           "pipeline.sensormodels", "pipeline.evaluation", "pipeline.recording")
+APPLICATION = ("pipeline.engine", "pipeline.stages", "pipeline.figures", "pipeline.report",
+               "pipeline.apps")
+FACADE = ("pipeline", "pipeline.__main__")
+
+
+def _under(module: str, prefixes: tuple[str, ...]) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def test_every_pipeline_module_has_a_layer():
+    layers = FOUNDATION + LIBRARY + APPLICATION
+    stray = [m for m in module_files() if m.startswith("pipeline")
+             and m not in FACADE and not _under(m, layers)]
+    assert not stray, f"pipeline modules in no layer (place them, then list them here): {stray}"
+
+
+def test_library_imports_nothing_from_the_application():
+    below = FOUNDATION + LIBRARY
+    up = sorted({f"{s} -> {d} (line {line})" for s, d, line, _ in import_edges()
+                 if _under(s, below) and (_under(d, APPLICATION) or d in FACADE)})
+    assert not up, "library or foundation importing the application:\n" + "\n".join(up)
+
+
+def test_foundation_imports_no_library_but_the_config_sections():
+    # pipeline.config gathers the library packages' config sections into StudyConfig; no
+    # other foundation module imports the library
+    up = sorted({f"{s} -> {d}" for s, d, _, _ in import_edges()
+                 if _under(s, FOUNDATION) and s != "pipeline.config" and _under(d, LIBRARY)})
+    assert not up, "foundation importing the library:\n" + "\n".join(up)

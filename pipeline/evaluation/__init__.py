@@ -6,7 +6,7 @@ decisions beyond the few run-directory files documented in :mod:`.tables`,
 :mod:`.truth`, :mod:`.comparison`, :mod:`.fig7` and :mod:`.baselines`.
 """
 
-from .baselines import (
+from pipeline.evaluation.baselines import (
     BASELINES_FORMAT,
     BaselineSensorModel,
     GridCountModel,
@@ -16,8 +16,8 @@ from .baselines import (
     fit_log_distance,
     tr38901_horizontal_db,
 )
-from .cells import CellGrid, CellIndex
-from .comparison import (
+from pipeline.evaluation.cells import CellGrid, CellIndex
+from pipeline.evaluation.comparison import (
     DetectionComparison,
     RhoComparison,
     RhoPoints,
@@ -28,8 +28,8 @@ from .comparison import (
     rssi_cell_mean_floor,
     rssi_vs_truth,
 )
-from .coverage import CoverageResult, detection_coverage
-from .evaluate import (
+from pipeline.evaluation.coverage import CoverageResult, detection_coverage
+from pipeline.evaluation.evaluate import (
     EvaluationInputs,
     LocalisationSplit,
     ModelMetrics,
@@ -38,11 +38,11 @@ from .evaluate import (
     evaluate_model,
     localisation_split,
 )
-from .fig7 import FIG7_COLUMNS, Fig7Result, fig7_errors, read_fig7_table
-from .geometry import antenna_frame_geometry, lattice_offsets
-from .interface import SensorLike, check_sensor
-from .localisation import LocalisationErrors, localisation_errors
-from .metrics import (
+from pipeline.evaluation.fig7 import FIG7_COLUMNS, Fig7Result, fig7_errors, read_fig7_table
+from pipeline.evaluation.geometry import antenna_frame_geometry, lattice_offsets
+from pipeline.evaluation.interface import SensorLike, check_sensor
+from pipeline.evaluation.localisation import LocalisationErrors, localisation_errors
+from pipeline.evaluation.metrics import (
     ErrorStats,
     PercentileSummary,
     brier_score,
@@ -51,7 +51,7 @@ from .metrics import (
     pearson_correlation,
     percentile_summary,
 )
-from .tables import (
+from pipeline.evaluation.tables import (
     read_tags,
     require_columns,
     tag_position_lookup,
@@ -60,7 +60,7 @@ from .tables import (
     write_parquet_atomic,
     write_tags,
 )
-from .truth import TruthGrid, detection_truth, true_detected, true_rssi_dbm
+from pipeline.evaluation.truth import TruthGrid, detection_truth, true_detected, true_rssi_dbm
 
 __all__ = [
     "CoverageResult",

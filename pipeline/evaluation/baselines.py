@@ -39,10 +39,9 @@ import pandas as pd
 
 from fuzzymodel import denormalise_rssi, normalise_rssi, wrap_angle
 from pipeline.configschema import check_keys
+from pipeline.evaluation.cells import CellGrid
+from pipeline.evaluation.tables import require_columns, write_json_atomic
 from propagation import pattern_gain_db
-
-from .cells import CellGrid
-from .tables import require_columns, write_json_atomic
 
 __all__ = [
     "BASELINES_FORMAT",

@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .cells import CellGrid
-from .comparison import closing_links
-from .truth import true_rssi_dbm
+from pipeline.evaluation.cells import CellGrid
+from pipeline.evaluation.comparison import closing_links
+from pipeline.evaluation.truth import true_rssi_dbm
 
 __all__ = ["BoundExcess", "CellMeanBound", "bound_by_cell_size", "cell_mean_bound",
            "excess_over_bound"]

@@ -400,7 +400,7 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
         and ``before`` the uncalibrated prediction), ``n_train_tags``, ``n_boot``;
         with ``materials`` also ``constructions`` (what chose them, the Gauss-Newton steps).
     """
-    from .simreal import sim_vs_real
+    from pipeline.evaluation.simreal import sim_vs_real
 
     q = float(np.mean(miss_probability))
     traced = np.isfinite(att["gain_db"].to_numpy(np.float64))

@@ -34,14 +34,18 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
+from pipeline.evaluation.cells import CellGrid
+from pipeline.evaluation.geometry import antenna_frame_geometry
+from pipeline.evaluation.interface import check_sensor, detection_probability, uses_tag_height
+from pipeline.evaluation.metrics import ErrorStats, brier_score, error_stats, nan_to_none
+from pipeline.evaluation.tables import require_columns
+from pipeline.evaluation.truth import (
+    TruthGrid,
+    check_miss_probability,
+    true_detected,
+    true_rssi_dbm,
+)
 from scenes.fileio import atomic_save_npz, read_npz
-
-from .cells import CellGrid
-from .geometry import antenna_frame_geometry
-from .interface import check_sensor, detection_probability, uses_tag_height
-from .metrics import ErrorStats, brier_score, error_stats, nan_to_none
-from .tables import require_columns
-from .truth import TruthGrid, check_miss_probability, true_detected, true_rssi_dbm
 
 __all__ = [
     "DetectionComparison",

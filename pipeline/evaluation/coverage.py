@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .truth import check_miss_probability
+from pipeline.evaluation.truth import check_miss_probability
 
 __all__ = ["CoverageResult", "detection_coverage"]
 

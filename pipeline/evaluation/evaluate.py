@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import pandas as pd
 
-from .comparison import (
+from pipeline.evaluation.comparison import (
     DetectionComparison,
     RhoComparison,
     RssiComparison,
@@ -24,10 +24,10 @@ from .comparison import (
     rssi_cell_mean_floor,
     rssi_vs_truth,
 )
-from .fig7 import Fig7Result, fig7_errors
-from .interface import check_sensor
-from .metrics import nan_to_none
-from .truth import TruthGrid
+from pipeline.evaluation.fig7 import Fig7Result, fig7_errors
+from pipeline.evaluation.interface import check_sensor
+from pipeline.evaluation.metrics import nan_to_none
+from pipeline.evaluation.truth import TruthGrid
 
 __all__ = [
     "EvaluationInputs",

@@ -36,11 +36,10 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
-
-from .geometry import antenna_frame_geometry, lattice_offsets
-from .interface import check_sensor
-from .metrics import PercentileSummary, nan_to_none, percentile_summary
-from .tables import require_columns, tag_position_lookup, write_parquet_atomic
+from pipeline.evaluation.geometry import antenna_frame_geometry, lattice_offsets
+from pipeline.evaluation.interface import check_sensor
+from pipeline.evaluation.metrics import PercentileSummary, nan_to_none, percentile_summary
+from pipeline.evaluation.tables import require_columns, tag_position_lookup, write_parquet_atomic
 
 __all__ = ["FIG7_COLUMNS", "Fig7Result", "fig7_errors", "fig7_summary", "read_fig7_table"]
 

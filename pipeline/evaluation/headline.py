@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .intervals import (
+from pipeline.evaluation.intervals import (
     CONFIDENCE,
     N_RESAMPLES,
     Interval,
@@ -58,7 +58,7 @@ from .intervals import (
     weighted_mean,
     weighted_quantile,
 )
-from .units import UnitTables
+from pipeline.evaluation.units import UnitTables
 
 __all__ = ["METRICS", "MetricSpec", "REFERENCE", "headline_estimates", "headline_intervals",
            "metric_statistic"]

@@ -32,11 +32,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .bound import bound_by_cell_size, cell_mean_bound, excess_over_bound
-from .comparison import detection_vs_truth, rssi_vs_truth
-from .metrics import brier_score, error_stats, nan_to_none
-from .tables import require_columns
-from .truth import TruthGrid, true_detected, true_rssi_dbm
+from pipeline.evaluation.bound import bound_by_cell_size, cell_mean_bound, excess_over_bound
+from pipeline.evaluation.comparison import detection_vs_truth, rssi_vs_truth
+from pipeline.evaluation.metrics import brier_score, error_stats, nan_to_none
+from pipeline.evaluation.tables import require_columns
+from pipeline.evaluation.truth import TruthGrid, true_detected, true_rssi_dbm
 
 __all__ = ["detection_bound", "error_budget", "heldout_scores", "reader_noise_stats"]
 

@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from .metrics import nan_to_none
+from pipeline.evaluation.metrics import nan_to_none
 
 __all__ = [
     "CONFIDENCE",

@@ -19,9 +19,8 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import wrap_angle
-
-from .metrics import PercentileSummary, nan_to_none, percentile_summary
-from .tables import require_columns
+from pipeline.evaluation.metrics import PercentileSummary, nan_to_none, percentile_summary
+from pipeline.evaluation.tables import require_columns
 
 __all__ = [
     "LocalisationErrors",

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .intervals import paired_difference, unit_interval
+from pipeline.evaluation.intervals import paired_difference, unit_interval
 
 __all__ = ["LogDistanceBaseline", "QUANTITIES", "fit_log_distance_baseline", "link_rates",
            "sim_vs_real"]

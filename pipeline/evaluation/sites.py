@@ -30,12 +30,11 @@ import numpy as np
 import pandas as pd
 
 from fuzzymodel import normalise_rssi
+from pipeline.evaluation.geometry import antenna_frame_geometry
+from pipeline.evaluation.interface import check_sensor
+from pipeline.evaluation.metrics import error_stats, nan_to_none
+from pipeline.evaluation.truth import check_miss_probability, true_detected, true_rssi_dbm
 from scenes.fileio import atomic_save_npz, read_npz
-
-from .geometry import antenna_frame_geometry
-from .interface import check_sensor
-from .metrics import error_stats, nan_to_none
-from .truth import check_miss_probability, true_detected, true_rssi_dbm
 
 __all__ = ["SiteComparison", "SiteTruth", "obstructed_pairs", "site_comparison"]
 

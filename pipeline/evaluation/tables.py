@@ -20,9 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.evaluation.metrics import nan_to_none
 from scenes.fileio import atomic_output, atomic_write_text
-
-from .metrics import nan_to_none
 
 __all__ = [
     "READS_TRUTH_COLUMNS",

@@ -31,11 +31,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.evaluation.cells import CellGrid
+from pipeline.evaluation.interface import check_sensor
+from pipeline.evaluation.tables import require_columns
 from scenes.fileio import atomic_save_npz, read_npz
-
-from .cells import CellGrid
-from .interface import check_sensor
-from .tables import require_columns
 
 __all__ = [
     "TruthGrid",

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .comparison import cell_centre_fT, closing_links
-from .interface import detection_probability
-from .tables import require_columns
-from .truth import TruthGrid, true_detected, true_rssi_dbm
+from pipeline.evaluation.comparison import cell_centre_fT, closing_links
+from pipeline.evaluation.interface import detection_probability
+from pipeline.evaluation.tables import require_columns
+from pipeline.evaluation.truth import TruthGrid, true_detected, true_rssi_dbm
 
 __all__ = [
     "TABLES",
@@ -83,7 +83,7 @@ class UnitTables:
         """Read the tables of one run directory (downstream tables absent: None).
 
         ``read_parquet(path)`` reads one file (a caller passes its checked reader)."""
-        from pipeline.runstore import inside
+        from pipeline.runpaths import inside
 
         root = Path(run_dir)
         out = {}

@@ -11,14 +11,14 @@ evaluated from the saved models, errors come from :mod:`pipeline.evaluation`.
 for both its files (:func:`pipeline.figures.common.save_figure`).
 """
 
-from .common import DPI, STYLE, FigureOutput, MissingInput, figure_output
-from .comparison import fig_fig7_error, fig_rho_vs_truth
-from .downstream import fig_downstream
-from .drawall import FIGURES, draw_all
-from .headline import fig_baselines
-from .scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
-from .sites import fig_site_errors
-from .surfaces import (
+from pipeline.figures.common import DPI, STYLE, FigureOutput, MissingInput, figure_output
+from pipeline.figures.comparison import fig_fig7_error, fig_rho_vs_truth
+from pipeline.figures.downstream import fig_downstream
+from pipeline.figures.drawall import FIGURES, draw_all
+from pipeline.figures.headline import fig_baselines
+from pipeline.figures.scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
+from pipeline.figures.sites import fig_site_errors
+from pipeline.figures.surfaces import (
     fig_learned_vs_truth_detection,
     fig_learned_vs_truth_rssi,
     fig_ssm_surface,

@@ -122,11 +122,11 @@ def require(run_dir, *relpaths: str) -> Path:
     """First existing ``run_dir / p`` among `relpaths`; MissingInput naming all of them if none.
 
     Only a regular file reached without a symbolic link counts
-    (:func:`pipeline.runstore.inside`): a figure never reads a file outside the run
+    (:func:`pipeline.engine.runstore.inside`): a figure never reads a file outside the run
     directory. A link, FIFO, folder or device there is reported like a missing input,
-    naming it and what it is (:func:`pipeline.runstore.not_regular`).
+    naming it and what it is (:func:`pipeline.engine.runstore.not_regular`).
     """
-    from pipeline.runstore import UnsafePathError, inside, not_regular, regular_file
+    from pipeline.engine.runstore import UnsafePathError, inside, not_regular, regular_file
 
     run_dir = Path(run_dir)
     refused = []
@@ -259,7 +259,7 @@ def model_metrics(run_dir) -> dict:
     run directories from before it). Older run directories (one ``models`` section,
     in-sample) are read as they are.
     """
-    from pipeline.runstore import read_run_json  # size-capped, a regular file, no link
+    from pipeline.engine.runstore import read_run_json  # size-capped, a regular file, no link
 
     path = require(run_dir, "metrics.json")
     m = read_run_json(path)

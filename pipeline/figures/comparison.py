@@ -21,15 +21,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.runstore import run_files
-from scenes.fileio import read_npz
-
-from .common import (
+from pipeline.engine.runstore import run_files
+from pipeline.figures.common import (
     load_sensor,
     new_figure,
     require,
     save_figure,
 )
+from scenes.fileio import read_npz
 
 __all__ = ["fig_fig7_error", "fig_rho_vs_truth"]
 
@@ -121,11 +120,11 @@ def _tilts(run_dir: Path) -> dict | float:
 def _run_config(run_dir: Path) -> dict:
     """The run's config.toml as a table ({} where there is none); ValueError naming it
     when it is a link, a FIFO or another special file (never followed, never waited on:
-    :func:`pipeline.runstore.read_run_text`) or not TOML."""
+    :func:`pipeline.engine.runstore.read_run_text`) or not TOML."""
     import os
     import tomllib
 
-    from pipeline.runstore import read_run_text
+    from pipeline.engine.runstore import read_run_text
 
     p = Path(run_dir) / "config.toml"
     if not os.path.lexists(p):

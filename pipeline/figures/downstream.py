@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .common import find_first, new_figure, require, save_figure
-from .headline import model_label
+from pipeline.figures.common import find_first, new_figure, require, save_figure
+from pipeline.figures.headline import model_label
 
 __all__ = ["fig_downstream"]
 

@@ -5,20 +5,19 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from pipeline.parallel import map_forked
-
-from .common import FigureOutput, MissingInput, figure_output
-from .comparison import fig_fig7_error, fig_rho_vs_truth
-from .downstream import fig_downstream
-from .headline import fig_baselines
-from .scene import fig_fields, fig_mcl_error, fig_scene_top_view
-from .sites import fig_site_errors
-from .surfaces import (
+from pipeline.figures.common import FigureOutput, MissingInput, figure_output
+from pipeline.figures.comparison import fig_fig7_error, fig_rho_vs_truth
+from pipeline.figures.downstream import fig_downstream
+from pipeline.figures.headline import fig_baselines
+from pipeline.figures.scene import fig_fields, fig_mcl_error, fig_scene_top_view
+from pipeline.figures.sites import fig_site_errors
+from pipeline.figures.surfaces import (
     fig_learned_vs_truth_detection,
     fig_learned_vs_truth_rssi,
     fig_ssm_surface,
     fig_tdm_surface,
 )
+from pipeline.parallel import map_forked
 
 __all__ = ["FIGURES", "draw_all"]
 
@@ -50,11 +49,11 @@ def _draw_one(name: str, run_dir: Path, out_dir: Path) -> tuple[list[Path], str 
 
 
 def _run_banner(run_dir: Path) -> str:
-    """The smoke-scale banner of a run (:mod:`pipeline.smokescale`) from its config.toml."""
+    """The smoke-scale banner of a run (:mod:`pipeline.report.smokescale`) from its config.toml."""
     import tomllib
 
-    from pipeline.runstore import read_run_text, regular_file
-    from pipeline.smokescale import smoke_banner
+    from pipeline.engine.runstore import read_run_text, regular_file
+    from pipeline.report.smokescale import smoke_banner
 
     path = run_dir / "config.toml"
     if not regular_file(path):  # a link or a FIFO: the report names it
@@ -66,14 +65,14 @@ def _run_banner(run_dir: Path) -> str:
 
 
 def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:
-    """A recorded study's figures (:func:`pipeline.reportrecorded.draw_sim_vs_real`):
+    """A recorded study's figures (:func:`pipeline.report.recorded.draw_sim_vs_real`):
     ``sim_vs_real_rssi`` and ``sim_vs_real_residual``, in each of ``output.formats``."""
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from pipeline.reportrecorded import draw_sim_vs_real
+    from pipeline.engine.runstore import inside
+    from pipeline.report.recorded import draw_sim_vs_real
     from pipeline.runpaths import not_regular
-    from pipeline.runstore import inside
 
     links, tags = inside(run_dir, "sim_vs_real/links.parquet"), inside(run_dir, "scene/tags.parquet")
     for p in (links, tags):  # a link or a FIFO in a stranger's run is refused, never followed

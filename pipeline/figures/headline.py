@@ -18,9 +18,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from pipeline.figures.common import model_metrics, new_figure, require, save_figure
 from pipeline.sensormodels.registry import MODELS, model_label
-
-from .common import model_metrics, new_figure, require, save_figure
 
 __all__ = ["HEADLINE_METRICS", "MODEL_LABELS", "HeadlineMetric", "compare_runs", "draw_headline",
            "fig_baselines", "headline_table", "model_label"]
@@ -58,7 +57,7 @@ _COLUMNS = ["metric", "label", "model", "estimate", "low", "high", "unit", "n_un
 
 
 def _read_metrics(run_dir) -> dict:
-    from pipeline.runstore import read_run_json  # size-capped, a regular file, no link
+    from pipeline.engine.runstore import read_run_json  # size-capped, a regular file, no link
 
     path = require(run_dir, "metrics.json")
     m = read_run_json(path)

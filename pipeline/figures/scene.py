@@ -23,10 +23,9 @@ import numpy as np
 import pandas as pd
 from matplotlib.collections import LineCollection
 
-from pipeline.runstore import run_files
+from pipeline.engine.runstore import run_files
+from pipeline.figures.common import find_first, new_figure, require, save_figure
 from scenes.fileio import read_npz
-
-from .common import find_first, new_figure, require, save_figure
 
 __all__ = ["fig_fields", "fig_mcl_error", "fig_scene_top_view", "scene_top_view"]
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .common import new_figure, require, save_figure
+from pipeline.figures.common import new_figure, require, save_figure
 
 __all__ = ["fig_site_errors"]
 

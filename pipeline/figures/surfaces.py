@@ -15,9 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.figures.common import deg, load_sensor, new_figure, require, save_figure
 from scenes.fileio import read_npz
-
-from .common import deg, load_sensor, new_figure, require, save_figure
 
 __all__ = ["fig_learned_vs_truth_detection", "fig_learned_vs_truth_rssi", "fig_ssm_surface",
            "fig_tdm_surface"]

@@ -23,9 +23,9 @@
   :func:`filter_metrics`);
 """
 
-from .fading import FadedLikelihood, FadingModel
-from .global_oracle import GlobalOracle, OracleSearch, global_oracle
-from .likelihood import (
+from pipeline.localisation.fading import FadedLikelihood, FadingModel
+from pipeline.localisation.global_oracle import GlobalOracle, OracleSearch, global_oracle
+from pipeline.localisation.likelihood import (
     EPS,
     Z_CLIP,
     GaussianTerms,
@@ -34,10 +34,15 @@ from .likelihood import (
     fit_far_detection,
     rssi_residual_std,
 )
-from .observations import Observations, as_pose6, observations_from_reads, pair_geometry
-from .oracle import OraclePlan, oracle_plan
-from .oracle_likelihood import OracleGains, OracleLikelihood
-from .phase import (
+from pipeline.localisation.observations import (
+    Observations,
+    as_pose6,
+    observations_from_reads,
+    pair_geometry,
+)
+from pipeline.localisation.oracle import OraclePlan, oracle_plan
+from pipeline.localisation.oracle_likelihood import OracleGains, OracleLikelihood
+from pipeline.localisation.phase import (
     PhaseColumnsMissing,
     PhasePosteriors,
     PhaseReads,
@@ -46,7 +51,7 @@ from .phase import (
     phase_reads_from_table,
     simulate_phase_rad,
 )
-from .robot import (
+from pipeline.localisation.robot import (
     BoxFreeSpace,
     RfidMCLConfig,
     RfidMCLResult,
@@ -55,8 +60,8 @@ from .robot import (
     filter_metrics,
     run_rfid_mcl,
 )
-from .robot_oracle import FieldLikelihood, GainField, gain_field
-from .tags import (
+from pipeline.localisation.robot_oracle import FieldLikelihood, GainField, gain_field
+from pipeline.localisation.tags import (
     ESTIMATORS,
     TagPosteriors,
     as_tag_map,

@@ -29,18 +29,17 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.parallel import map_forked
-
-from .likelihood import ModelLikelihood, fit_far_detection, rssi_residual_std
-from .observations import Observations
-from .phase import (
+from pipeline.localisation.likelihood import ModelLikelihood, fit_far_detection, rssi_residual_std
+from pipeline.localisation.observations import Observations
+from pipeline.localisation.phase import (
     PhaseColumnsMissing,
     combine_posteriors,
     localise_tags_phase,
     phase_reads_from_table,
 )
-from .robot import RfidMCLConfig, filter_metrics, kidnap_index, run_rfid_mcl
-from .tags import localisation_summary, tag_position_errors
+from pipeline.localisation.robot import RfidMCLConfig, filter_metrics, kidnap_index, run_rfid_mcl
+from pipeline.localisation.tags import localisation_summary, tag_position_errors
+from pipeline.parallel import map_forked
 
 __all__ = [
     "DetectionOnly",

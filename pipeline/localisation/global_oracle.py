@@ -43,10 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fading import FadedLikelihood, FadingModel
-from .observations import Observations
-from .oracle_likelihood import OracleLikelihood
-from .tags import TagPosteriors, localise_tags
+from pipeline.localisation.fading import FadedLikelihood, FadingModel
+from pipeline.localisation.observations import Observations
+from pipeline.localisation.oracle_likelihood import OracleLikelihood
+from pipeline.localisation.tags import TagPosteriors, localise_tags
 
 __all__ = ["GlobalOracle", "OracleSearch", "coarse_posteriors", "global_oracle", "widened"]
 

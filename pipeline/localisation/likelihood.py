@@ -51,8 +51,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.interface import detection_probability, uses_tag_height
-
-from .observations import near_geometry, pair_geometry
+from pipeline.localisation.observations import near_geometry, pair_geometry
 
 __all__ = [
     "EPS",

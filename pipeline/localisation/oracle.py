@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .observations import Observations
+from pipeline.localisation.observations import Observations
 
 __all__ = ["OraclePlan", "oracle_plan"]
 

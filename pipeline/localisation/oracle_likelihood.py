@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import log_ndtr
 
-from .likelihood import EPS, Z_CLIP, GaussianTerms, _check_eps, _check_zclip
+from pipeline.localisation.likelihood import EPS, Z_CLIP, GaussianTerms, _check_eps, _check_zclip
 
 __all__ = ["OracleGains", "OracleLikelihood"]
 

@@ -86,10 +86,14 @@ import numpy as np
 import pandas as pd
 from scipy.special import i0e, logsumexp
 
+from pipeline.localisation.phase_cells import _grid_step, cell_points
+from pipeline.localisation.tags import (
+    TagPosteriors,
+    _check_candidates,
+    _check_prior,
+    combine_posteriors,
+)
 from propagation.constants import SPEED_OF_LIGHT
-
-from .phase_cells import _grid_step, cell_points
-from .tags import TagPosteriors, _check_candidates, _check_prior, combine_posteriors
 
 __all__ = [
     "PHASE_COLUMNS",

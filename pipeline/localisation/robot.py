@@ -45,13 +45,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.acquisition.track import interpolate_poses
+from pipeline.localisation.likelihood import ModelLikelihood
+from pipeline.localisation.observations import Observations
+from pipeline.localisation.tags import as_tag_map
 from pipeline.robot.kinematics import antenna_poses, mounts_to_array, wrap_angle
 from pipeline.robot.mcl import low_variance_resample
 from pipeline.robot.odometry import OdometryNoise, sample_motion_model_odometry
-
-from .likelihood import ModelLikelihood
-from .observations import Observations
-from .tags import as_tag_map
 
 __all__ = [
     "BoxFreeSpace",

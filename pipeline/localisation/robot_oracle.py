@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fading import RAYLEIGH, FadedLikelihood, FadedTerms, FadingModel
-from .likelihood import GaussianTerms
-from .oracle_likelihood import OracleLikelihood
+from pipeline.localisation.fading import RAYLEIGH, FadedLikelihood, FadedTerms, FadingModel
+from pipeline.localisation.likelihood import GaussianTerms
+from pipeline.localisation.oracle_likelihood import OracleLikelihood
 
 __all__ = ["FieldLikelihood", "GainField", "gain_field"]
 
@@ -95,7 +95,7 @@ class FieldLikelihood:
 
     def __init__(self, oracle: OracleLikelihood, field: GainField,
                  fading: FadingModel | None = RAYLEIGH, extra_sigma_db: float = 0.0) -> None:
-        from .global_oracle import widened
+        from pipeline.localisation.global_oracle import widened
 
         if not float(extra_sigma_db) >= 0:
             raise ValueError(f"extra_sigma_db must be >= 0, got {extra_sigma_db!r}")

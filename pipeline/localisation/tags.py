@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from .likelihood import ModelLikelihood
-from .observations import Observations, pair_geometry
-from .oracle_likelihood import OracleGains
+from pipeline.localisation.likelihood import ModelLikelihood
+from pipeline.localisation.observations import Observations, pair_geometry
+from pipeline.localisation.oracle_likelihood import OracleGains
 
 __all__ = [
     "ESTIMATORS",

@@ -22,9 +22,9 @@ The recorded study's stages are :mod:`pipeline.stages.recorded`,
 yet (issue 53): calibration.
 """
 
-from .attempts import recorded_read_table
-from .config import RecordingConfig, recording_overrides
-from .csvformats import (
+from pipeline.recording.attempts import recorded_read_table
+from pipeline.recording.config import RecordingConfig, recording_overrides
+from pipeline.recording.csvformats import (
     RecordingError,
     align_reads,
     read_poses_csv,
@@ -34,11 +34,11 @@ from .csvformats import (
     write_sllurp_csv,
     write_tags_csv,
 )
-from .export import export_csv, export_recording
-from .impinj import read_impinj_csv, write_impinj_csv
-from .load import Recording, load_recording, recorded_tagset
-from .rosbag import read_rosbag
-from .rosbag_export import export_mcap
+from pipeline.recording.export import export_csv, export_recording
+from pipeline.recording.impinj import read_impinj_csv, write_impinj_csv
+from pipeline.recording.load import Recording, load_recording, recorded_tagset
+from pipeline.recording.rosbag import read_rosbag
+from pipeline.recording.rosbag_export import export_mcap
 
 __all__ = [
     "Recording",

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .csvformats import RecordingError
+from pipeline.recording.csvformats import RecordingError
 
 __all__ = ["MAX_OFF_SCHEDULE", "TIME_TOLERANCE_S", "recorded_read_table", "recorded_track"]
 

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
+from pipeline.recording.units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
 
 __all__ = ["POSE_COLUMNS", "READ_FIELDS", "SLLURP_COLUMNS", "SLLURP_IMPINJ_COLUMNS", "TAG_COLUMNS", "RecordingError", "align_reads",
            "read_poses_csv", "read_sllurp_csv", "read_tags_csv", "write_poses_csv",

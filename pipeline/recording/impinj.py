@@ -44,8 +44,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .csvformats import RecordingError, _number, _rows, _write_csv, sorted_by_time
-from .units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
+from pipeline.recording.csvformats import RecordingError, _number, _rows, _write_csv, sorted_by_time
+from pipeline.recording.units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
 
 __all__ = ["IMPINJ_FIELDS", "PHASE_STEPS", "channel_frequency_hz", "impinj_header",
            "read_impinj_csv", "write_impinj_csv"]

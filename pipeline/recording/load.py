@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .csvformats import (
+from pipeline.recording.csvformats import (
     READ_FIELDS,
     SLLURP_COLUMNS,
     RecordingError,
@@ -25,8 +25,8 @@ from .csvformats import (
     read_sllurp_csv,
     read_tags_csv,
 )
-from .impinj import IMPINJ_FIELDS, impinj_header, read_impinj_csv
-from .rosbag import read_rosbag
+from pipeline.recording.impinj import IMPINJ_FIELDS, impinj_header, read_impinj_csv
+from pipeline.recording.rosbag import read_rosbag
 
 __all__ = ["READ_FIELDS", "Recording", "detect_format", "is_rosbag", "load_recording",
            "recorded_tagset"]

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .csvformats import POSE_COLUMNS, READ_FIELDS, RecordingError
+from pipeline.recording.csvformats import POSE_COLUMNS, READ_FIELDS, RecordingError
 
 __all__ = ["JSON_KEYS", "MSG_FILE", "POSE_TYPES", "READ_TYPES", "RFID_READ", "TOPICS",
            "read_rosbag", "rfid_typestore"]

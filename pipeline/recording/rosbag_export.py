@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .rosbag import RFID_READ, TOPICS, rfid_typestore
-from .runtour import EPOCH_S, run_tour, write_layout
+from pipeline.recording.rosbag import RFID_READ, TOPICS, rfid_typestore
+from pipeline.recording.runtour import EPOCH_S, run_tour, write_layout
 
 __all__ = ["MAP_HEIGHT_KEY", "MAP_MARGIN_M", "MAP_RESOLUTION_M", "export_mcap", "occupancy_grid",
            "write_bag"]
@@ -191,7 +191,7 @@ def _fill(bag: _Bag, tour, segments) -> None:
 def write_bag(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     """:func:`export_mcap` (its docstring)."""
     from pipeline.outdirs import check_output_dir, mark_output_dir
-    from pipeline.runstore import inside
+    from pipeline.runpaths import inside
     from scenes.fileio import read_npz
 
     out = check_output_dir(out_dir, "export", ["bag", "tags.csv", "mounts.toml"])

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from .csvformats import write_tags_csv
+from pipeline.recording.csvformats import write_tags_csv
 
 __all__ = ["EPC_DIGITS", "EPOCH_S", "RunTour", "epc_of", "run_tour", "tag_id_of", "write_layout"]
 
@@ -67,7 +67,7 @@ def run_tour(run_dir: str | Path) -> RunTour:
         A run file is missing or unreadable (named).
     """
     from pipeline.config import load_config
-    from pipeline.runstore import inside
+    from pipeline.runpaths import inside
     from scenes.fileio import read_npz
 
     run = Path(run_dir)

@@ -20,7 +20,7 @@ RFID sensor models. Each competitor here is fitted on the training tour's reads
 Each module's docstring says what is reproduced and what is simplified.
 """
 
-from ._common import (
+from pipeline.sensormodels._common import (
     COMPETITOR_FORMAT,
     Attempts,
     CompetitorModel,
@@ -29,11 +29,16 @@ from ._common import (
     read_model_file,
     tag_height_differences,
 )
-from .ablations import ABLATIONS, fit_ablation
-from .competitors import COMPETITORS, MODEL_CLASSES, fit_competitors, load_competitor
-from .joho2009 import JOHO2009, Joho2009Model, fit_joho2009
-from .liu2006 import LIU2006, Liu2006Model, fit_liu2006
-from .vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
+from pipeline.sensormodels.ablations import ABLATIONS, fit_ablation
+from pipeline.sensormodels.competitors import (
+    COMPETITORS,
+    MODEL_CLASSES,
+    fit_competitors,
+    load_competitor,
+)
+from pipeline.sensormodels.joho2009 import JOHO2009, Joho2009Model, fit_joho2009
+from pipeline.sensormodels.liu2006 import LIU2006, Liu2006Model, fit_liu2006
+from pipeline.sensormodels.vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
 
 __all__ = [
     "ABLATIONS",

@@ -12,11 +12,10 @@ from __future__ import annotations
 import pandas as pd
 
 from pipeline.evaluation.cells import CellGrid
-
-from ._common import attempts_from_reads, file_kind, read_model_file
-from .joho2009 import JOHO2009, Joho2009Model, fit_joho2009
-from .liu2006 import LIU2006, Liu2006Model, fit_liu2006
-from .vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
+from pipeline.sensormodels._common import attempts_from_reads, file_kind, read_model_file
+from pipeline.sensormodels.joho2009 import JOHO2009, Joho2009Model, fit_joho2009
+from pipeline.sensormodels.liu2006 import LIU2006, Liu2006Model, fit_liu2006
+from pipeline.sensormodels.vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
 
 __all__ = ["COMPETITORS", "MODEL_CLASSES", "fit_competitors", "load_competitor"]
 

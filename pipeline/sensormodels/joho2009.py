@@ -46,8 +46,7 @@ import numpy as np
 
 from pipeline.configschema import check_keys
 from pipeline.evaluation.cells import CellGrid
-
-from ._common import Attempts, CompetitorModel, check_rssi_range, nearest_fill
+from pipeline.sensormodels._common import Attempts, CompetitorModel, check_rssi_range, nearest_fill
 
 __all__ = ["JOHO2009", "Joho2009Model", "fit_joho2009"]
 

@@ -40,8 +40,7 @@ from scipy.special import xlogy
 
 from fuzzymodel import wrap_angle
 from pipeline.configschema import check_keys
-
-from ._common import Attempts, CompetitorModel, check_rssi_range
+from pipeline.sensormodels._common import Attempts, CompetitorModel, check_rssi_range
 
 __all__ = ["LIU2006", "Liu2006Model", "fit_liu2006"]
 

@@ -76,8 +76,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from pipeline.configschema import check_keys
-
-from ._common import Attempts, CompetitorModel, check_rssi_range, group_folds
+from pipeline.sensormodels._common import Attempts, CompetitorModel, check_rssi_range, group_folds
 
 __all__ = ["VORST2008", "Vorst2008Model", "fit_vorst2008"]
 

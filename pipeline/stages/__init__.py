@@ -16,10 +16,10 @@ Stages, one module each (inputs in brackets; each also depends on its upstream s
 
 Each module defines its ``STAGE`` (name, config keys, upstream stages, version) beside
 the function it runs; helpers they share are in :mod:`pipeline.stages.common`. The
-engine (:mod:`pipeline.study`) knows nothing of them: :func:`run_study_stages` hands it
+engine (:mod:`pipeline.engine.study`) knows nothing of them: :func:`run_study_stages` hands it
 :data:`STAGES`, :data:`CHECKS` and :func:`manifest_info` for one study. This package
 imports neither replicates nor sweeps: a replicated study (``replicates.n > 1``) is run
-from above, by :func:`pipeline.studyrun.run_full_study`; what sweeps read from a finished
+from above, by :func:`pipeline.apps.studyrun.run_full_study`; what sweeps read from a finished
 run directory is :mod:`pipeline.stages.summary`.
 
 A study with a ``[recording]`` runs :data:`RECORDED_STAGES` instead
@@ -30,7 +30,7 @@ then ``sim_vs_real``, ``calibration``, ``downstream`` (the held-out tags alone) 
 The scene stage always runs (it is cheap) so an edited scene file changes its
 outputs' digest and everything downstream re-runs. ``truth_traces`` runs in a process
 of its own beside ``tour`` and ``reads``, whose outputs it does not read
-(``Stage.own_process``, :mod:`pipeline.stageproc`; it draws the evaluation path's poses
+(``Stage.own_process``, :mod:`pipeline.engine.stageproc`; it draws the evaluation path's poses
 as the tour does, :func:`pipeline.stages.tour.eval_track`, and the ``truth`` stage
 checks that they are the tour's).
 """
@@ -41,6 +41,7 @@ import dataclasses
 from pathlib import Path
 
 from pipeline.config import ConfigError, StudyConfig
+from pipeline.engine.study import Stage, StudyResult, run_study
 from pipeline.stages import (
     calibration,
     downstream,
@@ -67,7 +68,6 @@ from pipeline.stages.checks import (
 )
 from pipeline.stages.common import manifest_info, resolve_cache_dir
 from pipeline.stages.figures import draw_figures, draw_scene_top_view
-from pipeline.study import Stage, StudyResult, run_study
 
 __all__ = [
     "CHECKS",
@@ -136,7 +136,7 @@ def stage_names(config: StudyConfig | None = None) -> list[str]:
 def stages_upto(name: str | None, config: StudyConfig | None = None) -> tuple[Stage, ...]:
     """:data:`STAGES` up to and including ``name`` (all of them for None): what a caller
     needs that reads only early outputs (a placement ranked by its tours' reads needs
-    no model; :mod:`pipeline.placement.runner`). A side stage (``truth_traces``) after
+    no model; :mod:`pipeline.apps.placement.runner`). A side stage (``truth_traces``) after
     ``name`` is left out with the rest.
 
     Raises
@@ -179,7 +179,7 @@ def check_cable_losses(config: StudyConfig, upto: str | None) -> None:
 
 def run_study_stages(config: StudyConfig, run_dir: str | Path, *, upto: str | None = None,
                      **kwargs) -> StudyResult:
-    """Run (or resume) one study into ``run_dir``: :func:`pipeline.study.run_study` with
+    """Run (or resume) one study into ``run_dir``: :func:`pipeline.engine.study.run_study` with
     :data:`STAGES` (:data:`RECORDED_STAGES` for a recording), :data:`CHECKS` and
     :func:`manifest_info` (package versions and the Dr.Jit backend in the manifest).
     ``upto`` stops after that stage (:func:`stages_upto`). Keyword arguments go to
@@ -189,11 +189,11 @@ def run_study_stages(config: StudyConfig, run_dir: str | Path, *, upto: str | No
     ------
     ValueError
         ``replicates.n > 1``: a replicated study is N studies, pooled
-        (:func:`pipeline.studyrun.run_full_study` runs it).
+        (:func:`pipeline.apps.studyrun.run_full_study` runs it).
     """
     if config.replicates.n > 1:
         raise ValueError(f"replicates.n = {config.replicates.n}: a replicated study is run by "
-                         "pipeline.studyrun.run_full_study, not as one study")
+                         "pipeline.apps.studyrun.run_full_study, not as one study")
     kwargs.setdefault("checks", RECORDED_CHECKS if config.recording.enabled else CHECKS)
     kwargs.setdefault("manifest_extra", manifest_info)
     check_cable_losses(config, upto)

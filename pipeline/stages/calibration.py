@@ -33,9 +33,9 @@ import logging
 import numpy as np
 import pandas as pd
 
-from pipeline.runstore import atomic_write_json
+from pipeline.engine.runstore import atomic_write_json
+from pipeline.engine.study import Stage
 from pipeline.stages.common import TRACING_KEYS, link_budget, load_scene, trace_options
-from pipeline.study import Stage
 
 __all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model", "heldout_worse",
            "stage_calibration"]

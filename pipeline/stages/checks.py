@@ -1,5 +1,5 @@
 """Checks of the whole study, run before the first stage that traces anything
-(:func:`pipeline.study.run_study`'s ``checks``): a config that cannot work on its scene
+(:func:`pipeline.engine.study.run_study`'s ``checks``): a config that cannot work on its scene
 fails with one line naming the key, before any tracing."""
 
 from __future__ import annotations

@@ -431,7 +431,7 @@ def read_track(ctx, name: str):
 
     Parameters
     ----------
-    ctx : pipeline.study.StageContext
+    ctx : pipeline.engine.study.StageContext
     name : {"train", "eval"}
 
     Returns
@@ -461,7 +461,7 @@ def attempt_poses(ctx, name: str, track=None) -> np.ndarray:
 
     Parameters
     ----------
-    ctx : pipeline.study.StageContext
+    ctx : pipeline.engine.study.StageContext
     name : {"train", "eval"}
         The tour (its track ``tour/<name>_track.npz``).
     track : pipeline.acquisition.PoseTrack, optional

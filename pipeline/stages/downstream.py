@@ -30,7 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.runstore import atomic_write_json
+from pipeline.engine.runstore import atomic_write_json
+from pipeline.engine.study import Stage
 from pipeline.stages.common import (
     TRACING_KEYS,
     antenna_tilts,
@@ -45,7 +46,6 @@ from pipeline.stages.common import (
     tag_candidates,
     trace_options,
 )
-from pipeline.study import Stage
 
 __all__ = ["RECORDED_ROBOT", "STAGE", "stage_downstream"]
 

@@ -8,9 +8,9 @@ import json
 
 import numpy as np
 
-from pipeline.runstore import atomic_write_json, run_files
+from pipeline.engine.runstore import atomic_write_json, run_files
+from pipeline.engine.study import Stage
 from pipeline.stages.common import antenna_tilts, link_budget, load_scene, read_reads
-from pipeline.study import Stage
 
 __all__ = ["STAGE", "field_coverage", "model_fits", "stage_evaluation"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.study import Stage
+from pipeline.engine.study import Stage
 
 __all__ = ["STAGE", "draw_figures", "draw_scene_top_view", "stage_figures"]
 

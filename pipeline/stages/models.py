@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.runstore import atomic_write_json
+from pipeline.engine.runstore import atomic_write_json
+from pipeline.engine.study import Stage
 from pipeline.stages.common import pose_sources, read_reads, split_tags, stage_rng
-from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_models"]
 

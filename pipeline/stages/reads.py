@@ -4,6 +4,8 @@ reads the training tags, the evaluation path the held-out ones (``pipeline.acqui
 
 from __future__ import annotations
 
+from pipeline.engine.study import Stage
+from pipeline.engine.tracetasks import trace_tasks
 from pipeline.stages.common import (
     TRACING_KEYS,
     build_robot,
@@ -15,8 +17,6 @@ from pipeline.stages.common import (
     stage_rng,
     trace_options,
 )
-from pipeline.study import Stage
-from pipeline.tracetasks import trace_tasks
 
 __all__ = ["STAGE", "stage_reads"]
 

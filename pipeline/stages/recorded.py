@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.runstore import atomic_write_json, save_npz
+from pipeline.engine.runstore import atomic_write_json, save_npz
+from pipeline.engine.study import Stage
 from pipeline.stages.common import build_robot, load_scene, load_study_recording, recorded_scene
-from pipeline.study import Stage
 
 __all__ = ["STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: stages.common's
 

@@ -29,9 +29,9 @@ import json
 import numpy as np
 import pandas as pd
 
-from pipeline.runstore import atomic_write_json
+from pipeline.engine.runstore import atomic_write_json
+from pipeline.engine.study import Stage
 from pipeline.stages.common import read_reads, split_tags
-from pipeline.study import Stage
 
 __all__ = ["STAGE", "recorded_unit_tables", "stage_recorded_eval"]
 

@@ -1,15 +1,15 @@
-"""Stage ``report``: the self-contained ``report.html`` (figures embedded, ``pipeline.report``)."""
+"""Stage ``report``: the self-contained ``report.html`` (figures embedded, ``pipeline.report.html``)."""
 
 from __future__ import annotations
 
-from pipeline.study import Stage
+from pipeline.engine.study import Stage
 
 __all__ = ["STAGE", "stage_report"]
 
 
 def stage_report(ctx) -> dict:
     """Write ``report.html`` from the run directory's files."""
-    from pipeline.report import write_report
+    from pipeline.report.html import write_report
 
     write_report(ctx.store.root, out=ctx.out("report.html"))
     return {}

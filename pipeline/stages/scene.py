@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.runstore import atomic_write_json, save_npz
+from pipeline.engine.runstore import atomic_write_json, save_npz
+from pipeline.engine.study import Stage
 from pipeline.stages.common import load_scene, study_route
-from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_scene"]
 

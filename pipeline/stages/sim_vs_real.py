@@ -20,7 +20,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.runstore import atomic_write_json
+from pipeline.engine.runstore import atomic_write_json
+from pipeline.engine.study import Stage
+from pipeline.engine.tracetasks import trace_tasks
 from pipeline.stages.common import (
     TRACING_KEYS,
     build_robot,
@@ -33,8 +35,6 @@ from pipeline.stages.common import (
     stage_rng,
     trace_options,
 )
-from pipeline.study import Stage
-from pipeline.tracetasks import trace_tasks
 
 __all__ = ["STAGE", "stage_sim_vs_real"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.runstore import run_files
+from pipeline.engine.runstore import run_files
 from scenes.fileio import read_npz
 
 __all__ = ["corridor_coverage", "inventory_summary", "run_summary", "tour_tags"]
@@ -56,12 +56,12 @@ def tour_tags(run_dir: str | Path, budget=None):
     """The training tour's counts per (tag, pass) of a finished run directory
     (:func:`pipeline.evaluation.inventory.tour_tag_table` on its ``reads.parquet``,
     ``tour/train_track.npz`` and ``scene/tags.parquet``, every file read through
-    :func:`pipeline.runstore.inside`); ``budget`` defaults to the run's own
+    :func:`pipeline.engine.runstore.inside`); ``budget`` defaults to the run's own
     ``config.toml``. None for a run whose track predates ``pass_index``."""
     import pandas as pd
 
+    from pipeline.engine.runstore import inside
     from pipeline.evaluation.inventory import tour_tag_table
-    from pipeline.runstore import inside
 
     run = Path(run_dir)
     with read_npz(inside(run, "tour/train_track.npz")) as z:

@@ -3,8 +3,8 @@ MCL poses and on the true poses (``pipeline.acquisition``); writes ``training/``
 
 from __future__ import annotations
 
+from pipeline.engine.study import Stage
 from pipeline.stages.common import pose_sources, read_reads
-from pipeline.study import Stage
 
 __all__ = ["STAGE", "stage_training_sets"]
 

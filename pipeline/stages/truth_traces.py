@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.engine.study import Stage
+from pipeline.engine.tracetasks import trace_tasks
 from pipeline.stages.common import (
     TRACING_KEYS,
     attempt_poses,
@@ -25,8 +27,6 @@ from pipeline.stages.common import (
     spread_evenly,
     trace_options,
 )
-from pipeline.study import Stage
-from pipeline.tracetasks import trace_tasks
 from scenes.fileio import atomic_save_npz
 
 __all__ = ["STAGE", "free_space_grid", "stage_truth_traces"]
@@ -158,5 +158,5 @@ STAGE = Stage("truth_traces", stage_truth_traces,
               # 3: the shooting's candidate cap no longer drops paths (SHARING_ALGORITHM 9)
               description="propagation truth: traces at tag sites, Fig. 6 points, RSSI fields",
               # needs nothing of the tour's MCL or the reads: traces beside them
-              # (pipeline.stageproc)
+              # (pipeline.engine.stageproc)
               own_process=True)

@@ -126,8 +126,8 @@ def test_a_fit_that_cannot_explain_the_reads_stops():
 def test_cable_losses_are_refused_where_the_truth_would_not_see_them(tmp_path):
     import dataclasses
 
+    from pipeline.apps.studyrun import run_full_study
     from pipeline.config import ConfigError
-    from pipeline.studyrun import run_full_study
 
     cfg = StudyConfig()
     ants = list(cfg.robot.antennas)
@@ -141,7 +141,7 @@ def test_cable_losses_are_refused_where_the_truth_would_not_see_them(tmp_path):
 def test_calibrate_without_a_recording_stops_before_running(tmp_path):
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     res = CliRunner().invoke(app, ["calibrate", "configs/tiny.toml", "--out", str(tmp_path / "c")])
     assert res.exit_code == 2 and "no recording to calibrate to" in res.output

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app, resolve_target
+from pipeline.apps.cli import app, resolve_target
 from pipeline.config import ConfigError, StudyConfig
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -93,7 +93,7 @@ def fake_study(monkeypatch):
     """The CLI's `run` with three quick stages instead of the study (the second one can
     be told to raise KeyboardInterrupt)."""
     import pipeline.stages
-    from pipeline.study import Stage
+    from pipeline.engine.study import Stage
 
     state = {"interrupt": False}
 
@@ -156,14 +156,14 @@ def test_ctrl_c_exits_130_naming_the_stage_and_resumes(tmp_path, fake_study, cap
 def test_read_only_run_dir_is_one_line(tmp_path, fake_study, monkeypatch):
     import errno
 
-    import pipeline.runlog
+    import pipeline.engine.runlog
 
     def erofs(path, *a, **k):
         raise OSError(errno.EROFS, "Read-only file system", str(path))
 
     out = tmp_path / "run"
     assert runner.invoke(app, ["run", "--out", str(out), "--no-progress"]).exit_code == 0
-    monkeypatch.setattr(pipeline.runlog, "atomic_write_json", erofs)  # the manifest's writer
+    monkeypatch.setattr(pipeline.engine.runlog, "atomic_write_json", erofs)  # the manifest's writer
     line = _one_line_error(runner.invoke(app, ["run", "--out", str(out), "--no-progress"]), 2)
     assert "read-only" in line and str(out) in line
 
@@ -265,7 +265,7 @@ def test_a_repeated_warning_reaches_the_console_once_and_run_log_every_time(tmp_
     import io
     import logging
 
-    from pipeline.runlog import log_to_file
+    from pipeline.engine.runlog import log_to_file
 
     console = io.StringIO()
     handler = logging.StreamHandler(console)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.findings import findings
+from pipeline.report.findings import findings
 
 
 def _iv(est, lo, hi, unit="tag", n=16):

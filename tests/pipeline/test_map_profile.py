@@ -5,8 +5,8 @@ from __future__ import annotations
 import tomllib
 from importlib.resources import files
 
-from pipeline.cli import resolve_target
-from pipeline.profiles import map_scale_profile
+from pipeline.apps.cli import resolve_target
+from pipeline.apps.profiles import map_scale_profile
 from tests.conftest import ROOT
 
 WAREHOUSE = ROOT / "data" / "real_maps" / "nav2_warehouse" / "warehouse.yaml"
@@ -28,7 +28,7 @@ def test_the_profile_is_the_bundled_scale_case_and_ships_with_the_package():
     """The profile is configs/warehouse_large.toml's study settings (the measured 30 x 50 m
     case), less its scene, seed and evaluation-pose count (tour.eval_max_spacing_m decides),
     plus a cap on the completion's planes that warehouse_large (115 planes) is under."""
-    text = files("pipeline.profiles").joinpath("map_scale.toml").read_text("utf-8")
+    text = files("pipeline.apps.profiles").joinpath("map_scale.toml").read_text("utf-8")
     profile = tomllib.loads(text)
     large = tomllib.loads((ROOT / "configs" / "warehouse_large.toml").read_text())
     for section, keys in profile.items():

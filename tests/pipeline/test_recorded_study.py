@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.acquisition import ReaderConfig
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.recording import (
     Recording,
     RecordingError,

@@ -1,4 +1,4 @@
-"""Replicated studies (pipeline.replicates): seeds, config, and a real two-replicate tiny
+"""Replicated studies (pipeline.apps.replicates): seeds, config, and a real two-replicate tiny
 study pooled, then grown to three with one replicate that cannot run."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from pipeline.apps.replicates import replicate_configs, replicate_seed
 from pipeline.config import ConfigError, config_from_mapping, load_config, replace_path
-from pipeline.replicates import replicate_configs, replicate_seed
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -44,7 +44,7 @@ def test_bad_replicate_counts_are_refused(value, match):
 
 
 def test_two_replicates_pooled_then_a_third_that_fails(tmp_path):
-    from pipeline.studyrun import run_full_study
+    from pipeline.apps.studyrun import run_full_study
 
     cfg = load_config(ROOT / "configs" / "tiny.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(tmp_path / "cache"))

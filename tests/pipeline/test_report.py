@@ -2,7 +2,7 @@
 
 import json
 
-from pipeline.report import write_report
+from pipeline.report.html import write_report
 
 
 def _run_dir(tmp_path, failure=None):

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.recording import RecordingConfig, RecordingError, load_recording, read_rosbag
 from pipeline.recording.config import recording_overrides
 from pipeline.recording.export import EPOCH_S, epc_of

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.apps.studyrun import run_full_study
 from pipeline.config import load_config, replace_path
-from pipeline.studyrun import run_full_study
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -29,7 +29,7 @@ pytestmark = pytest.mark.slow
 
 def _files(root: Path) -> set[str]:
     """The run directory's files, less the lock's housekeeping (not results)."""
-    from pipeline.runstore import HOUSEKEEPING
+    from pipeline.engine.runstore import HOUSEKEEPING
 
     return {p.relative_to(root).as_posix() for p in root.rglob("*")
             if p.is_file() and p.name not in HOUSEKEEPING}

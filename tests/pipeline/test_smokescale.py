@@ -7,7 +7,7 @@ import tomllib
 import numpy as np
 from PIL import Image
 
-from pipeline.smokescale import smoke_banner, smoke_scale_reasons
+from pipeline.report.smokescale import smoke_banner, smoke_scale_reasons
 from tests.conftest import ROOT, copy_run
 
 
@@ -32,7 +32,7 @@ def test_bundled_smoke_configs_are_smoke_scale_and_the_default_is_not(tmp_path):
 
 def test_report_and_figures_of_a_smoke_run_carry_the_banner(tiny_study, tmp_path):
     from pipeline.figures import draw_all
-    from pipeline.report import write_report
+    from pipeline.report.html import write_report
 
     run = copy_run(tiny_study, tmp_path / "run")
     html = write_report(run, embed=False).read_text()

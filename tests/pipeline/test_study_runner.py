@@ -1,6 +1,6 @@
 """The stage runner: caching, selective re-runs, failure and resume, corrupt files.
 
-These tests drive :func:`pipeline.study.run_study` with small stages of its own (the
+These tests drive :func:`pipeline.engine.study.run_study` with small stages of its own (the
 runner is what is under test here); the real study on a real scene is exercised in
 test_study_tiny.py.
 """
@@ -13,7 +13,7 @@ import logging
 import pytest
 
 from pipeline.config import StudyConfig, replace_path
-from pipeline.study import Stage, StageError, run_study
+from pipeline.engine.study import Stage, StageError, run_study
 
 CALLS: list[str] = []
 
@@ -153,7 +153,7 @@ PART_STAGES = (Stage("a", _a, ("seed",)), Stage("parts", _parts, ("training.epoc
 
 def _files(root):
     """The run directory's files, less the lock's housekeeping (not results)."""
-    from pipeline.runstore import HOUSEKEEPING
+    from pipeline.engine.runstore import HOUSEKEEPING
 
     return {p.relative_to(root).as_posix() for p in root.rglob("*")
             if p.is_file() and p.name not in HOUSEKEEPING}
@@ -185,7 +185,7 @@ def _interrupt(ctx):
 
 
 def test_ctrl_c_names_the_stage_and_the_manifest_says_interrupted(tmp_path, caplog):
-    from pipeline.study import StudyInterrupted
+    from pipeline.engine.study import StudyInterrupted
 
     cfg = StudyConfig()
     stages = (STAGES[0], Stage("b", _interrupt, ("training.epochs",), ("a",)), STAGES[2])
@@ -231,7 +231,7 @@ def _run_stages(cfg, d, stages, **kw):
 
 
 def test_a_foreign_directory_is_refused_unless_forced(tmp_path):
-    from pipeline.study import RunDirError
+    from pipeline.engine.study import RunDirError
 
     d = tmp_path / "thesis"
     d.mkdir()
@@ -272,8 +272,8 @@ def test_a_run_directory_of_another_config_names_the_keys_that_differ(tmp_path, 
 def test_a_read_only_run_directory_is_one_clear_error(tmp_path, monkeypatch, where):
     import errno
 
-    from pipeline import runlog, runstore, study
-    from pipeline.study import RunDirError
+    from pipeline.engine import runlog, runstore, study
+    from pipeline.engine.study import RunDirError
 
     cfg = StudyConfig()
     if where == "commit":
@@ -324,7 +324,7 @@ def test_logs_name_final_paths_not_the_staging_area(tmp_path, caplog):
     def writes(ctx):
         out = ctx.out("report.html")
         out.write_text("<html/>")
-        logging.getLogger("pipeline.report").info("report written to %s", out)
+        logging.getLogger("pipeline.report.html").info("report written to %s", out)
 
     with caplog.at_level(logging.INFO):
         _run_stages(StudyConfig(), tmp_path, (Stage("report", writes),))
@@ -334,7 +334,7 @@ def test_logs_name_final_paths_not_the_staging_area(tmp_path, caplog):
 
 def test_unknown_stage_key_is_refused_where_the_stage_is_defined():
     """A misspelt key would hash as None and never re-run the stage: refused at definition."""
-    from pipeline.study import Stage
+    from pipeline.engine.study import Stage
 
     with pytest.raises(ValueError, match=r"unknown config key\(s\) \['training.epochz'\]"):
         Stage("x", lambda ctx: None, ("training.epochs", "training.epochz"))

@@ -1,6 +1,6 @@
 """Stages side by side: a stage marked ``own_process`` runs in a spawned process beside the
 stages before it, from the first one that runs once its upstream stages are done
-(pipeline.study, pipeline.stageproc).
+(pipeline.engine.study, pipeline.engine.stageproc).
 
 The stage functions are module-level (they travel to the spawned interpreter by
 reference) and write the process id they ran in, so each test sees where a stage ran.
@@ -15,8 +15,8 @@ import time
 import pytest
 
 from pipeline.config import StudyConfig, replace_path
-from pipeline.stageproc import side_by_side_allowed
-from pipeline.study import Stage, StageError, StudyInterrupted, run_study
+from pipeline.engine.stageproc import side_by_side_allowed
+from pipeline.engine.study import Stage, StageError, StudyInterrupted, run_study
 
 pytestmark = pytest.mark.skipif(not side_by_side_allowed(), reason="one CPU: stages run in order")
 
@@ -153,7 +153,7 @@ def test_side_by_side_processes_share_the_blas_threads(tmp_path):
     assert a["blas"] == b["blas"] == blas_threads_per_process(2)
     assert _blas_threads() == here
     # and it runs at a lower priority: the runner's stages are the critical path
-    from pipeline.stageproc import SIDE_NICENESS
+    from pipeline.engine.stageproc import SIDE_NICENESS
 
     assert b["nice"] == min(19, os.nice(0) + SIDE_NICENESS) > os.nice(0)
 

@@ -23,11 +23,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from pipeline.apps.studyrun import run_full_study
 from pipeline.config import load_config, replace_path
+from pipeline.engine.study import run_study
 from pipeline.stages import stage_names
 from pipeline.stages.summary import run_summary
-from pipeline.study import run_study
-from pipeline.studyrun import run_full_study
 from tests.conftest import copy_run
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,9 +52,9 @@ def test_first_run_produces_the_run_directory(tiny):
     cov = json.loads((run / "metrics.json").read_text())["coverage"]
     assert 0 <= cov["corridor_fraction"] <= 1 and cov["fields"][0]["n_cells"] > 0
     # truth_traces took its antenna poses from the tour's track: those of the read log
-    from pipeline.runstore import RunStore
+    from pipeline.engine.runstore import RunStore
+    from pipeline.engine.study import StageContext
     from pipeline.stages.common import antenna_tilts, attempt_poses
-    from pipeline.study import StageContext
 
     eval_reads = pd.read_parquet(run / "eval_reads.parquet").drop_duplicates(["time_s", "antenna"])
     tilt = antenna_tilts(cfg)
@@ -91,10 +91,10 @@ def test_truth_refuses_traces_of_another_path(tiny, tmp_path):
     # tour's (a stale cached truth_traces) stop the truth stage with the file's name
     import dataclasses
 
+    from pipeline.engine.runstore import RunStore
+    from pipeline.engine.study import StageContext
     from pipeline.evaluation.sites import SiteTruth
-    from pipeline.runstore import RunStore
     from pipeline.stages.truth import _check_trace_poses
-    from pipeline.study import StageContext
 
     cfg, base, _ = tiny
     run = tmp_path / "run"
@@ -157,7 +157,7 @@ def test_cli_figures_on_a_run_dir(tiny, tmp_path):
     shutil.copytree(base / "run", run, ignore=shutil.ignore_patterns("figures", "report.html"))
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     res = CliRunner().invoke(app, ["figures", str(run)])
     assert res.exit_code == 0, res.output

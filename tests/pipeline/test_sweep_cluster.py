@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from pipeline.sweep import load_sweep, run_sweep
+from pipeline.apps.sweep import load_sweep, run_sweep
 
 ROOT = Path(__file__).resolve().parents[2]
 

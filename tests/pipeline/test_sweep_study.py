@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.apps.sweep import PARAMETERS, apply_parameter, expand_sweep, load_sweep
 from pipeline.config import ConfigError, StudyConfig
-from pipeline.sweep import PARAMETERS, apply_parameter, expand_sweep, load_sweep
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -72,8 +72,8 @@ def test_zip_mode_needs_equal_lengths():
 
 
 def test_a_sweep_worker_caps_its_studys_forks(monkeypatch):
+    from pipeline.apps.studypool import _cap_nested_workers
     from pipeline.parallel import WORKERS_ENV
-    from pipeline.studypool import _cap_nested_workers
 
     for before, after in ((None, "2"), ("1", "1"), ("2", "2"), ("8", "2"), ("0", "2"),
                           ("two", "2"), ("²", "2")):  # "²".isdigit() but not a count
@@ -103,7 +103,7 @@ def test_seed_and_replicates_are_ordinary_parameters():
 def test_sweep_console_table_is_short_and_ranked():
     import pandas as pd
 
-    from pipeline.cli import _sweep_table
+    from pipeline.apps.cli import _sweep_table
 
     summary = pd.DataFrame({
         "name": ["a", "b", "c"], "tx_power_dbm": [24.0, 27.15, 30.0],

@@ -14,9 +14,9 @@ distributed = pytest.importorskip("distributed")
 
 import propagation  # noqa: E402
 import scenes  # noqa: E402
-from pipeline.cli import resolve_target  # noqa: E402
+from pipeline.apps.cli import resolve_target  # noqa: E402
+from pipeline.engine.tracetasks import DaskChunkRunner, TraceTaskStats, trace_tasks  # noqa: E402
 from pipeline.stages.common import select_backend, trace_options  # noqa: E402
-from pipeline.tracetasks import DaskChunkRunner, TraceTaskStats, trace_tasks  # noqa: E402
 from propagation.chunkjobs import chunk_runner  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -86,7 +86,7 @@ def test_a_dead_worker_fails_with_a_message_not_a_hang(cfg, deterministic, tmp_p
 
 
 def test_an_unreachable_scheduler_names_the_key(cfg, monkeypatch):
-    import pipeline.tracetasks as tt
+    import pipeline.engine.tracetasks as tt
 
     monkeypatch.setattr(tt, "CONNECT_TIMEOUT_S", 1.0)
     bad = resolve_target(str(ROOT / "configs" / "tiny.toml"), ['tracing.scheduler="tcp://127.0.0.1:9"'])

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.config import ConfigError
-from pipeline.preflight import STUDY_ADDRESS_SPACE_MIB, check_address_space
+from pipeline.engine.preflight import STUDY_ADDRESS_SPACE_MIB, check_address_space
 
 ROOT = Path(__file__).resolve().parents[2]
 LIMIT_MIB = 2560  # imports fit (0.6 GiB mapped); the default budget of 2,048 MiB does not

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.config import ConfigError, StudyConfig, replace_path
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.config import ConfigError, StudyConfig, replace_path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -157,7 +157,7 @@ def test_a_full_disk_is_named_with_the_file_even_when_the_writer_hides_it(tmp_pa
 def test_figures_says_the_disk_is_full_in_one_line(tmp_path, capsys):
     import typer
 
-    from pipeline.cli import _output_errors
+    from pipeline.apps.cli import _output_errors
     from pipeline.figures.common import new_figure
     from scenes.fileio import atomic_output
 
@@ -209,7 +209,7 @@ def test_an_npz_holding_a_pickle_or_junk_is_named_and_never_unpickled(tmp_path):
 
 
 def test_bad_files_in_a_run_directory_are_named_by_report_and_figures(tmp_path):
-    from pipeline.study import Stage, run_study
+    from pipeline.engine.study import Stage, run_study
 
     def _a(ctx):
         ctx.out("a/value.json").write_text("{}")

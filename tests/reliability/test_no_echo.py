@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 import scenes
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from scenes.spec import SpecError
 from tests.scenes.maphelpers import building, write_map
 

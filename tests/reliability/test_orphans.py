@@ -20,7 +20,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR
 
 PARENT = textwrap.dedent("""
     import concurrent.futures as cf, multiprocessing, os, sys, time
-    from pipeline.studypool import _cap_nested_workers
+    from pipeline.apps.studypool import _cap_nested_workers
     if __name__ == "__main__":
         ctx = multiprocessing.get_context("spawn")
         with cf.ProcessPoolExecutor(1, mp_context=ctx, initializer=_cap_nested_workers,
@@ -66,7 +66,7 @@ ROOT = Path(__file__).resolve().parents[2]
 WRITER = textwrap.dedent("""
     import sys, time
     from pipeline.config import StudyConfig
-    from pipeline.study import Stage, run_study
+    from pipeline.engine.study import Stage, run_study
 
     def forever(ctx):
         print("writing", flush=True)
@@ -100,7 +100,7 @@ def writer(tmp_path):
 
 
 def test_a_live_writer_is_named_with_its_pid_and_a_dead_ones_lock_is_free(tmp_path, writer):
-    from pipeline.runstore import RunDirLocked, check_no_writer, lock_holder
+    from pipeline.engine.runstore import RunDirLocked, check_no_writer, lock_holder
 
     free, busy = tmp_path / "r0", tmp_path / "r1"
     free.mkdir()
@@ -132,7 +132,7 @@ def _cli(tmp_path, *args, timeout=600):
 def test_replicates_are_not_pooled_while_an_earlier_worker_writes_one(tmp_path, writer):
     """Issue 54: a rerun while a killed run's worker lived pooled 1 of 3 with exit 0."""
     from pipeline.config import StudyConfig
-    from pipeline.study import Stage, run_study
+    from pipeline.engine.study import Stage, run_study
 
     out = tmp_path / "run"  # the killed run's directory, one of its workers still writing
     run_study(StudyConfig(), out, stages=(Stage("replicates", lambda ctx: {}, ("seed",)),),
@@ -150,7 +150,7 @@ def test_replicates_are_not_pooled_while_an_earlier_worker_writes_one(tmp_path, 
 
 @pytest.mark.slow
 def test_placement_ranks_nothing_while_an_earlier_worker_writes_a_candidate(tmp_path, writer):
-    from pipeline.placement import candidates_of, load_placement
+    from pipeline.apps.placement import candidates_of, load_placement
 
     spec_file = tmp_path / "placement.toml"
     spec_file.write_text(f'base = "{ROOT / "configs" / "tiny.toml"}"\nreplicates = 1\n'

@@ -20,8 +20,8 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.config import StudyConfig
-from pipeline.runstore import RunDirError, RunDirLocked, RunStore, UnsafePathError, inside
-from pipeline.study import Stage, run_study
+from pipeline.engine.runstore import RunDirError, RunDirLocked, RunStore, UnsafePathError, inside
+from pipeline.engine.study import Stage, run_study
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -126,7 +126,7 @@ def test_inside_refuses_escapes_and_links(tmp_path):
 
 
 def test_report_does_not_embed_a_linked_figure(run_and_canary, tmp_path):
-    from pipeline.report import write_report
+    from pipeline.report.html import write_report
 
     run, canary = run_and_canary
     secret = tmp_path / "secret.png"
@@ -141,7 +141,7 @@ def test_report_does_not_embed_a_linked_figure(run_and_canary, tmp_path):
 
 @pytest.mark.parametrize("content", ["[]", "[1]", "[" * 100_000 + "]" * 100_000])
 def test_report_on_a_metrics_file_that_is_no_object_is_one_line(run_and_canary, content):
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     run, _ = run_and_canary
     (run / "metrics.json").write_text(content)
@@ -152,7 +152,7 @@ def test_report_on_a_metrics_file_that_is_no_object_is_one_line(run_and_canary, 
 
 @pytest.mark.parametrize("command", ["report", "figures"])
 def test_figures_and_report_refuse_a_directory_that_is_not_a_run(tmp_path, command):
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     d = tmp_path / "home"
     d.mkdir()
@@ -185,7 +185,7 @@ def test_force_dir_never_replaces_a_users_file(tmp_path):
 
 _HOLD = """
 import sys, time
-from pipeline.runstore import RunStore
+from pipeline.engine.runstore import RunStore
 with RunStore(sys.argv[1]).lock("rfidstudy run --out elsewhere"):
     print("held", flush=True)
     time.sleep(120)
@@ -201,7 +201,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_dead_ones_lock_is_ta
         assert holder.stdout.readline().strip() == "held"
         with pytest.raises(RunDirLocked, match=rf"in use by process {holder.pid} \(rfidstudy run"):
             _run(run, force=["b"])
-        from pipeline.cli import app
+        from pipeline.apps.cli import app
 
         res = CliRunner().invoke(app, ["figures", str(run)])
         assert res.exit_code == 2 and f"process {holder.pid}" in res.output
@@ -227,7 +227,7 @@ def test_the_lock_file_must_not_be_a_link(tmp_path):
 
 
 def test_a_symlink_loop_as_out_is_one_line(tmp_path):
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     loop = tmp_path / "loop"
     loop.symlink_to(loop)
@@ -254,7 +254,7 @@ def test_a_malformed_manifest_is_no_traceback_for_the_next_run(run_and_canary, m
 
 
 def test_folder_listings_skip_links_and_fifos_and_refuse_a_linked_folder(tmp_path, caplog):
-    from pipeline.runstore import run_files
+    from pipeline.engine.runstore import run_files
 
     (tmp_path / "fields").mkdir()
     (tmp_path / "fields" / "field_00.npz").write_bytes(b"ours")
@@ -274,8 +274,8 @@ def test_run_log_is_never_written_through_a_fifo_or_a_link(tmp_path, kind):
     # a FIFO named run.log used to block the run forever, holding the directory's lock
     import os
 
-    from pipeline.runlog import log_to_file
-    from pipeline.runstore import UnsafePathError
+    from pipeline.engine.runlog import log_to_file
+    from pipeline.engine.runstore import UnsafePathError
 
     outside = tmp_path / "outside.txt"
     outside.write_text("keep\n")
@@ -296,7 +296,7 @@ def test_a_folder_is_a_run_directory_only_by_a_manifest_the_tool_wrote(tmp_path,
     """A web app's own ``manifest.json``, or an empty ``stages/`` folder, does not make a
     folder a run directory: ``report``, ``figures`` and ``run --out`` refuse it and the
     user's ``report.html`` is unchanged (they overwrote it, exit 0)."""
-    from pipeline.runstore import is_run_dir
+    from pipeline.engine.runstore import is_run_dir
 
     user = tmp_path / "site"
     user.mkdir()
@@ -318,7 +318,7 @@ def test_a_folder_is_a_run_directory_only_by_a_manifest_the_tool_wrote(tmp_path,
 
 
 def test_a_run_directory_is_known_by_its_manifest_or_its_records(run_and_canary):
-    from pipeline.runstore import is_run_dir
+    from pipeline.engine.runstore import is_run_dir
 
     run, _ = run_and_canary
     man = json.loads((run / "manifest.json").read_text())
@@ -328,6 +328,6 @@ def test_a_run_directory_is_known_by_its_manifest_or_its_records(run_and_canary)
 
 
 def app_cli():
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     return app

@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.config import StudyConfig
-from pipeline.study import Stage, run_study
+from pipeline.engine.study import Stage, run_study
 
 #: Seconds after which a reader blocked on a planted FIFO is released (and the test fails).
 RELEASE_S = 20.0

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.config import ConfigError
-from pipeline.tracetasks import check_scheduler
+from pipeline.engine.tracetasks import check_scheduler
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -45,7 +45,7 @@ def test_a_file_unreachable_port_and_a_web_server_are_named(tmp_path, monkeypatc
         check_scheduler(str(f))
     with pytest.raises(ConfigError, match="unreachable"):
         check_scheduler(f"tcp://127.0.0.1:{_free_port()}")
-    import pipeline.tracetasks as tt
+    import pipeline.engine.tracetasks as tt
 
     monkeypatch.setattr(tt, "HANDSHAKE_TIMEOUT_S", 3.0)  # the bound, not its size, is under test
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
+from pipeline.apps.sweep import check_sweep_dir, load_sweep
 from pipeline.config import ConfigError
-from pipeline.sweep import check_sweep_dir, load_sweep
 
 ROOT = Path(__file__).resolve().parents[2]
 runner = CliRunner()
@@ -66,9 +66,9 @@ def test_a_link_loop_as_out_is_one_line(tmp_path):
 def test_a_users_sweep_json_or_placement_json_is_not_the_tools_marker(tmp_path):
     """A folder holding the user's own sweep.json (or placement.json) is not a sweep (or
     placement) folder of the tool's: refused before anything is written, the file kept."""
+    from pipeline.apps.placement.runner import _prepare_dir
+    from pipeline.apps.sweep import check_sweep_dir
     from pipeline.config import ConfigError
-    from pipeline.placement.runner import _prepare_dir
-    from pipeline.sweep import check_sweep_dir
 
     for name, check in (("sweep.json", check_sweep_dir), ("placement.json", _prepare_dir)):
         d = tmp_path / name.split(".")[0]
@@ -97,7 +97,7 @@ def test_a_marker_that_is_a_link_or_fifo_is_refused_by_name_never_followed(tmp_p
     """A placement.json (sweep.json) that is a symbolic link, even to a marker of the
     tool's, does not make the folder the tool's: refused naming the link, its target
     unread and unchanged, nothing written (issue 54: "no placement.json")."""
-    from pipeline.placement.runner import _prepare_dir
+    from pipeline.apps.placement.runner import _prepare_dir
 
     check = _prepare_dir if name == "placement.json" else check_sweep_dir
     mark = tmp_path / "elsewhere.json"

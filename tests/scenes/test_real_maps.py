@@ -153,7 +153,7 @@ def test_office_reads_without_walls_it_does_not_have():
 def test_held_out_tags_of_a_map_with_racks_are_shelf_tags():
     """The issue's user found 1 of 16 held-out tags on a shelf face (5 on walls, 6 on small
     structures): on a map with racks they are drawn on the racks' front beams."""
-    from pipeline.cli import resolve_target
+    from pipeline.apps.cli import resolve_target
     from pipeline.stages.common import study_scene
 
     cfg = resolve_target(str(WAREHOUSE))
@@ -172,8 +172,8 @@ def test_the_default_study_completes_on_a_real_robot_map(tmp_path):
     """`rfidstudy run MAP.yaml` on the Neobotix lab (a real robot's slam_toolbox map) runs
     every stage with the map-scale profile, the first 12 m of the route (about 2 min on
     two cores; the whole nav2 warehouse took 14.5 min, bench/real_maps.py)."""
-    from pipeline.cli import resolve_target
-    from pipeline.studyrun import run_full_study
+    from pipeline.apps.cli import resolve_target
+    from pipeline.apps.studyrun import run_full_study
 
     cfg = resolve_target(str(LAB), ["tour.max_length_m=12", "localisation.n_particles=100",
                                     f"tracing.cache_dir={str(tmp_path / 'cache')!r}"])

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.apps.cli import app
 from pipeline.figures import FigureOutput, draw_all
 from pipeline.figures.headline import HEADLINE_METRICS, headline_table
 from tests.conftest import copy_run

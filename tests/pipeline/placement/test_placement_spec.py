@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.apps.placement import candidates_of, load_placement, mount_antennas, search
+from pipeline.apps.placement.spec import MountConfig
 from pipeline.config import ConfigError
-from pipeline.placement import candidates_of, load_placement, mount_antennas, search
-from pipeline.placement.spec import MountConfig
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -39,7 +39,7 @@ def test_grid_is_the_cartesian_product_with_mirrored_pairs(tmp_path):
 def test_orientation_only_siblings_wait_for_their_positions(tmp_path):
     """Candidates sharing antenna positions must not run side by side (both would trace the
     positions cold): one per position set first, the siblings in a second wave."""
-    from pipeline.placement.runner import position_waves
+    from pipeline.apps.placement.runner import position_waves
 
     spec = load_placement(_write(tmp_path, "[grid]\nz_m = [0.5, 1.0]\ntilt_deg = [0.0, 20.0]\n"
                                            "yaw_deg = [30.0, 60.0]\n"))
@@ -123,7 +123,7 @@ def test_constrained_optimiser_keeps_to_the_feasible_region():
     (a stand-in for "completeness >= 0.99 needs a high mount"): the constrained TPE must
     end at the constrained optimum, the boundary z = 1.2 m, and spend its late trials in
     the feasible region; told no constraints it goes to 0.9 m (so the test can fail)."""
-    from pipeline.placement.optimise import violations
+    from pipeline.apps.placement.optimise import violations
 
     rng = np.random.default_rng(5)
 
@@ -161,7 +161,7 @@ def test_constrained_optimiser_keeps_to_the_feasible_region():
 
 
 def test_report_states_the_lead_in_the_objectives_own_direction():
-    from pipeline.placement.report import margin_sentence
+    from pipeline.apps.placement.report import margin_sentence
 
     # tag localisation (lower is better): recommended 0.4 m, runner-up 0.6 m; the margin
     # is the runner-up minus the recommended, +0.2 m, with an interval excluding 0
@@ -182,7 +182,7 @@ def test_a_third_candidate_tied_with_the_best_means_no_single_best():
     best (the third is named)."""
     import pandas as pd
 
-    from pipeline.placement.summary import evidence, rank_candidates
+    from pipeline.apps.placement.summary import evidence, rank_candidates
 
     df = pd.DataFrame({
         "candidate": ["a", "b", "c"],
@@ -197,8 +197,8 @@ def test_a_third_candidate_tied_with_the_best_means_no_single_best():
 
 
 def test_feasibility_is_judged_on_the_interval_not_the_estimate():
-    from pipeline.placement.spec import ConstraintConfig as C
-    from pipeline.placement.summary import feasibility, rank_candidates
+    from pipeline.apps.placement.spec import ConstraintConfig as C
+    from pipeline.apps.placement.summary import feasibility, rank_candidates
 
     cons = [C("completeness", min=0.9)]
     row = {"completeness": 0.92, "completeness_low": 0.85, "completeness_high": 0.97}
@@ -221,13 +221,13 @@ def test_a_preset_name_is_used_as_given_or_refused():
     candidate alone is said to have nothing to compare with."""
     import pandas as pd
 
-    from pipeline.placement.report import answer_lines
+    from pipeline.apps.placement.report import answer_lines
 
     bad = ("[[preset]]\nname = '/etc/evil'\n[[preset.antennas]]\nname = 'a'\n")
     with pytest.raises(ConfigError, match=r"preset\[0\]\.name = '/etc/evil'"):
         import tomllib
 
-        from pipeline.placement.spec import placement_from_mapping
+        from pipeline.apps.placement.spec import placement_from_mapping
 
         placement_from_mapping(tomllib.loads(bad), source="p.toml")
     df = pd.DataFrame({"candidate": ["a"], "read_rate": [0.5]})

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.placement import load_placement, run_placement
-from pipeline.placement.runner import PlacementStopped
+from pipeline.apps.placement import load_placement, run_placement
+from pipeline.apps.placement.runner import PlacementStopped
 
 ROOT = Path(__file__).resolve().parents[3]
 

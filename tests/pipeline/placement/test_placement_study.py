@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.apps.placement import load_placement, run_placement
 from pipeline.config import ConfigError, load_config
-from pipeline.placement import load_placement, run_placement
 
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -120,7 +120,7 @@ def test_mcl_map_is_the_grid_as_given(aisle_scene):
 def test_cli_shows_a_map_and_refuses_a_bad_one_before_writing(tmp_path):
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.apps.cli import app
 
     runner = CliRunner()
     path = _aisles(tmp_path / "ok")

@@ -1,0 +1,165 @@
+"""Studies side by side: local worker processes or a Dask cluster, one summary row each.
+
+:func:`run_studies` runs :func:`run_point` on each ``(config dict, run directory)``: in
+local spawned worker processes (``concurrent.futures``; the CPUs shared between them,
+:func:`_cap_nested_workers`) or, with a ``client`` or ``scheduler`` address, on a Dask
+distributed cluster. Its callers sit above it: a sweep's points (:mod:`pipeline.apps.sweep`),
+a replicated study's replicates (:mod:`pipeline.apps.replicates`) and a placement's candidate
+studies (:mod:`pipeline.apps.placement.runner`). Each study is one study
+(:func:`pipeline.stages.run_study_stages`) unless the caller passes the ``runner`` that
+runs it: a sweep's point may be a replicated study
+(:func:`pipeline.apps.studyrun.run_full_study`), and this module imports neither.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import logging
+import multiprocessing
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pipeline.config import StudyConfig
+from pipeline.configschema import from_dict
+from pipeline.parallel import WORKERS_ENV, die_with_parent, usable_cpus
+
+if TYPE_CHECKING:
+    from pipeline.engine.study import StudyResult
+
+__all__ = ["run_point", "run_studies"]
+
+log = logging.getLogger(__name__)
+
+
+def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | None = None,
+              runner: Callable[..., StudyResult] | None = None) -> dict:
+    """Run one study (a sweep point, a replicate, a placement candidate's replicate; in a
+    worker process) and return its summary row.
+
+    Parameters
+    ----------
+    config : dict
+        The point's study config as a nested dict (:func:`config_to_dict`).
+    run_dir : str
+        Its run directory.
+    command : str
+        The command named in the point's manifest.
+    upto : str, optional
+        The last stage to run (:func:`pipeline.stages.stages_upto`; None: all of them).
+    runner : callable, optional
+        ``runner(config, run_dir, **kwargs)`` runs the study: a module-level function (it
+        travels to the worker by name). None: :func:`pipeline.stages.run_study_stages`,
+        one study; a sweep passes :func:`pipeline.apps.studyrun.run_full_study`, which runs a
+        replicated point's replicates.
+
+    Returns
+    -------
+    dict
+        ``status`` ("complete" or "failed"), ``error``, ``elapsed_s`` and the summary
+        numbers of :func:`pipeline.stages.summary.run_summary`; a failed point's ``stage`` and
+        ``kind`` (the exception's type) where a stage failed.
+    """
+    # the stage package: loaded in the worker, not by every importer of the pool
+    from pipeline.stages import run_study_stages
+    from pipeline.stages.summary import run_summary
+
+    cfg = from_dict(StudyConfig, config, source=f"sweep point {run_dir}")
+    try:
+        res = (runner or run_study_stages)(cfg, run_dir, progress=False, upto=upto,
+                                           command_line=["rfidstudy", command, "(point)"])
+    except Exception as exc:  # one failed point must not sink the sweep
+        log.error("sweep point %s failed: %s", run_dir, exc)
+        return {"status": "failed", "error": str(exc), "elapsed_s": float("nan"),
+                "stage": getattr(exc, "stage", None),
+                "kind": getattr(exc, "kind", None) or type(exc).__name__}
+    row = {"status": "complete", "error": "", "elapsed_s": res.elapsed_s,
+           "stages_ran": len(res.ran)}
+    if upto is not None:  # a partial study: the summary reads what it has
+        return row
+    try:
+        row.update(run_summary(run_dir))
+    except Exception as exc:  # a summary that cannot be read fails its point, not the sweep
+        log.error("sweep point %s: its summary failed: %s", run_dir, exc)
+        row.update(status="failed", error=f"summary: {exc}")
+    return row
+
+
+def run_studies(args: list, *, scheduler: str | None = None, workers: int | None = None,
+                client=None, on_done: Callable[[int, dict], bool | None] | None = None,
+                command: str = "sweep", upto: str | None = None,
+                runner: Callable[..., StudyResult] | None = None) -> list[dict | None]:
+    """Run studies side by side: :func:`run_point` (with ``runner``) on each ``(config
+    dict, run dir)`` of ``args``, in local spawned worker processes (``workers``, default
+    min(len, 2); the CPUs shared between them) or on a Dask cluster (``client`` or
+    ``scheduler``).
+
+    Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
+    called after each; when it returns True the local studies not yet started are
+    cancelled (their rows stay None) and those under way finish. On a Dask cluster every
+    submitted study runs to its end (a stop is not passed on). Local workers inherit the
+    address-space limit: a tracer budget it cannot hold is a ConfigError before any
+    starts (:func:`pipeline.engine.preflight.check_address_space`)."""
+    if client is not None or scheduler:
+        return _run_dask(args, scheduler, client, on_done, command, upto, runner)
+    from pipeline.engine.preflight import check_address_space
+
+    # the workers inherit ulimit -v: a budget over it would segfault each one, silently
+    budgets = [a[0].get("tracing", {}).get("memory_budget_mb", 0.0) for a in args]
+    check_address_space(max(budgets, default=0.0))
+    rows: list = [None] * len(args)
+    n_workers = workers or min(len(args), 2)
+    ctx = multiprocessing.get_context("spawn")
+    # studies side by side share the CPUs (never more side by side than studies)
+    nested = max(1, usable_cpus() // max(1, min(n_workers, len(args))))
+    with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
+                                initializer=_cap_nested_workers,
+                                initargs=(nested,)) as ex:
+        futs = {ex.submit(run_point, *a, command, upto, runner): i for i, a in enumerate(args)}
+        for fut in cf.as_completed(futs):
+            if fut.cancelled():
+                continue
+            i = futs[fut]
+            rows[i] = fut.result()
+            if on_done and on_done(i, rows[i]):
+                for f in futs:
+                    f.cancel()  # not started: never run; under way: finishes
+    return rows
+
+
+def _cap_nested_workers(cap: int) -> None:
+    """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs,
+    and the worker ends with the sweep, placement or replicated run that started it
+    (:func:`pipeline.parallel.die_with_parent`)."""
+    die_with_parent()
+    current = os.environ.get(WORKERS_ENV, "").strip()
+    # a user's smaller cap stands; anything else (unset, larger, not a count) is replaced
+    if not (current.isdecimal() and 1 <= int(current) <= cap):
+        os.environ[WORKERS_ENV] = str(cap)
+
+
+def _run_dask(args, scheduler, client, on_done, command="sweep", upto=None, runner=None):
+    from distributed import Client, as_completed
+
+    own = client is None
+    if own:
+        client = Client(scheduler)
+    try:
+        futs = [client.submit(run_point, *a, command, upto, runner, pure=False,
+                              key=f"rfidstudy-point-{i}-{Path(a[1]).name}")
+                for i, a in enumerate(args)]
+        index = {f.key: i for i, f in enumerate(futs)}
+        rows: list = [None] * len(args)
+        # a stop asked by on_done is not passed on: Dask cannot interrupt a study under
+        # way on a worker, and one cancelled there would still hold its run directory's
+        # lock when the caller submits it again; every submitted study runs to its end
+        for fut in as_completed(futs):
+            i = index[fut.key]
+            rows[i] = fut.result()
+            if on_done:
+                on_done(i, rows[i])
+        return rows
+    finally:
+        if own:
+            client.close()

@@ -1,0 +1,76 @@
+"""What ``rfidstudy run TARGET`` means: a study TOML, a map, a scene, or the default study.
+
+:func:`resolve_target` turns the command line's target, ``--set KEY=VALUE`` overrides and
+``--backend`` into a :class:`~pipeline.config.StudyConfig` (the CLI re-exports it).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from pipeline.config import ConfigError, StudyConfig, config_from_mapping
+
+__all__ = ["resolve_target"]
+
+_STUDY_KEYS = set(StudyConfig.__dataclass_fields__)
+
+
+def _parse_value(text: str):
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def resolve_target(target: str | None, overrides: list[str] | None = None,
+                   backend: str | None = None) -> StudyConfig:
+    """Turn ``run``'s argument into a study config.
+
+    Parameters
+    ----------
+    target : str or None
+        ``None``: the default study; a study TOML (a file whose top-level keys are study
+        keys); a map_server YAML (the default study with
+        :func:`pipeline.apps.profiles.map_scale_profile` on top); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
+    overrides : list of str
+        ``KEY=VALUE`` with dotted study keys (``training.epochs=10``); VALUE in TOML syntax.
+    backend : str, optional
+        Overrides ``tracing.backend``.
+    """
+    data: dict = {}
+    source, base_dir = "<default>", None
+    if target:
+        p = Path(target)
+        if p.suffix == ".toml" and p.is_file():
+            try:
+                parsed = tomllib.loads(p.read_text(encoding="utf-8"))
+            except tomllib.TOMLDecodeError as exc:
+                raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+            if set(parsed) & _STUDY_KEYS:
+                data, source, base_dir = parsed, str(p), p.parent
+            else:
+                data = {"scene": str(p.resolve())}
+        elif p.suffix in (".toml", ".xml", ".yaml", ".yml") and not p.exists():
+            raise ConfigError(f"{p}: no such file")
+        elif p.suffix.lower() in (".yaml", ".yml"):  # a map alone: the map-scale profile
+            from pipeline.apps.profiles import map_scale_profile
+
+            data = {**map_scale_profile(), "scene": str(p.resolve())}
+            source = f"{p} with the map-scale profile (pipeline/apps/profiles/map_scale.toml)"
+        else:
+            data = {"scene": str(p.resolve()) if p.exists() else target}
+    for ov in overrides or []:
+        key, eq, val = ov.partition("=")
+        if not eq:
+            raise ConfigError(f"--set {ov!r}: expected KEY=VALUE")
+        cur = data
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            cur = cur.setdefault(part, {})
+            if not isinstance(cur, dict):
+                raise ConfigError(f"--set {ov!r}: {part} is not a table")
+        cur[parts[-1]] = _parse_value(val.strip())
+    if backend:
+        data.setdefault("tracing", {})["backend"] = backend
+    return config_from_mapping(data, source=source, base_dir=base_dir)
