@@ -11,7 +11,7 @@ wherever it likes, and calls
 ``finish`` merges, caches and reports the paths exactly as the local loop does, so the
 study continues as before, and since a job traces the same chunk with the same settings
 the paths are the same (bit for bit with ``tracing.deterministic``: one Dr.Jit thread on
-the CPU variant, in the worker too). :mod:`pipeline.tracetasks` is the Dask runner.
+the CPU variant, in the worker too). :mod:`pipeline.engine.tracetasks` is the Dask runner.
 
 The runner is process-local state (a :class:`contextvars.ContextVar`); nothing here
 imports Dask, nor the tracer (:mod:`propagation.pathsolve` imports this module; the

@@ -1,6 +1,6 @@
 """A chunk of a trace run in this process: the worker's side of :mod:`propagation.chunkjobs`.
 
-A runner (:data:`propagation.chunkjobs.ChunkRunner`, e.g. :mod:`pipeline.tracetasks`'
+A runner (:data:`propagation.chunkjobs.ChunkRunner`, e.g. :mod:`pipeline.engine.tracetasks`'
 Dask runner) calls :func:`run_chunk_job` wherever it runs a :class:`ChunkJob`; it traces
 the chunk as the local loop of :func:`propagation.pathsolve.trace_paths` does. Apart from
 :mod:`propagation.chunkjobs` so that the tracer can import the job description without
