@@ -5,7 +5,7 @@ own reader, the *planted* twin with antenna 1's cable loss +3 dB, tags 2 dB more
 sensitive (``reader.tag_sensitivity_dbm`` -2 dB) and the concrete (the floor, the
 construction carrying most of the traced path power) of permittivity x1.5
 (``[[materials]]``: 7.86 for P.2040's 5.24). Each is exported as a recording
-(:func:`pipeline.recording.export_csv`) and run as a recorded study with the *unchanged*
+(:func:`pipeline.apps.export.export_csv`) and run as a recorded study with the *unchanged*
 config (:mod:`pipeline.stages.calibration`); the table gives each parameter planted,
 recovered with its 95 % interval, and the control's, and the held-out RSSI MAE before
 and after calibration.
@@ -34,8 +34,8 @@ PLANTED = {"antenna_offset_db[1]": -3.0, "tag_sensitivity_offset_db": -2.0,
 
 
 def _study(cfg, run: Path, rec: Path, recorded: Path) -> dict:
+    from pipeline.apps.export import export_csv
     from pipeline.apps.studyrun import run_full_study
-    from pipeline.recording import export_csv
 
     t0 = time.perf_counter()
     run_full_study(cfg, run, command_line=["bench"], upto="reads")

@@ -1,7 +1,7 @@
 """A recorded study of the bundled warehouse: import, sim-vs-real and calibration, timed.
 
 The warehouse study (``configs/warehouse.toml``: the ROS map as given, MCL poses) is
-simulated up to its reads, exported as a recording (:func:`pipeline.recording.export_csv`)
+simulated up to its reads, exported as a recording (:func:`pipeline.apps.export.export_csv`)
 and run as a recorded study with the same config. Prints each recorded stage's wall time
 and the run's peak resident memory (the manifest's), and what the calibration found.
 
@@ -17,9 +17,9 @@ from pathlib import Path
 
 
 def main() -> None:
+    from pipeline.apps.export import export_csv
     from pipeline.apps.studyrun import run_full_study
     from pipeline.config import load_config, replace_path
-    from pipeline.recording import export_csv
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("/tmp/recorded_warehouse"))

@@ -3,7 +3,9 @@
 The graph is read from the source with `ast`, not from `sys.modules`: every
 `import x` / `from x import y` of the project's own modules counts, at module
 level or inside a function, `if TYPE_CHECKING:` blocks included (a lazy or
-type-only import still ties the two files together). Relative imports are
+type-only import still ties the two files together), and so does the import of every
+package above the imported module that is not above the importer (importing
+``pipeline.recording.config`` runs ``pipeline/recording/__init__.py`` first). Relative imports are
 resolved; `from package import name` where `name` is a submodule counts as
 importing that submodule, otherwise as importing the package's `__init__`.
 """
@@ -71,6 +73,15 @@ def _targets(node: ast.Import | ast.ImportFrom, module: str, files: dict[str, Pa
     return found
 
 
+def _packages_above(module: str) -> list[str]:
+    parts = module.split(".")
+    return [".".join(parts[:k]) for k in range(1, len(parts))]
+
+
+def _is_above(package: str, module: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
 @functools.cache
 def import_edges(root: Path = ROOT) -> tuple[tuple[str, str, int, bool], ...]:
     """(importer, imported, line, inside a function) for every import of a project module."""
@@ -85,6 +96,11 @@ def import_edges(root: Path = ROOT) -> tuple[tuple[str, str, int, bool], ...]:
                     for target in _targets(child, module, files):
                         if target != module:
                             edges.append((module, target, child.lineno, in_function))
+                        # importing a.b.c runs a/__init__ and a/b/__init__ first: a hidden
+                        # edge to each package above the target that is not above us
+                        for parent in _packages_above(target):
+                            if parent != module and parent in files and not _is_above(parent, module):
+                                edges.append((module, parent, child.lineno, in_function))
                 inner = in_function or isinstance(
                     child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda
                 )

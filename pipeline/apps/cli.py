@@ -342,7 +342,7 @@ def export(
 ):
     """Write a study's training tour as a recording: reads in sllurp's CSV layout (or a ROS 2
     bag), the robot's estimated poses, the tag layout, the antenna mounts (docs/recordings.md)."""
-    from pipeline.recording import export_recording
+    from pipeline.apps.export import export_recording
 
     _existing_run_dir(run_dir, "export")
     try:

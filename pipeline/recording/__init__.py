@@ -1,4 +1,4 @@
-"""Recordings: a real reader's log and a robot's poses as files, in and out (issue 53).
+"""Recordings: a real reader's log and a robot's poses read from files.
 
 - :mod:`.csvformats` - the reads in the CSV layout ``sllurp log`` writes, the poses and
   the tag layout as plain CSV: readers that stop at the first bad row naming
@@ -10,16 +10,14 @@
   detection model's counts rest on);
 - :mod:`.config` - the ``[recording]`` section;
 - :mod:`.rosbag` - a ROS 2 bag's reads and poses (:func:`read_rosbag`, with ``rosbags``:
-  MCAP and sqlite3, no ROS install); :mod:`.rosbag_export` - a run written as a bag
-  (:func:`export_mcap`); the message type ``rfidstudy_msgs/msg/RfidRead``
-  is ``rfidmsg/RfidRead.msg``;
-- :mod:`.export` - a finished study's training tour written as such a recording
-  (``rfidstudy export RUN --format csv|mcap --out DIR``); :mod:`.runtour` - what the
-  exports read from the run and share.
+  MCAP and sqlite3, no ROS install); the message type ``rfidstudy_msgs/msg/RfidRead``
+  is ``rfidmsg/RfidRead.msg``.
 
 The recorded study's stages are :mod:`pipeline.stages.recorded`,
-:mod:`pipeline.stages.sim_vs_real` and :mod:`pipeline.stages.recorded_eval`. Not here
-yet (issue 53): calibration.
+:mod:`pipeline.stages.sim_vs_real`, :mod:`pipeline.stages.calibration` and
+:mod:`pipeline.stages.recorded_eval`. The other direction, a finished study's training
+tour written as a recording (``rfidstudy export RUN --format csv|mcap --out DIR``), reads
+a run directory, so it is an application: :mod:`pipeline.apps.export`.
 """
 
 from pipeline.recording.attempts import recorded_read_table
@@ -34,20 +32,15 @@ from pipeline.recording.csvformats import (
     write_sllurp_csv,
     write_tags_csv,
 )
-from pipeline.recording.export import export_csv, export_recording
 from pipeline.recording.impinj import read_impinj_csv, write_impinj_csv
 from pipeline.recording.load import Recording, load_recording, recorded_tagset
 from pipeline.recording.rosbag import read_rosbag
-from pipeline.recording.rosbag_export import export_mcap
 
 __all__ = [
     "Recording",
     "RecordingConfig",
     "RecordingError",
     "align_reads",
-    "export_csv",
-    "export_mcap",
-    "export_recording",
     "load_recording",
     "read_impinj_csv",
     "read_poses_csv",

@@ -15,13 +15,13 @@ from typer.testing import CliRunner
 
 from pipeline.acquisition import ReaderConfig
 from pipeline.apps.cli import app
+from pipeline.apps.export.csv_export import EPOCH_S, tag_id_of
 from pipeline.recording import (
     Recording,
     RecordingError,
     read_impinj_csv,
     recorded_read_table,
 )
-from pipeline.recording.export import EPOCH_S, tag_id_of
 from pipeline.recording.load import detect_format
 from pipeline.robot.kinematics import AntennaMount
 from scenes.scene import TagSet

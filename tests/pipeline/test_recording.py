@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.apps.cli import app
+from pipeline.apps.export.csv_export import EPOCH_S, epc_of, tag_id_of
 from pipeline.recording import (
     RecordingError,
     align_reads,
@@ -16,7 +17,6 @@ from pipeline.recording import (
     read_sllurp_csv,
     read_tags_csv,
 )
-from pipeline.recording.export import EPOCH_S, epc_of, tag_id_of
 
 HEADER = "timestamp,reader,antenna,rssi,epc\r\n"
 

@@ -15,9 +15,9 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.apps.cli import app
+from pipeline.apps.export.csv_export import EPOCH_S, epc_of
 from pipeline.recording import RecordingConfig, RecordingError, load_recording, read_rosbag
 from pipeline.recording.config import recording_overrides
-from pipeline.recording.export import EPOCH_S, epc_of
 from pipeline.recording.load import READ_FIELDS, detect_format
 from pipeline.recording.rosbag import RFID_READ, rfid_typestore
 

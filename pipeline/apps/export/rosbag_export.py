@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.apps.export.runtour import EPOCH_S, run_tour, write_layout
 from pipeline.recording.rosbag import RFID_READ, TOPICS, rfid_typestore
-from pipeline.recording.runtour import EPOCH_S, run_tour, write_layout
 
 __all__ = ["MAP_HEIGHT_KEY", "MAP_MARGIN_M", "MAP_RESOLUTION_M", "export_mcap", "occupancy_grid",
            "write_bag"]

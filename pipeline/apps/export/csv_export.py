@@ -32,10 +32,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.apps.export.rosbag_export import export_mcap
+from pipeline.apps.export.runtour import EPOCH_S, RunTour, epc_of, run_tour, tag_id_of, write_layout
 from pipeline.recording.csvformats import write_poses_csv, write_sllurp_csv
 from pipeline.recording.impinj import write_impinj_csv
-from pipeline.recording.rosbag_export import export_mcap
-from pipeline.recording.runtour import EPOCH_S, RunTour, epc_of, run_tour, tag_id_of, write_layout
 
 __all__ = ["EPOCH_S", "EXPORT_FORMATS", "RunTour", "epc_of", "export_csv", "export_recording",
            "run_tour", "tag_id_of", "write_layout"]
