@@ -124,7 +124,7 @@ def test_no_module_outside_the_registry_branches_on_rosmap():
 
 
 def test_the_rows_and_their_order():
-    assert list(SOURCES) == ["corridor", "mesh", "mitsuba", "map"]
+    assert list(SOURCES)[:4] == ["corridor", "mesh", "mitsuba", "map"]  # more may follow
     assert source_of_file("a/site.YAML").name == "map" and source_of_file("x.yml").name == "map"
     assert source_of_file("scene.xml").name == "mitsuba" and source_of_file("room.glb").name == "mesh"
     assert source_of_file("scene.toml") is None and source_of_file("notes.txt") is None
@@ -208,7 +208,7 @@ def test_a_registered_source_is_found_by_suffix_table_precheck_and_target(tmp_pa
     check_source(toml)
     assert checked == [f, tmp_path / "hall.FAKE"]
     with pytest.raises(scenes.SpecError, match=r"exactly one of \[corridor\], \[mesh\], \[mitsuba\], "
-                                               r"\[map\], \[fake\]"):
+                                               r"\[map\], .*\[fake\] is needed"):
         scenes.spec_from_dict({"name": "x"})
     from pipeline.config import ConfigError
     from pipeline.targets import resolve_target
