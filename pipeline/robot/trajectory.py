@@ -27,16 +27,8 @@ from scenes.sources import traits_of
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "held_out_lane",
-    "DriveProfile",
-    "TourConfig",
-    "Trajectory",
-    "check_trajectory",
-    "collision_map",
-    "evaluation_path",
-    "guided_tour",
-]
+__all__ = ["held_out_lane", "DriveProfile", "TourConfig", "Trajectory", "check_trajectory",
+           "collision_map", "evaluation_path", "guided_tour"]
 
 
 @dataclass(frozen=True)
@@ -162,9 +154,8 @@ class DriveProfile:
     resolution_m : float
         Cell size of the collision map [m].
     map_band_half_width_m : float
-        On a map scene (a source whose :attr:`scenes.sources.SceneTraits.plans_route`) the
-        route is where the robot drives: its lanes lie within this of it [m] (a
-        corridor's route is its centre line: lanes span up to 6 m).
+        On a map scene (``scenes.sources.SceneTraits.plans_route``) the route is where the robot
+        drives: its lanes lie within this of it [m] (a corridor's centre line: up to 6 m).
     """
 
     lane_change_length_m: float = 2.0
