@@ -36,6 +36,7 @@ from propagation.linkbudget import LinkBudget
 from propagation.patterns import PATTERNS, POLARIZATIONS
 from propagation.raybudget import memory_shortfall
 from propagation.tracing import METHODS, TraceMethod, TraceOptions
+from scenes.sources import file_suffixes
 
 #: The library's tracing defaults: the [tracing] section's defaults are these, so the
 #: study and ``propagation.trace_links`` trace the same truth.
@@ -430,7 +431,7 @@ def _removed_keys(data: dict, source: str) -> None:
 
 def _resolve_paths(cfg: StudyConfig, base_dir: Path) -> StudyConfig:
     scene = cfg.scene
-    if ("/" in scene or scene.endswith((".toml", ".xml", ".yaml", ".yml"))) and not Path(scene).is_absolute():
+    if ("/" in scene or scene.endswith((".toml", *file_suffixes()))) and not Path(scene).is_absolute():
         scene = str((base_dir / scene).resolve())
     tracing = cfg.tracing
     if tracing.cache_dir and not Path(tracing.cache_dir).expanduser().is_absolute():

@@ -12,6 +12,7 @@ Public entry points::
     scenes.is_free(scene, points) / scenes.floor_plan_segments(scene, z_m) / scenes.raycast(...)
     scenes.material("concrete", 865e6) -> (relative_permittivity, conductivity_s_per_m)
     scene.radio_surfaces / scenes.radio_groups(scene)   # what the ray tracer sees
+    scenes.SOURCES / scenes.register_source(...)         # where scenes come from (scenes.sources)
 """
 
 from scenes.catalog import SceneSummary, build, bundled_path, list_bundled, load, summarize
@@ -44,6 +45,7 @@ from scenes.materials import (
 from scenes.radio import CONSTRUCTIONS, RadioGroup, RadioSurface, radio_groups, tracing_surfaces
 from scenes.rosmap import RosMap, RosMapError, read_map
 from scenes.scene import Scene, TagSet
+from scenes.sources import SOURCES, SceneSource, SceneTraits, register_source
 from scenes.spec import (
     BoxSpec,
     CabinetSpec,
@@ -73,6 +75,10 @@ __all__ = [
     "extract_obstacles",
     "load_map",
     "read_map",
+    "SOURCES",
+    "SceneSource",
+    "SceneTraits",
+    "register_source",
     "CONSTRUCTIONS",
     "ITU_NAME_MAP",
     "MATERIALS",

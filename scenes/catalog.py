@@ -8,95 +8,82 @@ from pathlib import Path
 
 import numpy as np
 
-from scenes.generator import build_corridor
-from scenes.importers import MESH_SUFFIXES, import_mesh, load_mitsuba_xml
-from scenes.mapscene import build_map_scene, load_map
-from scenes.rosmap import read_map
 from scenes.scene import Scene
+from scenes.sources import SOURCES, file_suffixes, source_of_file, source_of_spec
 from scenes.spec import SceneSpec
 from scenes.spec_toml import load_spec, overrides_metadata, spec_to_dict
 
-__all__ = ["SceneSummary", "build", "bundled_path", "check_map_source", "list_bundled", "load", "summarize"]
+__all__ = ["SceneSummary", "build", "bundled_path", "check_source", "list_bundled", "load", "summarize"]
 
 
 def _data_dir() -> Path:
     return Path(str(resources.files("scenes") / "data"))
 
 
+def _bundled_suffixes() -> list[str]:
+    """``.toml``, then the suffixes of the sources whose files are bundled scenes of their own."""
+    return [".toml", *(row.bundled_suffix for row in SOURCES.values() if row.bundled_suffix)]
+
+
 def list_bundled() -> list[str]:
-    """Names of the bundled scenes (``scenes/data/<name>.toml`` and ROS maps ``<name>.yaml``), sorted."""
+    """Names of the bundled scenes (``scenes/data/<name>.toml``, and files of a source
+    bundled on their own: ROS maps ``<name>.yaml``), sorted."""
     names = {p.stem for p in _data_dir().glob("*.toml") if not p.name.endswith(".tags.toml")}
-    return sorted(names | {p.stem for p in _data_dir().glob("*.yaml")})
+    for suffix in _bundled_suffixes()[1:]:
+        names |= {p.stem for p in _data_dir().glob(f"*{suffix}")}
+    return sorted(names)
 
 
 def bundled_path(name: str) -> Path:
-    """Path of bundled scene ``name``'s TOML spec.
+    """Path of bundled scene ``name``'s TOML spec (or of its file, a bundled map's YAML).
 
     Raises
     ------
     ValueError
         If there is no such bundled scene (the known names are listed).
     """
-    path = _data_dir() / f"{name}.toml"
-    if not path.is_file():
-        path = _data_dir() / f"{name}.yaml"
-    if not path.is_file():
-        raise ValueError(f"unknown bundled scene {name!r}; bundled scenes: {', '.join(list_bundled())}")
-    return path
+    for suffix in _bundled_suffixes():
+        path = _data_dir() / f"{name}{suffix}"
+        if path.is_file():
+            return path
+    raise ValueError(f"unknown bundled scene {name!r}; bundled scenes: {', '.join(list_bundled())}")
 
 
 def build(spec: SceneSpec) -> Scene:
     """Build the :class:`Scene` a :class:`~scenes.spec.SceneSpec` describes.
 
-    A ``[corridor]`` spec is generated (:func:`scenes.generator.build_corridor`); a
-    ``[mesh]`` or ``[mitsuba]`` spec loads its file (relative to the spec's folder) and
-    places the spec's tags on it; its ``radio_geometry`` says what the tracer sees.
+    Its source table's row of :data:`scenes.sources.SOURCES` builds it (a ``[corridor]``
+    is generated, :func:`scenes.generator.build_corridor`; a ``[mesh]`` or ``[mitsuba]``
+    file is loaded relative to the spec's folder and the spec's tags placed on it, its
+    ``radio_geometry`` saying what the tracer sees; a ``[map]`` is extracted,
+    :mod:`scenes.mapscene`); ``metadata`` gets the spec and its material overrides.
     """
-    if spec.corridor is not None:
-        return build_corridor(spec)
-    if spec.map is not None:
-        scene = build_map_scene(spec.map, name=spec.name, base_dir=spec.base_dir, tags=spec.tags,
-                                tag_layout=spec.tag_layout, route_m=spec.route_m,
-                                source=spec.source or spec.name,
-                                material_overrides=overrides_metadata(spec).get("material_overrides"))
-        scene.metadata["spec"] = spec_to_dict(spec)
-        return scene
-    base = Path(spec.base_dir)
-    route = spec.route_m
-    src = spec.mesh if spec.mesh is not None else spec.mitsuba
-    radio = {"radio_geometry": src.radio_geometry, "thin_box_max_m": src.thin_box_max_m,
-             "thin_box_face": src.thin_box_face}
-    if spec.mesh is not None:
-        scene = import_mesh(base / spec.mesh.path, material=spec.mesh.material,
-                            material_map=spec.mesh.material_map, tags=spec.tags, name=spec.name,
-                            route_m=route, **radio)
-    else:
-        scene = load_mitsuba_xml(base / spec.mitsuba.path, tags=spec.tags, route_m=route,
-                                 name=spec.name, **radio)
+    scene = source_of_spec(spec).build(spec)
     scene.metadata.update({"spec": spec_to_dict(spec), **overrides_metadata(spec)})
     return scene
 
 
 def load(name_or_path: str | Path, **kwargs) -> Scene:
-    """Load a scene by bundled name, scene TOML, Mitsuba XML or mesh file.
+    """Load a scene by bundled name, scene TOML, or a file a scene source reads.
 
     Parameters
     ----------
     name_or_path : str or Path
-        ``"corridor_lab"`` (see :func:`list_bundled`), ``*.toml`` spec, ``*.xml`` Mitsuba
-        scene, ``*.yaml`` ROS map_server map (:mod:`scenes.mapscene`; ``kwargs`` go to
-        :class:`scenes.mapspec.MapSpec`), or a mesh file (``.ply``, ``.obj``, ``.glb`` ...; pass ``material=`` or
-        ``material_map=``).
+        ``"corridor_lab"`` (see :func:`list_bundled`), ``*.toml`` spec, or a file with a
+        suffix of a row of :data:`scenes.sources.SOURCES`: ``*.xml`` Mitsuba scene,
+        ``*.yaml`` ROS map_server map (:mod:`scenes.mapscene`; ``kwargs`` go to
+        :class:`scenes.mapspec.MapSpec`), or a mesh file (``.ply``, ``.obj``, ``.glb`` ...;
+        pass ``material=`` or ``material_map=``).
     **kwargs
-        Passed to :func:`scenes.importers.import_mesh` or
-        :func:`scenes.importers.load_mitsuba_xml` (e.g. ``tags=``).
+        Passed to the source's file loader (:func:`scenes.importers.import_mesh`,
+        :func:`scenes.importers.load_mitsuba_xml`, e.g. ``tags=``).
 
     Raises
     ------
     FileNotFoundError
         A path (it has a suffix or a folder) that does not exist.
     ValueError
-        A bare name that is not a bundled scene.
+        A bare name that is not a bundled scene; a suffix no source reads.
     """
     text = str(name_or_path)
     path = Path(text)
@@ -104,30 +91,29 @@ def load(name_or_path: str | Path, **kwargs) -> Scene:
     looks_like_path = bool(suffix) or len(path.parts) > 1
     if not looks_like_path:
         path = bundled_path(text)
-        if path.suffix == ".yaml":
-            return load_map(path, **kwargs)
-        return build(load_spec(path))
+        if path.suffix == ".toml":
+            return build(load_spec(path))
+        return source_of_file(path).load_file(path, **kwargs)
     if not path.is_file():
         raise FileNotFoundError(f"scene file {text!r} "
                                 + ("is a directory, not a file" if path.is_dir() else "does not exist"))
     if suffix == ".toml":
         return build(load_spec(path))
-    if suffix == ".xml":
-        return load_mitsuba_xml(path, **kwargs)
-    if suffix in (".yaml", ".yml"):
-        return load_map(path, **kwargs)
-    if suffix in MESH_SUFFIXES:
-        return import_mesh(path, **kwargs)
-    raise ValueError(f"{text}: unsupported scene file type {suffix!r} (.toml, .xml, .yaml, "
-                     f"{', '.join(MESH_SUFFIXES)})")
+    source = source_of_file(path)
+    if source is None or source.load_file is None:
+        raise ValueError(f"{text}: unsupported scene file type {suffix!r} (.toml, "
+                         f"{', '.join(file_suffixes())})")
+    return source.load_file(path, **kwargs)
 
 
-def check_map_source(name_or_path: str | Path) -> None:
-    """Read the map behind a scene reference, if there is one: a cheap check before a run.
+def check_source(name_or_path: str | Path) -> None:
+    """Read the file behind a scene reference cheaply, if its source checks one: before a run.
 
-    ``name_or_path`` as for :func:`scenes.load`; a ``.yaml`` map, a scene TOML with
-    ``[map]`` or a bundled map scene has its TOML (if any) and its map read, so a bad map
-    stops with its one-line error before anything is written. Other scenes pass.
+    ``name_or_path`` as for :func:`scenes.load`; a file of a source with a
+    :attr:`~scenes.sources.SceneSource.precheck` (a ``.yaml`` map), a scene TOML whose
+    source table names such a file (``[map]``) or such a bundled scene has its TOML (if
+    any) and its file read, so a bad map stops with its one-line error before anything is
+    written. Other scenes pass.
 
     Raises
     ------
@@ -140,13 +126,16 @@ def check_map_source(name_or_path: str | Path) -> None:
             p = bundled_path(text)
         except ValueError:
             return
-    if p.suffix.lower() in (".yaml", ".yml"):
-        read_map(p)
-    elif p.suffix.lower() == ".toml" and p.is_file():
-        spec = load_spec(p)
-        if spec.map is not None:
-            base = Path(spec.base_dir)
-            read_map(Path(spec.map.path) if Path(spec.map.path).is_absolute() else base / spec.map.path)
+    if p.suffix.lower() == ".toml":
+        if p.is_file():
+            spec = load_spec(p)
+            source = source_of_spec(spec)
+            if source.precheck is not None and source.file_of(spec) is not None:
+                source.precheck(source.file_of(spec))
+        return
+    source = source_of_file(p)
+    if source is not None and source.precheck is not None:
+        source.precheck(p)
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,11 @@ from scenes.spec import (
     SceneSpec,
     SegmentSpec,
     TagSpec,
+    check_spec,
+    overrides_metadata,
     parse_item,
+    spec_to_dict,
 )
-from scenes.spec_toml import check_spec, overrides_metadata, spec_to_dict
 from scenes.tags import make_tags, validate_tags
 
 __all__ = ["corridor", "build_corridor", "corridor_route"]
@@ -435,7 +437,7 @@ def corridor(
     spec = SceneSpec(
         name=name,
         description=description,
-        corridor=cspec,
+        source_tables={"corridor": cspec},
         segments=items(SegmentSpec, segments or (), "segments"),
         doors=items(DoorSpec, doors, "doors"),
         panels=items(PanelSpec, list(glass_panels) + list(panels), "panels"),

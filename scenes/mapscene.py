@@ -501,7 +501,8 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
     scene = Scene(name=name or yaml_path.stem, meshes=meshes,
                   tags=TagSet(np.zeros(0, dtype=str), np.zeros((0, 3)), np.zeros((0, 3))),
                   source=where, metadata=metadata, route_m=route,
-                  free_space_m=_free_boxes(cls, rosmap, H), radio_surfaces=tuple(radio), rosmap=rosmap)
+                  free_space_m=_free_boxes(cls, rosmap, H), radio_surfaces=tuple(radio), rosmap=rosmap,
+                  source_digest=rosmap.digest())
     layout = TagLayoutSpec() if tag_layout is None else tag_layout
     specs = list(tags)
     if layout.layout == "shelves":

@@ -118,7 +118,12 @@ class Scene:
         Geometric queries (collision, laser, tags) always use ``meshes``.
     rosmap : scenes.rosmap.RosMap or None
         The occupancy-grid map the scene was extracted from (:mod:`scenes.mapscene`):
-        the robot localises in it as it is; ``None`` for every other scene.
+        the robot localises in it as it is; ``None`` for every other scene. How the
+        pipeline uses it is the map source's row of :data:`scenes.sources.SOURCES`.
+    source_digest : str
+        Digest of what the scene was made from beyond its geometry and tags (a map
+        scene: its map's, :meth:`scenes.rosmap.RosMap.digest`); part of
+        :meth:`content_hash`. ``""``: nothing (it then adds nothing to the hash).
     """
 
     name: str
@@ -130,6 +135,7 @@ class Scene:
     free_space_m: np.ndarray | None = None
     radio_surfaces: tuple[RadioSurface, ...] | None = None
     rosmap: object | None = None
+    source_digest: str = ""
 
     @property
     def materials(self) -> list[str]:
@@ -152,7 +158,8 @@ class Scene:
 
         Covers the solid meshes, the radio surfaces (materials, thicknesses, triangles;
         nothing is added when they are ``None``, so imported scenes keep their hash), the
-        tags, ``metadata["material_overrides"]`` and the map of a map scene.
+        tags, ``metadata["material_overrides"]`` and :attr:`source_digest` (the map of a
+        map scene).
         """
         h = hashlib.sha256()
         for name in self.materials:
@@ -166,8 +173,7 @@ class Scene:
         h.update(json.dumps(self.metadata.get("material_overrides", {}), sort_keys=True).encode())
         if self.radio_surfaces is not None:
             hash_radio_surfaces(h, self.radio_surfaces)
-        if self.rosmap is not None:
-            h.update(self.rosmap.digest().encode())
+        h.update(self.source_digest.encode())  # b"": the hash of a scene without one is unchanged
         return h.hexdigest()
 
     def export_mitsuba(self, directory: str | Path, frequency_hz: float) -> Path:

@@ -1,7 +1,8 @@
 """Scene specifications: typed dataclasses read from and written to TOML.
 
-A scene TOML describes one of three sources, plus doors, panels, boxes, cabinets,
-tags and an optional route::
+A scene TOML describes one source (a row of :data:`scenes.sources.SOURCES`: these three,
+and ``[map]``, :mod:`scenes.mapspec`), plus doors, panels, boxes, cabinets, tags and an
+optional route::
 
     name = "corridor_lab"
     route_m = [[0.6, 1.2], [24.4, 1.2]]        # optional robot route (x, y) [m]
@@ -46,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from collections import Counter
 from dataclasses import dataclass, field
 
 from scenes.materials import UnknownMaterialError, resolve_material_name
@@ -69,6 +71,9 @@ __all__ = [
     "parse_item",
     "convert_value",
     "item_where",
+    "check_spec",
+    "spec_to_dict",
+    "overrides_metadata",
 ]
 
 
@@ -327,9 +332,11 @@ class SceneSpec:
         Scene name.
     description : str
         Free text.
-    corridor, mesh, mitsuba, map : CorridorSpec, MeshSpec, MitsubaSpec, MapSpec or None
-        Exactly one is set: where the geometry comes from (``map``: a ROS occupancy-grid
-        map, :class:`scenes.mapspec.MapSpec`, TOML ``[map]``).
+    source_tables : dict of str to object
+        The table that says where the geometry comes from, by its name: exactly one in a
+        valid spec, a row of :data:`scenes.sources.SOURCES` (``{"corridor": CorridorSpec(...)}``;
+        ``"map"``: a ROS occupancy-grid map, :class:`scenes.mapspec.MapSpec`, TOML ``[map]``).
+        :attr:`corridor`, :attr:`mesh`, :attr:`mitsuba` and :attr:`map` read it.
     segments : tuple of SegmentSpec
         Free-space rectangles of a generated corridor (empty: straight corridor).
     doors, panels, boxes, cabinets, tags : tuple
@@ -349,9 +356,7 @@ class SceneSpec:
 
     name: str
     description: str = ""
-    corridor: CorridorSpec | None = None
-    mesh: MeshSpec | None = None
-    mitsuba: MitsubaSpec | None = None
+    source_tables: dict[str, typing.Any] = field(default_factory=dict)
     segments: tuple[SegmentSpec, ...] = ()
     doors: tuple[DoorSpec, ...] = ()
     panels: tuple[PanelSpec, ...] = ()
@@ -360,10 +365,29 @@ class SceneSpec:
     tags: tuple[TagSpec, ...] = ()
     route_m: tuple[tuple[float, float], ...] | None = None
     material_overrides: dict[str, MaterialOverride] = field(default_factory=dict)
-    map: typing.Any = None
     tag_layout: typing.Any = None
     base_dir: str = "."
     source: str = ""
+
+    @property
+    def corridor(self) -> CorridorSpec | None:
+        """The ``[corridor]`` table (a generated corridor), or None."""
+        return self.source_tables.get("corridor")
+
+    @property
+    def mesh(self) -> MeshSpec | None:
+        """The ``[mesh]`` table (an imported mesh file), or None."""
+        return self.source_tables.get("mesh")
+
+    @property
+    def mitsuba(self) -> MitsubaSpec | None:
+        """The ``[mitsuba]`` table (a Mitsuba XML scene), or None."""
+        return self.source_tables.get("mitsuba")
+
+    @property
+    def map(self):
+        """The ``[map]`` table (:class:`scenes.mapspec.MapSpec`, a ROS map), or None."""
+        return self.source_tables.get("map")
 
 
 #: Largest length or coordinate a scene file may give [m]: a site with room for a campus;
@@ -479,3 +503,75 @@ def _beyond(value, limit: float) -> bool:
     if isinstance(value, (tuple, list)):
         return any(_beyond(v, limit) for v in value)
     return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) > limit
+
+
+def check_spec(spec: SceneSpec, source: str) -> None:
+    """Cross-field checks of a spec (segment corners, corridor items, unique tag ids)."""
+    c = spec.corridor
+    if c is not None:
+        straight = c.length_m is not None or c.width_m is not None
+        if straight and spec.segments:
+            raise SpecError(f"{source}: [corridor] length_m/width_m and [[segment]] exclude each other")
+        if not spec.segments and (c.length_m is None or c.width_m is None):
+            raise SpecError(f"{source}: [corridor] needs length_m and width_m, or [[segment]] tables")
+        for i, s in enumerate(spec.segments):
+            if not (s.min_m[0] < s.max_m[0] and s.min_m[1] < s.max_m[1]):
+                raise SpecError(f"{source}: [[segment]] #{i + 1}: min_m {s.min_m} must be below max_m {s.max_m}")
+    elif spec.segments or spec.doors or spec.panels or spec.boxes or spec.cabinets:
+        raise SpecError(f"{source}: [[segment]], [[door]], [[panel]], [[box]] and [[cabinet]] "
+                        "need a [corridor]")
+    ids = [t.id for t in spec.tags]
+    dup = sorted(i for i, k in Counter(ids).items() if k > 1)  # linear: 100,000 tags in ms
+    if dup:
+        raise SpecError(f"{source}: duplicate tag ids {dup}")
+
+
+#: Item tables of a scene TOML: TOML array-of-tables name -> (SceneSpec attribute, class).
+ITEM_TABLES = {
+    "segment": ("segments", SegmentSpec),
+    "door": ("doors", DoorSpec),
+    "panel": ("panels", PanelSpec),
+    "box": ("boxes", BoxSpec),
+    "cabinet": ("cabinets", CabinetSpec),
+    "tag": ("tags", TagSpec),
+}
+
+
+def spec_to_dict(spec: SceneSpec) -> dict:
+    """The TOML mapping of ``spec`` (``None`` values and ``base_dir`` left out)."""
+
+    def clean(obj):
+        if dataclasses.is_dataclass(obj):
+            return {f.name: clean(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                    if getattr(obj, f.name) is not None}
+        if isinstance(obj, (tuple, list)):
+            return [clean(v) for v in obj]
+        if isinstance(obj, dict):
+            return {k: clean(v) for k, v in obj.items()}
+        return obj
+
+    out: dict = {"name": spec.name}
+    if spec.description:
+        out["description"] = spec.description
+    if spec.route_m is not None:
+        out["route_m"] = clean(spec.route_m)
+    if spec.material_overrides:
+        out["material_overrides"] = {k: clean(v) for k, v in spec.material_overrides.items()}
+    for table, value in spec.source_tables.items():
+        out[table] = clean(value)
+    if spec.tag_layout is not None:
+        out["tags"] = clean(spec.tag_layout)
+    for table, (attr, _) in ITEM_TABLES.items():
+        items = getattr(spec, attr)
+        if items:
+            out[table] = [clean(it) for it in items]
+    return out
+
+
+def overrides_metadata(spec: SceneSpec) -> dict:
+    """``{"material_overrides": {name: {key: value}}}`` for ``Scene.metadata`` (empty if none)."""
+    if not spec.material_overrides:
+        return {}
+    return {"material_overrides": {
+        name: {k: v for k, v in dataclasses.asdict(ov).items() if v is not None}
+        for name, ov in sorted(spec.material_overrides.items())}}

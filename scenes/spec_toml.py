@@ -1,31 +1,30 @@
-"""Reading and writing scene specs as TOML (see :mod:`scenes.spec` for the layout)."""
+"""Reading and writing scene specs as TOML (see :mod:`scenes.spec` for the layout).
+
+The source tables a scene TOML may hold (``[corridor]``, ``[mesh]``, ``[mitsuba]``,
+``[map]`` ...) and the tables that go with one (the map's ``[tags]``) are the rows of
+:data:`scenes.sources.SOURCES`.
+"""
 
 from __future__ import annotations
 
-import dataclasses
-from collections import Counter
 from pathlib import Path
 
 import tomli_w
 
 from scenes.fileio import atomic_write_bytes
 from scenes.materials import UnknownMaterialError, resolve_material_name
+from scenes.sources import SOURCES
 from scenes.spec import (
-    BoxSpec,
-    CabinetSpec,
-    CorridorSpec,
-    DoorSpec,
+    ITEM_TABLES,
     MaterialOverride,
-    MeshSpec,
-    MitsubaSpec,
-    PanelSpec,
     SceneSpec,
-    SegmentSpec,
     SpecError,
-    TagSpec,
+    check_spec,
     convert_value,
     item_where,
+    overrides_metadata,
     parse_item,
+    spec_to_dict,
 )
 
 try:  # Python >= 3.11
@@ -42,24 +41,14 @@ __all__ = [
     "overrides_metadata",
 ]
 
-#: TOML array-of-tables names for the item tuples of SceneSpec.
-_ITEM_TABLES = {
-    "segment": ("segments", SegmentSpec),
-    "door": ("doors", DoorSpec),
-    "panel": ("panels", PanelSpec),
-    "box": ("boxes", BoxSpec),
-    "cabinet": ("cabinets", CabinetSpec),
-    "tag": ("tags", TagSpec),
-}
-_SOURCE_TABLES = {"corridor": CorridorSpec, "mesh": MeshSpec, "mitsuba": MitsubaSpec}
-
 
 def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".") -> SceneSpec:
     """Build a :class:`SceneSpec` from the parsed TOML mapping (see :func:`load_spec`)."""
     if not isinstance(data, dict):
         raise SpecError(f"{source}: expected a table at top level")
-    top_known = {"name", "description", "route_m", "material_overrides", "map", "tags",
-                 *_SOURCE_TABLES, *_ITEM_TABLES}
+    extra = [(row, t) for row in SOURCES.values() for t in row.extra_tables]
+    top_known = {"name", "description", "route_m", "material_overrides", *SOURCES,
+                 *(t.name for _, t in extra), *ITEM_TABLES}
     unknown = sorted(set(data) - top_known)
     if unknown:
         raise SpecError(
@@ -85,26 +74,20 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
             raise UnknownMaterialError(f"{source}: [material_overrides.{mat}]: {exc}") from None
         kwargs["material_overrides"][key] = parse_item(
             MaterialOverride, values, f"{source}: [material_overrides.{mat}]")
-    for table, cls in _SOURCE_TABLES.items():
-        if table in data:
-            kwargs[table] = parse_item(cls, data[table], f"{source}: [{table}]")
-    if "map" in data:
-        from scenes.mapspec import parse_map_table
-
-        kwargs["map"] = parse_map_table(data["map"], f"{source}: [map]")
-    if "tags" in data:
-        if "map" not in data:
-            raise SpecError(f"{source}: [tags] needs a [map] (tag layouts on shelves)")
-        from scenes.mapspec import parse_tags_table
-
-        kwargs["tag_layout"] = parse_tags_table(data["tags"], f"{source}: [tags]")
-    sources = [t for t in (*_SOURCE_TABLES, "map") if t in kwargs]
-    if len(sources) != 1:
+    kwargs["source_tables"] = {name: row.read_table(data[name], f"{source}: [{name}]")
+                               for name, row in SOURCES.items() if name in data}
+    for row, t in extra:
+        if t.name in data:
+            if row.name not in data:
+                why = f" ({t.what})" if t.what else ""
+                raise SpecError(f"{source}: [{t.name}] needs a [{row.name}]{why}")
+            kwargs[t.attr] = t.parse(data[t.name], f"{source}: [{t.name}]")
+    if len(kwargs["source_tables"]) != 1:
         raise SpecError(
-            f"{source}: exactly one of [corridor], [mesh], [mitsuba], [map] is needed, got "
-            f"{sources or 'none'}"
+            f"{source}: exactly one of {', '.join(f'[{n}]' for n in SOURCES)} is needed, got "
+            f"{list(kwargs['source_tables']) or 'none'}"
         )
-    for table, (attr, cls) in _ITEM_TABLES.items():
+    for table, (attr, cls) in ITEM_TABLES.items():
         items = data.get(table, [])
         if isinstance(items, dict):
             items = [items]
@@ -117,27 +100,6 @@ def spec_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".
     spec = SceneSpec(**kwargs)
     check_spec(spec, source)
     return spec
-
-
-def check_spec(spec: SceneSpec, source: str) -> None:
-    """Cross-field checks of a spec (source exclusivity, segment corners, unique tag ids)."""
-    c = spec.corridor
-    if c is not None:
-        straight = c.length_m is not None or c.width_m is not None
-        if straight and spec.segments:
-            raise SpecError(f"{source}: [corridor] length_m/width_m and [[segment]] exclude each other")
-        if not spec.segments and (c.length_m is None or c.width_m is None):
-            raise SpecError(f"{source}: [corridor] needs length_m and width_m, or [[segment]] tables")
-        for i, s in enumerate(spec.segments):
-            if not (s.min_m[0] < s.max_m[0] and s.min_m[1] < s.max_m[1]):
-                raise SpecError(f"{source}: [[segment]] #{i + 1}: min_m {s.min_m} must be below max_m {s.max_m}")
-    elif spec.segments or spec.doors or spec.panels or spec.boxes or spec.cabinets:
-        raise SpecError(f"{source}: [[segment]], [[door]], [[panel]], [[box]] and [[cabinet]] "
-                        "need a [corridor]")
-    ids = [t.id for t in spec.tags]
-    dup = sorted(i for i, k in Counter(ids).items() if k > 1)  # linear: 100,000 tags in ms
-    if dup:
-        raise SpecError(f"{source}: duplicate tag ids {dup}")
 
 
 def load_spec(path: str | Path) -> SceneSpec:
@@ -164,52 +126,8 @@ def load_spec(path: str | Path) -> SceneSpec:
     return spec_from_dict(data, source=str(path), base_dir=path.parent)
 
 
-def spec_to_dict(spec: SceneSpec) -> dict:
-    """The TOML mapping of ``spec`` (``None`` values and ``base_dir`` left out)."""
-
-    def clean(obj):
-        if dataclasses.is_dataclass(obj):
-            return {f.name: clean(getattr(obj, f.name)) for f in dataclasses.fields(obj)
-                    if getattr(obj, f.name) is not None}
-        if isinstance(obj, (tuple, list)):
-            return [clean(v) for v in obj]
-        if isinstance(obj, dict):
-            return {k: clean(v) for k, v in obj.items()}
-        return obj
-
-    out: dict = {"name": spec.name}
-    if spec.description:
-        out["description"] = spec.description
-    if spec.route_m is not None:
-        out["route_m"] = clean(spec.route_m)
-    if spec.material_overrides:
-        out["material_overrides"] = {k: clean(v) for k, v in spec.material_overrides.items()}
-    for table in _SOURCE_TABLES:
-        value = getattr(spec, table)
-        if value is not None:
-            out[table] = clean(value)
-    if spec.map is not None:
-        out["map"] = clean(spec.map)
-    if spec.tag_layout is not None:
-        out["tags"] = clean(spec.tag_layout)
-    for table, (attr, _) in _ITEM_TABLES.items():
-        items = getattr(spec, attr)
-        if items:
-            out[table] = [clean(it) for it in items]
-    return out
-
-
 def save_spec(spec: SceneSpec, path: str | Path) -> Path:
     """Write ``spec`` as TOML (temporary file renamed into place); returns the path."""
     path = Path(path)
     data = tomli_w.dumps(spec_to_dict(spec)).encode()
     return atomic_write_bytes(path, data)
-
-
-def overrides_metadata(spec: SceneSpec) -> dict:
-    """``{"material_overrides": {name: {key: value}}}`` for ``Scene.metadata`` (empty if none)."""
-    if not spec.material_overrides:
-        return {}
-    return {"material_overrides": {
-        name: {k: v for k, v in dataclasses.asdict(ov).items() if v is not None}
-        for name, ov in sorted(spec.material_overrides.items())}}

@@ -44,7 +44,7 @@ def scenes_show(
     except (FileNotFoundError, KeyError, ValueError) as exc:
         fail(str(exc))
     route_note = ""
-    if sc.route_m is None and sc.rosmap is not None:  # a map: the route a study would plan
+    if sc.route_m is None and scenes.sources.traits_of(sc).plans_route:  # a map: the route a study would plan
         from pipeline.robot import Robot
         from pipeline.stages.common import map_route
 

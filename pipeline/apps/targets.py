@@ -10,6 +10,7 @@ import tomllib
 from pathlib import Path
 
 from pipeline.config import ConfigError, StudyConfig, config_from_mapping
+from scenes.sources import source_of_file
 
 __all__ = ["resolve_target"]
 
@@ -31,8 +32,10 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
     ----------
     target : str or None
         ``None``: the default study; a study TOML (a file whose top-level keys are study
-        keys); a map_server YAML (the default study with
-        :func:`pipeline.apps.profiles.map_scale_profile` on top); otherwise a scene: a bundled name, a scene.toml or a Mitsuba XML path.
+        keys); a file of a scene source with a run profile
+        (:attr:`scenes.sources.SceneSource.run_profile`: a map_server YAML, the default
+        study with :func:`pipeline.apps.profiles.map_scale_profile` on top); otherwise a
+        scene: a bundled name, a scene.toml or a file a scene source reads.
     overrides : list of str
         ``KEY=VALUE`` with dotted study keys (``training.epochs=10``); VALUE in TOML syntax.
     backend : str, optional
@@ -42,6 +45,7 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
     source, base_dir = "<default>", None
     if target:
         p = Path(target)
+        scene_source = source_of_file(p)
         if p.suffix == ".toml" and p.is_file():
             try:
                 parsed = tomllib.loads(p.read_text(encoding="utf-8"))
@@ -51,13 +55,14 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
                 data, source, base_dir = parsed, str(p), p.parent
             else:
                 data = {"scene": str(p.resolve())}
-        elif p.suffix in (".toml", ".xml", ".yaml", ".yml") and not p.exists():
+        elif (p.suffix == ".toml" or scene_source is not None) and not p.exists():
             raise ConfigError(f"{p}: no such file")
-        elif p.suffix.lower() in (".yaml", ".yml"):  # a map alone: the map-scale profile
-            from pipeline.apps.profiles import map_scale_profile
+        elif scene_source is not None and scene_source.run_profile:  # a map alone: map-scale
+            from pipeline.apps.profiles import load_profile
 
-            data = {**map_scale_profile(), "scene": str(p.resolve())}
-            source = f"{p} with the map-scale profile (pipeline/apps/profiles/map_scale.toml)"
+            name = scene_source.run_profile
+            data = {**load_profile(name), "scene": str(p.resolve())}
+            source = f"{p} with the {name.replace('_', '-')} profile (pipeline/apps/profiles/{name}.toml)"
         else:
             data = {"scene": str(p.resolve()) if p.exists() else target}
     for ov in overrides or []:

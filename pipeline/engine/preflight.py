@@ -1,7 +1,8 @@
 """Checks of a study against this process, run before the run directory is made.
 
 :func:`check_before_run` is what ``rfidstudy run`` checks once the config is read: the
-occupancy-grid map behind the scene (:func:`scenes.catalog.check_map_source`) and the
+file behind the scene its source checks, an occupancy-grid map
+(:func:`scenes.catalog.check_source`), and the
 tracer's memory budget against the address-space limit (``ulimit -v``) the process
 runs under (:func:`check_address_space`). Under a limit below the budget a study used to
 die in the tracer with a segmentation fault (exit 139) and no message (issue 54).
@@ -82,9 +83,9 @@ def check_before_run(cfg) -> None:
     pipeline.config.ConfigError
         The budget against the address-space limit (:func:`check_address_space`).
     scenes.rosmap.RosMapError, scenes.spec.SpecError, FileNotFoundError
-        A bad occupancy-grid map behind ``cfg.scene``.
+        A bad file behind ``cfg.scene`` (an occupancy-grid map).
     """
     check_address_space(cfg.tracing.memory_budget_mb)
-    from scenes.catalog import check_map_source
+    from scenes.catalog import check_source
 
-    check_map_source(cfg.scene)
+    check_source(cfg.scene)

@@ -26,6 +26,7 @@ from matplotlib.collections import LineCollection
 from pipeline.engine.runstore import run_files
 from pipeline.figures.common import find_first, new_figure, require, save_figure
 from scenes.fileio import read_npz
+from scenes.sources import traits_of
 
 __all__ = ["fig_fields", "fig_mcl_error", "fig_scene_top_view", "scene_top_view"]
 
@@ -99,10 +100,10 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     return save_figure(fig, out_dir or run_dir / "figures", "scene_top_view")
 
 
-def _draw_map_recognition(ax, scene) -> None:
-    """Under a map scene's plan: the map as given (grey levels), the racks and pillars the
-    extraction recognised (filled), and the tags the planned route skips (red crosses)."""
-    rm, m = scene.rosmap, scene.metadata["map"]
+def _draw_map_recognition(ax, scene, rm) -> None:
+    """Under a map scene's plan: its map ``rm`` as given (grey levels), the racks and pillars
+    the extraction recognised (filled), and the tags the planned route skips (red crosses)."""
+    m = scene.metadata["map"]
     shade = np.array([0.6, 0.93, 0.1])  # unknown, free, occupied (cell classes -1, 0, 1)
     img = shade[np.clip(np.asarray(rm.cell_class, int), -1, 1) + 1]
     (x0, y0), (x1, y1) = rm.extent_m
@@ -134,8 +135,9 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
     segs = floor_plan_segments(scene, z_m)
     fig = new_figure(10.0, _plan_height_in(segs, 10.0))
     ax = fig.subplots()
-    if getattr(scene, "rosmap", None) is not None and scene.metadata.get("map"):
-        _draw_map_recognition(ax, scene)
+    grid = traits_of(scene).grid(scene)
+    if grid is not None and scene.metadata.get("map"):
+        _draw_map_recognition(ax, scene, grid)
     _draw_plan(ax, segs, np.asarray(scene.tags.positions_m)[:, :2], list(scene.tags.ids),
                None if scene.route_m is None else np.asarray(scene.route_m)[:, :2])
     fig.legend(fontsize=7, loc="outside lower center", ncol=4, frameon=False)

@@ -17,6 +17,7 @@ import numpy as np
 from scipy import ndimage
 
 from scenes import floor_plan_segments
+from scenes.sources import traits_of
 
 __all__ = ["OccupancyMap", "map_boundary_segments", "slice_heights"]
 
@@ -460,9 +461,10 @@ def map_boundary_segments(scene) -> np.ndarray:
 
     A real map's outer wall has gaps (a window, a missed return, an unmapped doorway):
     the robot may not drive through them into the unmapped outside, so its collision map
-    closes them. Empty for a scene that is not from a map.
+    closes them. Empty for a scene not made from an occupancy grid (its source's
+    :attr:`scenes.sources.SceneTraits.grid`).
     """
-    rm = getattr(scene, "rosmap", None)
+    rm = traits_of(scene).grid(scene)
     boxes = getattr(scene, "free_space_m", None)
     if rm is None or boxes is None or not len(boxes):
         return np.zeros((0, 2, 2))

@@ -38,6 +38,7 @@ from scipy import ndimage
 
 from pipeline.robot.occupancy import OccupancyMap, slice_heights
 from scenes import floor_plan_segments
+from scenes.sources import traits_of
 
 __all__ = [
     "MapError",
@@ -321,11 +322,12 @@ def plan_segments(scene, height_m: float) -> np.ndarray:
     """The floor plan the robot's map is drawn from, segments (k, 2, 2) [m].
 
     The cut of every mesh at the laser height (as the laser map's cut); for a scene
-    extracted from an occupancy-grid map (``scene.rosmap``, :mod:`scenes.rosmap`) the
-    outline of the map's obstacle cells instead: the robot's map is the map as given,
-    with its imperfections, not the geometry extracted from it.
+    made from an occupancy grid (its source's :attr:`scenes.sources.SceneTraits.grid`: a
+    ROS map, :mod:`scenes.rosmap`) the outline of the grid's obstacle cells instead: the
+    robot's map is the map as given, with its imperfections, not the geometry extracted
+    from it.
     """
-    rm = getattr(scene, "rosmap", None)
+    rm = traits_of(scene).grid(scene)
     if rm is None:
         return floor_plan_segments(scene, slice_heights((height_m, height_m), 1)[0])
     from scenes.rosmap import OBSTACLE, boundary_segments, resolve_unknown
@@ -333,8 +335,8 @@ def plan_segments(scene, height_m: float) -> np.ndarray:
     return boundary_segments(resolve_unknown(rm.cell_class) == OBSTACLE, rm.origin_m, rm.resolution_m)
 
 
-def _grid_map(scene, error: MapError) -> OccupancyMap:
-    """The robot's map of a scene from an occupancy-grid map, on that map's own grid.
+def _grid_map(scene, rm, error: MapError) -> OccupancyMap:
+    """The robot's map of a scene from occupancy grid ``rm``, on that grid.
 
     Free: the map's free cells (enclosed unknown ones resolved as in
     :func:`scenes.rosmap.resolve_unknown`) 4-connected to the route; with a map error,
@@ -342,7 +344,6 @@ def _grid_map(scene, error: MapError) -> OccupancyMap:
     """
     from scenes.rosmap import FREE, resolve_unknown
 
-    rm = scene.rosmap
     h = float(error.height_m)
     if not error.is_zero:
         return OccupancyMap.from_segments(error.displaced_lines_m, rm.origin_m, rm.shape,
@@ -418,8 +419,8 @@ def robot_map(
     """Rasterise the displaced floor plan into the grid and likelihood field MCL uses.
 
     Same grid as the true laser map (:meth:`OccupancyMap.scene_grid`); free space is
-    what the scene's route reaches. A scene from an occupancy-grid map (``scene.rosmap``)
-    gets that map as given, on its own grid and resolution (``resolution_m`` unused). A zero ``error`` gives the true laser map exactly
+    what the scene's route reaches. A scene made from an occupancy grid (its source's
+    :attr:`scenes.sources.SceneTraits.grid`: a ROS map) gets that grid as given, on its own grid and resolution (``resolution_m`` unused). A zero ``error`` gives the true laser map exactly
     (``OccupancyMap.from_scene`` at the laser height), before the noise.
 
     Parameters
@@ -441,8 +442,9 @@ def robot_map(
     OccupancyMap
     """
     h = float(error.height_m)
-    if getattr(scene, "rosmap", None) is not None:  # the map as given, on its own grid
-        occ = _grid_map(scene, error)
+    grid = traits_of(scene).grid(scene)
+    if grid is not None:  # the map as given, on its own grid
+        occ = _grid_map(scene, grid, error)
     elif error.is_zero:
         occ = OccupancyMap.from_scene(scene, resolution_m, (h, h), n_slices=1)
     else:

@@ -23,19 +23,12 @@ from scipy import ndimage
 from pipeline.configschema import ConfigError, option, section
 from pipeline.robot.kinematics import Robot, footprint_points, wrap_angle
 from pipeline.robot.occupancy import OccupancyMap, _densify, map_boundary_segments
+from scenes.sources import traits_of
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "held_out_lane",
-    "DriveProfile",
-    "TourConfig",
-    "Trajectory",
-    "check_trajectory",
-    "collision_map",
-    "evaluation_path",
-    "guided_tour",
-]
+__all__ = ["held_out_lane", "DriveProfile", "TourConfig", "Trajectory", "check_trajectory",
+           "collision_map", "evaluation_path", "guided_tour"]
 
 
 @dataclass(frozen=True)
@@ -161,8 +154,8 @@ class DriveProfile:
     resolution_m : float
         Cell size of the collision map [m].
     map_band_half_width_m : float
-        On a map scene the planned route is where the robot drives: its lanes lie within
-        this of it [m] (a corridor's route is its centre line: lanes span up to 6 m).
+        On a map scene (``scenes.sources.SceneTraits.plans_route``) the route is where the robot
+        drives: its lanes lie within this of it [m] (a corridor's centre line: up to 6 m).
     """
 
     lane_change_length_m: float = 2.0
@@ -297,7 +290,7 @@ def _route_band(scene, robot: Robot, cfg: DriveProfile, cmap: OccupancyMap, rout
     tan = np.gradient(pts, axis=0)
     tan /= np.linalg.norm(tan, axis=1, keepdims=True)
     normals = np.stack([-tan[:, 1], tan[:, 0]], 1)
-    half = cfg.map_band_half_width_m if getattr(scene, "rosmap", None) is not None else 6.0
+    half = cfg.map_band_half_width_m if traits_of(scene).plans_route else 6.0
     q = np.arange(-half, half + 1e-9, ds)
     cand = pts[:, None, :] + q[None, :, None] * normals[:, None, :]
     ok = cmap.clearance_m(cand) >= robot.radius_m + cfg.clearance_m

@@ -20,6 +20,7 @@ import numpy as np
 from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.config import StudyConfig, TracingConfig
 from scenes.fileio import read_npz
+from scenes.sources import traits_of
 
 __all__ = [
     "EVAL_TAG_SPACING_M",
@@ -186,7 +187,8 @@ NARROW_ROUTE_MARGIN_M = 0.15
 def map_route(scene, robot):
     """``scene`` with a planned coverage route when it is a map scene without a route.
 
-    A scene from an occupancy-grid map (``scene.rosmap``) without ``route_m`` gets
+    A scene of a source that plans routes (:attr:`scenes.sources.SceneTraits.plans_route`:
+    one from an occupancy-grid map) without ``route_m`` gets
     :func:`pipeline.robot.plan_coverage_route` past its tags, within the map's
     ``route_standoff_m`` (``[map]``, default 1 m); every other scene is returned as is.
     Tags on faces the route cannot serve (:attr:`pipeline.robot.CoverageRoute.skipped`)
@@ -194,7 +196,7 @@ def map_route(scene, robot):
     ``scene.metadata["route"]["skipped"]``: a tag the robot never passes would only be
     a tag never read.
     """
-    if scene.route_m is not None or getattr(scene, "rosmap", None) is None:
+    if scene.route_m is not None or not traits_of(scene).plans_route:
         return scene
     from pipeline.robot import plan_coverage_route
 
