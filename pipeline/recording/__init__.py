@@ -1,4 +1,4 @@
-"""Recordings: a real reader's log and a robot's poses as files, in and out (issue 53).
+"""Recordings: a real reader's log and a robot's poses as files, in and out.
 
 - :mod:`.csvformats` - the reads in the CSV layout ``sllurp log`` writes, the poses and
   the tag layout as plain CSV: readers that stop at the first bad row naming
@@ -18,8 +18,8 @@
   exports read from the run and share.
 
 The recorded study's stages are :mod:`pipeline.stages.recorded`,
-:mod:`pipeline.stages.sim_vs_real` and :mod:`pipeline.stages.recorded_eval`. Not here
-yet (issue 53): calibration.
+:mod:`pipeline.stages.sim_vs_real` and :mod:`pipeline.stages.recorded_eval`; calibration
+to a recording is :mod:`pipeline.stages.calibration` (:mod:`pipeline.evaluation.calibration`).
 """
 
 from pipeline.recording.attempts import recorded_read_table
