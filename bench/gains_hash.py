@@ -13,7 +13,7 @@ Usage::
     .venv/bin/python bench/gains_hash.py [--set tracing.min_samples_per_position=0 ...]
 
 (``--set``: config overrides, as ``rfidstudy run --set``; e.g. the minimum ray budget off
-gives the hash of the tracer before issue 37, whose six shared poses drew from fewer rays.)
+gives the hash of the tracer without it, whose six shared poses draw from fewer rays.)
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 On ``corridor_lab``, the same antenna poses x the scene's tags are traced three ways, each
 into a fresh, empty path cache:
 
-(a) one carrier (865 MHz), no channel, no gradient: the reader of before hopping;
+(a) one carrier (865 MHz), no channel, no gradient: a reader that does not hop;
 (b) the ETSI hopping reader as ``pipeline.acquisition`` traces it: one trace at 865 MHz
     per position, each pose's coherent sum at its channel (865.7 / 866.3 / 866.9 /
     867.5 MHz in turn) with the position gradient (Doppler);

@@ -1,10 +1,9 @@
 """Seed-to-seed noise of the study's truth on sparse antenna poses and on the dense
 evaluation path, per ``tracing.min_samples_per_position`` setting, in one run.
 
-Prints, per setting (default: the guarantee off, ``0``, as before issue 37, and the
-study's default), for two sets of antenna poses of ``corridor_lab`` traced with the
-study's tracing options (patterns, depth, rays, sharing, completion) and seeds 1 and 2
-(no path cache):
+Prints, per setting (default: the guarantee off, ``0``, and the study's default), for
+two sets of antenna poses of ``corridor_lab`` traced with the study's tracing options
+(patterns, depth, rays, sharing, completion) and seeds 1 and 2 (no path cache):
 
 1. *sparse*: 96 poses, stations 2 m apart along the corridor (x = 1, 3, ..., 23 m), at
    each a pair 0.6 m apart across it (y = 0.9 and 1.5 m), at two heights 1.1 m apart

@@ -134,8 +134,7 @@ def naive_trace(scene, groups, max_depth: int, samples: int, placement: str = "a
     ``{name: (seconds, links, calls traced, calls)}``.
 
     ``cap``: ``PathSolver``'s ``max_num_paths_per_src``: ``"rays"`` ``samples * (max_depth
-    + 1)``, as the study's tracer had it until 2026-11-27 (a smaller buffer, kinder to the
-    naive side; with hundreds of receivers per call Sionna drops the candidates beyond it
+    + 1)`` (a smaller buffer, kinder to the naive side; with hundreds of receivers per call Sionna drops the candidates beyond it
     without a word, docs/physics.md), or ``"sionna"`` PathSolver's documented default (1e6,
     what a call that leaves it out gets)."""
 

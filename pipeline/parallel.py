@@ -133,7 +133,7 @@ def die_with_parent() -> None:
 
     Linux's ``prctl(PR_SET_PDEATHSIG, SIGTERM)``: the kernel sends SIGTERM when the
     parent goes, so a killed study, sweep or placement leaves no worker finishing its
-    work and idling at a gigabyte (issue 54); a parent already gone ends the worker now.
+    work and idling at a gigabyte; a parent already gone ends the worker now.
     Elsewhere a no-op (no such call; the pool's broken pipe ends the worker at its next
     task instead)."""
     import ctypes

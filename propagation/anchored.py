@@ -37,9 +37,9 @@ from propagation.patterns import dipole_rotation, pattern_field_world, pose_rota
 from propagation.tracing import tag_dipole_axes
 
 #: Planes of the specular model (:func:`specular_model_paths`): at least this area, m^2.
-#: The tracer's completion took 1 m^2 too until issue 37 lowered its own
+#: The tracer's completion has a lower default of its own
 #: (``TraceOptions.completion_min_area_m2``); the model keeps 1 m^2 (its cache key follows
-#: ``COMPLETION_ALGORITHM``, so the patch rule of issue 34 re-traced it).
+#: ``COMPLETION_ALGORITHM``, so a change of the completion's plane rule re-traces it).
 MODEL_MIN_AREA_M2 = 1.0
 
 

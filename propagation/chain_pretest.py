@@ -124,9 +124,9 @@ def _pretest(planes: Planes, src, tgt, link_src, link_tgt, chains) -> tuple[np.n
     cover. A necessary condition only: Sionna then checks the triangles and occlusion.
 
     In float32 (the images in float64): the last reflection dense over (link, chain),
-    the earlier ones on the pairs it kept (at order 2 on warehouse_large about a tenth
-    once the planes' rasters drop the reflection points off their triangles; before the
-    rasters, with most pairs kept, compacting cost more than testing them all again).
+    the earlier ones on the pairs it kept (at order 2 on warehouse_large about a tenth,
+    the planes' rasters dropping the reflection points off their triangles; without the
+    rasters, with most pairs kept, compacting costs more than testing them all again).
     Coordinates are taken relative to the sources' mean, so float32 rounding scales with
     the scene's extent (~1e-5 m at 100 m), far below the 1 mm slack: a pair Sionna could
     accept is dropped only where a reflection point lies within ~1e-5 m of another

@@ -55,8 +55,8 @@ SAME_IMAGE_OFFSET_M = 5e-3
 #: ~330 B of Dr.Jit temporaries per candidate in buffers of depth 2-3 (measured on
 #: corridor_lab: 7.0 M order-2 candidates peaked at 2.3 GB, 2.9 M order-3 ones at
 #: 1.0 GB), ~350 MB per call; more in the sharing tracer's depth-5 buffers
-#: (``buffer_depth``; not measured alone: the paper-scale study's peak went from 4.1 to
-#: 4.4 GB with them and the reads' own buffers evaluated into memory of their own).
+#: (``buffer_depth``; not measured alone: the paper-scale study's peak with them and
+#: the reads' own buffers evaluated into memory of their own is in CHANGELOG.md, 2026-11-29).
 _CANDIDATES_PER_CALL = 1 << 20
 #: (source, target) pairs per line-of-sight call (every pair of the call is solved).
 _LOS_PAIRS_PER_CALL = 1 << 18

@@ -4,10 +4,10 @@ Dr.Jit maps NumPy memory without copying it and marks memory that is not aligned
 vector width (32 bytes for 8 float32 lanes) as unaligned; a kernel reading such memory
 is generated with another load instruction (``align 1``), so it hashes differently and
 is compiled anew. NumPy aligns its allocations to 16 bytes only, so the same computation
-compiled one kernel or another depending on where NumPy happened to allocate: Sionna's
-shooting kernel (~1 s to compile on 2 cores) and its field kernels were rebuilt call
-after call (a cold default study compiled them ~40 times). Every array this package
-hands to Dr.Jit goes through :func:`jit_array` or :func:`jit_points`.
+compiles one kernel or another depending on where NumPy happened to allocate: Sionna's
+shooting kernel (~1 s to compile on 2 cores) and its field kernels would be rebuilt call
+after call (how often in a cold default study: CHANGELOG.md, 2026-11-29). Every array
+this package hands to Dr.Jit goes through :func:`jit_array` or :func:`jit_points`.
 """
 
 from __future__ import annotations

@@ -52,9 +52,9 @@ class LinkBudget:
         Polarisation mismatch per way *not* in the traced gain, dB. Default 0: the tracer
         applies the reader's polarisation (``TraceOptions.reader_polarization``, circular
         by default) and the tag dipole's to every path, so the circular-to-linear
-        mismatch (3.01 dB on a line-of-sight path) is inside ``g`` (issue 37; before, a V
-        trace and a fixed 3 dB here stood for a circular reader, right on the direct path
-        only). Set 3 dB only for gains traced with a linear reader that stands for a
+        mismatch (3.01 dB on a line-of-sight path) is inside ``g`` (a V trace with a fixed
+        3 dB here stands for a circular reader right on the direct path only, not after
+        reflections). Set 3 dB only for gains traced with a linear reader that stands for a
         circular one.
     modulation_loss_db : float
         Backscatter modulation factor M = |Gamma_1 - Gamma_2|^2 / 4, dB (negative).

@@ -62,24 +62,18 @@ DEFAULT_SAMPLES_PER_SRC = 30_000
 MAX_SOURCES_PER_CALL = 128
 #: Planes of at least this area are completed by the image method (completion_order,
 #: TraceOptions.completion_min_area_m2's default): walls, floor, ceiling and furniture
-#: faces; 22 planes on corridor_lab (16 at 1 m^2, before issue 37: the metal cabinets'
-#: sides and tops were left to the rays, and chains over them were the largest part of the
+#: faces; 22 planes on corridor_lab, the metal cabinets' sides and tops among them (16 at
+#: 1 m^2, which leaves those to the rays, and chains over them are the largest part of the
 #: truth's seed-to-seed noise on sparse poses, bench/seed_noise_chains.py; 0.4 m^2, 25
-#: planes, removed little more of it and cost more; a plane counts where one connected
+#: planes, removes little more of it and costs more; a plane counts where one connected
 #: patch reaches the area: :func:`propagation.completion.large_planes`).
 COMPLETION_MIN_AREA_M2 = 0.5
 #: Versions of the tracing algorithms, part of the cache key: a change that changes
-#: their paths must bump them so no cache serves the old results.
-COMPLETION_ALGORITHM = 4  # 2: float32 pre-test (drops pairs within ~1e-5 m of a corner); 3: a plane needs a patch of the area; 4: validity before fields (float32 rounding)
-DIRECT_ALGORITHM = 2  # 2: the paths PathSolver returns twice counted once
-SHARING_ALGORITHM = 9  # 2: chains the completion enumerates are left to it; 3: chains named by planes;
-# 4: a triangle is left to the completion only inside its plane's box, no plane twice in a row;
-# 5: a position without a neighbour is solved as the sharing's step 1 (PathSolver's copies removed);
-# 6: no padding receivers (the shooting loop, propagation.sionna_internals): they shared the shooting's per-source table of
-# specular chains with the tags, so a rare collision could drop a tag's chain;
-# 7: a position whose neighbourhood shoots fewer than min_samples_per_position rays shoots the rest alone;
-# 8: a shooting call whose candidates reach Sionna's per-source cap is shot again with a larger cap;
-# 9: its first cap grows with the targets beyond 64 (the chain hash table with it)
+#: their paths must bump them so no cache serves the old results (what each version
+#: changed: CHANGELOG.md, 2026-11-29, "Tracing algorithm versions").
+COMPLETION_ALGORITHM = 4
+DIRECT_ALGORITHM = 2
+SHARING_ALGORITHM = 9
 
 
 #: The tracers :func:`trace_paths` can run (:attr:`TraceOptions.method`).
@@ -120,12 +114,11 @@ class TraceOptions:
         the rest alone (:func:`propagation.shared.own_ray_levels`: rounded up to a few
         levels) and keeps the paths of both traces, copies removed. None (default):
         ``samples_per_src``, the rays of a position without a neighbour, so no position
-        of the shared tracer draws from fewer rays than a lone one; 0: off (before
-        issue 37: a position with one neighbour drew from 6,000 rays; on 48 such
-        positions of ``corridor_lab`` the seed-to-seed p95 over readable links was
-        1.80 dB, 1.30 dB with the default, against 0.93 dB on the dense evaluation
-        path, whose positions have 12-50 neighbours; ``bench/seed_noise.py``,
-        docs/physics.md).
+        of the shared tracer draws from fewer rays than a lone one; 0: off (a position
+        with one neighbour then draws from 6,000 rays; on 48 such positions of
+        ``corridor_lab`` the seed-to-seed p95 over readable links is 1.80 dB off,
+        1.30 dB with the default, against 0.93 dB on the dense evaluation path, whose
+        positions have 12-50 neighbours; ``bench/seed_noise.py``, docs/physics.md).
     share_radius_m : float
         Positions of one solver call within this distance share chains (``"shared"``),
         metres, > 0. A position is given every chain that was a valid path at a

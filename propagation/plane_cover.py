@@ -43,7 +43,7 @@ MIN_CELL_M = 0.05
 #: plane gets coarser cells.
 MAX_CELLS_PER_PLANE = 1 << 20
 #: Most cells of all rasters (256 MiB; warehouse_large at planes >= 0.1 m^2 has 6 M): a
-#: plane past it gets one covered cell, i.e. its box alone, as before the rasters.
+#: plane past it gets one covered cell, i.e. its box alone, as with no raster.
 MAX_CELLS = 1 << 28
 
 

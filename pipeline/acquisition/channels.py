@@ -12,7 +12,7 @@ plans a European or North American robot would run under:
   conducted into at most 6 dBi (4 W, 36 dBm EIRP), an average occupancy of at most
   0.4 s per channel within 20 s, channels visited in a pseudo-random order.
 - ``"none"``: no plan; every attempt at the study's carrier ``frequency_hz`` (or at the
-  explicit ``channels_hz``), as this project's reader did before hopping.
+  explicit ``channels_hz``): a reader that does not hop.
 
 The reader visits its channels in a hop sequence (a permutation drawn once per reader,
 :func:`hop_sequence`), staying ``channel_dwell_s`` on each (:func:`channel_schedule`).

@@ -71,8 +71,8 @@ class ReaderConfig:
     ``region``: the regulatory channel plan (:mod:`pipeline.acquisition.channels`):
     ``"ETSI"`` (EN 302 208: 865.7, 866.3, 866.9, 867.5 MHz, 2 W ERP, at most 4 s per
     channel), ``"FCC"`` (15.247: 50 channels 902.75-927.25 MHz, 4 W EIRP, 0.4 s) or
-    ``"none"`` (every attempt at the study's carrier ``frequency_hz``: the reader of
-    studies before hopping). The reader hops in a pseudo-random order drawn once per read
+    ``"none"`` (every attempt at the study's carrier ``frequency_hz``: a reader that
+    does not hop). The reader hops in a pseudo-random order drawn once per read
     log; every attempt records its channel (``frequency_hz`` column). One trace at the
     study's carrier serves every channel (the path delays give each channel's phase). The
     power is not changed by the region: for FCC set ``tx_power_dbm = 28`` (36 dBm EIRP
@@ -92,8 +92,8 @@ class ReaderConfig:
     reads (``seen_count``) and misses follow from the tags in the field and the link
     budget, and the truth, evaluation and localisation stages miss a closing tag with
     ``1 - p_singulated(n)``, ``n`` the tags whose links close in that antenna slot
-    (:mod:`pipeline.acquisition.singulation`); ``"fixed"`` (the reader of studies before
-    Gen2) misses a powered, audible tag with ``anticollision_miss_probability`` per
+    (:mod:`pipeline.acquisition.singulation`); ``"fixed"`` (no Gen2 inventory)
+    misses a powered, audible tag with ``anticollision_miss_probability`` per
     attempt, independently, and the truth with that constant. Tag population (:mod:`pipeline.acquisition.population`):
     a 1 dB spread of chip sensitivity and of backscatter among tags of one model is an
     assumption of the order of tag-to-tag spreads in tag benchmarks; a metal detuning

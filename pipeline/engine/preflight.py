@@ -4,8 +4,8 @@
 file behind the scene its source checks, an occupancy-grid map
 (:func:`scenes.catalog.check_source`), and the
 tracer's memory budget against the address-space limit (``ulimit -v``) the process
-runs under (:func:`check_address_space`). Under a limit below the budget a study used to
-die in the tracer with a segmentation fault (exit 139) and no message (issue 54).
+runs under (:func:`check_address_space`). Under a limit below the budget the tracer
+dies with a segmentation fault (exit 139) and no message, so the check comes first.
 """
 
 from __future__ import annotations

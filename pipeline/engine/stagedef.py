@@ -77,7 +77,8 @@ class Stage:
     upstream : tuple of str
         Stages whose outputs this stage reads.
     version : int
-        Bump to invalidate cached results when the stage's code changes meaning.
+        Bump to invalidate cached results when the stage's code changes meaning;
+        CHANGELOG.md says what each version changed.
     description : str
         One line shown in progress output.
     always : bool

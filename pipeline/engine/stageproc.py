@@ -78,9 +78,8 @@ class StageProcessError(RuntimeError):
 #: order (truth_traces: after the reads), and the runner's stages are the critical path
 #: (the tour's MCL, the reads' tracing, whose single-threaded NumPy between the tracer's
 #: kernels leaves a core idle): at a lower priority the stage beside takes the CPU they
-#: leave and yields the rest. A cold default study on 2 cores, one run each: 135.3 s at
-#: +0 (7.4 % of the CPU idle), 131.9 s at +5, 127.9 s at +10 (4.2 % idle; truth_traces
-#: then ended within ~2 s of the reads: 1.5 s before them there, 2 s after in a bench run).
+#: leave and yields the rest: of +0, +5 and +10, +10 gives the shortest cold default
+#: study on 2 cores and the least idle CPU (timings: CHANGELOG.md, 2026-11-29).
 SIDE_NICENESS = 10
 
 

@@ -39,7 +39,7 @@ The statistics (:data:`INVENTORY_METRICS`), each over (tag, pass) rows pooled pe
 - ``never_read``: share of tags with no read in the whole tour (all passes) [share];
   a tag is one unit whatever its number of passes.
 
-The last three are the engineer's units (issue 51: a read rate of 0.05 says nothing a
+The last three are the engineer's units (a read rate of 0.05 says nothing a
 mount can be changed by; "3.2 reads a pass", "6 dB to spare" and "4 tags never read"
 do).
 """

@@ -14,7 +14,7 @@
   is ``rfidmsg/RfidRead.msg``.
 
 The recorded study's stages are :mod:`pipeline.stages.recorded`,
-:mod:`pipeline.stages.sim_vs_real`, :mod:`pipeline.stages.calibration` and
+:mod:`pipeline.stages.sim_vs_real`, :mod:`pipeline.stages.calibration` (:mod:`pipeline.evaluation.calibration`) and
 :mod:`pipeline.stages.recorded_eval`. The other direction, a finished study's training
 tour written as a recording (``rfidstudy export RUN --format csv|mcap --out DIR``), reads
 a run directory, so it is an application: :mod:`pipeline.apps.export`.

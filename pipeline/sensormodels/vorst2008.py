@@ -23,7 +23,7 @@ What the model sees
     Fitting: each attempt's horizontal range ``r = sqrt(d^2 - dz^2)`` from its 3-D range d
     and its tag's height above the antenna dz (the link table's tag height less its
     antenna's, :func:`~._common.tag_height_differences`; an attempt without one is an
-    error, not a tag in the antenna's plane). Using d itself for r, as before, put a tag
+    error, not a tag in the antenna's plane). Using d itself for r would put a tag
     0.9 m above the antenna at 1 m horizontally 35 % too far out on the grid.
     Prediction where the tag's height is known (the paper's model):
     :meth:`Vorst2008Model.fT_at_height` ``(d, alpha, dz)`` looks the ground-plane table up

@@ -259,5 +259,5 @@ def heldout_worse(report: dict) -> str | None:
 
 STAGE = Stage("calibration", stage_calibration,
               ("seed", "reader", "robot", "recording.calibrate_constructions") + TRACING_KEYS,
-              ("scene", "sim_vs_real"), version=2,  # 2: construction parameters
+              ("scene", "sim_vs_real"), version=2,  # each version's change: CHANGELOG.md
               description="calibrate the reader and building to the recording")

@@ -297,16 +297,5 @@ STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
               ("scene", "tour", "reads", "models"), version=12,
-              # 2: every fitted model; 3: the phase estimator (phase, phase_anfis);
-              # 4: the oracle's Gen2 miss probability per slot; 5: the global oracle;
-              # 6: the robot filter's oracle (gain field); 7: the robot filter's median over
-              # robot_runs runs, the oracle's windows as dense blocks (float32 cos/sin);
-              # 8: robot medians over all steps, every run's steps (robot_steps.parquet);
-              # 9: the oracle's Rician fading; 10: the phase likelihood's cell mean, candidates on
-              # every surface height (tag_candidates), not the held-out tags' band
-              # 11: a model using the tag's height above the antenna (Vorst & Zell) gets
-              # each candidate's / mapped tag's; the candidate grid half a step off the
-              # held-out tags' (tag_candidates); the phase cell a 3 x 3 patch on the face;
-              # 12: common random numbers: run k of the robot filter the same stream for
-              # every model
+              # each version's change: CHANGELOG.md
               description="downstream localisation (tags, robot)")

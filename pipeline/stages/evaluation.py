@@ -261,13 +261,5 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
-              version=15,  # 2: coverage, fig7 table; 3: RSSI floor; 4: held-out sections;
-              # 5: range margin; 6: tag_localisation / robot_localisation; 7: matched budget;
-              # 8: the Gen2 reader's miss probability at tag sites and fields;
-              # 9: per-unit tables, intervals and paired comparisons; 10: detection MAE on
-              # the observed sample's cells; 11: no interval for the cell MAE;
-              # 12: each model over its own units, comparisons on the shared ones;
-              # 13: model_fits; the error budget's oracle bound; 14: a model using the
-              # tag's height above the antenna (Vorst & Zell) scored at each link's;
-              # 15: identical detection models scored once (detection_merged)
+              version=15,  # each version's change: CHANGELOG.md
               description="metrics")

@@ -49,5 +49,5 @@ def stage_figures(ctx) -> dict:
 
 STAGE = Stage("figures", stage_figures, (), ("scene", "tour", "reads", "truth_traces", "models", "truth",
                                                         "evaluation"),
-              version=2,  # 2: one style, TrueType fonts in PDF, baselines with intervals
+              version=2,  # each version's change: CHANGELOG.md
               description="figures")

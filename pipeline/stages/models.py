@@ -120,7 +120,5 @@ def stage_models(ctx) -> dict:
 
 
 STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
-              version=5,  # 2: competitors and ablations (pipeline.sensormodels); 3: Vorst folds by tag;
-              # 4: Vorst & Zell's table over the horizontal range (training tag heights)
-              # 5: Vorst & Zell's description (the height where known)
+              version=5,  # each version's change: CHANGELOG.md
               description="FCM + ANFIS")

@@ -57,8 +57,5 @@ def stage_reads(ctx) -> dict:
 
 
 STAGE = Stage("reads", stage_reads, ("seed", "robot", "reader") + TRACING_KEYS, ("scene", "tour"),
-              version=6,  # 3: channel hopping, phase, Doppler, tag population, Gen2 inventory; 4: Gen2 T4;
-              # 5: per-tag phase offsets and the chip's power-dependent phase; 6: the shooting's
-              # candidate cap no longer drops paths with many tags (SHARING_ALGORITHM 9)
-              # (2: each tour reads its own tag layout; range-margin check in metadata)
+              version=6,  # each version's change: CHANGELOG.md
               description="ray-traced reader simulation")

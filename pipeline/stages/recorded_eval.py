@@ -132,5 +132,5 @@ STAGE = Stage("recorded_eval", stage_recorded_eval,
               ("seed", "training.d_max_m", "training.d_bin_m", "training.alpha_bin_deg",
                "training.min_attempts"),
               ("recording", "models", "sim_vs_real", "calibration", "downstream"),
-              version=2,  # 2: tag_localisation / robot_localisation, tag_errors' intervals
+              version=2,  # each version's change: CHANGELOG.md
               description="held-out scores on the recording")

@@ -15,5 +15,5 @@ def stage_report(ctx) -> dict:
     return {}
 
 
-STAGE = Stage("report", stage_report, (), ("figures", "evaluation"), version=2,  # 2: answers first
+STAGE = Stage("report", stage_report, (), ("figures", "evaluation"), version=2,  # each version's change: CHANGELOG.md
               description="report.html")

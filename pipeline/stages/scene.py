@@ -48,5 +48,5 @@ def stage_scene(ctx) -> dict:
 STAGE = Stage("scene", stage_scene, ("scene", "materials", "seed", "tour.max_length_m", "evaluation.n_eval_tags",
                                      "evaluation.eval_tag_min_separation_m",
                                      "evaluation.eval_tag_heights_m", "training.d_max_m"),
-              (), version=2,  # 2: held-out tag layout (tags.parquet split)
+              (), version=2,  # each version's change: CHANGELOG.md
               description="load the scene", always=True)

@@ -134,5 +134,5 @@ def stage_sim_vs_real(ctx) -> dict:
 
 
 STAGE = Stage("sim_vs_real", stage_sim_vs_real, ("seed", "robot", "reader") + TRACING_KEYS,
-              ("scene", "recording"), version=4,  # 2: pose, channel; 3: recorded channels; 4: from training reads
+              ("scene", "recording"), version=4,  # each version's change: CHANGELOG.md
               description="simulation against the recording")

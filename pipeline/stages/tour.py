@@ -164,5 +164,5 @@ def stage_tour(ctx) -> dict:
 
 
 STAGE = Stage("tour", stage_tour, ("seed", "robot", "tour", "localisation"), ("scene",),
-              version=3,  # 3: pass_index in the tracks (inventory completeness per pass)
+              version=3,  # each version's change: CHANGELOG.md
               description="robot tours and MCL")

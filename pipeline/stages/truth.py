@@ -71,7 +71,7 @@ def _check_trace_poses(ctx) -> None:
 
 def attempt_miss_probability(cfg, reads, budget):
     """The truth's miss probability of a closing attempt of ``reads``: the constant of the
-    ``"fixed"`` inventory (a float: the numbers of before), else one per row (Gen2,
+    ``"fixed"`` inventory (a float), else one per row (Gen2,
     :func:`pipeline.acquisition.singulation.miss_probability_of_attempts`)."""
     from pipeline.acquisition.singulation import miss_probability_of_attempts
 
@@ -127,7 +127,5 @@ STAGE = Stage("truth", stage_truth,
               ("seed", "frequency_hz", "reader", "robot", "evaluation", "training.d_max_m",
                "training.d_bin_m", "training.alpha_bin_deg"),
               ("scene", "tour", "reads", "models", "truth_traces"),
-              version=5,  # 2: held-out grid, tag sites, eval poses; 3: the Gen2 reader's miss
-              # probability from the tags in the field; 4: the traces in their own stage
-              # (truth_traces), the Fig. 6 truth from their gains; 5: Gen2 empty slot >= T4
+              version=5,  # each version's change: CHANGELOG.md
               description="propagation truth")

@@ -154,8 +154,7 @@ STAGE = Stage("truth_traces", stage_truth_traces,
               ("seed", "tour", "evaluation", "training.d_max_m", "robot", "reader.read_rate_hz",
                "reader.antenna_mode", "tracing.field_cell_m", "tracing.field_samples_per_tx",
                "tracing.field_walls") + TRACING_KEYS,
-              ("scene",), version=3,  # 2: the evaluation path's poses computed here (eval_track);
-              # 3: the shooting's candidate cap no longer drops paths (SHARING_ALGORITHM 9)
+              ("scene",), version=3,  # each version's change: CHANGELOG.md
               description="propagation truth: traces at tag sites, Fig. 6 points, RSSI fields",
               # needs nothing of the tour's MCL or the reads: traces beside them
               # (pipeline.engine.stageproc)
