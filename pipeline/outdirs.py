@@ -18,8 +18,9 @@ import json
 from pathlib import Path
 
 from pipeline.config import ConfigError
-from pipeline.runpaths import json_dict
+from pipeline.runpaths import is_run_dir, json_dict, not_regular
 from pipeline.runpaths import tool_marker as own_marker
+from scenes.fileio import atomic_write_text
 
 __all__ = ["MARK", "check_marker_file", "check_output_dir", "mark_output_dir", "own_marker"]
 
@@ -43,8 +44,6 @@ def check_marker_file(out: str | Path, name: str) -> None:
         ``--out <out>: <out/name>: a symbolic link, not followed ...`` or ``... not a
         regular file (a FIFO) ...`` (:func:`pipeline.runpaths.not_regular`).
     """
-    from pipeline.runpaths import not_regular
-
     why = not_regular(Path(out) / name)
     if why is not None:
         raise ConfigError(f"--out {out}: {why}; the folder is not used")
@@ -71,8 +70,6 @@ def check_output_dir(out: str | Path, kind: str, names=()) -> Path:
         a non-empty folder without the tool's marker, or with another kind's; holds a
         user's file under a name in ``names``.
     """
-    from pipeline.runpaths import is_run_dir
-
     out = Path(out)
     try:
         res = out.resolve()
@@ -107,8 +104,6 @@ def check_output_dir(out: str | Path, kind: str, names=()) -> Path:
 
 def mark_output_dir(out: str | Path, kind: str, files) -> Path:
     """Write (or extend) the folder's marker with the ``files`` just written there."""
-    from scenes.fileio import atomic_write_text
-
     out = Path(out)
     mark = _marker(out) or {"tool": "rfidstudy", "kind": kind, "files": []}
     names = sorted(set(mark.get("files") or []) | {Path(f).name for f in files})

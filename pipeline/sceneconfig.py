@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pipeline.configschema import ConfigError, option, section
+from scenes import resolve_material_name
 
 __all__ = ["MaterialConfig", "material_overrides"]
 
@@ -19,8 +20,6 @@ class MaterialConfig:
         -1.0, "Conductivity at the study's frequency [S/m] (negative: the library's value).")
 
     def __post_init__(self):
-        from scenes import resolve_material_name
-
         try:
             resolve_material_name(self.name)
         except KeyError as exc:
@@ -42,8 +41,6 @@ def material_overrides(materials) -> dict:
     ------
     ConfigError
         A material listed twice (under any of its names)."""
-    from scenes import resolve_material_name
-
     out = {}
     for m in materials:
         entry = {}

@@ -32,8 +32,13 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
+from propagation.backend import ensure_variant
+from propagation.completion import complete_specular, large_planes
 from propagation.constants import SPEED_OF_LIGHT
+from propagation.pathcache import PathCache, SourcePaths, settings_key
+from propagation.pathsolve import COMPLETION_ALGORITHM, trace_paths
 from propagation.patterns import dipole_rotation, pattern_field_world, pose_rotation
+from propagation.sionna_scene import check_antenna_positions, load_sionna_scene
 from propagation.tracing import tag_dipole_axes
 
 #: Planes of the specular model (:func:`specular_model_paths`): at least this area, m^2.
@@ -106,11 +111,6 @@ def specular_model_paths(scene, positions_m, anchors_m, need, frequency_hz: floa
     deterministic, so a cached set is exactly what would be recomputed)."""
     from pathlib import Path
 
-    from propagation.backend import ensure_variant
-    from propagation.completion import complete_specular, large_planes
-    from propagation.pathcache import PathCache, SourcePaths, settings_key
-    from propagation.pathsolve import COMPLETION_ALGORITHM
-    from propagation.sionna_scene import load_sionna_scene
 
     pos = np.asarray(positions_m, float).reshape(-1, 3)
     anchors = np.asarray(anchors_m, float).reshape(-1, 3)
@@ -150,9 +150,6 @@ def trace_anchor_paths(scene, positions_m, anchors_m, need, *, frequency_hz: flo
     """The study tracer's paths (:func:`propagation.pathsolve.trace_paths`, cached) from
     distinct antenna positions to anchors; ``options`` a :class:`propagation.TraceOptions`
     (default the library's; its patterns are not used here)."""
-    from propagation.pathsolve import trace_paths
-    from propagation.sionna_scene import check_antenna_positions
-
     pos = np.asarray(positions_m, float).reshape(-1, 3)
     active = np.asarray(need, bool).any(axis=1)
     if active.any():

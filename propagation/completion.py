@@ -40,7 +40,16 @@ from propagation.constants import SPEED_OF_LIGHT
 from propagation.pathcache import SourcePaths
 from propagation.plane_cover import plane_cover
 from propagation.planes import Planes
+from propagation.sionna_internals import (
+    collect_paths,
+    image_method,
+    line_of_sight_candidates,
+    shape_pointers,
+    solve_paths,
+    specular_chain_buffer,
+)
 from propagation.sionna_paths import path_copies, points, to_source_paths
+from propagation.sionna_scene import clear_devices, place_devices
 
 logger = logging.getLogger(__name__)
 
@@ -279,8 +288,6 @@ def plane_lookup(rt_scene, planes: Planes, normal_tol: float = 1e-4,
     its plane (a triangle coplanar with a large plane but grouped elsewhere,
     as may happen in an imported mesh, stays unlabelled and its chains are traced).
     """
-    from propagation.sionna_internals import shape_pointers
-
     shapes = list(rt_scene.mi_scene.shapes())
     if not shapes:
         return PlaneLookup(np.zeros(0, np.uint32), np.zeros(1, np.int64), np.zeros(0, np.int64))
@@ -319,8 +326,6 @@ def triangle_planes(rt_scene, normal_step: float = 1e-4, offset_step_m: float = 
     planes share an id only when they agree to these steps, far below what Sionna's image
     test (1 cm between images) tells apart. Degenerate triangles get ids of their own.
     """
-    from propagation.sionna_internals import shape_pointers
-
     shapes = list(rt_scene.mi_scene.shapes())
     if not shapes:
         return PlaneLookup(np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64))
@@ -384,9 +389,6 @@ def complete_specular(rt_scene, sources_m, targets_m, max_order: int = 2, planes
         directions as in :mod:`propagation.sionna_paths`) to every tag it needs, in target
         order. Reflections are found on any triangle coplanar with a large plane.
     """
-    from propagation.sionna_internals import line_of_sight_candidates, shape_pointers
-    from propagation.sionna_scene import clear_devices, place_devices
-
     src = np.asarray(sources_m, float).reshape(-1, 3)
     tgt = np.asarray(targets_m, float).reshape(-1, 3)
     n, m = len(src), len(tgt)
@@ -455,8 +457,6 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
     kernel"). The paths are those of the fused kernel to float32 rounding: the same rays
     traced in another batch.
     """
-    from propagation.sionna_internals import collect_paths, image_method, solve_paths
-
     valid = image_method(rt_scene.mi_scene, _chain_buffer(ptr, planes, link_src, link_tgt, ch),
                          diffraction=False, diffraction_lit_region=True, src_positions=src_mi,
                          tgt_positions=tgt_mi).valid.numpy().astype(bool)
@@ -469,8 +469,6 @@ def _solve_chains(rt_scene, ptr, planes, link_src, link_tgt, ch, src_mi, tgt_mi,
 def _chain_buffer(ptr, planes, link_src, link_tgt, ch):
     """A paths buffer of the chains ``ch`` (c, depth; -1 pads) over ``planes``
     (:func:`propagation.sionna_internals.specular_chain_buffer`)."""
-    from propagation.sionna_internals import specular_chain_buffer
-
     on = ch >= 0
     p = np.where(on, ch, 0)
     # per axis, in float32 (Sionna's precision) before the gather: a third of the memory

@@ -20,7 +20,7 @@ import trimesh
 
 from propagation.analytic import linear_to_db
 from propagation.backend import ensure_variant
-from propagation.pathcache import CacheWarning, values_sha256
+from propagation.pathcache import CacheWarning, solver_versions, values_sha256
 from propagation.patterns import PATTERNS, POLARIZATIONS, sionna_orientation
 from propagation.sionna_scene import (
     check_antenna_positions,
@@ -269,8 +269,6 @@ def rssi_field(scene, antenna_pose, frequency_hz: float = 865e6, cell_size_m: fl
     wall_spp = int(wall_samples_per_tx or 10 * samples_per_tx)
     cache_file = None
     if cache_dir is not None:
-        from propagation.pathcache import solver_versions
-
         key = {"format": 1, "scene": scene.content_hash(), "pose": pose.tobytes().hex(),
                "versions": solver_versions(),
                "frequency_hz": float(frequency_hz), "cell_size_m": float(cell_size_m),

@@ -28,7 +28,7 @@ from typing import Literal, get_args
 
 import numpy as np
 
-from propagation.backend import ensure_variant
+from propagation.backend import backend_info, ensure_variant
 from propagation.chunkjobs import ChunkJob, current_chunk_runner
 from propagation.completion import (
     complete_specular,
@@ -41,8 +41,9 @@ from propagation.pathcache import PathCache, SourcePaths, settings_key
 from propagation.patterns import PATTERNS, POLARIZATIONS, unit_vec_from_theta_phi
 from propagation.raybudget import _default_budget, bytes_per_source, memory_shortfall
 from propagation.shared import own_ray_levels, sharing_neighbours, trace_shared
+from propagation.sionna_internals import check_versions
 from propagation.sionna_paths import to_source_paths
-from propagation.sionna_scene import load_sionna_scene
+from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
 
 __all__ = ["DEFAULT_MAX_DEPTH", "DEFAULT_SAMPLES_PER_SRC", "METHODS", "PathSet", "TraceMethod", "TraceOptions",
            "MAX_SOURCES_PER_CALL", "padded_target_count", "padding_point", "trace_paths"]
@@ -252,7 +253,6 @@ def _trace_chunk(rt_scene, sources, receivers, max_depth, samples_per_src, seed,
     source (all receivers)."""
     import sionna.rt as rt
 
-    from propagation.sionna_scene import clear_devices, place_devices
 
     n_pad = padded_target_count(len(receivers)) - len(receivers)
     place_devices(rt_scene, sources, np.vstack([np.asarray(receivers, float).reshape(-1, 3),
@@ -529,8 +529,6 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
             raise ValueError(short)
         ensure_variant()
         if shared:
-            from propagation.sionna_internals import check_versions
-
             check_versions()  # before any work: one line naming the versions and the way out
         chunks = [todo[c0:c0 + per_chunk] for c0 in range(0, len(todo), per_chunk)]
         recs = [np.unique(np.concatenate([missing[u] for u in chunk])) for chunk in chunks]
@@ -570,7 +568,6 @@ def trace_paths(scene, positions_m, tag_positions_m, need=None, options: TraceOp
                 t_trace += time.perf_counter() - t1  # the solver's part, as before the Dask runner
                 finish(c, fresh)
         else:  # each chunk a job of the runner (a Dask task): the same chunks, the same paths
-            from propagation.backend import backend_info
 
             info = backend_info()
             runner([ChunkJob(scene, uniq[chunk], tags[recs[c]], opt, float(frequency_hz), lone_samples,

@@ -25,7 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from propagation.backend import ensure_variant
 from propagation.channels import link_channels
+from propagation.pathcache import SourcePaths
 from propagation.pathsolve import (
     MAX_SOURCES_PER_CALL,
     TraceOptions,
@@ -33,6 +35,9 @@ from propagation.pathsolve import (
     padding_point,
 )
 from propagation.raybudget import bytes_per_source
+from propagation.sionna_paths import to_source_paths
+from propagation.sionna_refield import field_chunk, freeze_chunk, path_materials, set_material
+from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
 
 __all__ = ["FrozenPaths", "freeze_paths", "material_shares", "refield", "refield_gains_db"]
 
@@ -83,10 +88,6 @@ def freeze_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz
         ``max_depth``, ``samples_per_src``, ``seed``, ``refraction`` and the memory budget
         are used (the direct tracer's; see the module doc).
     """
-    from propagation.backend import ensure_variant
-    from propagation.sionna_refield import freeze_chunk
-    from propagation.sionna_scene import clear_devices, load_sionna_scene, place_devices
-
     opt = TraceOptions() if options is None else options
     pos = np.asarray(positions_m, np.float64).reshape(-1, 3)
     tags = np.asarray(tag_positions_m, np.float64).reshape(-1, 3)
@@ -114,8 +115,6 @@ def freeze_paths(scene, positions_m, tag_positions_m, need=None, *, frequency_hz
 
 
 def _with_materials(frozen: FrozenPaths, materials: Mapping | None, work):
-    from propagation.sionna_refield import set_material
-
     unknown = sorted(set(materials or {}) - set(frozen.materials))
     if unknown:
         raise KeyError(f"refield: no radio material {unknown} in the scene "
@@ -133,10 +132,6 @@ def refield(frozen: FrozenPaths, materials: Mapping | None = None) -> list:
     """Per antenna position its :class:`~propagation.pathcache.SourcePaths` to the tags it
     needs, with ``materials`` ({radio material name: (relative permittivity, conductivity
     [S/m])}) in place of the traced values (None: as traced)."""
-    from propagation.pathcache import SourcePaths
-    from propagation.sionna_paths import to_source_paths
-    from propagation.sionna_refield import field_chunk
-
     def work():
         out = [SourcePaths.empty(p) for p in frozen.positions_m]
         for chunk, rows, cols in frozen.chunks:
@@ -169,8 +164,6 @@ def material_shares(frozen: FrozenPaths) -> dict[str, float]:
     """Per radio material, the share of the kept paths' power (sum of ``|T|^2`` over paths,
     isotropic antennas) carried by paths that meet it (reflect off or pass through);
     shares of different materials overlap (a path meets several)."""
-    from propagation.sionna_refield import field_chunk, path_materials
-
     num: dict[str, float] = dict.fromkeys(frozen.materials, 0.0)
     total = 0.0
     for chunk, _, _ in frozen.chunks:

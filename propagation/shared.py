@@ -40,7 +40,9 @@ import numpy as np
 import pandas as pd
 
 from propagation.pathcache import SourcePaths
+from propagation.sionna_internals import collect_paths, shoot_candidates, solve_paths
 from propagation.sionna_paths import points, to_source_paths
+from propagation.sionna_scene import clear_devices, place_devices
 
 __all__ = ["chain_ids", "own_ray_levels", "shared_rows", "sharing_neighbours", "trace_shared"]
 
@@ -258,8 +260,6 @@ def trace_shared(rt_scene, positions_m, targets_m, neighbours, max_depth: int, s
     """
     from sionna.rt.constants import InteractionType
 
-    from propagation.sionna_internals import collect_paths, shoot_candidates, solve_paths
-    from propagation.sionna_scene import clear_devices, place_devices
 
     pos = np.asarray(positions_m, float).reshape(-1, 3)
     tgt = np.asarray(targets_m, float).reshape(-1, 3)

@@ -23,7 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from propagation.sionna_internals import collect_paths, field_calculator, image_method
+from propagation.sionna_internals import (
+    collect_paths,
+    field_calculator,
+    image_method,
+    shape_pointers,
+)
 from propagation.sionna_versions import check_versions
 
 __all__ = ["FrozenChunk", "field_chunk", "freeze_chunk", "path_materials", "set_material"]
@@ -115,8 +120,6 @@ def path_materials(rt_scene, chunk: FrozenChunk) -> tuple[np.ndarray, list[str]]
     """Which radio material each kept path meets: ``(hits, names)`` with ``hits`` (P, k)
     bool (path p reflects off or passes through a shape of material ``names[j]``), rows in
     the order of :func:`field_chunk`'s paths (padding dropped alike)."""
-    from propagation.sionna_internals import shape_pointers
-
     check_versions()
     buf = chunk.buffer
     shapes = list(rt_scene.mi_scene.shapes())

@@ -16,6 +16,7 @@ import numpy as np
 
 from propagation.backend import ensure_variant
 from propagation.jitarrays import jit_points
+from propagation.sionna_internals import use_endpoints_at_once
 from scenes.geometry import solid_material_at
 
 __all__ = [
@@ -72,7 +73,6 @@ def load_sionna_scene(scene, frequency_hz: float, *, public_api: bool = False):
         rt_scene = rt.load_scene(str(xml), merge_shapes=False)
         if not public_api:
             # Sionna's own method compiles a kernel per device (a literal index)
-            from propagation.sionna_internals import use_endpoints_at_once
 
             use_endpoints_at_once(rt_scene)
         rt_scene.frequency = float(frequency_hz)

@@ -36,6 +36,7 @@ import shapely
 from scipy import ndimage
 from shapely.geometry import Point, Polygon
 
+from scenes.mapclean import clean_cell_class
 from scenes.radio import default_construction
 from scenes.rosmap import OBSTACLE, OUTSIDE, RosMap, resolve_unknown
 
@@ -114,8 +115,6 @@ def map_cells(rosmap: RosMap, rules: ExtractionRules | None = None):
         Shape (ny, nx), int8: ``OBSTACLE`` / ``FREE`` / ``OUTSIDE``.
     report : scenes.mapclean.CleaningReport
     """
-    from scenes.mapclean import clean_cell_class
-
     rules = ExtractionRules() if rules is None else rules
     cleaned, report = clean_cell_class(rosmap.cell_class, rosmap.resolution_m, rosmap.origin_m,
                                        gap_close_m=rules.gap_close_m,

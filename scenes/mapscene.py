@@ -42,11 +42,12 @@ import shapely
 import trimesh
 from shapely.geometry.polygon import orient
 
+from scenes.corridor_radio import slab_surface
 from scenes.geometry import box_mesh, merge_meshes
 from scenes.mapextract import MapObstacle, apply_override, extract_obstacles, map_cells
-from scenes.mapspec import MapSpec, TagLayoutSpec, rules_of
+from scenes.mapspec import MapSpec, TagLayoutSpec, parse_map_table, rules_of
 from scenes.materials import UnknownMaterialError, get_material, resolve_material_name
-from scenes.radio import RadioSurface
+from scenes.radio import RadioSurface, default_construction
 from scenes.rosmap import FREE, OUTSIDE, RosMap, file_state, read_map, short_repr
 from scenes.scene import Scene, TagSet
 from scenes.spec import SpecError, TagSpec
@@ -474,7 +475,6 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
     floor_mat, ceil_mat = resolve_material_name(spec.floor_material), resolve_material_name(spec.ceiling_material)
     parts.setdefault(floor_mat, []).append(box_mesh([lo[0], lo[1], -spec.floor_thickness_m], [hi[0], hi[1], 0.0]))
     parts.setdefault(ceil_mat, []).append(box_mesh([lo[0], lo[1], H], [hi[0], hi[1], H + spec.ceiling_thickness_m]))
-    from scenes.corridor_radio import slab_surface
 
     radio += [slab_surface(rect, 0.0, True, floor_mat, spec.floor_thickness_m, "floor"),
               slab_surface(rect, H, False, ceil_mat, spec.ceiling_thickness_m, "ceiling")]
@@ -526,7 +526,6 @@ def build_map_scene(spec: MapSpec, *, name: str | None = None, base_dir: str | P
 def _with_construction(o: MapObstacle) -> MapObstacle:
     from dataclasses import replace
 
-    from scenes.radio import default_construction
 
     return replace(o, construction=default_construction(o.material))
 
@@ -537,8 +536,6 @@ def load_map(path: str | Path, **kwargs) -> Scene:
     ``kwargs`` go to :class:`MapSpec` (``height_m=4.0``, ``rack_height_m=...``). The tags
     are one row (:func:`bare_map_tags`): a scene TOML's ``[tags]`` sets more.
     """
-    from scenes.mapspec import parse_map_table
-
     p = Path(path)
     spec = parse_map_table({"path": str(p.resolve()), **kwargs}, f"{p}: [map]")
     return build_map_scene(spec, name=p.stem, source=str(p), tag_layout=bare_map_tags(spec))

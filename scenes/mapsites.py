@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from scenes.geometry import is_free, raycast
 from scenes.mapscene import rack_frames
 from scenes.scene import Scene
+from scenes.tagsites import TagSites
 
 __all__ = ["describe_map_scene", "shelf_sites"]
 
@@ -30,9 +32,6 @@ def shelf_sites(scene: Scene, spacing_m: float, z_range_m: tuple[float, float] |
     scenes.tagsites.TagSites
         Material ``"metal"``; clearance measured as :func:`scenes.tagsites.tag_sites` does.
     """
-    from scenes.geometry import is_free, raycast
-    from scenes.tagsites import TagSites
-
     m = scene.metadata.get("map") or {}
     racks = [o for o in m.get("obstacles", []) if o["kind"] == "rack" and "rectangle_m" in o]
     empty = TagSites(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=str), np.zeros(0))

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from scenes.geometry import merge_meshes
 from scenes.materials import get_material, resolve_material_name
 
 __all__ = [
@@ -197,7 +198,6 @@ def radio_groups(scene) -> list[RadioGroup]:
     for s in tracing_surfaces(scene):
         t = overrides.get(s.material, {}).get("thickness_m", s.thickness_m)
         parts.setdefault((s.material, round(float(t), 6)), []).append(s.mesh)
-    from scenes.geometry import merge_meshes
 
     return [RadioGroup(m, t, merge_meshes(ms), f"{m}-{thickness_token(t)}")
             for (m, t), ms in sorted(parts.items())]

@@ -16,6 +16,7 @@ from pipeline.acquisition.channels import REGIONS, channel_plan
 from pipeline.acquisition.gen2 import Gen2Config
 from pipeline.configschema import ConfigError, option, section
 from propagation.linkbudget import LinkBudget
+from scenes.materials import MATERIALS
 
 __all__ = ["ANTENNA_MODES", "INVENTORY_MODES", "METAL_TAG_TYPES", "POSE_SOURCES", "ReaderConfig",
            "reader_metadata"]
@@ -202,7 +203,6 @@ class ReaderConfig:
                               f"got {self.metal_tag_type!r}")
         if self.inventory not in INVENTORY_MODES:
             raise ConfigError(f"inventory must be 'fixed' or 'gen2', got {self.inventory!r}")
-        from scenes.materials import MATERIALS
 
         unknown = [m for m in self.detuning_materials if m not in MATERIALS]
         if unknown:

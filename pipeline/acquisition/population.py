@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.acquisition.phase import tag_phase_offsets
+from scenes.geometry import closest_surface
 
 __all__ = ["TagPopulation", "draw_population", "surface_materials"]
 
@@ -116,7 +117,6 @@ def surface_materials(scene, tags) -> np.ndarray:
     m = len(tags)
     if scene is None or m == 0:
         return np.full(m, "", dtype=object).astype(str)
-    from scenes.geometry import closest_surface
 
     q = closest_surface(scene, tags.positions_m)
     return np.where(q.distance_m <= MOUNT_DISTANCE_M, q.material.astype(str), "")

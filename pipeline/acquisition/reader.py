@@ -46,6 +46,7 @@ from pipeline.acquisition.phase import (
 from pipeline.acquisition.population import TagPopulation
 from pipeline.acquisition.readlog import READ_COLUMNS
 from pipeline.acquisition.track import PoseTrack, interpolate_poses
+from pipeline.robot.kinematics import antenna_poses
 from propagation import antenna_frame_angles
 
 __all__ = [
@@ -210,8 +211,6 @@ def read_attempts(track: PoseTrack, mounts: list, reader: ReaderConfig,
     at ``frequency_hz``) from the track's start; the antenna's velocity is the central
     difference of its true pose over +-10 ms (one-sided at the track's ends).
     """
-    from pipeline.robot.kinematics import antenna_poses
-
     n_ant = len(mounts)
     if n_ant == 0:
         raise ValueError("the robot has no antennas")

@@ -24,7 +24,7 @@ from pipeline.acquisition.population import draw_population, surface_materials
 from pipeline.acquisition.reader import in_range_mask, read_attempts, reads_from_gains
 from pipeline.acquisition.readlog import POSE_COLUMNS, ReadLog
 from pipeline.acquisition.track import PoseTrack, as_pose_track
-from propagation import antenna_frame_angles
+from propagation import TraceOptions, antenna_frame_angles, free_space_gain_db, trace_links
 
 __all__ = ["TracedLinks", "simulate_reads"]
 
@@ -67,8 +67,6 @@ def _trace_gains(scene, tags, poses6: np.ndarray, mask: np.ndarray, frequency_hz
     every channel: :func:`propagation.trace_links` caches the path sets by position and
     only the coherent sum depends on ``channel_hz`` (n,), default the carrier.
     """
-    from propagation import trace_links
-
     n, m = mask.shape
     ch = np.full(n, float(frequency_hz)) if channel_hz is None else np.asarray(channel_hz, float)
     gain_db = np.full((n, m), -np.inf)
@@ -182,7 +180,6 @@ def simulate_reads(
     detuning draws the same RSSI noise and misses as that reader did.
     """
     trk = as_pose_track(track)
-    from propagation import TraceOptions
 
     trace = TraceOptions() if trace is None else trace
     if not isinstance(trace, TraceOptions):
@@ -276,7 +273,6 @@ def _check_margin(gain_db, traced, d_m, range_margin_db: float, budget) -> float
     """
     if not traced.any():
         return None
-    from propagation import free_space_gain_db
 
     b = budget
     fs = free_space_gain_db(

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from fuzzymodel import normalise_rssi
 from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.acquisition.readlog import read_table, write_table
 
@@ -128,8 +129,6 @@ def _pose_columns(reads: pd.DataFrame, pose: str) -> tuple[str, str]:
 
 
 def _normalise(rssi_dbm: np.ndarray, rng_dbm: tuple[float, float]) -> np.ndarray:
-    from fuzzymodel import normalise_rssi
-
     return normalise_rssi(rssi_dbm, rng_dbm, clip=True)
 
 

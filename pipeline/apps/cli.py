@@ -33,12 +33,20 @@ import typer
 
 from pipeline.apps.clicommon import WRITE_ERRNOS, fail, fail_os
 from pipeline.apps.cliscenes import scenes_app
+from pipeline.apps.export import export_recording
+from pipeline.apps.sweep import check_sweep_dir, load_sweep, run_sweep
 from pipeline.apps.targets import resolve_target
 from pipeline.config import (
     ConfigError,
     config_to_toml,
     reference_config_toml,
 )
+from pipeline.engine.preflight import check_before_run
+from pipeline.engine.runstore import RunDirError, RunStore, is_run_dir
+from pipeline.engine.study import StageError, StudyInterrupted
+from pipeline.engine.tracetasks import check_scheduler
+from pipeline.outdirs import check_output_dir, mark_output_dir
+from pipeline.recording.config import recording_overrides
 
 __all__ = ["app", "resolve_target"]  # resolve_target: pipeline.apps.targets, re-exported
 
@@ -107,9 +115,7 @@ def run(
     Every config key and its default: configs/reference.toml (or `rfidstudy config`).
     """
     _setup_logging(verbose)
-    from pipeline.apps.studyrun import run_full_study
-    from pipeline.engine.study import RunDirError, StageError, StudyInterrupted
-    from pipeline.recording.config import recording_overrides
+    from pipeline.apps.studyrun import run_full_study  # lazy: start-up time
 
     scheduler = _scheduler(scheduler)
     try:
@@ -122,7 +128,6 @@ def run(
     except KeyboardInterrupt:
         fail("interrupted before the run started", code=130)
     try:  # a bad map or a budget over ulimit -v stops here, before the run directory is made
-        from pipeline.engine.preflight import check_before_run
 
         check_before_run(cfg)
     except (FileNotFoundError, ValueError) as exc:
@@ -163,8 +168,6 @@ def run(
 def _existing_run_dir(run_dir: Path, command: str):
     """The :class:`~pipeline.engine.runstore.RunStore` of an existing run directory, or a one-line
     error: ``figures`` and ``report`` rewrite files, so they refuse any other directory."""
-    from pipeline.engine.runstore import RunStore, is_run_dir
-
     if not run_dir.is_dir():
         fail(f"{run_dir}: not a directory")
     if not is_run_dir(run_dir):
@@ -175,8 +178,6 @@ def _existing_run_dir(run_dir: Path, command: str):
 
 def _claim(out: Path, kind: str, files: list[str]) -> None:
     """Stop unless ``out`` may take ``files`` (:func:`pipeline.outdirs.check_output_dir`)."""
-    from pipeline.outdirs import check_output_dir
-
     try:
         check_output_dir(out, kind, files)
     except ConfigError as exc:
@@ -187,7 +188,6 @@ def _scheduler(address: str | None) -> str | None:
     """``--scheduler`` checked before any work (:func:`pipeline.engine.tracetasks.check_scheduler`)."""
     if address is None:
         return None
-    from pipeline.engine.tracetasks import check_scheduler
 
     try:
         return check_scheduler(address)
@@ -202,7 +202,7 @@ def _csv_option(value: str | None) -> list[str] | None:
 def _figure_output(format_: str | None, dpi: int | None):
     """The :class:`~pipeline.figures.FigureOutput` of ``--format`` and ``--dpi`` (each
     default where not given); ValueError naming a bad value."""
-    from pipeline.figures import FigureOutput
+    from pipeline.figures import FigureOutput  # lazy: start-up time
 
     return FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
                         **({"dpi": dpi} if dpi is not None else {}))
@@ -213,7 +213,6 @@ def _output_errors(where: str, data_errors=(FileNotFoundError, ValueError)):
     """One line for what a command reading a run directory and writing files can meet: a
     refused run directory (exit 2), unreadable inputs (``data_errors``, exit 1), a place
     that cannot be written (exit 2, naming `where` or the file)."""
-    from pipeline.engine.runstore import RunDirError
 
     try:
         yield
@@ -249,9 +248,8 @@ def figures(
     writes into RUN/paper_figures (or --out DIR); PDFs embed TrueType (Type 42) fonts.
     """
     _setup_logging(verbose)
-    from pipeline.engine.runstore import RunDirError
-    from pipeline.figures import FIGURES, draw_all
-    from pipeline.report.html import write_report
+    from pipeline.figures import FIGURES, draw_all  # lazy: start-up time
+    from pipeline.report.html import write_report  # lazy: start-up time
 
     if list_:
         for name, fn in FIGURES.items():
@@ -287,8 +285,6 @@ def figures(
         paths = draw_all(run_dir, out_dir=target, names=names, output=output)
         report = write_report(run_dir) if study_figures else None
         if own_out:
-            from pipeline.outdirs import mark_output_dir
-
             mark_output_dir(out, "figures", paths)
     tail = f"; report {report}" if report is not None else ""
     typer.echo(f"{len(paths)} figure files in {target}{tail} "
@@ -304,10 +300,8 @@ def compare(
     dpi: Annotated[int | None, typer.Option(help="Resolution of PNG [dpi] (default 120).")] = None,
 ):
     """Draw the headline numbers of several runs side by side, each with its 95 % interval."""
-    from pipeline.engine.runstore import is_run_dir
-    from pipeline.figures import figure_output
-    from pipeline.figures.headline import compare_runs
-    from pipeline.outdirs import mark_output_dir
+    from pipeline.figures import figure_output  # lazy: start-up time
+    from pipeline.figures.headline import compare_runs  # lazy: start-up time
 
     for d in run_dirs:
         if not d.is_dir() or not is_run_dir(d):
@@ -327,7 +321,7 @@ def compare(
 @app.command()
 def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     """Rewrite report.html from a run directory's files."""
-    from pipeline.report.html import write_report
+    from pipeline.report.html import write_report  # lazy: start-up time
 
     store = _existing_run_dir(run_dir, "report")
     with _output_errors(str(run_dir)), store.lock("rfidstudy report"):
@@ -342,8 +336,6 @@ def export(
 ):
     """Write a study's training tour as a recording: reads in sllurp's CSV layout (or a ROS 2
     bag), the robot's estimated poses, the tag layout, the antenna mounts (docs/recordings.md)."""
-    from pipeline.apps.export import export_recording
-
     _existing_run_dir(run_dir, "export")
     try:
         files = export_recording(run_dir, out, format_)
@@ -397,7 +389,6 @@ def sweep(
     ranked answer with intervals: `rfidstudy placement`.
     """
     _setup_logging(verbose)
-    from pipeline.apps.sweep import check_sweep_dir, load_sweep, run_sweep
 
     if workers is not None and workers < 1:
         fail(f"--workers {workers}: at least 1")
@@ -476,9 +467,12 @@ def placement(
     """Choose an antenna mount: run every candidate with replicates, rank them with 95 %
     intervals, recommend one and say whether its lead is real."""
     _setup_logging(verbose)
-    from pipeline.apps.placement import candidates_of, load_placement, run_placement
-    from pipeline.apps.placement.summary import ranking_table
-    from pipeline.engine.runstore import RunDirError
+    from pipeline.apps.placement import (  # lazy: start-up time
+        candidates_of,
+        load_placement,
+        run_placement,
+    )
+    from pipeline.apps.placement.summary import ranking_table  # lazy: start-up time
 
     if workers is not None and workers < 1:
         fail(f"--workers {workers}: at least 1")
@@ -487,7 +481,7 @@ def placement(
         spec = load_placement(placement_file)
     except ConfigError as exc:
         fail(str(exc))
-    from pipeline.apps.placement.objectives import needed_stage
+    from pipeline.apps.placement.objectives import needed_stage  # lazy: start-up time
 
     n = len(candidates_of(spec))
     s = spec.settings
@@ -507,7 +501,7 @@ def placement(
         res = run_placement(spec, out, workers=workers, scheduler=scheduler, progress=progress)
     except (ConfigError, RunDirError) as exc:
         fail(str(exc))
-    from pipeline.apps.placement.report import answer_lines
+    from pipeline.apps.placement.report import answer_lines  # lazy: start-up time
 
     table = ranking_table(res.summary, s)
     cols = ["rank", "candidate", "feasible", s.primary, f"{s.primary} minus best", "verdict"]

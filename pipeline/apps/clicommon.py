@@ -7,6 +7,8 @@ import errno
 
 import typer
 
+from pipeline.engine.runstore import final_name
+
 __all__ = ["WRITE_ERRNOS", "fail", "fail_os"]
 
 
@@ -18,8 +20,6 @@ def fail(msg: str, code: int = 2):
 
 def fail_os(exc: OSError, what: str, code: int = 2):
     """One line for a file-system error (read-only, permissions, a file for a folder)."""
-    from pipeline.engine.runstore import final_name
-
     where = final_name(exc.filename) if exc.filename is not None else what
     fail(f"cannot write {where}: {exc.strerror or exc}", code)
 

@@ -8,7 +8,10 @@ from typing import Annotated
 
 import typer
 
+import scenes
 from pipeline.apps.clicommon import WRITE_ERRNOS, fail, fail_os
+from pipeline.robot import Robot
+from scenes.mapsites import describe_map_scene
 
 __all__ = ["scenes_app"]
 
@@ -18,8 +21,6 @@ scenes_app = typer.Typer(no_args_is_help=True, help="Bundled scenes.")
 @scenes_app.command("list")
 def scenes_list():
     """List the bundled scenes."""
-    import scenes
-
     for name in scenes.list_bundled():
         typer.echo(name)
 
@@ -31,8 +32,6 @@ def scenes_show(
         help="Write a top-view picture here (a .png file; nothing else is written).")] = None,
 ):
     """Describe a scene (size, materials, tags) and optionally draw its top view."""
-    import scenes
-
     if png is not None and png.suffix.lower() != ".png":
         fail(f"--png {png}: the top view is written as PNG; give a file name ending in .png")
     if png is not None and png.is_dir():
@@ -45,8 +44,7 @@ def scenes_show(
         fail(str(exc))
     route_note = ""
     if sc.route_m is None and scenes.sources.traits_of(sc).plans_route:  # a map: the route a study would plan
-        from pipeline.robot import Robot
-        from pipeline.stages.common import map_route
+        from pipeline.stages.common import map_route  # lazy: start-up time
 
         try:
             sc = map_route(sc, Robot())
@@ -62,13 +60,12 @@ def scenes_show(
         typer.echo(f"  route: {len(sc.route_m)} points")
     elif route_note:
         typer.echo(route_note)
-    from scenes.mapsites import describe_map_scene
 
     for line in describe_map_scene(sc):
         typer.echo(line)
     typer.echo(f"  content hash: {sc.content_hash()[:16]}")
     if png is not None:
-        from pipeline.stages import draw_scene_top_view
+        from pipeline.stages import draw_scene_top_view  # lazy: start-up time
 
         try:
             typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")

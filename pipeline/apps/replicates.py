@@ -36,13 +36,19 @@ import numpy as np
 from pipeline.apps.studypool import run_studies
 from pipeline.config import StudyConfig, config_to_dict, replace_path
 from pipeline.engine.runstore import (
+    RunDirLocked,
     atomic_write_json,
+    check_no_writer,
     file_sha256,
     inside,
     read_run_json,
     regular_file,
 )
 from pipeline.engine.study import Stage, StageError
+from pipeline.evaluation.headline import headline_estimates, headline_intervals
+from pipeline.evaluation.metrics import nan_to_none
+from pipeline.evaluation.units import UnitTables, concat_unit_tables
+from pipeline.report.html import write_pooled_report
 from pipeline.stages import resolve_cache_dir
 
 __all__ = ["STAGES", "replicate_configs", "replicate_seed", "stage_pooled", "stage_replicates"]
@@ -120,8 +126,6 @@ def _check_no_writer(dirs: list, rows: list) -> None:
         Naming the replicate's folder and the process (its PID, as its lock says)
         (:func:`pipeline.engine.runstore.check_no_writer`).
     """
-    from pipeline.engine.runstore import RunDirLocked, check_no_writer
-
     try:
         check_no_writer(dirs, "pooling the replicates", rows)
     except RunDirLocked as exc:
@@ -132,9 +136,6 @@ def stage_pooled(ctx) -> dict:
     """Pool the complete replicates: intervals, comparisons and per-replicate numbers."""
     import pandas as pd
 
-    from pipeline.evaluation.headline import headline_estimates, headline_intervals
-    from pipeline.evaluation.metrics import nan_to_none
-    from pipeline.evaluation.units import UnitTables, concat_unit_tables
 
     cfg = ctx.config
     index = read_run_json(ctx.input(INDEX))
@@ -173,8 +174,6 @@ def stage_pooled(ctx) -> dict:
 
 def stage_report(ctx) -> dict:
     """``report.html`` of a replicated study (:func:`pipeline.report.html.write_pooled_report`)."""
-    from pipeline.report.html import write_pooled_report
-
     metrics = read_run_json(ctx.input("metrics.json"))
     write_pooled_report(metrics, ctx.out("report.html"))
     return {}

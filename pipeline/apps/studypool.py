@@ -23,7 +23,10 @@ from typing import TYPE_CHECKING
 
 from pipeline.config import StudyConfig
 from pipeline.configschema import from_dict
+from pipeline.engine.preflight import check_address_space
 from pipeline.parallel import WORKERS_ENV, die_with_parent, usable_cpus
+from pipeline.stages import run_study_stages
+from pipeline.stages.summary import run_summary
 
 if TYPE_CHECKING:
     from pipeline.engine.study import StudyResult
@@ -62,8 +65,6 @@ def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | No
         ``kind`` (the exception's type) where a stage failed.
     """
     # the stage package: loaded in the worker, not by every importer of the pool
-    from pipeline.stages import run_study_stages
-    from pipeline.stages.summary import run_summary
 
     cfg = from_dict(StudyConfig, config, source=f"sweep point {run_dir}")
     try:
@@ -103,7 +104,6 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     starts (:func:`pipeline.engine.preflight.check_address_space`)."""
     if client is not None or scheduler:
         return _run_dask(args, scheduler, client, on_done, command, upto, runner)
-    from pipeline.engine.preflight import check_address_space
 
     # the workers inherit ulimit -v: a budget over it would segfault each one, silently
     budgets = [a[0].get("tracing", {}).get("memory_budget_mb", 0.0) for a in args]

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.apps.studypool import run_studies
+from pipeline.apps.studyrun import run_full_study
 from pipeline.config import (
     ConfigError,
     StudyConfig,
@@ -51,6 +52,7 @@ from pipeline.config import (
 from pipeline.configschema import from_dict
 from pipeline.engine.runstore import atomic_write_bytes, atomic_write_json
 from pipeline.outdirs import check_marker_file, own_marker
+from pipeline.stages import resolve_cache_dir
 
 __all__ = [
     "PARAMETERS",
@@ -323,7 +325,6 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     import pandas as pd
 
     # the stage package (its import is most of a second): loaded when points run
-    from pipeline.apps.studyrun import run_full_study
 
     out = check_sweep_dir(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
@@ -349,8 +350,6 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
 
 def _shared_cache(cfg: StudyConfig, out: Path) -> StudyConfig:
     """Pin the propagation cache to one absolute directory for every point."""
-    from pipeline.stages import resolve_cache_dir
-
     return replace_path(cfg, "tracing.cache_dir", str(resolve_cache_dir(cfg)))
 
 

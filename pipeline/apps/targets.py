@@ -9,6 +9,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
+from pipeline.apps.profiles import load_profile
 from pipeline.config import ConfigError, StudyConfig, config_from_mapping
 from scenes.sources import source_of_file
 
@@ -58,7 +59,6 @@ def resolve_target(target: str | None, overrides: list[str] | None = None,
         elif (p.suffix == ".toml" or scene_source is not None) and not p.exists():
             raise ConfigError(f"{p}: no such file")
         elif scene_source is not None and scene_source.run_profile:  # a map alone: map-scale
-            from pipeline.apps.profiles import load_profile
 
             name = scene_source.run_profile
             data = {**load_profile(name), "scene": str(p.resolve())}

@@ -11,6 +11,7 @@ dies with a segmentation fault (exit 139) and no message, so the check comes fir
 from __future__ import annotations
 
 from pipeline.config import ConfigError
+from scenes.catalog import check_source
 
 __all__ = ["STUDY_ADDRESS_SPACE_MIB", "address_space_limit", "check_address_space", "check_before_run"]
 
@@ -86,6 +87,5 @@ def check_before_run(cfg) -> None:
         A bad file behind ``cfg.scene`` (an occupancy-grid map).
     """
     check_address_space(cfg.tracing.memory_budget_mb)
-    from scenes.catalog import check_source
 
     check_source(cfg.scene)

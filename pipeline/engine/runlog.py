@@ -34,10 +34,12 @@ from pipeline.engine.runstore import (
     MANIFEST,
     RECORD_DIR,
     RunStore,
+    UnsafePathError,
     atomic_write_json,
     read_run_json,
     regular_file,
 )
+from pipeline.runpaths import RUN_KIND, TOOL
 
 __all__ = ["RUN_LOG", "config_changes", "describe_previous_run", "final_paths_in_logs",
            "is_file_handler", "log_to_file", "peak_rss_mib", "reproducible_outputs", "run_log", "utc_now",
@@ -134,8 +136,6 @@ def _open_log(path: Path, mode: str):
     (O_APPEND: each line lands whole at the end, neither process overwrites the other's).
     ``mode="w"`` starts a new file: an old regular file is unlinked first (not truncated:
     it may be a hard link to a file elsewhere)."""
-    from pipeline.engine.runstore import UnsafePathError
-
     if mode == "w" and os.path.lexists(path):
         if not stat.S_ISREG(os.lstat(path).st_mode):
             raise UnsafePathError(f"{path} is not a regular file: rfidstudy does not write "
@@ -310,7 +310,6 @@ def write_manifest(store: RunStore, config: StudyConfig, result, started: str, t
     stage, files, and ``manifest_extra(config)`` (package versions, backend)."""
     result.elapsed_s = time.perf_counter() - t0
     result.peak_rss_mib = peak_rss_mib()
-    from pipeline.runpaths import RUN_KIND, TOOL
 
     manifest = {
         "tool": TOOL,  # what makes the folder a run directory (runpaths.is_run_dir)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.config import StudyConfig, config_to_dict
+from pipeline.config import StudyConfig, config_to_dict, is_config_key
 from pipeline.engine.runstore import RunStore, json_hash
 
 __all__ = [
@@ -105,7 +105,6 @@ class Stage:
     def __post_init__(self):
         # a misspelt key would hash as None and never re-run the stage when the real key
         # changes: a silent stale cache, so it is refused where the stage is defined
-        from pipeline.config import is_config_key
 
         unknown = [k for k in self.config_keys if not is_config_key(k)]
         if unknown:

@@ -36,6 +36,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline.engine.runlog import (
+    RUN_LOG,
+    final_paths_in_logs,
+    is_file_handler,
+    log_to_file,
+    peak_rss_mib,
+    reproducible_outputs,
+    utc_now,
+)
+from pipeline.engine.runstore import RunStore
 from pipeline.engine.stagedef import StageContext, StageError, record_or_reason, stage_inputs_hash
 from pipeline.parallel import (
     WORKERS_ENV,
@@ -95,8 +105,6 @@ def _log_levels() -> dict[str, int]:
     """The loggers' levels, and under ``"console"`` the lowest level a console handler of
     this process shows (the side process's stderr shows what the console shows here; its
     INFO lines go to run.log only, unless -v)."""
-    from pipeline.engine.runlog import is_file_handler
-
     levels = {name: logging.getLogger(name).level for name in _LOGGERS}
     shown = [h.level for h in logging.getLogger().handlers if not is_file_handler(h)]
     levels["console"] = min(shown) if shown else logging.WARNING
@@ -126,14 +134,6 @@ def _child(conn, func, stage: str, config, root: str, staged: str, levels: dict)
     _end_with_parent()
     if hasattr(os, "nice"):
         os.nice(SIDE_NICENESS)
-    from pipeline.engine.runlog import (
-        RUN_LOG,
-        final_paths_in_logs,
-        log_to_file,
-        peak_rss_mib,
-        reproducible_outputs,
-    )
-    from pipeline.engine.runstore import RunStore
 
     levels = dict(levels)
     handler = logging.StreamHandler(sys.stderr)
@@ -296,8 +296,6 @@ def start_side(st, config, store, digests, force, prog) -> Side | None:
 def finish_side(side: Side, store, result, prog, failed):
     """Wait for the stage's process and commit its outputs (its ``StageRecord``); a failure
     there is the stage's failure, given to ``failed(failure)`` for the manifest first."""
-    from pipeline.engine.runlog import utc_now
-
     st = side.stage
     try:
         info, elapsed_s, peak = side.proc.result()

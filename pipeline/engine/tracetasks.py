@@ -26,6 +26,10 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+from pipeline.config import ConfigError
+from propagation.chunkjobs import chunk_runner
+from propagation.chunkworker import run_chunk_job
+
 __all__ = ["CONNECT_TIMEOUT_S", "HANDSHAKE_TIMEOUT_S", "NO_WORKERS_S", "DaskChunkRunner",
            "TraceTaskStats", "check_scheduler", "trace_tasks"]
 
@@ -55,7 +59,6 @@ def check_scheduler(address: str, what: str = "--scheduler") -> str:
     import socket
     from urllib.parse import urlsplit
 
-    from pipeline.config import ConfigError
 
     text = str(address).strip()
     if not text:
@@ -134,7 +137,6 @@ def _trace_task(job, scene):
     """On a worker: the chunk's fresh paths and the worker's address."""
     from distributed import get_worker
 
-    from propagation.chunkworker import run_chunk_job
 
     return run_chunk_job(dataclasses.replace(job, scene=scene)), get_worker().address
 
@@ -227,8 +229,6 @@ def trace_tasks(cfg, client=None) -> Iterator[TraceTaskStats | None]:
         The scheduler cannot be reached (naming ``tracing.scheduler``); a task failed or
         the cluster lost its workers (:class:`DaskChunkRunner`).
     """
-    from propagation.chunkjobs import chunk_runner
-
     address = cfg.tracing.scheduler
     if client is None and not address:
         yield None

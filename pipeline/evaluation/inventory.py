@@ -51,6 +51,8 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
+from pipeline.evaluation.intervals import weighted_quantile
+
 __all__ = [
     "INVENTORY_COLUMNS",
     "INVENTORY_METRICS",
@@ -229,8 +231,6 @@ def inventory_statistic(key: str, rows: pd.DataFrame, codes: np.ndarray, n_units
     elif key == "reads_per_pass":
         num, den = sums(rows["n_reads"]), sums(np.ones(len(rows)))
     elif key == "link_margin_db":
-        from pipeline.evaluation.intervals import weighted_quantile
-
         m = rows["best_margin_db"].to_numpy(np.float64)
         keep = ~np.isnan(m)
         v, c = m[keep], np.asarray(codes)[keep]

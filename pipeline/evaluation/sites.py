@@ -35,6 +35,7 @@ from pipeline.evaluation.interface import check_sensor
 from pipeline.evaluation.metrics import error_stats, nan_to_none
 from pipeline.evaluation.truth import check_miss_probability, true_detected, true_rssi_dbm
 from scenes.fileio import atomic_save_npz, read_npz
+from scenes.geometry import raycast
 
 __all__ = ["SiteComparison", "SiteTruth", "obstructed_pairs", "site_comparison"]
 
@@ -113,8 +114,6 @@ def obstructed_pairs(scene, antenna_xyz: np.ndarray, sites_m: np.ndarray) -> np.
     -------
     numpy.ndarray, shape (p, s), bool
     """
-    from scenes.geometry import raycast
-
     a = np.asarray(antenna_xyz, float).reshape(-1, 3)
     s = np.asarray(sites_m, float).reshape(-1, 3)
     o = np.repeat(a, len(s), axis=0)

@@ -49,7 +49,7 @@ from scipy import integrate, stats
 from scipy.special import i0e
 
 from pipeline.localisation.likelihood import EPS, Z_CLIP, _check_eps, _check_zclip
-from pipeline.localisation.oracle_likelihood import OracleLikelihood
+from pipeline.localisation.oracle_likelihood import OracleGains, OracleLikelihood
 
 __all__ = [
     "RAYLEIGH",
@@ -274,6 +274,4 @@ class FadedLikelihood:
     def with_gains(self, gain_db, miss_probability=None):
         """Bind a (slots x candidates) matrix of local-mean gains for
         :func:`~pipeline.localisation.localise_tags` (as :meth:`OracleLikelihood.with_gains`)."""
-        from pipeline.localisation.oracle_likelihood import OracleGains
-
         return OracleGains(self, gain_db, miss_probability)

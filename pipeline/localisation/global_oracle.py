@@ -47,6 +47,13 @@ from pipeline.localisation.fading import FadedLikelihood, FadingModel
 from pipeline.localisation.observations import Observations
 from pipeline.localisation.oracle_likelihood import OracleLikelihood
 from pipeline.localisation.tags import TagPosteriors, localise_tags
+from propagation.anchored import (
+    anchor_groups,
+    anchored_gains_db,
+    specular_model_paths,
+    trace_anchor_paths,
+    window_gains_db,
+)
 
 __all__ = ["GlobalOracle", "OracleSearch", "coarse_posteriors", "global_oracle", "widened"]
 
@@ -152,8 +159,6 @@ def coarse_posteriors(obs: Observations, true_poses, sites, scene, oracle: Oracl
         Coarse local-mean gains [dB] (-inf beyond ``reach_m``).
     n_links : int
     """
-    from propagation.anchored import anchor_groups, anchored_gains_db, specular_model_paths
-
     pos, nrm = np.asarray(sites.positions_m, float), np.asarray(sites.normals, float)
     anchors, member_anchor = anchor_groups(pos, nrm, search.anchor_spacing_m)
     a_pos = pos[anchors]
@@ -224,8 +229,6 @@ def global_oracle(obs: Observations, true_poses, sites, scene, oracle: OracleLik
     -------
     GlobalOracle
     """
-    from propagation.anchored import trace_anchor_paths
-
     search = search or OracleSearch()
     if obs.n_tags == 0 or len(sites.positions_m) == 0:
         raise ValueError("global_oracle: no tags or no candidate sites to localise over")
@@ -316,8 +319,6 @@ def _window_posterior(obs, t, mine, centres, need, paths, inv, pos, nrm, poses, 
     members are the same sites, scored on the same slots, with the same numbers).
 
     Returns (member site indices, TagPosteriors of one tag)."""
-    from propagation.anchored import window_gains_db
-
     c = pos[centres[mine]]
     d2 = np.sum((pos[:, None, :] - c[None]) ** 2, axis=2)  # (K, k_t)
     d2 = np.where(nrm @ nrm[centres[mine]].T > 0.9, d2, np.inf)
@@ -353,8 +354,6 @@ def _truth_preferred(obs, poses, post, slots_of, truth_m, truth_normals, sites, 
                      frequency_hz, trace, pattern_kw, cache_dir, miss_probability) -> np.ndarray:
     """Per tag: the truth scores higher than the estimate, both traced exactly on the
     tag's fine slots (``slots_of`` (T, S)) and scored with the fine likelihood."""
-    from propagation.anchored import anchored_gains_db, trace_anchor_paths
-
     truth = np.asarray(truth_m, float).reshape(obs.n_tags, 3)
     est_site = np.argmin(np.sum((np.asarray(sites.positions_m)[None] - post.map_m[:, None]) ** 2,
                                 axis=2), axis=1)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import log_ndtr
 
+from pipeline.acquisition.singulation import p_singulated, reader_dwell_s
 from pipeline.localisation.likelihood import EPS, Z_CLIP, GaussianTerms, _check_eps, _check_zclip
 
 __all__ = ["OracleGains", "OracleLikelihood"]
@@ -85,8 +86,6 @@ class OracleLikelihood:
         if miss_probability is None:
             miss_probability = reader.anticollision_miss_probability
             if getattr(reader, "inventory", "fixed") == "gen2":
-                from pipeline.acquisition.singulation import p_singulated, reader_dwell_s
-
                 miss_probability = 1.0 - float(p_singulated(1, reader.gen2, reader_dwell_s(reader)))
         return cls(budget, miss_probability=miss_probability,
                    rssi_noise_db=reader.rssi_noise_db,

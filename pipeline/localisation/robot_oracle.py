@@ -33,8 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.localisation.fading import RAYLEIGH, FadedLikelihood, FadedTerms, FadingModel
+from pipeline.localisation.global_oracle import widened
 from pipeline.localisation.likelihood import GaussianTerms
 from pipeline.localisation.oracle_likelihood import OracleLikelihood
+from pipeline.robot.kinematics import antenna_poses, mounts_to_array
+from propagation.anchored import anchor_groups, moved_antenna_local_mean_db, trace_anchor_paths
+from scenes import solid_material_at
 
 __all__ = ["FieldLikelihood", "GainField", "gain_field"]
 
@@ -95,8 +99,6 @@ class FieldLikelihood:
 
     def __init__(self, oracle: OracleLikelihood, field: GainField,
                  fading: FadingModel | None = RAYLEIGH, extra_sigma_db: float = 0.0) -> None:
-        from pipeline.localisation.global_oracle import widened
-
         if not float(extra_sigma_db) >= 0:
             raise ValueError(f"extra_sigma_db must be >= 0, got {extra_sigma_db!r}")
         self.oracle = (widened(oracle, extra_sigma_db) if fading is None
@@ -143,10 +145,6 @@ def gain_field(scene, mounts, tag_positions_m, tag_normals, free_space, *, frequ
     -------
     GainField
     """
-    from pipeline.robot.kinematics import antenna_poses, mounts_to_array
-    from propagation.anchored import anchor_groups, moved_antenna_local_mean_db, trace_anchor_paths
-    from scenes import solid_material_at
-
     if not (spacing_m > 0 and lattice_m > 0 and int(n_heading) >= 1):
         raise ValueError("gain_field: need spacing_m > 0, lattice_m > 0 and n_heading >= 1")
     tags = np.asarray(tag_positions_m, float).reshape(-1, 3)

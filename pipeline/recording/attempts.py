@@ -31,7 +31,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.acquisition import POSE_COLUMNS, READ_COLUMNS, PoseTrack, read_attempts
+from pipeline.acquisition.simulate import _poses_frame
 from pipeline.recording.csvformats import RecordingError
+from propagation import antenna_frame_angles
 
 __all__ = ["MAX_OFF_SCHEDULE", "TIME_TOLERANCE_S", "recorded_read_table", "recorded_track"]
 
@@ -46,8 +49,6 @@ def recorded_track(rec):
     """The robot's poses as a :class:`pipeline.acquisition.PoseTrack` on the recording's
     clock less ``t0`` (the first pose's time; fixed antennas: the robot at the origin from
     the first read to the last), and ``t0`` [s since 1970]."""
-    from pipeline.acquisition import PoseTrack
-
     if rec.poses is not None:
         t = rec.poses["t_s"].to_numpy(np.float64)
         xyz = rec.poses[["x_m", "y_m", "yaw_rad"]].to_numpy(np.float64)
@@ -102,10 +103,6 @@ def recorded_read_table(rec, tags, mounts, reader, *, frequency_hz: float):
     RecordingError
         More than :data:`MAX_OFF_SCHEDULE` of the reports off schedule.
     """
-    from pipeline.acquisition import POSE_COLUMNS, READ_COLUMNS, read_attempts
-    from pipeline.acquisition.simulate import _poses_frame
-    from propagation import antenna_frame_angles
-
     track, t0 = recorded_track(rec)
     att = read_attempts(track, list(mounts), reader, frequency_hz=frequency_hz)
     n, m = len(att.time_s), len(tags)

@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.recording.units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
+from scenes.fileio import atomic_output
 
 __all__ = ["POSE_COLUMNS", "READ_FIELDS", "SLLURP_COLUMNS", "SLLURP_IMPINJ_COLUMNS", "TAG_COLUMNS", "RecordingError", "align_reads",
            "read_poses_csv", "read_sllurp_csv", "read_tags_csv", "write_poses_csv",
@@ -210,8 +211,6 @@ def _impinj_fields(path, line, r, region, out) -> None:
 def _write_csv(path, header, rows) -> Path:
     """``header`` then ``rows`` as CSV (excel dialect, CRLF), atomically (a half-written
     file never appears)."""
-    from scenes.fileio import atomic_output
-
     path = Path(path)
     with atomic_output(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, dialect="excel")

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.acquisition.channels import REGIONS
 from pipeline.recording.csvformats import RecordingError, _number, _rows, _write_csv, sorted_by_time
 from pipeline.recording.units import DOPPLER_STEPS_PER_HZ, PHASE_STEPS, channel_frequency_hz
 
@@ -167,8 +168,6 @@ def write_impinj_csv(reads: pd.DataFrame, path: str | Path, region: str) -> Path
     ValueError
         A frequency that is not one of the region's channels.
     """
-    from pipeline.acquisition.channels import REGIONS
-
     table = np.asarray(sorted(REGIONS[region].channels_hz), np.float64)
     f = reads["frequency_hz"].to_numpy(np.float64)
     idx = np.searchsorted(table, f)

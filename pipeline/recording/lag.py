@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.robot.kinematics import antenna_poses
+
 __all__ = ["LAGS_S", "pose_lag_profile"]
 
 #: Candidate lags [s]: +-2 s in 0.1 s steps.
@@ -55,8 +57,6 @@ def pose_lag_profile(reads: pd.DataFrame, poses: pd.DataFrame, tags, mounts, por
         at zero lag (``rmse_db_at_zero``),
         ``profile`` ({lag: rmse}), ``n_reads`` (reads inside the poses' span at every lag).
     """
-    from pipeline.robot.kinematics import antenna_poses
-
     t_pose = poses["t_s"].to_numpy(np.float64)
     yaw = np.unwrap(poses["yaw_rad"].to_numpy(np.float64))
     t = reads["t_s"].to_numpy(np.float64)

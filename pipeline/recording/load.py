@@ -27,6 +27,7 @@ from pipeline.recording.csvformats import (
 )
 from pipeline.recording.impinj import IMPINJ_FIELDS, impinj_header, read_impinj_csv
 from pipeline.recording.rosbag import read_rosbag
+from scenes.scene import TagSet
 
 __all__ = ["READ_FIELDS", "Recording", "detect_format", "is_rosbag", "load_recording",
            "recorded_tagset"]
@@ -183,8 +184,6 @@ def recorded_tagset(rec: Recording, antenna_xy=None):
     A tag whose file gives no normal faces the nearest robot pose (or, for fixed
     antennas, the nearest of ``antenna_xy`` (k, 2)) horizontally: tags in an aisle face it.
     """
-    from scenes.scene import TagSet
-
     t = rec.tags
     pos = t[["x_m", "y_m", "z_m"]].to_numpy(np.float64)
     nrm = t[["nx", "ny", "nz"]].to_numpy(np.float64)

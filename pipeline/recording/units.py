@@ -10,6 +10,8 @@ columns to sllurp's logger.
 
 from __future__ import annotations
 
+from pipeline.acquisition.channels import REGIONS
+
 __all__ = ["DOPPLER_STEPS_PER_HZ", "PHASE_STEPS", "channel_frequency_hz"]
 
 #: Steps of the 12-bit phase over one turn.
@@ -26,8 +28,6 @@ def channel_frequency_hz(index: int, region: str) -> float:
     ValueError
         Region without a channel table, or an index outside it.
     """
-    from pipeline.acquisition.channels import REGIONS
-
     prof = REGIONS.get(region)
     if prof is None or not prof.channels_hz:
         raise ValueError(f"a channel index needs the region's channel table: recording.region "

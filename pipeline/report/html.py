@@ -23,6 +23,7 @@ import os
 import tomllib
 from pathlib import Path
 
+from pipeline.config import ConfigError, config_from_mapping
 from pipeline.engine.runstore import (
     UnsafePathError,
     atomic_write_text,
@@ -31,7 +32,10 @@ from pipeline.engine.runstore import (
     run_files,
 )
 from pipeline.figures.captions import CAPTIONS, SECTIONS
+from pipeline.figures.headline import HEADLINE_METRICS, MODEL_LABELS, headline_table, model_label
+from pipeline.report.findings import findings
 from pipeline.report.recorded import write_recorded_report
+from pipeline.report.smokescale import smoke_scale_reasons
 from pipeline.report.tables import (
     REPORT_CSS,
     budget_html,
@@ -46,6 +50,7 @@ from pipeline.report.tables import (
     sites_html,
     table_html,
 )
+from scenes.materials import extrapolated_materials
 
 __all__ = ["figure_captions", "write_pooled_report", "write_report"]
 
@@ -81,8 +86,6 @@ def _checked_config(cfg: dict, path: Path) -> dict:
         One line naming ``path`` and the key: ``frequency_hz = 0`` (``nan``, a string,
         ``1e30``) is refused, not extrapolated to.
     """
-    from pipeline.config import ConfigError, config_from_mapping
-
     given = {k: cfg[k] for k in _COMPUTED_KEYS if k in cfg}
     try:
         checked = config_from_mapping(given, source=str(path))
@@ -94,8 +97,6 @@ def _checked_config(cfg: dict, path: Path) -> dict:
 def _methods_html(run: Path, cfg: dict) -> list[str]:
     """Methods: materials (P.2040 fits extrapolated to the study frequency), radio geometry
     and the held-out design, from scene/scene.json and config.toml."""
-    from scenes.materials import extrapolated_materials
-
     info = _load_json(run / "scene" / "scene.json") or {}
     f_hz = float(cfg.get("frequency_hz", 865e6))  # checked by _checked_config
     out = ["<h2>Methods</h2>",
@@ -189,14 +190,6 @@ def _figure_html(png: Path, run: Path, embed: bool, captions: dict[str, str]) ->
 
 def _summary_html(run: Path, body: dict) -> list[str]:
     """The held-out headline table with intervals and verdicts, the findings, the caveats."""
-    from pipeline.figures.headline import (
-        HEADLINE_METRICS,
-        MODEL_LABELS,
-        headline_table,
-        model_label,
-    )
-    from pipeline.report.findings import findings
-
     out = []
     try:
         table = headline_table(run)
@@ -295,7 +288,6 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
         f"<p class='muted'>Run directory <code>{html.escape(str(run.resolve()))}</code>; "
         f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}.</p>",
     ]
-    from pipeline.report.smokescale import smoke_scale_reasons
 
     smoke = smoke_scale_reasons(cfg)
     if smoke:

@@ -21,6 +21,7 @@ import numpy as np
 from pipeline.engine.runstore import atomic_write_text, inside
 from pipeline.report.tables import REPORT_CSS
 from pipeline.runpaths import not_regular
+from pipeline.sensormodels.registry import model_label
 
 __all__ = ["draw_sim_vs_real", "write_recorded_report"]
 
@@ -111,8 +112,6 @@ def _tag_localisation_html(metrics: dict) -> list[str]:
     """The held-out tags localised with each model (the downstream stage on a recording):
     the MAP error against the recording's tag layout with 95 % intervals over tags, the
     verdict against ANFIS on the median; sources that did not run, and why."""
-    from pipeline.sensormodels.registry import model_label
-
     esc = html.escape
     tl = metrics.get("tag_localisation")
     if not isinstance(tl, dict) or not tl:
@@ -153,7 +152,6 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
     """Write the recorded study's self-contained ``report.html`` (module doc)."""
     import pandas as pd
 
-    from pipeline.sensormodels.registry import model_label
 
     run = Path(run_dir)
     rec = metrics.get("recording", {})

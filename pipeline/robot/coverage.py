@@ -36,6 +36,10 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 
+from pipeline.robot.occupancy import _densify
+from pipeline.robot.trajectory import collision_map
+from scenes import is_free as scene_is_free
+
 __all__ = ["CoverageRoute", "SkippedFace", "TagFace", "plan_coverage_route", "route_clearance_m", "tag_faces"]
 
 
@@ -196,8 +200,6 @@ def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
 
 def route_clearance_m(cmap, route_m, step_m: float = 0.05) -> np.ndarray:
     """Clearance [m] of the collision map along a polyline sampled every ``step_m``."""
-    from pipeline.robot.occupancy import _densify
-
     return cmap.clearance_m(_densify(np.asarray(route_m, dtype=float), step_m))
 
 
@@ -233,9 +235,6 @@ def plan_coverage_route(scene, robot, standoff_m: float = 1.0, *, margin_m: floa
     ValueError
         No tags; no face any pass can serve (the map and the reasons are named).
     """
-    from pipeline.robot.trajectory import collision_map
-    from scenes import is_free as scene_is_free
-
     label = name or str(scene.source or scene.name)
     if not standoff_m > 0:
         raise ValueError(f"{label}: route standoff_m must be positive, got {standoff_m!r}")

@@ -17,6 +17,7 @@ import numpy as np
 from scipy import ndimage
 
 from scenes import floor_plan_segments
+from scenes.rosmap import boundary_segments
 from scenes.sources import traits_of
 
 __all__ = ["OccupancyMap", "map_boundary_segments", "slice_heights"]
@@ -468,7 +469,6 @@ def map_boundary_segments(scene) -> np.ndarray:
     boxes = getattr(scene, "free_space_m", None)
     if rm is None or boxes is None or not len(boxes):
         return np.zeros((0, 2, 2))
-    from scenes.rosmap import boundary_segments
 
     inside = np.zeros(rm.shape, dtype=bool)
     res = rm.resolution_m

@@ -38,6 +38,7 @@ from scipy import ndimage
 
 from pipeline.robot.occupancy import OccupancyMap, slice_heights
 from scenes import floor_plan_segments
+from scenes.rosmap import FREE, OBSTACLE, boundary_segments, resolve_unknown
 from scenes.sources import traits_of
 
 __all__ = [
@@ -330,7 +331,6 @@ def plan_segments(scene, height_m: float) -> np.ndarray:
     rm = traits_of(scene).grid(scene)
     if rm is None:
         return floor_plan_segments(scene, slice_heights((height_m, height_m), 1)[0])
-    from scenes.rosmap import OBSTACLE, boundary_segments, resolve_unknown
 
     return boundary_segments(resolve_unknown(rm.cell_class) == OBSTACLE, rm.origin_m, rm.resolution_m)
 
@@ -342,8 +342,6 @@ def _grid_map(scene, rm, error: MapError) -> OccupancyMap:
     :func:`scenes.rosmap.resolve_unknown`) 4-connected to the route; with a map error,
     the displaced outlines rasterised on the same grid (:meth:`OccupancyMap.from_segments`).
     """
-    from scenes.rosmap import FREE, resolve_unknown
-
     h = float(error.height_m)
     if not error.is_zero:
         return OccupancyMap.from_segments(error.displaced_lines_m, rm.origin_m, rm.shape,

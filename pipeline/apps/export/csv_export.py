@@ -32,8 +32,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.acquisition.channels import REGIONS
 from pipeline.apps.export.rosbag_export import export_mcap
 from pipeline.apps.export.runtour import EPOCH_S, RunTour, epc_of, run_tour, tag_id_of, write_layout
+from pipeline.outdirs import check_output_dir, mark_output_dir
 from pipeline.recording.csvformats import write_poses_csv, write_sllurp_csv
 from pipeline.recording.impinj import write_impinj_csv
 
@@ -50,9 +52,6 @@ def export_csv(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     ValueError
         A run file is missing or unreadable (named).
     """
-    from pipeline.acquisition.channels import REGIONS
-    from pipeline.outdirs import check_output_dir, mark_output_dir
-
     names = ["reads.csv", "reads_impinj.csv", "poses.csv", "tags.csv", "mounts.toml"]
     out = check_output_dir(out_dir, "export", names)
     tour = run_tour(run_dir)

@@ -20,7 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.apps.export.runtour import EPOCH_S, run_tour, write_layout
+from pipeline.outdirs import check_output_dir, mark_output_dir
 from pipeline.recording.rosbag import RFID_READ, TOPICS, rfid_typestore
+from pipeline.runpaths import inside
+from scenes.fileio import read_npz
 
 __all__ = ["MAP_HEIGHT_KEY", "MAP_MARGIN_M", "MAP_RESOLUTION_M", "export_mcap", "occupancy_grid",
            "write_bag"]
@@ -190,10 +193,6 @@ def _fill(bag: _Bag, tour, segments) -> None:
 
 def write_bag(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     """:func:`export_mcap` (its docstring)."""
-    from pipeline.outdirs import check_output_dir, mark_output_dir
-    from pipeline.runpaths import inside
-    from scenes.fileio import read_npz
-
     out = check_output_dir(out_dir, "export", ["bag", "tags.csv", "mounts.toml"])
     tour = run_tour(run_dir)
     try:

@@ -13,7 +13,10 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from pipeline.config import load_config
 from pipeline.recording.csvformats import write_tags_csv
+from pipeline.runpaths import inside
+from scenes.fileio import atomic_write_text, read_npz
 
 __all__ = ["EPC_DIGITS", "EPOCH_S", "RunTour", "epc_of", "run_tour", "tag_id_of", "write_layout"]
 
@@ -66,10 +69,6 @@ def run_tour(run_dir: str | Path) -> RunTour:
     ValueError
         A run file is missing or unreadable (named).
     """
-    from pipeline.config import load_config
-    from pipeline.runpaths import inside
-    from scenes.fileio import read_npz
-
     run = Path(run_dir)
     try:
         reads = pd.read_parquet(inside(run, "reads.parquet"),
@@ -97,7 +96,6 @@ def write_layout(tour: RunTour, out: Path) -> list[Path]:
 
     import tomli_w
 
-    from scenes.fileio import atomic_write_text
 
     train, epc = tour.tags, tour.epc
     files = [write_tags_csv(pd.DataFrame({

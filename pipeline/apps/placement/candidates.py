@@ -18,6 +18,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from pipeline.config import AntennaMountConfig, ConfigError, StudyConfig
+from pipeline.robot import AntennaMount, Robot
 
 __all__ = [
     "MOUNT_FIELDS",
@@ -159,8 +160,6 @@ def check_candidate(c: Candidate, spec, what: str = "") -> None:
         Naming the candidate (and ``what`` produced it): more antennas than
         ``envelope.max_antennas``, an antenna outside the envelope, or inside the body.
     """
-    from pipeline.robot import AntennaMount, Robot
-
     src, env = spec.source, spec.settings.envelope
     where = f"{src}: {what + ': ' if what else ''}candidate {c.name!r}"
     if len(c.antennas) > env.max_antennas:
@@ -187,8 +186,6 @@ def check_ranges(spec, ranges: dict) -> None:
     inside iff its corners are), and the box of each antenna's positions is intersected
     with the robot's body box.
     """
-    from pipeline.robot import Robot
-
     keys = list(ranges)
     for combo in itertools.product(*(ranges[k] for k in keys)):
         check_candidate(candidate_from_values(spec, dict(zip(keys, combo, strict=True))), spec,

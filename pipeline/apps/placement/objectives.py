@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.engine.runstore import inside, read_run_json, regular_file
 from pipeline.evaluation.headline import metric_statistic
 from pipeline.evaluation.intervals import (
     Comparison,
@@ -68,6 +69,8 @@ from pipeline.evaluation.intervals import (
 )
 from pipeline.evaluation.inventory import inventory_statistic
 from pipeline.evaluation.units import UnitTables
+from pipeline.stages import stage_names
+from pipeline.stages.summary import tour_tags
 
 __all__ = [
     "LEARNED_MODEL",
@@ -139,8 +142,6 @@ OBJECTIVES: dict[str, Objective] = {o.key: o for o in (
 def needed_stage(keys) -> str:
     """The last study stage the objectives ``keys`` need (:attr:`Objective.stage`):
     ``reads`` when all are inventory objectives, else ``evaluation``."""
-    from pipeline.stages import stage_names
-
     order = stage_names()
     return max((OBJECTIVES[k].stage for k in keys), key=order.index, default="reads")
 
@@ -181,8 +182,6 @@ def load_candidate_data(run_dirs: dict, budget) -> CandidateData:
         A file is missing or unreadable (the message names it); a track without
         ``pass_index`` (a run directory from before it was written: rerun it).
     """
-    from pipeline.stages.summary import tour_tags
-
     inv, tabs = [], {}
     for k, run in run_dirs.items():
         run = Path(run)
@@ -215,8 +214,6 @@ def _stage_done(run: Path, stage: str) -> bool:
     """Whether the run's last study ran (or found cached) ``stage``: its manifest lists it.
     A record left by an earlier run of other stages does not count (a study run up to
     its reads after one that fitted models keeps the old evaluation's files)."""
-    from pipeline.engine.runstore import inside, read_run_json, regular_file
-
     if not regular_file(inside(run, f"stages/{stage}.json")):
         return False
     try:
@@ -310,8 +307,6 @@ def compare_objective(a: CandidateData, b: CandidateData, key: str, *, seed: int
 def traced_counts(run_dir: Path) -> dict:
     """Antenna positions traced afresh and link pairs used by one study (from its stage
     records; absent numbers are 0)."""
-    from pipeline.engine.runstore import inside, read_run_json
-
     out = {"n_sources_traced": 0, "n_links": 0}
     for stage, keys in (("reads", ("train", "eval")), ("truth_traces", (None,))):
         try:

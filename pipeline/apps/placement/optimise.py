@@ -30,6 +30,7 @@ from collections.abc import Callable
 from pipeline.apps.placement.candidates import MOUNT_FIELDS, Candidate, candidate_from_trial
 from pipeline.apps.placement.objectives import OBJECTIVES, load_candidate_data, objective_estimate
 from pipeline.apps.placement.results import complete_dirs
+from pipeline.stages.common import link_budget
 
 __all__ = ["optimise", "search"]
 
@@ -126,8 +127,6 @@ def violations(estimates: dict, constraints) -> list[float]:
 def optimise(spec, runner, out) -> list:
     """Run the placement file's ``[optimise]`` trials with ``runner`` (each trial a
     candidate with every replicate); return the trials' candidates in trial order."""
-    from pipeline.stages.common import link_budget
-
     s = spec.settings
     opt = s.optimise
     ranges = {k: tuple(getattr(opt.ranges, k)) for k in MOUNT_FIELDS

@@ -18,6 +18,7 @@ import pandas as pd
 
 from pipeline.apps.placement.objectives import OBJECTIVES
 from pipeline.engine.runstore import inside, read_run_json, regular_file
+from pipeline.stages import stage_names
 
 __all__ = ["PlacementResult", "band_key", "candidate_dir", "complete_dirs", "height_bands",
            "ranking_table", "usable_run"]
@@ -56,8 +57,6 @@ def usable_run(run: Path, required: str) -> bool:
     leaves the tour's reads standing), and ``required``'s record is there. A study that
     failed earlier, was interrupted or is running is not used: its older stage records
     may belong to another config."""
-    from pipeline.stages import stage_names  # the stage engine: loaded only when runs are read
-
     try:
         man = read_run_json(inside(run, "manifest.json"))
     except (OSError, ValueError):

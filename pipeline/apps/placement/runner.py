@@ -46,6 +46,7 @@ from pipeline.apps.placement.optimise import optimise
 from pipeline.apps.placement.results import PlacementResult, candidate_dir
 from pipeline.apps.placement.spec import PlacementSpec
 from pipeline.apps.placement.summary import summarise, top_candidates, write_outputs
+from pipeline.apps.replicates import replicate_seed
 from pipeline.apps.studypool import run_studies
 from pipeline.config import ConfigError, config_to_dict, replace_path
 from pipeline.engine.runstore import (
@@ -56,6 +57,7 @@ from pipeline.engine.runstore import (
     check_no_writer,
 )
 from pipeline.outdirs import check_marker_file, own_marker
+from pipeline.stages import resolve_cache_dir, stage_names
 
 __all__ = ["PlacementResult", "PlacementStopped", "ProgressEvent", "candidate_dir",
            "position_waves", "run_placement"]
@@ -120,8 +122,6 @@ def _prepare_dir(out: Path) -> None:
 
 
 def _replicate_config(spec: PlacementSpec, cand: Candidate, k: int, cache_dir: str):
-    from pipeline.apps.replicates import replicate_seed
-
     cfg = cand.config(spec.base)
     cfg = replace_path(cfg, "replicates.n", 1)
     cfg = replace_path(cfg, "tracing.cache_dir", cache_dir)
@@ -162,8 +162,6 @@ class _Runner:
     """Runs candidates' replicates in batches and keeps the progress books."""
 
     def __init__(self, spec, out, workers, scheduler, client, progress):
-        from pipeline.stages import resolve_cache_dir
-
         self.spec, self.out = spec, out
         self.workers, self.scheduler, self.client = workers, scheduler, client
         self.progress = progress
@@ -185,8 +183,6 @@ class _Runner:
     def _failed(self, name: str, row: dict) -> bool:
         """Book a failed replicate; True when its kind repeats in a second candidate (the
         pending studies are then cancelled)."""
-        from pipeline.stages import stage_names
-
         stage, kind = row.get("stage"), row.get("kind")
         seen = self.failures.setdefault((stage, kind), {})
         seen.setdefault(name, str(row.get("error") or ""))

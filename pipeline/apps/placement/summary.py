@@ -60,6 +60,7 @@ from pipeline.engine.runstore import (
     read_run_json,
     run_files,
 )
+from pipeline.stages.common import link_budget
 
 __all__ = ["FEASIBILITY", "SELECTION_RULE", "evidence", "feasibility", "pareto_front",
            "rank_candidates", "summarise", "write_outputs"]
@@ -82,8 +83,6 @@ def _antennas_text(c) -> str:
 
 def summarise(spec, out: Path, cands: list) -> tuple[pd.DataFrame, dict]:
     """The summary table and each candidate's data (``{name: CandidateData}``)."""
-    from pipeline.stages.common import link_budget
-
     s = spec.settings
     budget = link_budget(spec.base)
     seed = int(spec.base.seed)
@@ -241,8 +240,6 @@ def confirmation(spec, out: Path, names: list[str]) -> dict | None:
     primary objective with its interval, and the first (the selected best) against each
     other one on the units both share; ``holds`` when the first is still ahead of every
     other at 95 %. None without two confirmed candidates with results."""
-    from pipeline.stages.common import link_budget
-
     s = spec.settings
     if len(names) < 2:
         return None
