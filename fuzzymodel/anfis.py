@@ -33,6 +33,7 @@ model and of its saved file.
 
 from __future__ import annotations
 
+import datetime
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +45,13 @@ from .errors import FuzzyModelError, check_matrix, check_target, check_weights
 from .hybrid import solve_least_squares, update_step_size
 from .initfis import Premise, fcm_premise, grid_premise
 from .membership import MF_PARAM_NAMES, log_membership, log_membership_grad
+from .persistence import (
+    anfis_kwargs_from_dict,
+    anfis_to_dict,
+    package_version,
+    read_json,
+    write_json,
+)
 
 __all__ = ["ANFIS", "PremiseGradient", "TrainingHistory", "update_step_size"]
 
@@ -527,15 +535,11 @@ class ANFIS:
     # ----------------------------------------------------------- persistence
     def save(self, path) -> Path:
         """Write the model as human-readable JSON (atomic rename); returns the path."""
-        from .persistence import anfis_to_dict, write_json
-
         return write_json(path, anfis_to_dict(self))
 
     @classmethod
     def load(cls, path):
         """Read a model written by :meth:`save`; errors name the file and key."""
-        from .persistence import anfis_kwargs_from_dict, read_json
-
         path = Path(path)
         return cls(**anfis_kwargs_from_dict(read_json(path), str(path)))
 
@@ -546,10 +550,6 @@ class ANFIS:
 
 def _training_provenance(h: TrainingHistory, n_samples: int, step_size: float,
                          weight_sum: float | None = None) -> dict:
-    import datetime
-
-    from .persistence import package_version
-
     b = h.best_epoch
     return {
         "algorithm": "hybrid least squares + gradient descent (Jang 1993)",

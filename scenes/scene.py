@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from scenes.export import export_mitsuba as _export_mitsuba
 from scenes.radio import RadioSurface, hash_radio_surfaces
 
 __all__ = ["Scene", "TagSet"]
@@ -181,6 +182,4 @@ class Scene:
 
         See :func:`scenes.export.export_mitsuba`.
         """
-        from scenes.export import export_mitsuba
-
-        return export_mitsuba(self, directory, frequency_hz)
+        return _export_mitsuba(self, directory, frequency_hz)

@@ -24,6 +24,7 @@ from pipeline.evaluation.comparison import cell_centre_fT, closing_links
 from pipeline.evaluation.interface import detection_probability
 from pipeline.evaluation.tables import require_columns
 from pipeline.evaluation.truth import TruthGrid, true_detected, true_rssi_dbm
+from pipeline.runpaths import inside
 
 __all__ = [
     "TABLES",
@@ -83,8 +84,6 @@ class UnitTables:
         """Read the tables of one run directory (downstream tables absent: None).
 
         ``read_parquet(path)`` reads one file (a caller passes its checked reader)."""
-        from pipeline.runpaths import inside
-
         root = Path(run_dir)
         out = {}
         for f in fields(cls):
@@ -216,9 +215,9 @@ def fig7_groups(results: dict) -> pd.DataFrame:
     parts = []
     for name, res in results.items():
         t = res.table
-        inside = t["in_domain"].to_numpy(bool) & np.isfinite(t["error_pct"].to_numpy(float))
-        parts.append(pd.DataFrame({"model": name, "unit": t["tag_id"].astype(str).to_numpy()[inside],
-                                   "error_pct": t["error_pct"].to_numpy(np.float64)[inside]}))
+        kept = t["in_domain"].to_numpy(bool) & np.isfinite(t["error_pct"].to_numpy(float))
+        parts.append(pd.DataFrame({"model": name, "unit": t["tag_id"].astype(str).to_numpy()[kept],
+                                   "error_pct": t["error_pct"].to_numpy(np.float64)[kept]}))
     return _concat(parts, {"model": str, "unit": str, "error_pct": float})
 
 
