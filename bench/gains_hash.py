@@ -1,7 +1,7 @@
 """A sha256 of the study tracer's gains on a fixed set of links, traced deterministically.
 
 Traces 9 antenna poses x 16 tags of ``corridor_lab`` with the default study's tracing
-options (:func:`pipeline.stages.common.trace_options` of a default
+options (:func:`pipeline.studyscene.trace_options` of a default
 :class:`pipeline.config.StudyConfig`), on one Dr.Jit thread
 (:func:`propagation.set_deterministic`) and without a path cache, and prints the sha256
 of the gains (float64, C order) with the wall time. Six poses lie within the sharing
@@ -27,7 +27,7 @@ import numpy as np
 import propagation
 import scenes
 from pipeline.config import StudyConfig
-from pipeline.stages.common import trace_options
+from pipeline.studyscene import trace_options
 
 
 def fixed_links(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -41,7 +41,7 @@ def main() -> None:
     from pipeline.config import load_config
     from pipeline.localisation import OracleLikelihood, observations_from_reads
     from pipeline.localisation.global_oracle import OracleSearch, coarse_posteriors, global_oracle
-    from pipeline.stages.common import (
+    from pipeline.studyscene import (
         antenna_tilts,
         link_budget,
         resolve_cache_dir,

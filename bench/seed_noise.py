@@ -150,7 +150,7 @@ def main() -> None:
     import propagation as P
     import scenes
     from pipeline.apps.cli import resolve_target
-    from pipeline.stages.common import trace_options
+    from pipeline.studyscene import trace_options
 
     P.select_variant("llvm")
     cfg = resolve_target(None if args.config is None else str(args.config))

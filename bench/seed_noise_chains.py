@@ -29,7 +29,7 @@ from seed_noise import sparse_poses
 import propagation as P
 import scenes
 from pipeline.apps.cli import resolve_target
-from pipeline.stages.common import trace_options
+from pipeline.studyscene import trace_options
 from propagation.completion import large_planes, plane_lookup
 from propagation.constants import SPEED_OF_LIGHT
 from propagation.patterns import as_pose6, dipole_rotation, pattern_field_world, pose_rotation

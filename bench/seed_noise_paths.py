@@ -83,7 +83,7 @@ def main() -> None:
     import propagation as P
     import scenes
     from pipeline.apps.cli import resolve_target
-    from pipeline.stages.common import trace_options
+    from pipeline.studyscene import trace_options
     from propagation.completion import complete_specular, large_planes
     from propagation.constants import SPEED_OF_LIGHT
     from propagation.pathsolve import trace_paths

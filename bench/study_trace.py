@@ -225,7 +225,7 @@ def seed_noise(scene, run: Path, overrides: dict, config: Path | None) -> tuple[
     (x, y, z, yaw): the default antennas are not tilted."""
     import propagation as P
     from pipeline.apps.cli import resolve_target
-    from pipeline.stages.common import trace_options
+    from pipeline.studyscene import trace_options
 
     cfg = resolve_target(None if config is None else str(config),
                          [f"{k}={v}" for k, v in overrides.items()])

@@ -132,7 +132,7 @@ def main() -> None:
     import propagation as P
     import scenes
     from pipeline.config import load_config
-    from pipeline.stages.common import preferred_backend, trace_options
+    from pipeline.studyscene import preferred_backend, trace_options
 
     cfg = load_config(args.run / "config.toml")
     P.select_variant(prefer=preferred_backend(cfg.tracing))

@@ -3,7 +3,7 @@ description of what was recognised, for ``rfidstudy scenes show``.
 
 Both read the scene's ``metadata["map"]`` (written by :func:`scenes.mapscene.build_map_scene`)
 and, for the route, ``metadata["route"]`` (written by
-:func:`pipeline.stages.common.map_route`).
+:func:`pipeline.studyscene.map_route`).
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ def describe_map_scene(scene: Scene) -> list[str]:
     For ``rfidstudy scenes show``: obstacles by rule, the cleaning of the map
     (:mod:`scenes.mapclean`), the noise dropped, the radio surfaces, the planned route
     and the tag faces it skips (when ``scene.metadata["route"]`` is set by
-    :func:`pipeline.stages.common.map_route`). Empty for a scene not from a map.
+    :func:`pipeline.studyscene.map_route`). Empty for a scene not from a map.
     """
     m = scene.metadata.get("map")
     if not m:

@@ -91,7 +91,7 @@ class SceneTraits:
 
     plans_route: bool = False
     """The scene is a building the robot covers: without ``route_m`` a coverage route is
-    planned past its tags (:func:`pipeline.stages.common.map_route`, also for
+    planned past its tags (:func:`pipeline.studyscene.map_route`, also for
     ``rfidstudy scenes show``), and its route is the path driven: the tour's lanes keep
     within ``DriveProfile.map_band_half_width_m`` of it. False: the route is a corridor's
     centre line (lanes up to 6 m off it), and a scene without one has none."""

@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 
 import scenes  # noqa: E402
 from pipeline.robot import Robot  # noqa: E402
-from pipeline.stages.common import map_route  # noqa: E402
+from pipeline.studyscene import map_route  # noqa: E402
 from scenes.mapextract import extract_obstacles  # noqa: E402
 from scenes.mapspec import parse_map_table, rules_of  # noqa: E402
 

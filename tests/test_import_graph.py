@@ -182,7 +182,7 @@ def test_no_import_cycles_but_the_known():
 # module belongs to exactly one; a new top-level module or folder must be placed here.
 FOUNDATION = ("pipeline.config", "pipeline.configschema", "pipeline.sceneconfig",
               "pipeline.parallel", "pipeline.runpaths", "pipeline.outdirs")
-LIBRARY = ("pipeline.robot", "pipeline.acquisition", "pipeline.localisation",
+LIBRARY = ("pipeline.robot", "pipeline.acquisition", "pipeline.localisation", "pipeline.studyscene",
            "pipeline.sensormodels", "pipeline.evaluation", "pipeline.recording")
 APPLICATION = ("pipeline.engine", "pipeline.stages", "pipeline.figures", "pipeline.report",
                "pipeline.apps")

@@ -44,7 +44,7 @@ def scenes_show(
         fail(str(exc))
     route_note = ""
     if sc.route_m is None and scenes.sources.traits_of(sc).plans_route:  # a map: the route a study would plan
-        from pipeline.stages.common import map_route  # lazy: start-up time
+        from pipeline.studyscene import map_route  # lazy: start-up time
 
         try:
             sc = map_route(sc, Robot())

@@ -66,8 +66,9 @@ from pipeline.stages.checks import (
     check_memory_budget,
     check_tracer_versions,
 )
-from pipeline.stages.common import manifest_info, resolve_cache_dir
+from pipeline.stages.common import manifest_info
 from pipeline.stages.figures import draw_figures, draw_scene_top_view
+from pipeline.studyscene import resolve_cache_dir
 
 __all__ = [
     "CHECKS",

@@ -35,7 +35,8 @@ import pandas as pd
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
-from pipeline.stages.common import TRACING_KEYS, link_budget, load_scene, trace_options
+from pipeline.stages.common import TRACING_KEYS, load_scene
+from pipeline.studyscene import link_budget, trace_options
 
 __all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model", "heldout_worse",
            "stage_calibration"]

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.config import ConfigError
-from pipeline.stages.common import load_scene, study_route
+from pipeline.stages.common import load_scene
+from pipeline.studyscene import study_route
 
 __all__ = ["CHECKS", "check_antenna_mounts", "check_cache_dir", "check_memory_budget",
            "check_tracer_versions"]
@@ -108,13 +109,13 @@ def check_tracer_versions(ctx) -> None:
 
 
 def check_cache_dir(ctx) -> None:
-    """The propagation cache (:func:`pipeline.stages.common.resolve_cache_dir`) is a
+    """The propagation cache (:func:`pipeline.studyscene.resolve_cache_dir`) is a
     directory this process can write, made here if missing: a file there, a place under
     /proc or a read-only one stops the study before the tour, naming where the path came
     from (``tracing.cache_dir``, ``$RFIDSTUDY_CACHE`` or the default) and the path."""
     import os
 
-    from pipeline.stages.common import resolve_cache_dir
+    from pipeline.studyscene import resolve_cache_dir
 
     if ctx.config.tracing.cache_dir:
         src = f"tracing.cache_dir = {ctx.config.tracing.cache_dir!r}"

@@ -32,16 +32,13 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
-from pipeline.stages.common import (
-    TRACING_KEYS,
+from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, split_tags
+from pipeline.studyscene import (
     antenna_tilts,
     build_robot,
     link_budget,
-    load_scene,
-    read_reads,
     resolve_cache_dir,
     select_backend,
-    split_tags,
     stage_rng,
     tag_candidates,
     trace_options,

@@ -10,7 +10,8 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, run_files
 from pipeline.engine.study import Stage
-from pipeline.stages.common import antenna_tilts, link_budget, load_scene, read_reads
+from pipeline.stages.common import load_scene, read_reads
+from pipeline.studyscene import antenna_tilts, link_budget
 
 __all__ = ["STAGE", "field_coverage", "model_fits", "stage_evaluation"]
 

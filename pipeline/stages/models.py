@@ -8,7 +8,8 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
-from pipeline.stages.common import pose_sources, read_reads, split_tags, stage_rng
+from pipeline.stages.common import pose_sources, read_reads, split_tags
+from pipeline.studyscene import stage_rng
 
 __all__ = ["STAGE", "stage_models"]
 

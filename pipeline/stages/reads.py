@@ -6,14 +6,11 @@ from __future__ import annotations
 
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
-from pipeline.stages.common import (
-    TRACING_KEYS,
+from pipeline.stages.common import TRACING_KEYS, load_scene, read_track, split_tags
+from pipeline.studyscene import (
     build_robot,
-    load_scene,
-    read_track,
     resolve_cache_dir,
     select_backend,
-    split_tags,
     stage_rng,
     trace_options,
 )

@@ -23,7 +23,8 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
-from pipeline.stages.common import build_robot, load_scene, load_study_recording, recorded_scene
+from pipeline.stages.common import load_scene
+from pipeline.studyscene import build_robot, load_study_recording, recorded_scene
 
 __all__ = ["STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: stages.common's
 

@@ -10,7 +10,8 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
-from pipeline.stages.common import load_scene, study_route
+from pipeline.stages.common import load_scene
+from pipeline.studyscene import study_route
 
 __all__ = ["STAGE", "stage_scene"]
 

@@ -23,13 +23,10 @@ import pandas as pd
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
-from pipeline.stages.common import (
-    TRACING_KEYS,
+from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, read_track
+from pipeline.studyscene import (
     build_robot,
     link_budget,
-    load_scene,
-    read_reads,
-    read_track,
     resolve_cache_dir,
     select_backend,
     stage_rng,

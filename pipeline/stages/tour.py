@@ -7,7 +7,8 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
-from pipeline.stages.common import build_robot, load_scene, stage_rng, study_route
+from pipeline.stages.common import load_scene
+from pipeline.studyscene import build_robot, stage_rng, study_route
 
 __all__ = ["STAGE", "eval_track", "stage_tour"]
 

@@ -9,7 +9,8 @@ import json
 import numpy as np
 
 from pipeline.engine.study import Stage
-from pipeline.stages.common import link_budget, read_reads
+from pipeline.stages.common import read_reads
+from pipeline.studyscene import link_budget
 from scenes.fileio import read_npz
 
 __all__ = ["STAGE", "attempt_miss_probability", "pose_miss_probability", "stage_truth"]

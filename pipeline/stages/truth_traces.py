@@ -18,15 +18,8 @@ import numpy as np
 
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
-from pipeline.stages.common import (
-    TRACING_KEYS,
-    attempt_poses,
-    load_scene,
-    resolve_cache_dir,
-    select_backend,
-    spread_evenly,
-    trace_options,
-)
+from pipeline.stages.common import TRACING_KEYS, attempt_poses, load_scene, spread_evenly
+from pipeline.studyscene import resolve_cache_dir, select_backend, trace_options
 from scenes.fileio import atomic_save_npz
 
 __all__ = ["STAGE", "free_space_grid", "stage_truth_traces"]

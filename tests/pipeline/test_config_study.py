@@ -197,7 +197,7 @@ def test_deterministic_tracing_asks_for_the_cpu(backend, deterministic, want):
     # On CUDA the path solver is not bit-reproducible whatever the thread count (measured
     # on an H200: 93 of 144 gains of two identical cold traces differed): a deterministic
     # study traces on the CPU, and one that names CUDA is refused, naming both keys.
-    from pipeline.stages.common import preferred_backend
+    from pipeline.studyscene import preferred_backend
 
     if want is None:  # refused by the config itself, before any stage runs
         with pytest.raises(ConfigError, match=r"deterministic = true needs backend"):

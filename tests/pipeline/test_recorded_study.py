@@ -346,7 +346,7 @@ def test_a_pose_clock_offset_is_found(recording):
     from pipeline.recording import read_poses_csv, read_sllurp_csv, read_tags_csv
     from pipeline.recording.lag import pose_lag_profile
     from pipeline.recording.load import recorded_tagset
-    from pipeline.stages.common import build_robot
+    from pipeline.studyscene import build_robot
 
     reads = read_sllurp_csv(recording / "reads.csv")
     poses = read_poses_csv(recording / "poses.csv")

@@ -21,7 +21,7 @@ def test_replicate_seeds_are_distinct_streams_and_do_not_depend_on_n():
     seeds = [replicate_seed(2011, k) for k in range(200)]
     assert seeds[0] == 2011 and len(set(seeds)) == 200
     assert all(0 <= s < 2**63 for s in seeds)
-    # the stage streams of two replicates (pipeline.stages.common.stage_rng) differ
+    # the stage streams of two replicates (pipeline.studyscene.stage_rng) differ
     draws = {tuple(np.random.default_rng([s, zlib.crc32(b"tour")]).integers(0, 2**31, 4))
              for s in seeds}
     assert len(draws) == 200

@@ -54,7 +54,8 @@ def test_first_run_produces_the_run_directory(tiny):
     # truth_traces took its antenna poses from the tour's track: those of the read log
     from pipeline.engine.runstore import RunStore
     from pipeline.engine.study import StageContext
-    from pipeline.stages.common import antenna_tilts, attempt_poses
+    from pipeline.stages.common import attempt_poses
+    from pipeline.studyscene import antenna_tilts
 
     eval_reads = pd.read_parquet(run / "eval_reads.parquet").drop_duplicates(["time_s", "antenna"])
     tilt = antenna_tilts(cfg)

@@ -7,7 +7,7 @@ import numpy as np
 
 import scenes
 from pipeline.config import StudyConfig, replace_path
-from pipeline.stages.common import study_scene, tag_candidates
+from pipeline.studyscene import study_scene, tag_candidates
 
 
 def test_candidates_do_not_depend_on_the_held_out_heights():
@@ -32,7 +32,7 @@ def test_candidates_lie_off_the_held_out_grid_whatever_the_face_sizes():
     # diagonal from its nearest candidates
     from scipy.spatial import cKDTree
 
-    from pipeline.stages.common import EVAL_TAG_SPACING_M
+    from pipeline.studyscene import EVAL_TAG_SPACING_M
     from scenes.tagsites import tag_sites
 
     sc = scenes.corridor(length_m=4.07, width_m=2.07, height_m=2.47, name="odd_faces")

@@ -16,7 +16,7 @@ import propagation  # noqa: E402
 import scenes  # noqa: E402
 from pipeline.apps.cli import resolve_target  # noqa: E402
 from pipeline.engine.tracetasks import DaskChunkRunner, TraceTaskStats, trace_tasks  # noqa: E402
-from pipeline.stages.common import select_backend, trace_options  # noqa: E402
+from pipeline.studyscene import select_backend, trace_options  # noqa: E402
 from propagation.chunkjobs import chunk_runner  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]

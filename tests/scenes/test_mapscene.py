@@ -235,7 +235,7 @@ def test_bundled_warehouse_scale_case_loads():
 
 def test_a_waypoint_list_is_kept(tmp_path):
     from pipeline.robot import Robot
-    from pipeline.stages.common import map_route
+    from pipeline.studyscene import map_route
 
     _map(tmp_path)
     (tmp_path / "route.toml").write_text(

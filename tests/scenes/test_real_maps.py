@@ -17,7 +17,7 @@ import shapely
 import scenes
 from pipeline.robot import Robot, collision_map
 from pipeline.robot.coverage import _segment_distance, route_clearance_m
-from pipeline.stages.common import map_route
+from pipeline.studyscene import map_route
 from scenes.mapextract import extract_obstacles, map_cells
 from scenes.rosmap import FREE, read_map
 
@@ -154,7 +154,7 @@ def test_held_out_tags_of_a_map_with_racks_are_shelf_tags():
     """The issue's user found 1 of 16 held-out tags on a shelf face (5 on walls, 6 on small
     structures): on a map with racks they are drawn on the racks' front beams."""
     from pipeline.apps.cli import resolve_target
-    from pipeline.stages.common import study_scene
+    from pipeline.studyscene import study_scene
 
     cfg = resolve_target(str(WAREHOUSE))
     sc, split = study_scene(cfg)

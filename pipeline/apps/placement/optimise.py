@@ -30,7 +30,7 @@ from collections.abc import Callable
 from pipeline.apps.placement.candidates import MOUNT_FIELDS, Candidate, candidate_from_trial
 from pipeline.apps.placement.objectives import OBJECTIVES, load_candidate_data, objective_estimate
 from pipeline.apps.placement.results import complete_dirs
-from pipeline.stages.common import link_budget
+from pipeline.studyscene import link_budget
 
 __all__ = ["optimise", "search"]
 

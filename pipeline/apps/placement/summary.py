@@ -60,7 +60,7 @@ from pipeline.engine.runstore import (
     read_run_json,
     run_files,
 )
-from pipeline.stages.common import link_budget
+from pipeline.studyscene import link_budget
 
 __all__ = ["FEASIBILITY", "SELECTION_RULE", "evidence", "feasibility", "pareto_front",
            "rank_candidates", "summarise", "write_outputs"]

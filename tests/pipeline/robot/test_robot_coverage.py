@@ -15,7 +15,7 @@ from pipeline.robot import (
     plan_coverage_route,
 )
 from pipeline.robot.coverage import _segment_distance, route_clearance_m
-from pipeline.stages.common import map_route
+from pipeline.studyscene import map_route
 from scenes.rosmap import FREE, resolve_unknown
 from tests.scenes.maphelpers import FREE as WHITE
 from tests.scenes.maphelpers import OCC, RES, building, paint, write_map
@@ -167,7 +167,7 @@ def test_narrow_aisles_get_a_route_with_the_narrow_margin(tmp_path):
     """Aisles 1.25 m wide: the default margin (0.40 + 0.25 m each side: 1.3 m) fits no pass,
     so the planner alone refuses; map_route plans again with 0.15 m (1.1 m) and keeps that
     route (one side at least: the other is within a grid cell of the limit)."""
-    from pipeline.stages.common import NARROW_ROUTE_MARGIN_M
+    from pipeline.studyscene import NARROW_ROUTE_MARGIN_M
 
     g = building(width_m=3.3, length_m=8.0, wall_m=0.25, pad_m=0.5)  # inside x 0.75 - 4.05
     paint(g, 2.0, 2.0, 2.8, 6.0, OCC)  # one rack, 1.25 m from either wall
@@ -185,7 +185,7 @@ def test_the_driven_tour_follows_the_planned_route(aisle_scene):
     its band (0.3 m) of it, not in the middle of the free space beside it (measured: max
     0.17 m, median 0.02 m; with the corridor's 6 m band 0.56 and 0.24 m)."""
     from pipeline.robot import TourConfig, guided_tour
-    from pipeline.stages.common import _route_distance_m
+    from pipeline.studyscene import _route_distance_m
 
     sc = map_route(aisle_scene, Robot())
     tour = guided_tour(sc, Robot(), np.random.default_rng(5),
