@@ -5,6 +5,7 @@ definitions shared by the runner (:mod:`pipeline.engine.study`) and the side pro
 
 from __future__ import annotations
 
+import fnmatch
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,9 @@ __all__ = [
     "StageContext",
     "StageError",
     "StageInputError",
+    "check_outputs",
     "config_slice",
+    "undeclared_outputs",
     "record_or_reason",
     "stage_inputs_hash",
 ]
@@ -85,6 +88,11 @@ class Stage:
         Run even when the record matches (cheap stages whose outputs depend on files
         outside the config, such as the scene); downstream stages still skip when the
         outputs come out identical.
+    outputs : tuple of str or None
+        Globs (relative to the run directory, ``*`` within one path component) of every
+        file the stage may write (:data:`pipeline.runfiles.STAGE_OUTPUTS` for the study's
+        stages); a file it writes that none matches fails the stage, naming the file
+        (:func:`undeclared_outputs`). ``None``: not declared, not checked.
     own_process : bool
         The stage may run in a spawned process of its own, beside the stages before it
         from the first one that runs once its upstream stages are done (one such process
@@ -101,6 +109,7 @@ class Stage:
     description: str = ""
     always: bool = False
     own_process: bool = False
+    outputs: tuple[str, ...] | None = None
 
     def __post_init__(self):
         # a misspelt key would hash as None and never re-run the stage when the real key
@@ -183,6 +192,29 @@ class StageContext:
         for item in iterable:
             yield item
             update(advance=1)
+
+
+def undeclared_outputs(st: Stage, staged: Path) -> list[str]:
+    """The files under ``staged`` (relative, POSIX) that none of ``st.outputs`` matches
+    (``*`` within one path component); empty when the stage declares no outputs."""
+    if st.outputs is None:
+        return []
+    bad = []
+    for f in sorted(p for p in Path(staged).rglob("*") if p.is_file()):
+        rel = f.relative_to(staged).as_posix()
+        depth = rel.count("/")
+        if not any(g.count("/") == depth and fnmatch.fnmatchcase(rel, g) for g in st.outputs):
+            bad.append(rel)
+    return bad
+
+
+def check_outputs(st: Stage, staged: Path) -> None:
+    """Raise ValueError naming the files ``st`` wrote but does not declare."""
+    bad = undeclared_outputs(st, staged)
+    if bad:
+        shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        raise ValueError(f"wrote {shown}, which its declared outputs {list(st.outputs)} do "
+                         "not name (Stage.outputs; the study's in pipeline/runfiles.py)")
 
 
 def stage_inputs_hash(st: Stage, config: StudyConfig, digests: dict[str, str]) -> str:

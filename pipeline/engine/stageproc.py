@@ -46,7 +46,13 @@ from pipeline.engine.runlog import (
     utc_now,
 )
 from pipeline.engine.runstore import RunStore
-from pipeline.engine.stagedef import StageContext, StageError, record_or_reason, stage_inputs_hash
+from pipeline.engine.stagedef import (
+    StageContext,
+    StageError,
+    check_outputs,
+    record_or_reason,
+    stage_inputs_hash,
+)
 from pipeline.parallel import (
     WORKERS_ENV,
     blas_threads_per_process,
@@ -311,6 +317,13 @@ def finish_side(side: Side, store, result, prog, failed):
                          stage=st.name, kind=exc.kind) from (exc.cause or exc)
     if prog is not None and side.task is not None:
         prog.update(side.task, completed=1)
+    try:
+        check_outputs(st, side.staged)
+    except ValueError as exc:
+        store.discard(st.name)
+        failed({"stage": st.name, "error": f"ValueError: {exc}"})
+        raise StageError(f"stage {st.name!r} failed: {exc} (earlier stages' outputs in "
+                         f"{store.root} are intact)", stage=st.name, kind="ValueError") from exc
     rec = store.commit(st.name, side.inputs_hash, side.staged, elapsed_s, peak, utc_now(), info)
     result.ran.append(st.name)
     return rec

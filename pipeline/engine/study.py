@@ -73,6 +73,7 @@ from pipeline.engine.stagedef import (
     StageContext,
     StageError,
     StageInputError,
+    check_outputs,
     config_slice,
     record_or_reason,
     stage_inputs_hash,
@@ -331,6 +332,7 @@ def _run_locked(store, config, stages, progress, force, command_line, manifest_e
                     try:
                         with reproducible_outputs(), final_paths_in_logs(staged, store.root):
                             info = st.func(ctx) or {}
+                        check_outputs(st, staged)
                     except Exception as exc:
                         store.discard(st.name)
                         stop_side()  # its work is lost, never half-committed

@@ -35,6 +35,7 @@ import pandas as pd
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, load_scene
 from pipeline.studyscene import link_budget, trace_options
 
@@ -261,4 +262,5 @@ def heldout_worse(report: dict) -> str | None:
 STAGE = Stage("calibration", stage_calibration,
               ("seed", "reader", "robot", "recording.calibrate_constructions") + TRACING_KEYS,
               ("scene", "sim_vs_real"), version=2,  # each version's change: CHANGELOG.md
-              description="calibrate the reader and building to the recording")
+              description="calibrate the reader and building to the recording",
+              outputs=STAGE_OUTPUTS["calibration"])

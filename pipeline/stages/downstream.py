@@ -32,6 +32,7 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, split_tags
 from pipeline.studyscene import (
     antenna_tilts,
@@ -295,4 +296,5 @@ STAGE = Stage("downstream", stage_downstream,
                "robot") + TRACING_KEYS,
               ("scene", "tour", "reads", "models"), version=12,
               # each version's change: CHANGELOG.md
-              description="downstream localisation (tags, robot)")
+              description="downstream localisation (tags, robot)",
+              outputs=STAGE_OUTPUTS["downstream"])

@@ -10,6 +10,7 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, run_files
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene, read_reads
 from pipeline.studyscene import antenna_tilts, link_budget
 
@@ -263,4 +264,5 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
               version=15,  # each version's change: CHANGELOG.md
-              description="metrics")
+              description="metrics",
+              outputs=STAGE_OUTPUTS["evaluation"])

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 
 __all__ = ["STAGE", "draw_figures", "draw_scene_top_view", "stage_figures"]
 
@@ -50,4 +51,5 @@ def stage_figures(ctx) -> dict:
 STAGE = Stage("figures", stage_figures, (), ("scene", "tour", "reads", "truth_traces", "models", "truth",
                                                         "evaluation"),
               version=2,  # each version's change: CHANGELOG.md
-              description="figures")
+              description="figures",
+              outputs=STAGE_OUTPUTS["figures"])

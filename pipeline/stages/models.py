@@ -8,6 +8,7 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import pose_sources, read_reads, split_tags
 from pipeline.studyscene import stage_rng
 
@@ -122,4 +123,5 @@ def stage_models(ctx) -> dict:
 
 STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
               version=5,  # each version's change: CHANGELOG.md
-              description="FCM + ANFIS")
+              description="FCM + ANFIS",
+              outputs=STAGE_OUTPUTS["models"])

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, load_scene, read_track, split_tags
 from pipeline.studyscene import (
     build_robot,
@@ -55,4 +56,5 @@ def stage_reads(ctx) -> dict:
 
 STAGE = Stage("reads", stage_reads, ("seed", "robot", "reader") + TRACING_KEYS, ("scene", "tour"),
               version=6,  # each version's change: CHANGELOG.md
-              description="ray-traced reader simulation")
+              description="ray-traced reader simulation",
+              outputs=STAGE_OUTPUTS["reads"])

@@ -23,6 +23,7 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import build_robot, load_study_recording, recorded_scene
 
@@ -100,4 +101,5 @@ def stage_recording(ctx) -> dict:
 
 
 STAGE = Stage("recording", stage_recording, ("seed", "recording", "robot", "reader", "frequency_hz"),
-              ("scene",), description="read the recording", always=True)
+              ("scene",), description="read the recording", always=True,
+              outputs=STAGE_OUTPUTS["recording"])

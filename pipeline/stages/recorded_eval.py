@@ -31,6 +31,7 @@ import pandas as pd
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import read_reads, split_tags
 
 __all__ = ["STAGE", "recorded_unit_tables", "stage_recorded_eval"]
@@ -133,4 +134,5 @@ STAGE = Stage("recorded_eval", stage_recorded_eval,
                "training.min_attempts"),
               ("recording", "models", "sim_vs_real", "calibration", "downstream"),
               version=2,  # each version's change: CHANGELOG.md
-              description="held-out scores on the recording")
+              description="held-out scores on the recording",
+              outputs=STAGE_OUTPUTS["recorded_eval"])

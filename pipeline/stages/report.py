@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 
 __all__ = ["STAGE", "stage_report"]
 
@@ -16,4 +17,5 @@ def stage_report(ctx) -> dict:
 
 
 STAGE = Stage("report", stage_report, (), ("figures", "evaluation"), version=2,  # each version's change: CHANGELOG.md
-              description="report.html")
+              description="report.html",
+              outputs=STAGE_OUTPUTS["report"])

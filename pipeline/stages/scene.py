@@ -10,6 +10,7 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import study_route
 
@@ -50,4 +51,5 @@ STAGE = Stage("scene", stage_scene, ("scene", "materials", "seed", "tour.max_len
                                      "evaluation.eval_tag_min_separation_m",
                                      "evaluation.eval_tag_heights_m", "training.d_max_m"),
               (), version=2,  # each version's change: CHANGELOG.md
-              description="load the scene", always=True)
+              description="load the scene", always=True,
+              outputs=STAGE_OUTPUTS["scene"])

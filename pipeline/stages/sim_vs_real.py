@@ -23,6 +23,7 @@ import pandas as pd
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, read_track
 from pipeline.studyscene import (
     build_robot,
@@ -132,4 +133,5 @@ def stage_sim_vs_real(ctx) -> dict:
 
 STAGE = Stage("sim_vs_real", stage_sim_vs_real, ("seed", "robot", "reader") + TRACING_KEYS,
               ("scene", "recording"), version=4,  # each version's change: CHANGELOG.md
-              description="simulation against the recording")
+              description="simulation against the recording",
+              outputs=STAGE_OUTPUTS["sim_vs_real"])

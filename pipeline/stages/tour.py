@@ -7,6 +7,7 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import build_robot, stage_rng, study_route
 
@@ -166,4 +167,5 @@ def stage_tour(ctx) -> dict:
 
 STAGE = Stage("tour", stage_tour, ("seed", "robot", "tour", "localisation"), ("scene",),
               version=3,  # each version's change: CHANGELOG.md
-              description="robot tours and MCL")
+              description="robot tours and MCL",
+              outputs=STAGE_OUTPUTS["tour"])

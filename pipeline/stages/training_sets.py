@@ -4,6 +4,7 @@ MCL poses and on the true poses (``pipeline.acquisition``); writes ``training/``
 from __future__ import annotations
 
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import pose_sources, read_reads
 
 __all__ = ["STAGE", "stage_training_sets"]
@@ -38,4 +39,5 @@ def stage_training_sets(ctx) -> dict:
 STAGE = Stage("training_sets", stage_training_sets,
               ("training.d_max_m", "training.rssi_range_dbm", "training.d_bin_m",
                "training.alpha_bin_deg", "training.min_attempts", "training.n_clusters"),
-              ("reads",), description="training sets")
+              ("reads",), description="training sets",
+              outputs=STAGE_OUTPUTS["training_sets"])

@@ -9,6 +9,7 @@ import json
 import numpy as np
 
 from pipeline.engine.study import Stage
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import read_reads
 from pipeline.studyscene import link_budget
 from scenes.fileio import read_npz
@@ -129,4 +130,5 @@ STAGE = Stage("truth", stage_truth,
                "training.d_bin_m", "training.alpha_bin_deg"),
               ("scene", "tour", "reads", "models", "truth_traces"),
               version=5,  # each version's change: CHANGELOG.md
-              description="propagation truth")
+              description="propagation truth",
+              outputs=STAGE_OUTPUTS["truth"])

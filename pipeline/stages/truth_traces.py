@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
+from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, attempt_poses, load_scene, spread_evenly
 from pipeline.studyscene import resolve_cache_dir, select_backend, trace_options
 from scenes.fileio import atomic_save_npz
@@ -151,4 +152,5 @@ STAGE = Stage("truth_traces", stage_truth_traces,
               description="propagation truth: traces at tag sites, Fig. 6 points, RSSI fields",
               # needs nothing of the tour's MCL or the reads: traces beside them
               # (pipeline.engine.stageproc)
-              own_process=True)
+              own_process=True,
+              outputs=STAGE_OUTPUTS["truth_traces"])
