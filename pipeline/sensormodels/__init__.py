@@ -18,6 +18,9 @@ RFID sensor models. Each competitor here is fitted on the training tour's reads
   partition instead of FCM, as ``fuzzymodel.SensorModel``.
 
 Each module's docstring says what is reproduced and what is simplified.
+:mod:`.registry` lists every model of a study (:data:`~.registry.SENSOR_MODELS`: label,
+kind, role, class, fit and its options, where it is scored); fitting, the stages, the
+figures and the README's tables read it, so a new model is its module and one line there.
 """
 
 from ._common import (
@@ -33,6 +36,15 @@ from .ablations import ABLATIONS, fit_ablation
 from .competitors import COMPETITORS, MODEL_CLASSES, fit_competitors, load_competitor
 from .joho2009 import JOHO2009, Joho2009Model, fit_joho2009
 from .liu2006 import LIU2006, Liu2006Model, fit_liu2006
+from .registry import (
+    SENSOR_MODELS,
+    ModelInfo,
+    load_models,
+    model_info,
+    model_label,
+    model_names,
+    table_order,
+)
 from .vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
 
 __all__ = [
@@ -42,12 +54,14 @@ __all__ = [
     "JOHO2009",
     "LIU2006",
     "MODEL_CLASSES",
+    "SENSOR_MODELS",
     "VORST2008",
     "Attempts",
     "group_folds",
     "CompetitorModel",
     "Joho2009Model",
     "Liu2006Model",
+    "ModelInfo",
     "Vorst2008Model",
     "attempts_from_reads",
     "fit_ablation",
@@ -56,6 +70,11 @@ __all__ = [
     "fit_liu2006",
     "fit_vorst2008",
     "load_competitor",
+    "load_models",
+    "model_info",
+    "model_label",
+    "model_names",
     "read_model_file",
+    "table_order",
     "tag_height_differences",
 ]
