@@ -76,8 +76,10 @@ class Stage:
         whose values enter the inputs hash.
     upstream : tuple of str
         Stages whose outputs this stage reads.
-    version : int
-        Bump to invalidate cached results when the stage's code changes meaning.
+    version : int or str
+        Bump to invalidate cached results when the stage's code changes meaning (a str
+        also folds in what the code reads, e.g.
+        :func:`pipeline.sensormodels.registry.stage_version`).
     description : str
         One line shown in progress output.
     always : bool
@@ -96,7 +98,7 @@ class Stage:
     func: Callable[[StageContext], dict | None]
     config_keys: tuple[str, ...] = ()
     upstream: tuple[str, ...] = ()
-    version: int = 1
+    version: int | str = 1
     description: str = ""
     always: bool = False
     own_process: bool = False

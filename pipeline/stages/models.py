@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.runstore import atomic_write_json
+from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import pose_sources, read_reads, split_tags, stage_rng
 from pipeline.study import Stage
 
@@ -96,9 +97,9 @@ def stage_models(ctx) -> dict:
     # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
     # so the ANFIS fits above stay bit-identical
     from pipeline.sensormodels import (
-        ABLATIONS,
-        fit_ablation,
         fit_competitors,
+        model_info,
+        model_names,
         tag_height_differences,
     )
 
@@ -107,20 +108,21 @@ def stage_models(ctx) -> dict:
     comps = fit_competitors(reads, rssi_range, d_max_m=cfg.d_max_m, grid=grid,
                             rng=stage_rng(ctx.config, "competitors"), dz_m=dz)
     for name, model in comps.items():
-        model.save(ctx.out(f"models/{name}.json"))
+        model.save(ctx.out(model_info(name).file))
     ssm_set = TrainingSet.from_parquet(ctx.input("training/ssm_est.parquet"))
     tdm_set = TrainingSet.from_parquet(ctx.input("training/tdm_est.parquet"))
-    for kind in ABLATIONS:
-        fit_ablation(kind, ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{kind}"),
-                     epochs=cfg.epochs, n_clusters=cfg.n_clusters, fcm_exponent=cfg.fcm_exponent,
-                     check_fraction=cfg.check_fraction, max_samples=cfg.max_samples,
-                     step_size=cfg.step_size).save(ctx.out(f"models/{kind}.json"))
-    info["competitors"] = sorted(comps) + list(ABLATIONS)
+    ablations = [model_info(k) for k in model_names(role="ablation")]  # the registry's
+    for m in ablations:
+        m.fit(ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{m.key}"),
+              epochs=cfg.epochs, n_clusters=cfg.n_clusters, fcm_exponent=cfg.fcm_exponent,
+              check_fraction=cfg.check_fraction, max_samples=cfg.max_samples,
+              step_size=cfg.step_size, **m.fit_options).save(ctx.out(m.file))
+    info["competitors"] = sorted(comps) + [m.key for m in ablations]
     return info
 
 
 STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
-              version=5,  # 2: competitors and ablations (pipeline.sensormodels); 3: Vorst folds by tag;
+              version=stage_version(5),  # 2: competitors and ablations (pipeline.sensormodels); 3: Vorst folds by tag;
               # 4: Vorst & Zell's table over the horizontal range (training tag heights)
               # 5: Vorst & Zell's description (the height where known)
               description="FCM + ANFIS")
