@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from pipeline.sensormodels.registry import MODELS, model_label
+from pipeline.sensormodels.registry import MODELS, model_label, table_order
 
 from .common import model_metrics, new_figure, require, save_figure
 
@@ -158,7 +158,7 @@ def draw_headline(tables: dict[str, pd.DataFrame], metrics=HEADLINE_METRICS,
         for name in t["model"]:
             if name not in models:
                 models.append(name)
-    order = [n for n in MODEL_LABELS if n in models] + [n for n in models if n not in MODEL_LABELS]
+    order = table_order(models)
     ncol = min(3, len(present))
     nrow = -(-len(present) // ncol)
     fig = new_figure(3.3 * ncol + 1.6, 0.22 * len(order) * nrow + 0.9 * nrow + 0.6)
