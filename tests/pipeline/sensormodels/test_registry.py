@@ -39,9 +39,16 @@ def test_keys_are_unique_and_the_modules_agree_with_the_registry():
         assert m.label and (m.role != "localiser" or not m.scored_in)
 
 
+#: The models before the registry: their order is pinned, a model added may go anywhere.
+BEFORE = ("anfis", "anfis_truepose", "log_distance", "grid_count", "joho2009", "liu2006",
+          "vorst2008", "fcm_only", "anfis_gridinit", "phase", "phase_anfis", "oracle")
+
+
 def test_the_orders_the_stages_and_tables_had_before_the_registry():
     """Pinned: metrics.json, the unit tables and the figures keep their rows and order."""
-    names = registry.model_names
+    def names(**kw):
+        return tuple(n for n in registry.model_names(**kw) if n in BEFORE)
+
     core = ("grid_count", "joho2009", "liu2006", "vorst2008", "fcm_only", "anfis_gridinit")
     assert names(scored_in="heldout") == ("anfis", "anfis_truepose", "log_distance", *core)
     assert names(scored_in="heldout", predicts="rssi") == (
@@ -50,7 +57,7 @@ def test_the_orders_the_stages_and_tables_had_before_the_registry():
     assert names(scored_in="recorded") == names(scored_in="downstream") == (
         "anfis", "log_distance", *core)
     assert names(role="competitor") == ("joho2009", "liu2006", "vorst2008")
-    assert registry.table_order(["oracle", "x", *names()]) == [
+    assert [n for n in registry.table_order(["oracle", "x", *names()]) if n in (*BEFORE, "x")] == [
         "anfis", "anfis_truepose", "fcm_only", "anfis_gridinit", "joho2009", "log_distance",
         "grid_count", "liu2006", "vorst2008", "phase", "phase_anfis", "oracle", "x"]
     assert registry.model_label("vorst2008") == "after Vorst & Zell 2008 (reconstructed)"
