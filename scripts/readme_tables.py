@@ -26,12 +26,11 @@ import re
 import sys
 from pathlib import Path
 
-from pipeline.sensormodels.registry import MODELS
+from pipeline.sensormodels.registry import model_info, table_order
 
 BEGIN, END = "<!-- headline-tables:begin -->", "<!-- headline-tables:end -->"
 SINGLE_BEGIN, SINGLE_END = "<!-- single-run:begin -->", "<!-- single-run:end -->"
 
-NAMES = {k: f"{m.label} (`{k}`)" for k, m in MODELS.items()}
 MARK = {"better": " ▲", "worse": " ▼"}
 
 HELDOUT = (("heldout.rssi_mae_db", "RSSI MAE [dB]", 2), ("heldout.rssi_rmse_db", "RSSI RMSE [dB]", 2),
@@ -61,14 +60,22 @@ def table(metrics: dict, cols) -> str:
     models = []
     for key, _, _ in cols:
         models += [m for m in (ivs.get(key) or {}).get("models", {}) if m not in models]
-    models.sort(key=lambda m: list(NAMES).index(m) if m in NAMES else len(NAMES))
+    models = table_order(models)  # the registry's order, unknown models last
     head = "| model | " + " | ".join(c[1] for c in cols) + " |"
     rows = [head, "|---" * (len(cols) + 1) + "|"]
     for m in models:
         cells = [_cell((ivs.get(k) or {}).get("models", {}).get(m), (cmps.get(k) or {}).get(m), d)
                  for k, _, d in cols]
-        rows.append(f"| {NAMES.get(m, m)} | " + " | ".join(cells) + " |")
+        rows.append(f"| {row_label(m)} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
+
+
+def row_label(key: str) -> str:
+    """A model's row label: its registry label and key, or the key the registry lacks."""
+    try:
+        return f"{model_info(key).label} (`{key}`)"
+    except KeyError:
+        return key
 
 
 def units_line(metrics: dict, origin: str = "") -> str:

@@ -79,9 +79,10 @@ class Stage:
         whose values enter the inputs hash.
     upstream : tuple of str
         Stages whose outputs this stage reads.
-    version : int
-        Bump to invalidate cached results when the stage's code changes meaning;
-        CHANGELOG.md says what each version changed.
+    version : int or str
+        Bump to invalidate cached results when the stage's code changes meaning (a str
+        also folds in what the code reads, e.g.
+        :func:`pipeline.sensormodels.registry.stage_version`).
     description : str
         One line shown in progress output.
     always : bool
@@ -105,7 +106,7 @@ class Stage:
     func: Callable[[StageContext], dict | None]
     config_keys: tuple[str, ...] = ()
     upstream: tuple[str, ...] = ()
-    version: int = 1
+    version: int | str = 1
     description: str = ""
     always: bool = False
     own_process: bool = False

@@ -19,7 +19,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from pipeline.figures.common import model_metrics, new_figure, require, save_figure
-from pipeline.sensormodels.registry import MODELS, model_label
+from pipeline.sensormodels.registry import MODELS, model_label, table_order
 
 __all__ = ["HEADLINE_METRICS", "MODEL_LABELS", "HeadlineMetric", "compare_runs", "draw_headline",
            "fig_baselines", "headline_table", "model_label"]
@@ -157,7 +157,7 @@ def draw_headline(tables: dict[str, pd.DataFrame], metrics=HEADLINE_METRICS,
         for name in t["model"]:
             if name not in models:
                 models.append(name)
-    order = [n for n in MODEL_LABELS if n in models] + [n for n in models if n not in MODEL_LABELS]
+    order = table_order(models)
     ncol = min(3, len(present))
     nrow = -(-len(present) // ncol)
     fig = new_figure(3.3 * ncol + 1.6, 0.22 * len(order) * nrow + 0.9 * nrow + 0.6)

@@ -18,6 +18,9 @@ RFID sensor models. Each competitor here is fitted on the training tour's reads
   partition instead of FCM, as ``fuzzymodel.SensorModel``.
 
 Each module's docstring says what is reproduced and what is simplified.
+:mod:`.registry` lists every model of a study (:data:`~.registry.SENSOR_MODELS`: label,
+kind, role, class, fit and its options, where it is scored); fitting, the stages, the
+figures and the README's tables read it, so a new model is its module and one line there.
 """
 
 from pipeline.sensormodels._common import (
@@ -38,6 +41,15 @@ from pipeline.sensormodels.competitors import (
 )
 from pipeline.sensormodels.joho2009 import JOHO2009, Joho2009Model, fit_joho2009
 from pipeline.sensormodels.liu2006 import LIU2006, Liu2006Model, fit_liu2006
+from pipeline.sensormodels.registry import (
+    SENSOR_MODELS,
+    ModelInfo,
+    load_models,
+    model_info,
+    model_label,
+    model_names,
+    table_order,
+)
 from pipeline.sensormodels.vorst2008 import VORST2008, Vorst2008Model, fit_vorst2008
 
 __all__ = [
@@ -47,12 +59,14 @@ __all__ = [
     "JOHO2009",
     "LIU2006",
     "MODEL_CLASSES",
+    "SENSOR_MODELS",
     "VORST2008",
     "Attempts",
     "group_folds",
     "CompetitorModel",
     "Joho2009Model",
     "Liu2006Model",
+    "ModelInfo",
     "Vorst2008Model",
     "attempts_from_reads",
     "fit_ablation",
@@ -61,6 +75,11 @@ __all__ = [
     "fit_liu2006",
     "fit_vorst2008",
     "load_competitor",
+    "load_models",
+    "model_info",
+    "model_label",
+    "model_names",
     "read_model_file",
+    "table_order",
     "tag_height_differences",
 ]

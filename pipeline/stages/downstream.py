@@ -33,6 +33,7 @@ import numpy as np
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, split_tags
 from pipeline.studyscene import (
     antenna_tilts,
@@ -53,23 +54,16 @@ RECORDED_ROBOT = ("not run: a recording's poses are the only track, so there is 
 
 
 def _models(ctx) -> dict:
-    """The sensor models localised with: the learned one, both baselines, the chapter's
-    competitors and the ablations (every model the study fitted)."""
-    from fuzzymodel import SensorModel
-    from pipeline.evaluation.baselines import BaselineSensorModel
+    """The sensor models localised with: every model of the registry scored ``downstream``
+    (the learned one, both baselines, the chapter's competitors and the ablations), in its
+    study order; a ``"detection"`` model that predicts RSSI too localises with its
+    detection alone (the grid count: Hähnel's counts, not the log-distance RSSI)."""
     from pipeline.localisation.benchmark import DetectionOnly
-    from pipeline.sensormodels import ABLATIONS, COMPETITORS, load_competitor
+    from pipeline.sensormodels.registry import load_models, model_info
 
-    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
-    models = {
-        "anfis": SensorModel.load(ctx.input("models/sensor.json")),
-        # log-distance RSSI with the grid-count detection; Hähnel's grid count alone
-        "log_distance": base,
-        "grid_count": DetectionOnly(base),
-    }
-    models.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
-    models.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
-    return models
+    models = load_models(ctx.input, "downstream")
+    return {k: DetectionOnly(m) if model_info(k).kind == "detection"
+            and getattr(m, "predicts_rssi", True) else m for k, m in models.items()}
 
 
 def _solver_and_patterns(cfg) -> tuple:
@@ -294,7 +288,7 @@ def stage_downstream(ctx) -> dict:
 STAGE = Stage("downstream", stage_downstream,
               ("seed", "downstream", "training.d_max_m", "reader",
                "robot") + TRACING_KEYS,
-              ("scene", "tour", "reads", "models"), version=12,
+              ("scene", "tour", "reads", "models"), version=stage_version(12),
               # each version's change: CHANGELOG.md
               description="downstream localisation (tags, robot)",
               outputs=STAGE_OUTPUTS["downstream"])

@@ -11,10 +11,11 @@ import numpy as np
 from pipeline.engine.runstore import atomic_write_json, run_files
 from pipeline.engine.study import Stage
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import load_scene, read_reads
 from pipeline.studyscene import antenna_tilts, link_budget
 
-__all__ = ["STAGE", "field_coverage", "model_fits", "stage_evaluation"]
+__all__ = ["STAGE", "field_coverage", "model_fits", "stage_evaluation", "study_models"]
 
 
 def model_fits(models: dict) -> dict:
@@ -41,6 +42,17 @@ def model_fits(models: dict) -> dict:
             d["cv_n_groups"] = int(getattr(m, "cv_n_groups", 0))
         out[name] = d
     return out
+
+
+def study_models(ctx, where: str) -> tuple[dict, tuple, tuple, tuple]:
+    """The models a context scores (:data:`pipeline.sensormodels.registry.SENSOR_MODELS`,
+    ``where`` one of its ``CONTEXTS``), loaded from the run: ``(models, rssi_names,
+    detection_names, competitors)``, each in the registry's study order."""
+    from pipeline.sensormodels.registry import load_models, model_names
+
+    return (load_models(ctx.input, where), model_names(scored_in=where, predicts="rssi"),
+            model_names(scored_in=where, predicts="detection"),
+            model_names(role="competitor", scored_in=where))
 
 
 def field_coverage(cfg, scene, field_paths, eval_reads=None) -> dict | None:
@@ -86,7 +98,6 @@ def stage_evaluation(ctx) -> dict:
     """
     import pandas as pd
 
-    from fuzzymodel import SensorModel
     from pipeline.evaluation.baselines import BaselineSensorModel
     from pipeline.evaluation.comparison import RhoPoints, rho_vs_truth
     from pipeline.evaluation.evaluate import EvaluationInputs, evaluate_all
@@ -107,38 +118,22 @@ def stage_evaluation(ctx) -> dict:
     _check_split(tags, reads, eval_reads, ctx.store.path("scene/tags.parquet"))
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
     base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
-    sensors = {
-        "anfis": SensorModel.load(ctx.input("models/sensor.json")),
-        "anfis_truepose": SensorModel.load(ctx.input("models/sensor_truepose.json")),
-        "log_distance": base,
-        "grid_count": base,
-    }
-    from pipeline.sensormodels import (
-        ABLATIONS,
-        COMPETITORS,
-        load_competitor,
-        tag_height_differences,
-    )
+    from pipeline.sensormodels import tag_height_differences
 
-    sensors.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
-    sensors.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
-    extra = (*COMPETITORS, *ABLATIONS)
-    rssi_names = ("anfis", "anfis_truepose", "log_distance",
-                  *(n for n in extra if getattr(sensors[n], "predicts_rssi", True)))
+    sensors, rssi_names, det_candidates, competitors = study_models(ctx, "heldout")
     train_truth = TruthGrid.load(ctx.input("truth/detection_grid.npz"))
     eval_truth = TruthGrid.load(ctx.input("truth/detection_grid_eval.npz"))
     tr = cfg.training
     # each held-out link's tag height above its true antenna: a model whose detection
     # depends on it (Vorst & Zell's ground-plane table) is scored with it
     eval_dz = tag_height_differences(eval_reads, tags, pose="true")
-    det_names, merged = _detection_models(sensors, ("anfis", "anfis_truepose", "grid_count", *extra),
-                                          eval_reads, eval_truth)
+    det_names, merged = _detection_models(sensors, det_candidates, eval_reads, eval_truth)
     heldout = heldout_scores(sensors, eval_reads, train_truth, eval_truth, budget,
                              d_max_m=tr.d_max_m, min_attempts=tr.min_attempts,
                              rssi_models=rssi_names, detection_models=det_names, dz_m=eval_dz)
     metrics = {"heldout": heldout, "error_budget": error_budget(heldout),
                "reads": {"range_margin": _range_margin(meta, eval_meta)},
-               "model_fits": model_fits({n: sensors[n] for n in COMPETITORS}),
+               "model_fits": model_fits({n: sensors[n] for n in competitors}),
                "detection_merged": merged}
     fig7, fig7_results = {}, {}
     for name in rssi_names:
@@ -263,6 +258,6 @@ def _check_split(tags, reads, eval_reads, path) -> None:
 
 STAGE = Stage("evaluation", stage_evaluation, ("seed", "reader", "evaluation", "training", "robot"),
               ("scene", "tour", "reads", "truth_traces", "models", "truth", "downstream"),
-              version=15,  # each version's change: CHANGELOG.md
+              version=stage_version(15),  # each version's change: CHANGELOG.md
               description="metrics",
               outputs=STAGE_OUTPUTS["evaluation"])

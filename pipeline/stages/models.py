@@ -9,6 +9,7 @@ import numpy as np
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import pose_sources, read_reads, split_tags
 from pipeline.studyscene import stage_rng
 
@@ -98,9 +99,9 @@ def stage_models(ctx) -> dict:
     # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
     # so the ANFIS fits above stay bit-identical
     from pipeline.sensormodels import (
-        ABLATIONS,
-        fit_ablation,
         fit_competitors,
+        model_info,
+        model_names,
         tag_height_differences,
     )
 
@@ -109,19 +110,20 @@ def stage_models(ctx) -> dict:
     comps = fit_competitors(reads, rssi_range, d_max_m=cfg.d_max_m, grid=grid,
                             rng=stage_rng(ctx.config, "competitors"), dz_m=dz)
     for name, model in comps.items():
-        model.save(ctx.out(f"models/{name}.json"))
+        model.save(ctx.out(model_info(name).file))
     ssm_set = TrainingSet.from_parquet(ctx.input("training/ssm_est.parquet"))
     tdm_set = TrainingSet.from_parquet(ctx.input("training/tdm_est.parquet"))
-    for kind in ABLATIONS:
-        fit_ablation(kind, ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{kind}"),
-                     epochs=cfg.epochs, n_clusters=cfg.n_clusters, fcm_exponent=cfg.fcm_exponent,
-                     check_fraction=cfg.check_fraction, max_samples=cfg.max_samples,
-                     step_size=cfg.step_size).save(ctx.out(f"models/{kind}.json"))
-    info["competitors"] = sorted(comps) + list(ABLATIONS)
+    ablations = [model_info(k) for k in model_names(role="ablation")]  # the registry's
+    for m in ablations:
+        m.fit(ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{m.key}"),
+              epochs=cfg.epochs, n_clusters=cfg.n_clusters, fcm_exponent=cfg.fcm_exponent,
+              check_fraction=cfg.check_fraction, max_samples=cfg.max_samples,
+              step_size=cfg.step_size, **m.fit_options).save(ctx.out(m.file))
+    info["competitors"] = sorted(comps) + [m.key for m in ablations]
     return info
 
 
 STAGE = Stage("models", stage_models, ("seed", "training"), ("training_sets", "reads"),
-              version=5,  # each version's change: CHANGELOG.md
+              version=stage_version(5),  # each version's change: CHANGELOG.md
               description="FCM + ANFIS",
               outputs=STAGE_OUTPUTS["models"])

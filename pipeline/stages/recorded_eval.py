@@ -32,6 +32,7 @@ import pandas as pd
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import read_reads, split_tags
 
 __all__ = ["STAGE", "recorded_unit_tables", "stage_recorded_eval"]
@@ -72,32 +73,17 @@ def recorded_unit_tables(eval_reads: pd.DataFrame, sensors: dict, grid, *, d_max
 
 def stage_recorded_eval(ctx) -> dict:
     """Score every model on the held-out recorded reads; write ``metrics.json`` (module doc)."""
-    from fuzzymodel import SensorModel
     from pipeline.evaluation import units as u
-    from pipeline.evaluation.baselines import BaselineSensorModel
     from pipeline.evaluation.cells import CellGrid
     from pipeline.evaluation.headline import headline_estimates, headline_intervals
     from pipeline.evaluation.tables import write_parquet_atomic
-    from pipeline.sensormodels import (
-        ABLATIONS,
-        COMPETITORS,
-        load_competitor,
-        tag_height_differences,
-    )
-    from pipeline.stages.evaluation import model_fits
+    from pipeline.sensormodels import tag_height_differences
+    from pipeline.stages.evaluation import model_fits, study_models
 
     cfg = ctx.config
     tr = cfg.training
     eval_reads, _ = read_reads(ctx, "eval_")
-    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
-    sensors = {"anfis": SensorModel.load(ctx.input("models/sensor.json")),
-               "log_distance": base, "grid_count": base}
-    sensors.update({n: load_competitor(ctx.input(f"models/{n}.json")) for n in COMPETITORS})
-    sensors.update({k: SensorModel.load(ctx.input(f"models/{k}.json")) for k in ABLATIONS})
-    extra = (*COMPETITORS, *ABLATIONS)
-    rssi_names = ("anfis", "log_distance",
-                  *(n for n in extra if getattr(sensors[n], "predicts_rssi", True)))
-    det_names = ("anfis", "grid_count", *extra)
+    sensors, rssi_names, det_names, competitors = study_models(ctx, "recorded")
     grid = CellGrid(d_max_m=tr.d_max_m, d_bin_m=tr.d_bin_m, alpha_bin_deg=tr.alpha_bin_deg)
     dz = tag_height_differences(eval_reads, split_tags(ctx, "eval"), pose="est")
     tables = recorded_unit_tables(eval_reads, sensors, grid, d_max_m=tr.d_max_m,
@@ -118,7 +104,7 @@ def stage_recorded_eval(ctx) -> dict:
         "recording": json.loads(ctx.input("recording/import.json").read_text()),
         "sim_vs_real": json.loads(ctx.input("sim_vs_real/summary.json").read_text()),
         "calibration": json.loads(ctx.input("calibration.json").read_text()),
-        "model_fits": model_fits({n: sensors[n] for n in COMPETITORS}),
+        "model_fits": model_fits({n: sensors[n] for n in competitors}),
     }
     scores = ctx.store.path("downstream/scores.json")
     if scores.is_file():  # as the simulated study's evaluation stage copies them
@@ -133,6 +119,6 @@ STAGE = Stage("recorded_eval", stage_recorded_eval,
               ("seed", "training.d_max_m", "training.d_bin_m", "training.alpha_bin_deg",
                "training.min_attempts"),
               ("recording", "models", "sim_vs_real", "calibration", "downstream"),
-              version=2,  # each version's change: CHANGELOG.md
+              version=stage_version(2),  # each version's change: CHANGELOG.md
               description="held-out scores on the recording",
               outputs=STAGE_OUTPUTS["recorded_eval"])
