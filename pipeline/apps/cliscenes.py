@@ -44,7 +44,9 @@ def scenes_show(
         fail(str(exc))
     route_note = ""
     if sc.route_m is None and scenes.sources.traits_of(sc).plans_route:  # a map: the route a study would plan
-        from pipeline.studyscene import map_route  # lazy: start-up time
+        from pipeline.studyscene import (
+            map_route,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
+        )
 
         try:
             sc = map_route(sc, Robot())
@@ -65,7 +67,9 @@ def scenes_show(
         typer.echo(line)
     typer.echo(f"  content hash: {sc.content_hash()[:16]}")
     if png is not None:
-        from pipeline.stages import draw_scene_top_view  # lazy: start-up time
+        from pipeline.stages import (
+            draw_scene_top_view,  # lazy: start-up time  # lazy: start-up time
+        )  # lazy: start-up time
 
         try:
             typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")

@@ -52,7 +52,7 @@ from pipeline.config import (
 from pipeline.configschema import from_dict
 from pipeline.engine.runstore import atomic_write_bytes, atomic_write_json
 from pipeline.outdirs import check_marker_file, own_marker
-from pipeline.stages import resolve_cache_dir
+from pipeline.studyscene import resolve_cache_dir
 
 __all__ = [
     "PARAMETERS",

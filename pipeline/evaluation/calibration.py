@@ -67,6 +67,9 @@ import pandas as pd
 from scipy.optimize import minimize
 from scipy.special import log_ndtr, ndtr
 
+from pipeline.evaluation.simreal import sim_vs_real
+from pipeline.parallel import map_forked
+
 __all__ = ["N_BOOT", "CalibrationFit", "MaterialModel", "MaterialTerms", "calibrate",
            "fit_calibration", "predict"]
 
@@ -271,8 +274,6 @@ def _bootstrap(att, budget, n_ant, point, rng, n_boot, terms):
     """``n_boot`` refits on the training tags resampled with replacement, in forked
     processes (:func:`pipeline.parallel.map_forked`); the resamples are drawn here first, so
     the result does not depend on the number of workers."""
-    from pipeline.parallel import map_forked
-
     tags = att["tag_id"].astype(str).to_numpy()
     units, code = np.unique(tags, return_inverse=True)
     mult = [np.bincount(rng.integers(0, len(units), len(units)), minlength=len(units))
@@ -400,8 +401,6 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
         and ``before`` the uncalibrated prediction), ``n_train_tags``, ``n_boot``;
         with ``materials`` also ``constructions`` (what chose them, the Gauss-Newton steps).
     """
-    from pipeline.evaluation.simreal import sim_vs_real
-
     q = float(np.mean(miss_probability))
     traced = np.isfinite(att["gain_db"].to_numpy(np.float64))
     # an attempt the tracer found no path for has no gain to offset: left out, counted

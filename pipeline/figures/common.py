@@ -21,6 +21,15 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from fuzzymodel import SensorModel
+from pipeline.engine.runstore import (
+    UnsafePathError,
+    inside,
+    not_regular,
+    read_run_json,
+    regular_file,
+)
+from pipeline.evaluation.baselines import BaselineSensorModel
 from scenes.fileio import atomic_output
 
 __all__ = [
@@ -126,8 +135,6 @@ def require(run_dir, *relpaths: str) -> Path:
     directory. A link, FIFO, folder or device there is reported like a missing input,
     naming it and what it is (:func:`pipeline.engine.runstore.not_regular`).
     """
-    from pipeline.engine.runstore import UnsafePathError, inside, not_regular, regular_file
-
     run_dir = Path(run_dir)
     refused = []
     for p in relpaths:
@@ -242,10 +249,7 @@ def load_sensor(run_dir, name: str = "anfis"):
         raise ValueError(f"unknown model name {name!r}; known {sorted(files)}")
     path = require(run_dir, files[name])
     if name.startswith("anfis"):
-        from fuzzymodel import SensorModel
-
         return SensorModel.load(path)
-    from pipeline.evaluation.baselines import BaselineSensorModel
 
     return BaselineSensorModel.load(path)
 
@@ -259,8 +263,6 @@ def model_metrics(run_dir) -> dict:
     run directories from before it). Older run directories (one ``models`` section,
     in-sample) are read as they are.
     """
-    from pipeline.engine.runstore import read_run_json  # size-capped, a regular file, no link
-
     path = require(run_dir, "metrics.json")
     m = read_run_json(path)
     if isinstance(m, dict) and isinstance(m.get("heldout"), dict):

@@ -21,7 +21,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.engine.runstore import run_files
+from pipeline.engine.runstore import read_run_text, run_files
+from pipeline.evaluation.comparison import RhoPoints
+from pipeline.evaluation.fig7 import fig7_errors, read_fig7_table
+from pipeline.evaluation.tables import read_tags
 from pipeline.figures.common import (
     load_sensor,
     new_figure,
@@ -40,8 +43,6 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
 
     One row per pose (at most 4): true rho, learned rho, difference.
     """
-    from pipeline.evaluation.comparison import RhoPoints
-
     run_dir = Path(run_dir)
     files = run_files(run_dir, "truth", "rho_points_*.npz")
     if not files:
@@ -90,9 +91,6 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
 
 
 def _fig7_table(run_dir: Path) -> pd.DataFrame:
-    from pipeline.evaluation.fig7 import fig7_errors, read_fig7_table
-    from pipeline.evaluation.tables import read_tags
-
     p = run_dir / "truth" / "fig7_errors.parquet"
     if p.is_file():
         return read_fig7_table(p)
@@ -124,7 +122,6 @@ def _run_config(run_dir: Path) -> dict:
     import os
     import tomllib
 
-    from pipeline.engine.runstore import read_run_text
 
     p = Path(run_dir) / "config.toml"
     if not os.path.lexists(p):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from pipeline.engine.runstore import inside, read_run_text, regular_file
 from pipeline.figures.common import FigureOutput, MissingInput, figure_output
 from pipeline.figures.comparison import fig_fig7_error, fig_rho_vs_truth
 from pipeline.figures.downstream import fig_downstream
@@ -18,6 +19,9 @@ from pipeline.figures.surfaces import (
     fig_tdm_surface,
 )
 from pipeline.parallel import map_forked
+from pipeline.report.recorded import draw_sim_vs_real
+from pipeline.report.smokescale import smoke_banner
+from pipeline.runpaths import not_regular
 
 __all__ = ["FIGURES", "draw_all"]
 
@@ -52,8 +56,6 @@ def _run_banner(run_dir: Path) -> str:
     """The smoke-scale banner of a run (:mod:`pipeline.report.smokescale`) from its config.toml."""
     import tomllib
 
-    from pipeline.engine.runstore import read_run_text, regular_file
-    from pipeline.report.smokescale import smoke_banner
 
     path = run_dir / "config.toml"
     if not regular_file(path):  # a link or a FIFO: the report names it
@@ -70,9 +72,6 @@ def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from pipeline.engine.runstore import inside
-    from pipeline.report.recorded import draw_sim_vs_real
-    from pipeline.runpaths import not_regular
 
     links, tags = inside(run_dir, "sim_vs_real/links.parquet"), inside(run_dir, "scene/tags.parquet")
     for p in (links, tags):  # a link or a FIFO in a stranger's run is refused, never followed

@@ -18,8 +18,10 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from pipeline.engine.runstore import read_run_json
 from pipeline.figures.common import model_metrics, new_figure, require, save_figure
 from pipeline.sensormodels.registry import MODELS, model_label, table_order
+from scenes.fileio import atomic_output
 
 __all__ = ["HEADLINE_METRICS", "MODEL_LABELS", "HeadlineMetric", "compare_runs", "draw_headline",
            "fig_baselines", "headline_table", "model_label"]
@@ -57,8 +59,6 @@ _COLUMNS = ["metric", "label", "model", "estimate", "low", "high", "unit", "n_un
 
 
 def _read_metrics(run_dir) -> dict:
-    from pipeline.engine.runstore import read_run_json  # size-capped, a regular file, no link
-
     path = require(run_dir, "metrics.json")
     m = read_run_json(path)
     if not isinstance(m, dict):
@@ -236,8 +236,6 @@ def compare_runs(run_dirs, out_dir) -> list[Path]:
     list of pathlib.Path
         The files written.
     """
-    from scenes.fileio import atomic_output
-
     if not run_dirs:
         raise ValueError("compare needs at least one run directory")
     names = _run_names(run_dirs)

@@ -24,8 +24,11 @@ import pandas as pd
 from matplotlib.collections import LineCollection
 
 from pipeline.engine.runstore import run_files
+from pipeline.evaluation.localisation import localisation_errors
+from pipeline.evaluation.tables import read_tags
 from pipeline.figures.common import find_first, new_figure, require, save_figure
 from scenes.fileio import read_npz
+from scenes.geometry import floor_plan_segments
 from scenes.sources import traits_of
 
 __all__ = ["fig_fields", "fig_mcl_error", "fig_scene_top_view", "scene_top_view"]
@@ -74,8 +77,6 @@ def _draw_plan(ax, segments, tags_xy, tag_ids=None, route=None, held_out=None):
 
 def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     """Top view: walls, tags, route, true and MCL trajectories (training tour and evaluation path)."""
-    from pipeline.evaluation.tables import read_tags
-
     run_dir = Path(run_dir)
     plan = require(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
     with read_npz(plan) as z:
@@ -129,8 +130,6 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
     shows the map as given under it, the racks and pillars recognised and the tags the
     planned route skips.
     """
-    from scenes.geometry import floor_plan_segments
-
     png = Path(png)
     segs = floor_plan_segments(scene, z_m)
     fig = new_figure(10.0, _plan_height_in(segs, 10.0))
@@ -147,8 +146,6 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
 
 def fig_mcl_error(run_dir, out_dir=None) -> list[Path]:
     """MCL position and heading error over time (tour, and evaluation path if present)."""
-    from pipeline.evaluation.localisation import localisation_errors
-
     run_dir = Path(run_dir)
     tables = {"tour": pd.read_parquet(require(run_dir, "poses.parquet"))}
     ev = find_first(run_dir, "eval_poses.parquet")

@@ -33,11 +33,20 @@ import logging
 import numpy as np
 import pandas as pd
 
+from pipeline.config import config_to_toml
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.evaluation.calibration import MaterialModel, calibrate
+from pipeline.recording.config import RecordingConfig
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sceneconfig import MaterialConfig
 from pipeline.stages.common import TRACING_KEYS, load_scene
 from pipeline.studyscene import link_budget, trace_options
+from propagation.refield import freeze_paths, material_shares, refield_gains_db
+from propagation.tracing import tag_dipole_axes
+from scenes import resolve_material_name
+from scenes.export import material_of_bsdf_id
+from scenes.fileio import atomic_write_text
 
 __all__ = ["MIN_POWER_SHARE", "STAGE", "calibrated_config", "construction_model", "heldout_worse",
            "stage_calibration"]
@@ -62,10 +71,6 @@ def construction_model(ctx, att: pd.DataFrame, n_constructions: int):
     gives each attempt's gain change against the re-fielded gain as traced, added to the
     study tracer's gain (0 where the re-trace found no path; :data:`VANISHED_DB` down where
     a trial value leaves none; ``info`` reports how far the two tracers' gains are). Radio material names are ``uhf-<material>-t<thickness>``."""
-    from pipeline.evaluation.calibration import MaterialModel
-    from propagation.refield import freeze_paths, material_shares, refield_gains_db
-    from propagation.tracing import tag_dipole_axes
-
     cfg = ctx.config
     sc = load_scene(ctx)
     rows = np.flatnonzero(np.isfinite(att["gain_db"].to_numpy(np.float64)))
@@ -141,11 +146,6 @@ def calibrated_config(cfg, fit, constructions: dict | None = None):
     order of their power share, become ``[[materials]]`` tables. The overlay is per
     material: a material fitted in two thicknesses takes the first (larger share)
     construction's values; a conductivity not fitted (None) keeps the study's own."""
-    from pipeline.recording.config import RecordingConfig
-    from pipeline.sceneconfig import MaterialConfig
-    from scenes import resolve_material_name
-    from scenes.export import material_of_bsdf_id
-
     antennas = tuple(dataclasses.replace(a, cable_loss_db=float(a.cable_loss_db - d))
                      for a, d in zip(cfg.robot.antennas, fit.antenna_offsets_db, strict=True))
     r = cfg.reader
@@ -204,10 +204,6 @@ def _overlay_refusal(report: dict) -> str | None:
 def stage_calibration(ctx) -> dict:
     """Fit the reader (and constructions) to the recording; write ``calibration.json`` and
     ``calibrated.toml``."""
-    from pipeline.config import config_to_toml
-    from pipeline.evaluation.calibration import calibrate
-    from scenes.fileio import atomic_write_text
-
     cfg = ctx.config
     att = pd.read_parquet(ctx.input("sim_vs_real/attempts.parquet"))
     model, info = None, None

@@ -8,7 +8,9 @@ import numpy as np
 
 from pipeline.config import ConfigError
 from pipeline.stages.common import load_scene
-from pipeline.studyscene import study_route
+from pipeline.studyscene import resolve_cache_dir, study_route
+from propagation.sionna_internals import TESTED_VERSIONS, SionnaVersionError
+from scenes.geometry import in_free_space, solid_material_at
 
 __all__ = ["CHECKS", "check_antenna_mounts", "check_cache_dir", "check_memory_budget",
            "check_tracer_versions"]
@@ -27,8 +29,6 @@ def check_antenna_mounts(ctx) -> None:
         Naming the key (``robot.antennas[0].z_m``), its value, the antenna and where it
         would be: above the ceiling, below the floor, or inside a solid.
     """
-    from scenes.geometry import in_free_space, solid_material_at
-
     cfg = ctx.config
     sc = load_scene(ctx)
     route = study_route(sc, cfg)
@@ -89,7 +89,6 @@ def check_tracer_versions(ctx) -> None:
     the tour, with the one line the tracer itself would give at the reads stage."""
     from importlib.metadata import PackageNotFoundError, version
 
-    from propagation.sionna_internals import TESTED_VERSIONS, SionnaVersionError
 
     if ctx.config.tracing.method != "shared":
         return
@@ -115,7 +114,6 @@ def check_cache_dir(ctx) -> None:
     from (``tracing.cache_dir``, ``$RFIDSTUDY_CACHE`` or the default) and the path."""
     import os
 
-    from pipeline.studyscene import resolve_cache_dir
 
     if ctx.config.tracing.cache_dir:
         src = f"tracing.cache_dir = {ctx.config.tracing.cache_dir!r}"

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+import propagation
+from pipeline.acquisition import PoseTrack, read_attempts, read_table
 from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.config import StudyConfig
 from pipeline.studyscene import (
@@ -69,8 +71,6 @@ def split_tags(ctx, which: str):
 
 def read_reads(ctx, prefix: str = ""):
     """``(frame, metadata)`` of the run's ``<prefix>reads.parquet`` (an error names the file)."""
-    from pipeline.acquisition import read_table
-
     path = ctx.input(f"{prefix}reads.parquet")
     try:
         df, meta = read_table(path)
@@ -97,8 +97,6 @@ def read_track(ctx, name: str):
     ValueError
         The file cannot be read (the message names it).
     """
-    from pipeline.acquisition import PoseTrack
-
     path = ctx.input(f"tour/{name}_track.npz")
     try:
         with read_npz(path) as z:
@@ -127,8 +125,6 @@ def attempt_poses(ctx, name: str, track=None) -> np.ndarray:
     numpy.ndarray, shape (n_attempts, 6), float64
         [x_m, y_m, z_m, yaw_rad, pitch_rad, roll_rad].
     """
-    from pipeline.acquisition import read_attempts
-
     cfg = ctx.config
     track = read_track(ctx, name) if track is None else track
     att = read_attempts(track, list(build_robot(cfg).antennas), cfg.reader,
@@ -204,8 +200,6 @@ def manifest_info(cfg: StudyConfig) -> dict:
         "cache_dir": str(resolve_cache_dir(cfg)),
     }
     try:
-        import propagation
-
         info["backend"] = propagation.backend_info()
     except Exception as exc:  # the manifest must not fail the study
         info["backend"] = {"error": f"{type(exc).__name__}: {exc}"}

@@ -30,10 +30,30 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.acquisition.singulation import miss_probability_at_poses
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.evaluation.tables import write_parquet_atomic
+from pipeline.localisation import (
+    OracleLikelihood,
+    RfidMCLConfig,
+    as_free_space,
+    localise_tags,
+    observations_from_reads,
+)
+from pipeline.localisation.benchmark import (
+    DetectionOnly,
+    RobotRuns,
+    model_sources,
+    phase_posteriors,
+    tag_localisation_scores,
+)
+from pipeline.localisation.global_oracle import OracleSearch, global_oracle
+from pipeline.localisation.robot_oracle import FieldLikelihood, gain_field
+from pipeline.parallel import map_forked
+from pipeline.robot import collision_map
 from pipeline.runfiles import STAGE_OUTPUTS
-from pipeline.sensormodels.registry import stage_version
+from pipeline.sensormodels.registry import load_models, model_info, stage_version
 from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, split_tags
 from pipeline.studyscene import (
     antenna_tilts,
@@ -58,9 +78,6 @@ def _models(ctx) -> dict:
     (the learned one, both baselines, the chapter's competitors and the ablations), in its
     study order; a ``"detection"`` model that predicts RSSI too localises with its
     detection alone (the grid count: Hähnel's counts, not the log-distance RSSI)."""
-    from pipeline.localisation.benchmark import DetectionOnly
-    from pipeline.sensormodels.registry import load_models, model_info
-
     models = load_models(ctx.input, "downstream")
     return {k: DetectionOnly(m) if model_info(k).kind == "detection"
             and getattr(m, "predicts_rssi", True) else m for k, m in models.items()}
@@ -74,9 +91,6 @@ def _solver_and_patterns(cfg) -> tuple:
 
 def _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand) -> tuple[dict, dict]:
     """The oracle's posteriors (coarse-to-fine global search) and what it cost."""
-    from pipeline.localisation import OracleLikelihood, observations_from_reads
-    from pipeline.localisation.global_oracle import OracleSearch, global_oracle
-
     cfg = ctx.config
     dn = cfg.downstream
     sc = load_scene(ctx)
@@ -89,8 +103,6 @@ def _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand) -> tuple[di
     # one of the log's (counted where its true link closes)
     q = None
     if cfg.reader.inventory == "gen2":
-        from pipeline.acquisition.singulation import miss_probability_at_poses
-
         q = miss_probability_at_poses(eval_reads, true_obs.slot_poses, cfg.reader,
                                       link_budget(cfg), extra_tags=0,
                                       n_antennas=len(cfg.robot.antennas))
@@ -114,9 +126,6 @@ def _oracle_posteriors(ctx, obs, reads, eval_reads, eval_tags, cand) -> tuple[di
 
 def _robot_oracle(ctx, eval_tags, free):
     """The robot filter's oracle: the traced local-mean gain field over the free space."""
-    from pipeline.localisation import OracleLikelihood
-    from pipeline.localisation.robot_oracle import FieldLikelihood, gain_field
-
     cfg = ctx.config
     opts, pattern_kw = _solver_and_patterns(cfg)
     field = gain_field(load_scene(ctx), list(build_robot(cfg).antennas), eval_tags.positions_m,
@@ -131,8 +140,6 @@ def _tag_work(ctx, obs, reads, eval_reads, eval_tags, sources, *,
     """The held-out tags' candidates and posteriors of every model and of the phase
     estimator (NumPy only: safe in a forked process); ``no_phase``: why the phase
     estimator does not run (it then does not)."""
-    from pipeline.localisation import localise_tags
-    from pipeline.localisation.benchmark import phase_posteriors
     cand = tag_candidates(load_scene(ctx), ctx.config)
     posts = localise_tags(obs, cand, sources)
     if no_phase is not None:
@@ -155,8 +162,6 @@ def _tag_scores(ctx, posts, eval_tags, phase_info) -> dict:
     did not run); writes every tag's error to ``downstream/tag_errors.parquet``."""
     import pandas as pd
 
-    from pipeline.evaluation.tables import write_parquet_atomic
-    from pipeline.localisation.benchmark import tag_localisation_scores
 
     tag_scores = tag_localisation_scores(posts, eval_tags)
     if not phase_info["run"]:  # recorded, never silently left out
@@ -171,9 +176,6 @@ def _tag_scores(ctx, posts, eval_tags, phase_info) -> dict:
 def _tag_inputs(ctx) -> tuple:
     """The held-out tags, both read logs (the held-out one's metadata), every model's
     likelihood source and the held-out tags' observations on the estimated poses."""
-    from pipeline.localisation import observations_from_reads
-    from pipeline.localisation.benchmark import model_sources
-
     cfg = ctx.config
     eval_tags = split_tags(ctx, "eval")
     reads, _ = read_reads(ctx)
@@ -215,16 +217,6 @@ def stage_downstream(ctx) -> dict:
     recording the held-out tags alone, without the oracle (module doc)."""
     import pandas as pd
 
-    from pipeline.evaluation.tables import write_parquet_atomic
-    from pipeline.localisation import (
-        RfidMCLConfig,
-        as_free_space,
-    )
-    from pipeline.localisation.benchmark import (
-        RobotRuns,
-    )
-    from pipeline.parallel import map_forked
-    from pipeline.robot import collision_map
 
     cfg = ctx.config
     dn = cfg.downstream

@@ -8,12 +8,33 @@ import json
 
 import numpy as np
 
+import propagation
 from pipeline.engine.runstore import atomic_write_json, run_files
 from pipeline.engine.study import Stage
+from pipeline.evaluation import units as u
+from pipeline.evaluation.baselines import BaselineSensorModel
+from pipeline.evaluation.comparison import RhoPoints, rho_vs_truth
+from pipeline.evaluation.coverage import detection_coverage
+from pipeline.evaluation.evaluate import EvaluationInputs, evaluate_all
+from pipeline.evaluation.fig7 import fig7_errors
+from pipeline.evaluation.headline import headline_intervals
+from pipeline.evaluation.heldout import error_budget, heldout_scores
+from pipeline.evaluation.metrics import nan_to_none
+from pipeline.evaluation.sites import SiteTruth, site_comparison
+from pipeline.evaluation.tables import read_tags, write_parquet_atomic
+from pipeline.evaluation.truth import TruthGrid
 from pipeline.runfiles import STAGE_OUTPUTS
-from pipeline.sensormodels.registry import stage_version
+from pipeline.sensormodels import tag_height_differences
+from pipeline.sensormodels.registry import (
+    load_models,
+    merge_identical_detection,
+    model_names,
+    stage_version,
+)
 from pipeline.stages.common import load_scene, read_reads
+from pipeline.stages.truth import attempt_miss_probability, pose_miss_probability
 from pipeline.studyscene import antenna_tilts, link_budget
+from scenes.geometry import is_free
 
 __all__ = ["STAGE", "field_coverage", "model_fits", "stage_evaluation", "study_models"]
 
@@ -48,8 +69,6 @@ def study_models(ctx, where: str) -> tuple[dict, tuple, tuple, tuple]:
     """The models a context scores (:data:`pipeline.sensormodels.registry.SENSOR_MODELS`,
     ``where`` one of its ``CONTEXTS``), loaded from the run: ``(models, rssi_names,
     detection_names, competitors)``, each in the registry's study order."""
-    from pipeline.sensormodels.registry import load_models, model_names
-
     return (load_models(ctx.input, where), model_names(scored_in=where, predicts="rssi"),
             model_names(scored_in=where, predicts="detection"),
             model_names(role="competitor", scored_in=where))
@@ -64,11 +83,6 @@ def field_coverage(cfg, scene, field_paths, eval_reads=None) -> dict | None:
     without fields, else ``{"corridor_fraction": mean over fields, "fields":
     [CoverageResult dicts]}``.
     """
-    import propagation
-    from pipeline.evaluation.coverage import detection_coverage
-    from pipeline.stages.truth import pose_miss_probability
-    from scenes.geometry import is_free
-
     if not field_paths:
         return None
     budget = link_budget(cfg)
@@ -98,17 +112,6 @@ def stage_evaluation(ctx) -> dict:
     """
     import pandas as pd
 
-    from pipeline.evaluation.baselines import BaselineSensorModel
-    from pipeline.evaluation.comparison import RhoPoints, rho_vs_truth
-    from pipeline.evaluation.evaluate import EvaluationInputs, evaluate_all
-    from pipeline.evaluation.fig7 import fig7_errors
-    from pipeline.evaluation.headline import headline_intervals
-    from pipeline.evaluation.heldout import error_budget, heldout_scores
-    from pipeline.evaluation.metrics import nan_to_none
-    from pipeline.evaluation.sites import SiteTruth, site_comparison
-    from pipeline.evaluation.tables import read_tags, write_parquet_atomic
-    from pipeline.evaluation.truth import TruthGrid
-    from pipeline.stages.truth import pose_miss_probability
 
     cfg = ctx.config
     budget = link_budget(cfg)
@@ -118,7 +121,6 @@ def stage_evaluation(ctx) -> dict:
     _check_split(tags, reads, eval_reads, ctx.store.path("scene/tags.parquet"))
     eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
     base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
-    from pipeline.sensormodels import tag_height_differences
 
     sensors, rssi_names, det_candidates, competitors = study_models(ctx, "heldout")
     train_truth = TruthGrid.load(ctx.input("truth/detection_grid.npz"))
@@ -193,7 +195,6 @@ def _detection_models(sensors, names, eval_reads, eval_truth):
     merged ones -> their twin."""
     import numpy as np
 
-    from pipeline.sensormodels.registry import merge_identical_detection
 
     dc, ac = eval_truth.grid.centre_mesh()
     d = np.concatenate([eval_reads["d_est_m"], eval_reads["d_true_m"], dc.ravel()])
@@ -208,9 +209,6 @@ def write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results
     input); ``dz_m``: the held-out links' tag heights above their true antennas."""
     import pandas as pd
 
-    from pipeline.evaluation import units as u
-    from pipeline.evaluation.tables import write_parquet_atomic
-    from pipeline.stages.truth import attempt_miss_probability
 
     cfg = ctx.config
     tables = u.UnitTables(

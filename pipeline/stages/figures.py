@@ -6,6 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from pipeline.engine.study import Stage
+from pipeline.figures import draw_all, scene_top_view
+from pipeline.figures.common import FigureOutput, figure_output
 from pipeline.runfiles import STAGE_OUTPUTS
 
 __all__ = ["STAGE", "draw_figures", "draw_scene_top_view", "stage_figures"]
@@ -19,8 +21,6 @@ def draw_figures(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     list of pathlib.Path
         Files written under ``out_dir``.
     """
-    from pipeline.figures import draw_all
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     res = draw_all(Path(run_dir), out_dir=out)
@@ -33,9 +33,6 @@ def draw_scene_top_view(scene, png: str | Path) -> Path:
     """Top view of a scene (walls at laser height, tags, route) as PNG, via
     pipeline.figures: the one file named, nothing beside it (a PDF of the same name
     there would be someone's file)."""
-    from pipeline.figures import scene_top_view
-    from pipeline.figures.common import FigureOutput, figure_output
-
     png = Path(png)
     png.parent.mkdir(parents=True, exist_ok=True)
     with figure_output(FigureOutput(formats=("png",))):

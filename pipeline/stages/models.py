@@ -6,9 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from fuzzymodel import ANFIS, SensorModel
+from pipeline.acquisition import TrainingSet
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.evaluation.baselines import fit_baselines
+from pipeline.evaluation.cells import CellGrid
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sensormodels import fit_competitors, model_info, model_names, tag_height_differences
+from pipeline.sensormodels.ablations import train_check_split
 from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import pose_sources, read_reads, split_tags
 from pipeline.studyscene import stage_rng
@@ -17,8 +23,6 @@ __all__ = ["STAGE", "stage_models"]
 
 
 def _split(X, y, frac: float, rng):
-    from pipeline.sensormodels.ablations import train_check_split
-
     return train_check_split(X, y, frac, rng)
 
 
@@ -30,8 +34,6 @@ def _fit(ts, cfg, rng, progress):
     a cell that saw 200 attempts 100 times one that saw 2, and the RMSEs in the
     history are weighted. SSM samples (one per read) are unweighted.
     """
-    from fuzzymodel import ANFIS
-
     X, y = ts.X, ts.y
     w = None if ts.weights is None else np.asarray(ts.weights, dtype=float)
     if ts.kind == "ssm" and cfg.max_samples and len(y) > cfg.max_samples:
@@ -64,11 +66,6 @@ def _fit(ts, cfg, rng, progress):
 
 def stage_models(ctx) -> dict:
     """FCM + ANFIS for SSM and TDM (MCL and true poses) and the baselines; write models/."""
-    from fuzzymodel import SensorModel
-    from pipeline.acquisition import TrainingSet
-    from pipeline.evaluation.baselines import fit_baselines
-    from pipeline.evaluation.cells import CellGrid
-
     cfg = ctx.config.training
     rng = stage_rng(ctx.config, "models")
     progress = ctx.progress("FCM + ANFIS", total=2 * len(pose_sources(ctx.config)))
@@ -98,12 +95,6 @@ def stage_models(ctx) -> dict:
         base_true.save(ctx.out("models/baselines_truepose.json"))
     # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
     # so the ANFIS fits above stay bit-identical
-    from pipeline.sensormodels import (
-        fit_competitors,
-        model_info,
-        model_names,
-        tag_height_differences,
-    )
 
     # the training tags' heights above the antennas (Vorst & Zell's ground plane)
     dz = tag_height_differences(reads, split_tags(ctx, "train"), pose="est")

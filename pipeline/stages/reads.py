@@ -4,6 +4,7 @@ reads the training tags, the evaluation path the held-out ones (``pipeline.acqui
 
 from __future__ import annotations
 
+from pipeline.acquisition import simulate_reads
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
 from pipeline.runfiles import STAGE_OUTPUTS
@@ -26,8 +27,6 @@ def stage_reads(ctx) -> dict:
     :class:`pipeline.acquisition.ReaderConfig`, traced at the study's ``frequency_hz``;
     each attempt's gain, phase and Doppler are those of its regional channel.
     """
-    from pipeline.acquisition import simulate_reads
-
     cfg = ctx.config
     variant = select_backend(cfg)
     sc = load_scene(ctx)

@@ -21,8 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.acquisition import ReadLog
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
+from pipeline.recording import RecordingError
+from pipeline.recording.attempts import recorded_read_table
+from pipeline.recording.lag import pose_lag_profile
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import build_robot, load_study_recording, recorded_scene
@@ -38,8 +42,6 @@ def _check_channels(rec, cfg) -> None:
     ------
     pipeline.recording.RecordingError
     """
-    from pipeline.recording import RecordingError
-
     f = rec.reads["frequency_hz"].to_numpy(np.float64)
     f = np.unique(f[np.isfinite(f)])
     if not len(f):
@@ -62,9 +64,6 @@ def stage_recording(ctx) -> dict:
     ``recording/import.json`` (what the import counted, :func:`load_recording`, and the
     attempts rule's counts, :func:`~pipeline.recording.attempts.recorded_read_table`).
     """
-    from pipeline.acquisition import ReadLog
-    from pipeline.recording.attempts import recorded_read_table
-
     cfg = ctx.config
     sc = load_scene(ctx)
     split = ctx.memo["tag_split"]
@@ -75,7 +74,6 @@ def stage_recording(ctx) -> dict:
                                                  frequency_hz=cfg.frequency_hz)
     info = {**rec.info, **att_info}
     if rec.poses is not None:  # a clock offset between reads and poses, estimated, reported
-        from pipeline.recording.lag import pose_lag_profile
 
         train = set(np.asarray(sc.tags.ids)[split == "train"].tolist())  # no held-out read
         info["pose_lag"] = pose_lag_profile(rec.reads[rec.reads["epc"].isin(train)], rec.poses,

@@ -31,9 +31,16 @@ import pandas as pd
 
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
+from pipeline.evaluation import units as u
+from pipeline.evaluation.cells import CellGrid
+from pipeline.evaluation.headline import headline_estimates, headline_intervals
+from pipeline.evaluation.interface import detection_probability
+from pipeline.evaluation.tables import write_parquet_atomic
 from pipeline.runfiles import STAGE_OUTPUTS
+from pipeline.sensormodels import tag_height_differences
 from pipeline.sensormodels.registry import stage_version
 from pipeline.stages.common import read_reads, split_tags
+from pipeline.stages.evaluation import model_fits, study_models
 
 __all__ = ["STAGE", "recorded_unit_tables", "stage_recorded_eval"]
 
@@ -43,9 +50,6 @@ def recorded_unit_tables(eval_reads: pd.DataFrame, sensors: dict, grid, *, d_max
     """The :class:`~pipeline.evaluation.units.UnitTables` of a recording (module doc):
     ``rssi_links`` error_db = predicted - measured, ``detection_attempts`` with
     ``p_true`` the measured outcome (so a cell's mean is its read frequency)."""
-    from pipeline.evaluation import units as u
-    from pipeline.evaluation.interface import detection_probability
-
     d = eval_reads["d_est_m"].to_numpy(np.float64)
     a = eval_reads["alpha_est_rad"].to_numpy(np.float64)
     read = eval_reads["read"].to_numpy(bool)
@@ -73,13 +77,6 @@ def recorded_unit_tables(eval_reads: pd.DataFrame, sensors: dict, grid, *, d_max
 
 def stage_recorded_eval(ctx) -> dict:
     """Score every model on the held-out recorded reads; write ``metrics.json`` (module doc)."""
-    from pipeline.evaluation import units as u
-    from pipeline.evaluation.cells import CellGrid
-    from pipeline.evaluation.headline import headline_estimates, headline_intervals
-    from pipeline.evaluation.tables import write_parquet_atomic
-    from pipeline.sensormodels import tag_height_differences
-    from pipeline.stages.evaluation import model_fits, study_models
-
     cfg = ctx.config
     tr = cfg.training
     eval_reads, _ = read_reads(ctx, "eval_")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pipeline.engine.study import Stage
+from pipeline.report.html import write_report
 from pipeline.runfiles import STAGE_OUTPUTS
 
 __all__ = ["STAGE", "stage_report"]
@@ -10,8 +11,6 @@ __all__ = ["STAGE", "stage_report"]
 
 def stage_report(ctx) -> dict:
     """Write ``report.html`` from the run directory's files."""
-    from pipeline.report.html import write_report
-
     write_report(ctx.store.root, out=ctx.out("report.html"))
     return {}
 

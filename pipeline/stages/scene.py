@@ -10,18 +10,17 @@ import numpy as np
 
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
+from pipeline.evaluation.tables import write_tags
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import study_route
+from scenes.geometry import floor_plan_segments
 
 __all__ = ["STAGE", "stage_scene"]
 
 
 def stage_scene(ctx) -> dict:
     """Load the scene; write ``scene/scene.json``, ``scene/tags.parquet``, floor plan."""
-    from pipeline.evaluation.tables import write_tags
-    from scenes.geometry import floor_plan_segments
-
     sc = load_scene(ctx)
     cfg = ctx.config
     lo, hi = sc.bounds_m

@@ -20,11 +20,15 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.acquisition import simulate_reads
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
+from pipeline.evaluation.simreal import fit_log_distance_baseline, link_rates, sim_vs_real
+from pipeline.evaluation.truth import true_detected, true_rssi_dbm
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, load_scene, read_reads, read_track
+from pipeline.stages.truth import attempt_miss_probability
 from pipeline.studyscene import (
     build_robot,
     link_budget,
@@ -62,11 +66,6 @@ def _slot_channels(rec: pd.DataFrame) -> dict:
 
 def stage_sim_vs_real(ctx) -> dict:
     """Trace the recorded tour, predict every recorded attempt, compare (module doc)."""
-    from pipeline.acquisition import simulate_reads
-    from pipeline.evaluation.simreal import fit_log_distance_baseline, link_rates, sim_vs_real
-    from pipeline.evaluation.truth import true_detected, true_rssi_dbm
-    from pipeline.stages.truth import attempt_miss_probability
-
     cfg = ctx.config
     variant = select_backend(cfg)
     sc = load_scene(ctx)

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.engine.runstore import run_files
+import scenes
+from pipeline.config import config_from_mapping, read_toml
+from pipeline.engine.runstore import inside, run_files
+from pipeline.evaluation.inventory import inventory_statistic, tour_tag_table
+from pipeline.stages.evaluation import field_coverage
 from scenes.fileio import read_npz
 
 __all__ = ["corridor_coverage", "inventory_summary", "run_summary", "tour_tags"]
@@ -60,8 +64,6 @@ def tour_tags(run_dir: str | Path, budget=None):
     ``config.toml``. None for a run whose track predates ``pass_index``."""
     import pandas as pd
 
-    from pipeline.engine.runstore import inside
-    from pipeline.evaluation.inventory import tour_tag_table
 
     run = Path(run_dir)
     with read_npz(inside(run, "tour/train_track.npz")) as z:
@@ -69,8 +71,6 @@ def tour_tags(run_dir: str | Path, budget=None):
             return None
         t_s, passes = z["t_s"], z["pass_index"]
     if budget is None:
-        from pipeline.config import config_from_mapping, read_toml
-
         path = inside(run, "config.toml")
         cfg = config_from_mapping(read_toml(path), source=str(path))
         budget = cfg.reader.link_budget(cfg.frequency_hz)
@@ -88,7 +88,6 @@ def inventory_summary(run_dir: str | Path, min_reads: int = 3) -> dict:
     whose track predates ``pass_index``."""
     import numpy as np
 
-    from pipeline.evaluation.inventory import inventory_statistic
 
     rows = tour_tags(run_dir)
     if rows is None:
@@ -151,9 +150,6 @@ def corridor_coverage(run_dir: str | Path) -> float | None:
     import json
     import tomllib
 
-    import scenes
-    from pipeline.config import config_from_mapping
-    from pipeline.stages.evaluation import field_coverage
 
     run = Path(run_dir)
     mpath = run / "metrics.json"

@@ -5,8 +5,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.acquisition import PoseTrack
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
+from pipeline.evaluation.localisation import check_tracking, pose_error_summary
+from pipeline.parallel import map_forked
+from pipeline.robot import (
+    DriveProfile,
+    MapError,
+    collision_map,
+    draw_robot_map,
+    evaluation_path,
+    guided_tour,
+    simulate_localisation,
+)
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import build_robot, stage_rng, study_route
@@ -22,8 +34,6 @@ def _localise(scene, robot, traj, lcfg, rng, robot_map=None) -> dict:
     in, drawn once per building by :func:`stage_tour` (None: ``simulate_localisation``
     draws one).
     """
-    from pipeline.robot import simulate_localisation
-
     true = np.asarray(traj.poses, dtype=float)
     t = np.asarray(traj.t_s, dtype=float)
     # which pass along the route each pose belongs to (-1 while turning around): the
@@ -39,8 +49,6 @@ def _localise(scene, robot, traj, lcfg, rng, robot_map=None) -> dict:
 
 
 def _eval_path(sc, robot, cfg, rng):
-    from pipeline.robot import evaluation_path
-
     return evaluation_path(sc, robot, rng, n_poses=cfg.tour.n_eval_poses, config=cfg.tour,
                            route_m=study_route(sc, cfg))
 
@@ -58,8 +66,6 @@ def eval_track(ctx):
     -------
     pipeline.acquisition.PoseTrack
     """
-    from pipeline.acquisition import PoseTrack
-
     cfg = ctx.config
     traj = _eval_path(load_scene(ctx), build_robot(cfg), cfg, stage_rng(cfg, "eval_path"))
     true = np.asarray(traj.poses, dtype=float)
@@ -92,16 +98,6 @@ def stage_tour(ctx) -> dict:
         ``localisation.max_position_error_p90_m``; the message names the measured
         error and the map-error and filter keys to change. Nothing is written then.
     """
-    from pipeline.evaluation.localisation import check_tracking, pose_error_summary
-    from pipeline.parallel import map_forked
-    from pipeline.robot import (
-        DriveProfile,
-        MapError,
-        collision_map,
-        draw_robot_map,
-        guided_tour,
-    )
-
     cfg = ctx.config
     loc = cfg.localisation
     sc = load_scene(ctx)

@@ -3,6 +3,7 @@ MCL poses and on the true poses (``pipeline.acquisition``); writes ``training/``
 
 from __future__ import annotations
 
+from pipeline.acquisition import rssi_range_from_data, ssm_samples, tdm_samples
 from pipeline.engine.study import Stage
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import pose_sources, read_reads
@@ -12,8 +13,6 @@ __all__ = ["STAGE", "stage_training_sets"]
 
 def stage_training_sets(ctx) -> dict:
     """SSM and TDM training sets from the tour's reads, for MCL and for true poses."""
-    from pipeline.acquisition import rssi_range_from_data, ssm_samples, tdm_samples
-
     cfg = ctx.config.training
     reads, _ = read_reads(ctx)
     rng_dbm = cfg.rssi_range_dbm

@@ -8,9 +8,15 @@ import json
 
 import numpy as np
 
+from pipeline.acquisition.singulation import miss_probability_at_poses, miss_probability_of_attempts
 from pipeline.engine.study import Stage
+from pipeline.evaluation.cells import CellGrid
+from pipeline.evaluation.comparison import rho_points_truth
+from pipeline.evaluation.sites import SiteTruth
+from pipeline.evaluation.truth import detection_truth
 from pipeline.runfiles import STAGE_OUTPUTS
-from pipeline.stages.common import read_reads
+from pipeline.stages.common import attempt_poses, read_reads, spread_evenly
+from pipeline.stages.truth_traces import free_space_grid
 from pipeline.studyscene import link_budget
 from scenes.fileio import read_npz
 
@@ -20,9 +26,6 @@ __all__ = ["STAGE", "attempt_miss_probability", "pose_miss_probability", "stage_
 def stage_truth(ctx) -> dict:
     """Propagation truth: detection grids of the training and of the held-out reads, and
     the chapter's free-space Fig. 6 truth around evaluation-tour antenna poses."""
-    from pipeline.evaluation.cells import CellGrid
-    from pipeline.evaluation.truth import detection_truth
-
     cfg = ctx.config
     _check_trace_poses(ctx)
     budget = link_budget(cfg)
@@ -53,9 +56,6 @@ def _check_trace_poses(ctx) -> None:
     ValueError
         Naming the file whose poses differ and the way out.
     """
-    from pipeline.evaluation.sites import SiteTruth
-    from pipeline.stages.common import attempt_poses, spread_evenly
-
     ev = ctx.config.evaluation
     poses = attempt_poses(ctx, "eval")
     path = ctx.input("truth/site_truth.npz")
@@ -75,8 +75,6 @@ def attempt_miss_probability(cfg, reads, budget):
     """The truth's miss probability of a closing attempt of ``reads``: the constant of the
     ``"fixed"`` inventory (a float), else one per row (Gen2,
     :func:`pipeline.acquisition.singulation.miss_probability_of_attempts`)."""
-    from pipeline.acquisition.singulation import miss_probability_of_attempts
-
     if cfg.reader.inventory == "fixed":
         return cfg.reader.anticollision_miss_probability
     return miss_probability_of_attempts(reads, cfg.reader, budget,
@@ -88,8 +86,6 @@ def pose_miss_probability(cfg, eval_reads, poses, budget):
     from ``eval_reads``: the ``"fixed"`` constant (a float), or per pose (p,) for Gen2
     (:func:`pipeline.acquisition.singulation.miss_probability_at_poses`, the site joining
     the slot's closing tags)."""
-    from pipeline.acquisition.singulation import miss_probability_at_poses
-
     if cfg.reader.inventory == "fixed":
         return cfg.reader.anticollision_miss_probability
     return miss_probability_at_poses(eval_reads, poses, cfg.reader, budget, extra_tags=1,
@@ -99,9 +95,6 @@ def pose_miss_probability(cfg, eval_reads, poses, budget):
 def _free_space_view(ctx, eval_reads, budget) -> dict:
     """The chapter's Fig. 6 truth from the traced free-space gains
     (truth/free_space_points_*.npz of the truth_traces stage): writes truth/rho_points_*.npz."""
-    from pipeline.evaluation.comparison import rho_points_truth
-    from pipeline.stages.truth_traces import free_space_grid
-
     cfg = ctx.config
     rssi_range = tuple(json.loads(ctx.input("models/sensor.json").read_text())["rssi_range_dbm"])
     d, a = free_space_grid(cfg)

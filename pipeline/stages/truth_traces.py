@@ -16,12 +16,17 @@ from __future__ import annotations
 
 import numpy as np
 
+import propagation
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
+from pipeline.evaluation.sites import SiteTruth, obstructed_pairs
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import TRACING_KEYS, attempt_poses, load_scene, spread_evenly
+from pipeline.stages.tour import eval_track
 from pipeline.studyscene import resolve_cache_dir, select_backend, trace_options
 from scenes.fileio import atomic_save_npz
+from scenes.geometry import is_free
+from scenes.tagsites import tag_sites
 
 __all__ = ["STAGE", "free_space_grid", "stage_truth_traces"]
 
@@ -45,8 +50,6 @@ def _polar_points(pose: np.ndarray, d_m: np.ndarray, alpha_rad: np.ndarray) -> n
 def stage_truth_traces(ctx) -> dict:
     """Gains at tag sites and at free-space points, and RSSI fields, around
     evaluation-tour antenna poses."""
-    from pipeline.stages.tour import eval_track
-
     select_backend(ctx.config)
     # the evaluation path's poses without the tour's MCL: this stage starts beside the tour
     poses = attempt_poses(ctx, "eval", eval_track(ctx))
@@ -61,10 +64,6 @@ def stage_truth_traces(ctx) -> dict:
 def _trace_sites(ctx, attempt_pose_rows: np.ndarray) -> dict:
     """Truth at every tag site within reach of evaluation-tour antenna poses
     (pipeline.evaluation.sites); writes truth/site_truth.npz."""
-    import propagation
-    from pipeline.evaluation.sites import SiteTruth, obstructed_pairs
-    from scenes.tagsites import tag_sites
-
     cfg = ctx.config
     ev = cfg.evaluation
     sc = load_scene(ctx)
@@ -106,9 +105,6 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
     space around evaluation-tour poses, and RSSI fields; writes
     truth/free_space_points_*.npz (``pose``, ``points_m``, ``gain_db``; -inf where not
     free) and fields/*.npz."""
-    import propagation
-    from scenes.geometry import is_free
-
     cfg = ctx.config
     ev = cfg.evaluation
     sc = load_scene(ctx)
