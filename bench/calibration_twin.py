@@ -27,6 +27,8 @@ import json
 import time
 from pathlib import Path
 
+from pipeline import runfiles
+
 #: What the planted twin changes: (parameter, planted value of the fit).
 PLANTED = {"antenna_offset_db[1]": -3.0, "tag_sensitivity_offset_db": -2.0,
            "rssi_offset_db": 0.0, "antenna_offset_db[0]": 0.0,
@@ -53,7 +55,7 @@ def _recorded(base, rec: Path, out: Path) -> dict:
         cfg = replace_path(cfg, key, str(rec / name))
     t0 = time.perf_counter()
     run_full_study(cfg, out, command_line=["bench"])
-    cal = json.loads((out / "calibration.json").read_text())
+    cal = json.loads((out / runfiles.CALIBRATION).read_text())
     return {"recorded_s": time.perf_counter() - t0, "calibration": cal}
 
 

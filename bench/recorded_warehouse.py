@@ -15,6 +15,8 @@ import json
 import time
 from pathlib import Path
 
+from pipeline import runfiles
+
 
 def main() -> None:
     from pipeline.apps.export import export_csv
@@ -43,8 +45,8 @@ def main() -> None:
           f"recorded study {t_rec:.0f} s, peak RSS {man.get('peak_rss_mib', float('nan')):.0f} MiB")
     for name, st in man["stages"].items():
         print(f"  {name:14s} {st.get('elapsed_s', float('nan')):7.1f} s")
-    cal = json.loads((args.out / "recorded" / "calibration.json").read_text())
-    imp = json.loads((args.out / "recorded" / "metrics.json").read_text())["recording"]
+    cal = json.loads((args.out / "recorded" / runfiles.CALIBRATION).read_text())
+    imp = json.loads((args.out / "recorded" / runfiles.METRICS).read_text())["recording"]
     print(f"import: {imp.get('n_reads')} reads of {imp.get('n_tags', '?')} tags")
     cons = cal.get("constructions", {})
     print(f"constructions: power share {cons.get('power_share')}; converged {cons.get('converged')}; "

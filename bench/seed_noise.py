@@ -40,6 +40,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
+
 
 def sparse_poses() -> np.ndarray:
     """(96, 4) [x, y, z, yaw] poses: 12 stations 2 m apart x 2 across (0.6 m) x 2 heights
@@ -53,7 +55,7 @@ def dense_links(run: Path):
     """Poses (n, 4), tag positions and normals of a run's evaluation path (as
     ``bench/study_trace.py`` takes them)."""
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
-    r = pd.read_parquet(run / "eval_reads.parquet")
+    r = pd.read_parquet(run / runfiles.EVAL_READS)
     ids = sorted(r["tag_id"].unique())
     cols = ["true_ant_x_m", "true_ant_y_m", "true_ant_z_m", "true_ant_yaw_rad"]
     poses = r.drop_duplicates(cols[:3])[cols].to_numpy(float)

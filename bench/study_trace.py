@@ -55,6 +55,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -99,7 +101,7 @@ def study_links(run: Path) -> list[tuple[str, np.ndarray, np.ndarray, int]]:
     (r, 3), positions per solver call)."""
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
     groups = []
-    for name, fname in (("train tour", "reads.parquet"), ("eval tour", "eval_reads.parquet")):
+    for name, fname in (("train tour", runfiles.TRAIN_READS), ("eval tour", runfiles.EVAL_READS)):
         r = pd.read_parquet(run / fname)
         r = r[r["in_range"]]
         pos = np.unique(r[["true_ant_x_m", "true_ant_y_m", "true_ant_z_m"]].to_numpy(float), axis=0)
@@ -230,7 +232,7 @@ def seed_noise(scene, run: Path, overrides: dict, config: Path | None) -> tuple[
     cfg = resolve_target(None if config is None else str(config),
                          [f"{k}={v}" for k, v in overrides.items()])
     tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
-    r = pd.read_parquet(run / "eval_reads.parquet")
+    r = pd.read_parquet(run / runfiles.EVAL_READS)
     ids = sorted(r["tag_id"].unique())
     tpos = tags.loc[ids, ["x_m", "y_m", "z_m"]].to_numpy(float)
     nrm = tags.loc[ids, ["nx", "ny", "nz"]].to_numpy(float)

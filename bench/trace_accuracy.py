@@ -55,6 +55,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
+
 #: Tags per reference call (bare Sionna's candidate cap is per source, for all its targets).
 REFERENCE_TAGS = 32
 
@@ -62,7 +64,7 @@ REFERENCE_TAGS = 32
 def tour_poses(run: Path) -> np.ndarray:
     """The run's distinct training-tour antenna poses in tour order, (k, 4): x, y, z [m],
     yaw [rad]."""
-    r = pd.read_parquet(run / "reads.parquet")
+    r = pd.read_parquet(run / runfiles.TRAIN_READS)
     cols = ["true_ant_x_m", "true_ant_y_m", "true_ant_z_m", "true_ant_yaw_rad"]
     return r.drop_duplicates(cols[:3])[cols].to_numpy(float)
 

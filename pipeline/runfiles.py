@@ -37,7 +37,9 @@ from __future__ import annotations
 import re
 
 __all__ = [
-    "CALIBRATED_CONFIG", "CALIBRATION", "DETECTION_GRID", "DETECTION_GRID_EVAL",
+    "BASELINES", "BASELINES_TRUEPOSE", "EVAL_POSES", "EVAL_READS", "EVAL_TRACK", "SENSOR_MODEL",
+    "SENSOR_MODEL_TRUEPOSE", "TRAIN_POSES", "TRAIN_READS", "TRAIN_TRACK",
+    "CALIBRATED_CONFIG", "CALIBRATION", "LEGACY_FLOORPLAN", "LEGACY_SCENE_TAGS", "REPLICATES_INDEX", "DETECTION_GRID", "DETECTION_GRID_EVAL",
     "DOWNSTREAM_SCORES", "EVALUATION_TABLE", "FIELD", "FIG7_ERRORS", "FIGURE", "FLOORPLAN",
     "FREE_SPACE_POINTS", "LOCALISATION", "MAP_ERROR", "METRICS", "MODEL", "POSES", "READS",
     "RECORDING_IMPORT", "REPORT", "RHO_POINTS", "ROBOT_ERROR", "ROBOT_STEPS", "SCENE_SUMMARY",
@@ -51,12 +53,15 @@ FLOORPLAN = "scene/floorplan.npz"
 
 #: A tour's pose track (``tour``: ``train`` or ``eval``): true, odometry and MCL poses.
 TRACK = "tour/{tour}_track.npz"
+TRAIN_TRACK, EVAL_TRACK = TRACK.format(tour="train"), TRACK.format(tour="eval")
 MAP_ERROR = "tour/map_error.npz"
 LOCALISATION = "tour/localisation.json"
 
 #: A read log and its poses (``prefix``: ``""`` the training tour, ``"eval_"`` held out).
 READS = "{prefix}reads.parquet"
 POSES = "{prefix}poses.parquet"
+TRAIN_READS, EVAL_READS = READS.format(prefix=""), READS.format(prefix="eval_")
+TRAIN_POSES, EVAL_POSES = POSES.format(prefix=""), POSES.format(prefix="eval_")
 
 SITE_TRUTH = "truth/site_truth.npz"
 FREE_SPACE_POINTS = "truth/free_space_points_{i:02d}.npz"
@@ -68,6 +73,8 @@ TRAINING_SET = "training/{kind}_{pose}.parquet"
 #: A fitted model's JSON (``name``: ``sensor``, ``ssm``, ``tdm``, their ``_truepose``
 #: twins, ``baselines``, a registered competitor or ablation).
 MODEL = "models/{name}.json"
+SENSOR_MODEL, SENSOR_MODEL_TRUEPOSE = MODEL.format(name="sensor"), MODEL.format(name="sensor_truepose")
+BASELINES, BASELINES_TRUEPOSE = MODEL.format(name="baselines"), MODEL.format(name="baselines_truepose")
 TRAINING_HISTORY = "models/training_history.json"
 
 DETECTION_GRID = "truth/detection_grid.npz"
@@ -94,6 +101,13 @@ RECORDING_IMPORT = "recording/import.json"
 SIM_VS_REAL = "sim_vs_real/{name}"
 CALIBRATION = "calibration.json"
 CALIBRATED_CONFIG = "calibrated.toml"
+
+#: A replicated study's index of its replicates (:mod:`pipeline.apps.replicates`).
+REPLICATES_INDEX = "replicates/index.json"
+
+#: Where run directories of older versions kept the floor plan and the tags (still read).
+LEGACY_FLOORPLAN = "fields/floorplan.npz"
+LEGACY_SCENE_TAGS = "truth/tags.parquet"
 
 
 def pattern(name: str) -> str:

@@ -26,6 +26,7 @@ import re
 import sys
 from pathlib import Path
 
+from pipeline import runfiles
 from pipeline.sensormodels.registry import model_info, table_order
 
 BEGIN, END = "<!-- headline-tables:begin -->", "<!-- headline-tables:end -->"
@@ -229,7 +230,7 @@ def render_single(run_dir: Path, origin: str) -> str:
     """The ``single-run`` block of one run directory (:func:`single_run_text`)."""
     import tomllib
 
-    metrics = json.loads((run_dir / "metrics.json").read_text())
+    metrics = json.loads((run_dir / runfiles.METRICS).read_text())
     scores = json.loads((run_dir / "downstream" / "scores.json").read_text())
     cfg = run_dir / "config.toml"
     min_count = None
@@ -270,7 +271,7 @@ def main(argv=None) -> int:
             return 2
         begin, end = SINGLE_BEGIN, SINGLE_END
     else:
-        metrics = json.loads((args.run_dir / "metrics.json").read_text())
+        metrics = json.loads((args.run_dir / runfiles.METRICS).read_text())
         if "intervals" not in metrics:
             print(f"{args.run_dir}/metrics.json has no intervals: rerun the study", file=sys.stderr)
             return 2

@@ -16,6 +16,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline import runfiles
 from scenes.fileio import atomic_output
 
 __all__ = [
@@ -176,14 +177,14 @@ class ReadLog:
         Use ``prefix="eval_"`` for the held-out evaluation path.
         """
         run_dir = Path(run_dir)
-        r = write_table(self.reads, run_dir / f"{prefix}reads.parquet", self.metadata)
-        p = write_table(self.poses, run_dir / f"{prefix}poses.parquet")
+        r = write_table(self.reads, run_dir / runfiles.READS.format(prefix=prefix), self.metadata)
+        p = write_table(self.poses, run_dir / runfiles.POSES.format(prefix=prefix))
         return r, p
 
     @classmethod
     def read(cls, run_dir: str | Path, prefix: str = "") -> ReadLog:
         """Read a log written by :meth:`write`."""
         run_dir = Path(run_dir)
-        reads, meta = read_table(run_dir / f"{prefix}reads.parquet")
-        poses, _ = read_table(run_dir / f"{prefix}poses.parquet")
+        reads, meta = read_table(run_dir / runfiles.READS.format(prefix=prefix))
+        poses, _ = read_table(run_dir / runfiles.POSES.format(prefix=prefix))
         return cls(reads=reads, poses=poses, metadata=meta)

@@ -31,6 +31,7 @@ from typing import Annotated
 
 import typer
 
+from pipeline import runfiles
 from pipeline.apps.clicommon import WRITE_ERRNOS, fail, fail_os
 from pipeline.apps.cliscenes import scenes_app
 from pipeline.apps.export import export_recording
@@ -162,7 +163,7 @@ def run(
                              f"{', '.join(res.cached) or 'none'}", width=80,
                              subsequent_indent="  "))
     typer.echo(f"elapsed {time.perf_counter() - t0:.1f} s, peak memory {res.peak_rss_mib:.0f} MiB")
-    typer.echo(f"report: {res.run_dir / 'report.html'}")
+    typer.echo(f"report: {res.run_dir / runfiles.REPORT}")
     typer.echo(f"log:    {res.run_dir / 'run.log'}")
 
 
@@ -533,7 +534,7 @@ def placement(
     typer.echo(table[cols].head(10).to_string(index=False, max_colwidth=34))
     for line in answer_lines(res.summary, res.answer):
         typer.echo(line)
-    typer.echo(f"report: {res.out_dir / 'placement' / 'report.html'}")
+    typer.echo(f"report: {res.out_dir / 'placement' / runfiles.REPORT}")
 
 
 @app.command()
@@ -560,4 +561,4 @@ def calibrate(
                        "[recording] section (docs/recordings.md)", err=True)
             raise typer.Exit(2)
     run(target=target, out=out, set_=set_, recording=recording, progress=progress)
-    typer.echo(f"calibration: {out / 'calibration.json'}\ncalibrated study: {out / 'calibrated.toml'}")
+    typer.echo(f"calibration: {out / runfiles.CALIBRATION}\ncalibrated study: {out / runfiles.CALIBRATED_CONFIG}")

@@ -33,6 +33,7 @@ import logging
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.apps.studypool import run_studies
 from pipeline.config import StudyConfig, config_to_dict, replace_path
 from pipeline.engine.runstore import (
@@ -56,12 +57,12 @@ __all__ = ["STAGES", "replicate_configs", "replicate_seed", "stage_pooled", "sta
 log = logging.getLogger(__name__)
 
 #: Where the replicates' index is written.
-INDEX = "replicates/index.json"
+INDEX = runfiles.REPLICATES_INDEX
 #: Each replicate's files the pooled numbers read (their digests enter the index).
-POOLED_INPUTS = ("metrics.json", "evaluation/rssi_links.parquet",
-                 "evaluation/detection_attempts.parquet", "evaluation/detection_cells.parquet",
-                 "evaluation/fig7_groups.parquet", "downstream/tag_errors.parquet",
-                 "downstream/robot_steps.parquet")
+POOLED_INPUTS = (runfiles.METRICS, *(runfiles.EVALUATION_TABLE.format(table=t) for t in
+                                    ("rssi_links", "detection_attempts", "detection_cells",
+                                     "fig7_groups")),
+                 runfiles.TAG_ERRORS, runfiles.ROBOT_STEPS)
 
 
 def replicate_seed(seed: int, k: int) -> int:
@@ -168,14 +169,14 @@ def stage_pooled(ctx) -> dict:
         "per_replicate": {"replicates": sorted(per_rep), "metrics": per_replicate,
                           "how": "each replicate's own estimate of the metric (its units only)"},
     }
-    atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
+    atomic_write_json(ctx.out(runfiles.METRICS), nan_to_none(metrics))
     return {"covers": metrics["replicates"]["covers"]}
 
 
 def stage_report(ctx) -> dict:
     """``report.html`` of a replicated study (:func:`pipeline.report.html.write_pooled_report`)."""
-    metrics = read_run_json(ctx.input("metrics.json"))
-    write_pooled_report(metrics, ctx.out("report.html"))
+    metrics = read_run_json(ctx.input(runfiles.METRICS))
+    write_pooled_report(metrics, ctx.out(runfiles.REPORT))
     return {}
 
 

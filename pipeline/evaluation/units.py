@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.evaluation.comparison import cell_centre_fT, closing_links
 from pipeline.evaluation.interface import detection_probability
 from pipeline.evaluation.tables import require_columns
@@ -38,12 +39,12 @@ __all__ = [
 
 #: File of each table under a run directory.
 TABLES = {
-    "rssi_links": "evaluation/rssi_links.parquet",
-    "detection_attempts": "evaluation/detection_attempts.parquet",
-    "detection_cells": "evaluation/detection_cells.parquet",
-    "fig7_groups": "evaluation/fig7_groups.parquet",
-    "tag_errors": "downstream/tag_errors.parquet",
-    "robot_steps": "downstream/robot_steps.parquet",
+    "rssi_links": runfiles.EVALUATION_TABLE.format(table="rssi_links"),
+    "detection_attempts": runfiles.EVALUATION_TABLE.format(table="detection_attempts"),
+    "detection_cells": runfiles.EVALUATION_TABLE.format(table="detection_cells"),
+    "fig7_groups": runfiles.EVALUATION_TABLE.format(table="fig7_groups"),
+    "tag_errors": runfiles.TAG_ERRORS,
+    "robot_steps": runfiles.ROBOT_STEPS,
 }
 
 

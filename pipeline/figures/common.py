@@ -22,6 +22,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from fuzzymodel import SensorModel
+from pipeline import runfiles
 from pipeline.engine.runstore import (
     UnsafePathError,
     inside,
@@ -242,9 +243,9 @@ def load_sensor(run_dir, name: str = "anfis"):
     "baselines_truepose" -> ``models/baselines_truepose.json``
     (:class:`pipeline.evaluation.BaselineSensorModel`). Raises MissingInput.
     """
-    files = {"anfis": "models/sensor.json", "anfis_truepose": "models/sensor_truepose.json",
-             "baselines": "models/baselines.json",
-             "baselines_truepose": "models/baselines_truepose.json"}
+    files = {"anfis": runfiles.SENSOR_MODEL, "anfis_truepose": runfiles.SENSOR_MODEL_TRUEPOSE,
+             "baselines": runfiles.BASELINES,
+             "baselines_truepose": runfiles.BASELINES_TRUEPOSE}
     if name not in files:
         raise ValueError(f"unknown model name {name!r}; known {sorted(files)}")
     path = require(run_dir, files[name])
@@ -263,7 +264,7 @@ def model_metrics(run_dir) -> dict:
     run directories from before it). Older run directories (one ``models`` section,
     in-sample) are read as they are.
     """
-    path = require(run_dir, "metrics.json")
+    path = require(run_dir, runfiles.METRICS)
     m = read_run_json(path)
     if isinstance(m, dict) and isinstance(m.get("heldout"), dict):
         held = m["heldout"]

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.engine.runstore import read_run_text, run_files
 from pipeline.evaluation.comparison import RhoPoints
 from pipeline.evaluation.fig7 import fig7_errors, read_fig7_table
@@ -46,7 +47,7 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
     run_dir = Path(run_dir)
     files = run_files(run_dir, "truth", "rho_points_*.npz")
     if not files:
-        require(run_dir, "truth/rho_points_00.npz")
+        require(run_dir, runfiles.RHO_POINTS.format(i=0))
     files = files[:_MAX_POSES]
     sensor = None
     fig = new_figure(12.0, 3.2 * len(files))
@@ -94,9 +95,9 @@ def _fig7_table(run_dir: Path) -> pd.DataFrame:
     p = run_dir / "truth" / "fig7_errors.parquet"
     if p.is_file():
         return read_fig7_table(p)
-    reads = pd.read_parquet(require(run_dir, "eval_reads.parquet"))
-    poses = pd.read_parquet(require(run_dir, "eval_poses.parquet"))
-    tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
+    reads = pd.read_parquet(require(run_dir, runfiles.EVAL_READS))
+    poses = pd.read_parquet(require(run_dir, runfiles.EVAL_POSES))
+    tags = read_tags(require(run_dir, runfiles.SCENE_TAGS, runfiles.LEGACY_SCENE_TAGS))
     res = fig7_errors(reads, tags, load_sensor(run_dir, "anfis"),
                       pose_times_s=poses["time_s"].to_numpy(float),
                       antenna_pitch_rad=_tilts(run_dir), d_max_m=_training_d_max(run_dir))

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.figures.common import find_first, new_figure, require, save_figure
 from pipeline.figures.headline import model_label
 
@@ -24,10 +25,10 @@ def fig_downstream(run_dir, out_dir=None) -> list[Path]:
     robot filter's position error over the evaluation tour, one small panel per model
     (median over its filter runs, band from the best to the worst run; kidnapped halfway)."""
     run_dir = Path(run_dir)
-    tags = pd.read_parquet(require(run_dir, "downstream/tag_errors.parquet"))
-    steps_path = find_first(run_dir, "downstream/robot_steps.parquet")
+    tags = pd.read_parquet(require(run_dir, runfiles.TAG_ERRORS))
+    steps_path = find_first(run_dir, runfiles.ROBOT_STEPS)
     robot = pd.read_parquet(steps_path if steps_path is not None
-                            else require(run_dir, "downstream/robot_error.parquet"))
+                            else require(run_dir, runfiles.ROBOT_ERROR))
     fig = new_figure(11.0, 5.2)
     left, right = fig.subfigures(1, 2, width_ratios=[1.0, 1.35])
     ax1 = left.subplots()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from pipeline import runfiles
 from pipeline.engine.runstore import inside, read_run_text, regular_file
 from pipeline.figures.common import FigureOutput, MissingInput, figure_output
 from pipeline.figures.comparison import fig_fig7_error, fig_rho_vs_truth
@@ -73,7 +74,7 @@ def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:
     import pandas as pd
 
 
-    links, tags = inside(run_dir, "sim_vs_real/links.parquet"), inside(run_dir, "scene/tags.parquet")
+    links, tags = inside(run_dir, runfiles.SIM_VS_REAL.format(name="links.parquet")), inside(run_dir, runfiles.SCENE_TAGS)
     for p in (links, tags):  # a link or a FIFO in a stranger's run is refused, never followed
         why = not_regular(p)
         if why:

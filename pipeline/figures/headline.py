@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from pipeline import runfiles
 from pipeline.engine.runstore import read_run_json
 from pipeline.figures.common import model_metrics, new_figure, require, save_figure
 from pipeline.sensormodels.registry import MODELS, model_label, table_order
@@ -59,7 +60,7 @@ _COLUMNS = ["metric", "label", "model", "estimate", "low", "high", "unit", "n_un
 
 
 def _read_metrics(run_dir) -> dict:
-    path = require(run_dir, "metrics.json")
+    path = require(run_dir, runfiles.METRICS)
     m = read_run_json(path)
     if not isinstance(m, dict):
         raise ValueError(f"{path}: not a metrics object")

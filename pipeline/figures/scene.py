@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.collections import LineCollection
 
+from pipeline import runfiles
 from pipeline.engine.runstore import run_files
 from pipeline.evaluation.localisation import localisation_errors
 from pipeline.evaluation.tables import read_tags
@@ -78,12 +79,12 @@ def _draw_plan(ax, segments, tags_xy, tag_ids=None, route=None, held_out=None):
 def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     """Top view: walls, tags, route, true and MCL trajectories (training tour and evaluation path)."""
     run_dir = Path(run_dir)
-    plan = require(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
+    plan = require(run_dir, runfiles.FLOORPLAN, runfiles.LEGACY_FLOORPLAN)
     with read_npz(plan) as z:
         segs = _segments(z)
         route = np.asarray(z["route_m"], float) if "route_m" in z.files else None
-    tags = read_tags(require(run_dir, "scene/tags.parquet", "truth/tags.parquet"))
-    poses = pd.read_parquet(require(run_dir, "poses.parquet"))
+    tags = read_tags(require(run_dir, runfiles.SCENE_TAGS, runfiles.LEGACY_SCENE_TAGS))
+    poses = pd.read_parquet(require(run_dir, runfiles.TRAIN_POSES))
     fig = new_figure(10.0, _plan_height_in(segs, 10.0))
     ax = fig.subplots()
     held = (tags["split"] == "eval").to_numpy() if "split" in tags.columns else None
@@ -92,7 +93,7 @@ def fig_scene_top_view(run_dir, out_dir=None) -> list[Path]:
     ax.plot(poses["true_x_m"], poses["true_y_m"], "-", color="C0", lw=0.8, label="true (tour)")
     ax.plot(poses["est_x_m"], poses["est_y_m"], "-", color="C1", lw=0.6, alpha=0.8,
             label="MCL (tour)")
-    ev = find_first(run_dir, "eval_poses.parquet")
+    ev = find_first(run_dir, runfiles.EVAL_POSES)
     if ev is not None:
         e = pd.read_parquet(ev)
         ax.plot(e["true_x_m"], e["true_y_m"], ".", color="C2", ms=2, label="evaluation path")
@@ -147,8 +148,8 @@ def scene_top_view(scene, png, z_m: float = 1.0) -> Path:
 def fig_mcl_error(run_dir, out_dir=None) -> list[Path]:
     """MCL position and heading error over time (tour, and evaluation path if present)."""
     run_dir = Path(run_dir)
-    tables = {"tour": pd.read_parquet(require(run_dir, "poses.parquet"))}
-    ev = find_first(run_dir, "eval_poses.parquet")
+    tables = {"tour": pd.read_parquet(require(run_dir, runfiles.TRAIN_POSES))}
+    ev = find_first(run_dir, runfiles.EVAL_POSES)
     if ev is not None:
         tables["evaluation path"] = pd.read_parquet(ev)
     fig = new_figure(8.0, 5.0)
@@ -199,8 +200,8 @@ def fig_fields(run_dir, out_dir=None) -> list[Path]:
     run_dir = Path(run_dir)
     files = run_files(run_dir, "fields", "field_*.npz")[:_MAX_FIELDS]
     if not files:
-        require(run_dir, "fields/field_00.npz")
-    plan = find_first(run_dir, "scene/floorplan.npz", "fields/floorplan.npz")
+        require(run_dir, runfiles.FIELD.format(i=0))
+    plan = find_first(run_dir, runfiles.FLOORPLAN, runfiles.LEGACY_FLOORPLAN)
     segs = None
     if plan is not None:
         with read_npz(plan) as z:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.figures.common import new_figure, require, save_figure
 
 __all__ = ["fig_site_errors"]
@@ -28,7 +29,7 @@ _FACINGS = (("surfaces facing +y", (0.0, 1.0), "x_m"), ("surfaces facing -y", (0
 def fig_site_errors(run_dir, out_dir=None) -> list[Path]:
     """Mean signed rho error (ANFIS - truth) per tag site, one elevation panel per facing."""
     run_dir = Path(run_dir)
-    t = pd.read_parquet(require(run_dir, "truth/site_errors.parquet"))
+    t = pd.read_parquet(require(run_dir, runfiles.SITE_ERRORS))
     n = t[["nx", "ny"]].to_numpy(float)
     panels = []
     for label, direction, col in _FACINGS:

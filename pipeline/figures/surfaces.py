@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.figures.common import deg, load_sensor, new_figure, require, save_figure
 from scenes.fileio import read_npz
 
@@ -71,7 +72,7 @@ def fig_tdm_surface(run_dir, out_dir=None) -> list[Path]:
 
 
 def _truth_and_model(run_dir, key_truth: str, key_model: str):
-    path = require(run_dir, "truth/detection_grid.npz")
+    path = require(run_dir, runfiles.DETECTION_GRID)
     with read_npz(path) as z:
         for k in ("d_edges_m", "alpha_edges_rad", "d_centres_m", "alpha_centres_rad", key_truth):
             if k not in z.files:

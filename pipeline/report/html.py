@@ -23,6 +23,7 @@ import os
 import tomllib
 from pathlib import Path
 
+from pipeline import runfiles
 from pipeline.config import ConfigError, config_from_mapping
 from pipeline.engine.runstore import (
     UnsafePathError,
@@ -265,9 +266,9 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     if not run.is_dir():
         raise FileNotFoundError(f"{run}: not a run directory")
     manifest = _load_json(run / "manifest.json") or {}
-    metrics = _load_json(run / "metrics.json")
+    metrics = _load_json(run / runfiles.METRICS)
     if (metrics or {}).get("source") == "recording":  # a recorded study's own report
-        return write_recorded_report(run, metrics, out or run / "report.html")
+        return write_recorded_report(run, metrics, out or run / runfiles.REPORT)
     cfg_path = run / "config.toml"
     cfg_text = read_run_text(cfg_path) if os.path.lexists(cfg_path) else ""  # no link, no FIFO
     try:
@@ -393,7 +394,7 @@ def write_report(run_dir: str | Path, embed: bool = True, out: str | Path | None
     parts.append(f"<pre>{html.escape(json.dumps(manifest, indent=2, sort_keys=True))}</pre>"
                  "</details>")
     parts.append("</body></html>\n")
-    out = run / "report.html" if out is None else Path(out)
+    out = run / runfiles.REPORT if out is None else Path(out)
     atomic_write_text(out, "\n".join(parts))
     log.info("report written to %s", out)
     return out

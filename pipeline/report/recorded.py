@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.engine.runstore import atomic_write_text, inside
 from pipeline.report.tables import REPORT_CSS
 from pipeline.runpaths import not_regular
@@ -251,7 +252,7 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
                              f"</td><td>{_fmt(val['after'], 3)}</td><td>{_fmt(diff, 3)}"
                              f"{_verdict(diff)}</td></tr>")
         parts.append("</table>")
-    links_p, tags_p = inside(run, "sim_vs_real/links.parquet"), inside(run, "scene/tags.parquet")
+    links_p, tags_p = inside(run, runfiles.SIM_VS_REAL.format(name="links.parquet")), inside(run, runfiles.SCENE_TAGS)
     for p in (links_p, tags_p):  # a link or a FIFO is refused, never followed
         why = not_regular(p)
         if why:

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from fuzzymodel import SensorModel
+from pipeline import runfiles
 from pipeline.evaluation.baselines import BaselineSensorModel
 from pipeline.sensormodels.ablations import fit_ablation
 from pipeline.sensormodels.joho2009 import Joho2009Model, fit_joho2009
@@ -135,7 +136,7 @@ class ModelInfo:
         if self.role in ("competitor", "ablation") and self.fit is None:
             raise ValueError(f"{self.key}: a {self.role} needs a fit function")
         if self.file is None and self.model_class is not None:
-            object.__setattr__(self, "file", f"models/{self.key}.json")
+            object.__setattr__(self, "file", runfiles.MODEL.format(name=self.key))
         object.__setattr__(self, "fit_options", MappingProxyType(dict(self.fit_options)))
         object.__setattr__(self, "scored_in", tuple(self.scored_in))
 
@@ -164,14 +165,14 @@ def _fit_vorst2008(attempts, rssi_range_dbm, *, d_max_m, grid, rng, **options):
 
 
 _ANFIS = "anfis"
-_SENSOR, _BASE = "models/sensor.json", "models/baselines.json"
+_SENSOR, _BASE = runfiles.SENSOR_MODEL, runfiles.BASELINES
 
 #: The study's models, in the order the tables and figures list them.
 SENSOR_MODELS: tuple[ModelInfo, ...] = (
     ModelInfo(_ANFIS, "FCM + ANFIS, MCL poses (the chapter's)", role="chapter",
               model_class=SensorModel, file=_SENSOR),
     ModelInfo("anfis_truepose", "FCM + ANFIS, true poses", role="chapter",
-              model_class=SensorModel, file="models/sensor_truepose.json",
+              model_class=SensorModel, file=runfiles.SENSOR_MODEL_TRUEPOSE,
               scored_in=("heldout",)),
     ModelInfo("fcm_only", "FIS from FCM, no ANFIS", role="ablation", model_class=SensorModel,
               fit=functools.partial(fit_ablation, "fcm_only")),

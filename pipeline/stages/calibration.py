@@ -33,6 +33,7 @@ import logging
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.config import config_to_toml
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
@@ -205,7 +206,7 @@ def stage_calibration(ctx) -> dict:
     """Fit the reader (and constructions) to the recording; write ``calibration.json`` and
     ``calibrated.toml``."""
     cfg = ctx.config
-    att = pd.read_parquet(ctx.input("sim_vs_real/attempts.parquet"))
+    att = pd.read_parquet(ctx.input(runfiles.SIM_VS_REAL.format(name="attempts.parquet")))
     model, info = None, None
     if cfg.recording.calibrate_constructions:
         model, info = construction_model(ctx, att, cfg.recording.calibrate_constructions)
@@ -228,11 +229,11 @@ def stage_calibration(ctx) -> dict:
     if worse:
         report["warning"] = worse
         log.warning("calibration: %s", worse)
-    atomic_write_json(ctx.out("calibration.json"), report)
+    atomic_write_json(ctx.out(runfiles.CALIBRATION), report)
     head = "# the study's config with the reader calibrated to the recording (calibration.json)\n"
     if worse:
         head += f"# WARNING: {worse}\n"
-    atomic_write_text(ctx.out("calibrated.toml"),
+    atomic_write_text(ctx.out(runfiles.CALIBRATED_CONFIG),
                       head + config_to_toml(calibrated_config(cfg, reader_fit, overlay)))
     mae = report["heldout"]["rssi_mae_db"]
     return {"parameters": {k: round(v["value"], 3) for k, v in report["parameters"].items()},

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import propagation
+from pipeline import runfiles
 from pipeline.acquisition import PoseTrack, read_attempts, read_table
 from pipeline.acquisition.config import POSE_SOURCES
 from pipeline.config import StudyConfig
@@ -71,7 +72,7 @@ def split_tags(ctx, which: str):
 
 def read_reads(ctx, prefix: str = ""):
     """``(frame, metadata)`` of the run's ``<prefix>reads.parquet`` (an error names the file)."""
-    path = ctx.input(f"{prefix}reads.parquet")
+    path = ctx.input(runfiles.READS.format(prefix=prefix))
     try:
         df, meta = read_table(path)
     except Exception as exc:
@@ -97,7 +98,7 @@ def read_track(ctx, name: str):
     ValueError
         The file cannot be read (the message names it).
     """
-    path = ctx.input(f"tour/{name}_track.npz")
+    path = ctx.input(runfiles.TRACK.format(tour=name))
     try:
         with read_npz(path) as z:
             return PoseTrack(t_s=z["t_s"], true_poses=z["true"], est_poses=z["est"],

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.acquisition.singulation import miss_probability_at_poses
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
@@ -169,7 +170,7 @@ def _tag_scores(ctx, posts, eval_tags, phase_info) -> dict:
             tag_scores[name] = {"not_run": phase_info["reason"]}
     rows = [{"model": n, "tag_id": t, "error_m": e} for n, s in tag_scores.items()
             for t, e in s.pop("per_tag_m", {}).items()]
-    write_parquet_atomic(pd.DataFrame(rows), ctx.out("downstream/tag_errors.parquet"))
+    write_parquet_atomic(pd.DataFrame(rows), ctx.out(runfiles.TAG_ERRORS))
     return tag_scores
 
 
@@ -206,7 +207,7 @@ def _recorded_downstream(ctx) -> dict:
         tag_scores["oracle"] = {"not_run": "not run on a recording: the traced likelihood is "
                                 "no oracle of a real log (sim_vs_real scores the tracer against "
                                 "it; pipeline.stages.downstream)"}
-    atomic_write_json(ctx.out("downstream/scores.json"),
+    atomic_write_json(ctx.out(runfiles.DOWNSTREAM_SCORES),
                       {"tag_localisation": tag_scores, "robot_localisation": RECORDED_ROBOT,
                        "info": info})
     return info
@@ -229,7 +230,7 @@ def stage_downstream(ctx) -> dict:
     robot = build_robot(cfg)
     eval_tags, reads, eval_reads, _, sources, obs = _tag_inputs(ctx)
     update = ctx.progress("tags and robot", total=3)
-    eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
+    eval_poses = pd.read_parquet(ctx.input(runfiles.EVAL_POSES))
     free = as_free_space(collision_map(sc, robot))
     robot_sources = dict(sources)
     if dn.oracle:  # traced here, before any fork
@@ -267,11 +268,11 @@ def stage_downstream(ctx) -> dict:
                 "model": n, "unit": f"run{j}", "t_s": run["t_s"], "error_m": run["error_m"],
                 "after_kidnap": run["after_kidnap"], "converge_s": run["converge_s"],
                 "recover_s": np.nan if run["recover_s"] is None else run["recover_s"]}))
-    write_parquet_atomic(pd.DataFrame(rrows), ctx.out("downstream/robot_error.parquet"))
+    write_parquet_atomic(pd.DataFrame(rrows), ctx.out(runfiles.ROBOT_ERROR))
     # every step of every filter run: what the robot's intervals resample (by run)
     write_parquet_atomic(pd.concat(steps, ignore_index=True),
-                         ctx.out("downstream/robot_steps.parquet"))
-    atomic_write_json(ctx.out("downstream/scores.json"),
+                         ctx.out(runfiles.ROBOT_STEPS))
+    atomic_write_json(ctx.out(runfiles.DOWNSTREAM_SCORES),
                       {"tag_localisation": tag_scores, "robot_localisation": robot_scores,
                        "info": info})
     return info

@@ -9,6 +9,7 @@ import json
 import numpy as np
 
 import propagation
+from pipeline import runfiles
 from pipeline.engine.runstore import atomic_write_json, run_files
 from pipeline.engine.study import Stage
 from pipeline.evaluation import units as u
@@ -117,14 +118,14 @@ def stage_evaluation(ctx) -> dict:
     budget = link_budget(cfg)
     reads, meta = read_reads(ctx)
     eval_reads, eval_meta = read_reads(ctx, "eval_")
-    tags = read_tags(ctx.input("scene/tags.parquet"))
-    _check_split(tags, reads, eval_reads, ctx.store.path("scene/tags.parquet"))
-    eval_poses = pd.read_parquet(ctx.input("eval_poses.parquet"))
-    base = BaselineSensorModel.load(ctx.input("models/baselines.json"))
+    tags = read_tags(ctx.input(runfiles.SCENE_TAGS))
+    _check_split(tags, reads, eval_reads, ctx.store.path(runfiles.SCENE_TAGS))
+    eval_poses = pd.read_parquet(ctx.input(runfiles.EVAL_POSES))
+    base = BaselineSensorModel.load(ctx.input(runfiles.BASELINES))
 
     sensors, rssi_names, det_candidates, competitors = study_models(ctx, "heldout")
-    train_truth = TruthGrid.load(ctx.input("truth/detection_grid.npz"))
-    eval_truth = TruthGrid.load(ctx.input("truth/detection_grid_eval.npz"))
+    train_truth = TruthGrid.load(ctx.input(runfiles.DETECTION_GRID))
+    eval_truth = TruthGrid.load(ctx.input(runfiles.DETECTION_GRID_EVAL))
     tr = cfg.training
     # each held-out link's tag height above its true antenna: a model whose detection
     # depends on it (Vorst & Zell's ground-plane table) is scored with it
@@ -144,9 +145,9 @@ def stage_evaluation(ctx) -> dict:
                          antenna_pitch_rad=antenna_tilts(cfg), d_max_m=tr.d_max_m)
         fig7[name] = f7.to_dict()
         if name == "anfis":  # the Fig. 7 figure reads it instead of recomputing
-            f7.write_table(ctx.out("truth/fig7_errors.parquet"))
+            f7.write_table(ctx.out(runfiles.FIG7_ERRORS))
     metrics["fig7"] = fig7
-    site_truth = SiteTruth.load(ctx.input("truth/site_truth.npz"))
+    site_truth = SiteTruth.load(ctx.input(runfiles.SITE_TRUTH))
     q = pose_miss_probability(cfg, eval_reads, site_truth.antenna_poses, budget)
     metrics["tag_sites"] = {}
     for name in rssi_names:
@@ -154,20 +155,20 @@ def stage_evaluation(ctx) -> dict:
                               d_max_m=tr.d_max_m)
         metrics["tag_sites"][name] = sc_.to_dict()
         if name == "anfis":
-            write_parquet_atomic(sc_.per_site, ctx.out("truth/site_errors.parquet"))
-    scores = ctx.store.path("downstream/scores.json")
+            write_parquet_atomic(sc_.per_site, ctx.out(runfiles.SITE_ERRORS))
+    scores = ctx.store.path(runfiles.DOWNSTREAM_SCORES)
     if scores.is_file():  # the downstream stage's results (absent when it is disabled)
         down = json.loads(scores.read_text())
         metrics["tag_localisation"] = down["tag_localisation"]
         metrics["robot_localisation"] = down["robot_localisation"]
-    loc = ctx.store.path("tour/localisation.json")
+    loc = ctx.store.path(runfiles.LOCALISATION)
     if loc.is_file():
         metrics["localisation"] = json.loads(loc.read_text())
     # in-sample: the training tour's own reads (labelled; not the headline)
     insample = evaluate_all(
         {"anfis": sensors["anfis"], "anfis_truepose": sensors["anfis_truepose"],
          "baselines": base,
-         "baselines_truepose": BaselineSensorModel.load(ctx.input("models/baselines_truepose.json"))},
+         "baselines_truepose": BaselineSensorModel.load(ctx.input(runfiles.BASELINES_TRUEPOSE))},
         EvaluationInputs(reads=reads, truth=train_truth, budget=budget,
                          d_max_m=tr.d_max_m, min_attempts=tr.min_attempts)).to_dict()
     insample["note"] = ("in_sample: scored on the training tour's reads of the training tags, "
@@ -184,7 +185,7 @@ def stage_evaluation(ctx) -> dict:
     units = write_unit_tables(ctx, eval_reads, sensors, eval_truth, budget, fig7_results,
                               rssi_names=rssi_names, detection_names=det_names, dz_m=eval_dz)
     metrics.update(headline_intervals(units, seed=cfg.seed, min_attempts=tr.min_attempts))
-    atomic_write_json(ctx.out("metrics.json"), nan_to_none(metrics))
+    atomic_write_json(ctx.out(runfiles.METRICS), nan_to_none(metrics))
     return {"models": sorted(sensors)}
 
 
@@ -246,7 +247,7 @@ def _check_split(tags, reads, eval_reads, path) -> None:
     if "split" not in tags.columns:
         raise ValueError(f"{path}: no 'split' column; rerun the scene stage")
     split = dict(zip(tags["tag_id"].astype(str), tags["split"].astype(str), strict=True))
-    for name, df, want in (("reads.parquet", reads, "train"), ("eval_reads.parquet", eval_reads, "eval")):
+    for name, df, want in ((runfiles.TRAIN_READS, reads, "train"), (runfiles.EVAL_READS, eval_reads, "eval")):
         ids = set(df["tag_id"].astype(str))
         wrong = sorted(t for t in ids if split.get(t) != want)
         if wrong:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from fuzzymodel import ANFIS, SensorModel
+from pipeline import runfiles
 from pipeline.acquisition import TrainingSet
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
@@ -73,26 +74,26 @@ def stage_models(ctx) -> dict:
     rssi_range = None
     for pose in pose_sources(ctx.config):
         suffix = "" if pose == "est" else "_truepose"
-        ssm_set = TrainingSet.from_parquet(ctx.input(f"training/ssm_{pose}.parquet"))
-        tdm_set = TrainingSet.from_parquet(ctx.input(f"training/tdm_{pose}.parquet"))
+        ssm_set = TrainingSet.from_parquet(ctx.input(runfiles.TRAINING_SET.format(kind="ssm", pose=pose)))
+        tdm_set = TrainingSet.from_parquet(ctx.input(runfiles.TRAINING_SET.format(kind="tdm", pose=pose)))
         rssi_range = tuple(ssm_set.rssi_range_dbm)
         ssm, h_ssm = _fit(ssm_set, cfg, rng, progress)
         tdm, h_tdm = _fit(tdm_set, cfg, rng, progress)
-        ssm.save(ctx.out(f"models/ssm{suffix}.json"))
-        tdm.save(ctx.out(f"models/tdm{suffix}.json"))
-        SensorModel(ssm, tdm, rssi_range_dbm=rssi_range).save(ctx.out(f"models/sensor{suffix}.json"))
+        ssm.save(ctx.out(runfiles.MODEL.format(name=f"ssm{suffix}")))
+        tdm.save(ctx.out(runfiles.MODEL.format(name=f"tdm{suffix}")))
+        SensorModel(ssm, tdm, rssi_range_dbm=rssi_range).save(ctx.out(runfiles.MODEL.format(name=f"sensor{suffix}")))
         histories[f"ssm{suffix}"] = h_ssm
         histories[f"tdm{suffix}"] = h_tdm
         info[pose] = {"ssm_train_rmse": h_ssm["train_rmse"][h_ssm["best_epoch"]],
                       "tdm_train_rmse": h_tdm["train_rmse"][h_tdm["best_epoch"]]}
-    atomic_write_json(ctx.out("models/training_history.json"), histories)
+    atomic_write_json(ctx.out(runfiles.TRAINING_HISTORY), histories)
     reads, _ = read_reads(ctx)
     grid = CellGrid(d_max_m=cfg.d_max_m, d_bin_m=cfg.d_bin_m, alpha_bin_deg=cfg.alpha_bin_deg)
     base = fit_baselines(reads, rssi_range, grid=grid, pose="est")
-    base.save(ctx.out("models/baselines.json"))
+    base.save(ctx.out(runfiles.BASELINES))
     if "true" in pose_sources(ctx.config):
         base_true = fit_baselines(reads, rssi_range, grid=grid, pose="true")
-        base_true.save(ctx.out("models/baselines_truepose.json"))
+        base_true.save(ctx.out(runfiles.BASELINES_TRUEPOSE))
     # the chapter's competitors and ablations (pipeline.sensormodels), each on its own stream
     # so the ANFIS fits above stay bit-identical
 
@@ -102,8 +103,8 @@ def stage_models(ctx) -> dict:
                             rng=stage_rng(ctx.config, "competitors"), dz_m=dz)
     for name, model in comps.items():
         model.save(ctx.out(model_info(name).file))
-    ssm_set = TrainingSet.from_parquet(ctx.input("training/ssm_est.parquet"))
-    tdm_set = TrainingSet.from_parquet(ctx.input("training/tdm_est.parquet"))
+    ssm_set = TrainingSet.from_parquet(ctx.input(runfiles.TRAINING_SET.format(kind="ssm", pose="est")))
+    tdm_set = TrainingSet.from_parquet(ctx.input(runfiles.TRAINING_SET.format(kind="tdm", pose="est")))
     ablations = [model_info(k) for k in model_names(role="ablation")]  # the registry's
     for m in ablations:
         m.fit(ssm_set, tdm_set, stage_rng(ctx.config, f"ablation_{m.key}"),

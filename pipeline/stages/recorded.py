@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.acquisition import ReadLog
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
@@ -91,9 +92,9 @@ def stage_recording(ctx) -> dict:
     t = poses["time_s"].to_numpy(np.float64)
     xyz = poses[["est_x_m", "est_y_m", "est_theta_rad"]].to_numpy(np.float64)
     for name in ("train", "eval"):
-        save_npz(ctx.out(f"tour/{name}_track.npz"), t_s=t, true=xyz, est=xyz, odom=xyz,
+        save_npz(ctx.out(runfiles.TRACK.format(tour=name)), t_s=t, true=xyz, est=xyz, odom=xyz,
                  pass_index=np.zeros(len(t), np.int64))
-    atomic_write_json(ctx.out("recording/import.json"), info)
+    atomic_write_json(ctx.out(runfiles.RECORDING_IMPORT), info)
     return {k: info[k] for k in ("format", "n_reads_in_file", "n_reads", "n_reads_unknown_epc",
                                  "n_reads_outside_poses", "n_attempts", "n_off_schedule")}
 

@@ -29,6 +29,7 @@ import json
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.evaluation import units as u
@@ -98,17 +99,17 @@ def stage_recorded_eval(ctx) -> dict:
                     "n_attempts": int(len(eval_reads)), "n_reads": int(eval_reads["read"].sum()),
                     "estimates": est},
         **ivs,
-        "recording": json.loads(ctx.input("recording/import.json").read_text()),
-        "sim_vs_real": json.loads(ctx.input("sim_vs_real/summary.json").read_text()),
-        "calibration": json.loads(ctx.input("calibration.json").read_text()),
+        "recording": json.loads(ctx.input(runfiles.RECORDING_IMPORT).read_text()),
+        "sim_vs_real": json.loads(ctx.input(runfiles.SIM_VS_REAL.format(name="summary.json")).read_text()),
+        "calibration": json.loads(ctx.input(runfiles.CALIBRATION).read_text()),
         "model_fits": model_fits({n: sensors[n] for n in competitors}),
     }
-    scores = ctx.store.path("downstream/scores.json")
+    scores = ctx.store.path(runfiles.DOWNSTREAM_SCORES)
     if scores.is_file():  # as the simulated study's evaluation stage copies them
         down = json.loads(scores.read_text())
         metrics["tag_localisation"] = down["tag_localisation"]
         metrics["robot_localisation"] = down["robot_localisation"]
-    atomic_write_json(ctx.out("metrics.json"), metrics)
+    atomic_write_json(ctx.out(runfiles.METRICS), metrics)
     return {"models": sorted(sensors)}
 
 

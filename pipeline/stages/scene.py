@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
 from pipeline.evaluation.tables import write_tags
@@ -36,12 +37,12 @@ def stage_scene(ctx) -> dict:
         "n_tags_eval": int(np.sum(ctx.memo["tag_split"] == "eval")),
         "route_m": None if route is None else np.round(route, 6).tolist(),
     }
-    atomic_write_json(ctx.out("scene/scene.json"), summary)
-    write_tags(ctx.out("scene/tags.parquet"), sc.tags.ids, sc.tags.positions_m, sc.tags.normals,
+    atomic_write_json(ctx.out(runfiles.SCENE_SUMMARY), summary)
+    write_tags(ctx.out(runfiles.SCENE_TAGS), sc.tags.ids, sc.tags.positions_m, sc.tags.normals,
                split=ctx.memo["tag_split"])
     heights = sorted({0.35, 1.0})
     segs = {f"segments_z{int(h * 100):03d}cm": floor_plan_segments(sc, h) for h in heights}
-    save_npz(ctx.out("scene/floorplan.npz"), heights_m=np.asarray(heights),
+    save_npz(ctx.out(runfiles.FLOORPLAN), heights_m=np.asarray(heights),
              route_m=np.zeros((0, 2)) if route is None else route, **segs)
     return {"scene": sc.name, "n_tags": len(sc.tags), "content_hash": summary["content_hash"][:16]}
 

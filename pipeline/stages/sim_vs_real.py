@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.acquisition import simulate_reads
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
@@ -117,11 +118,11 @@ def stage_sim_vs_real(ctx) -> dict:
                "recorded read and RSSI; intervals over held-out tags; the baseline fitted on "
                "the training tags (pipeline.evaluation.simreal)",
     }
-    att.to_parquet(ctx.out("sim_vs_real/attempts.parquet"), index=False)
+    att.to_parquet(ctx.out(runfiles.SIM_VS_REAL.format(name="attempts.parquet")), index=False)
     links = pd.concat([link_rates(att[att["split"] == sp]).assign(split=sp)
                        for sp in ("train", "eval")], ignore_index=True)
-    links.to_parquet(ctx.out("sim_vs_real/links.parquet"), index=False)
-    atomic_write_json(ctx.out("sim_vs_real/summary.json"), summary)
+    links.to_parquet(ctx.out(runfiles.SIM_VS_REAL.format(name="links.parquet")), index=False)
+    atomic_write_json(ctx.out(runfiles.SIM_VS_REAL.format(name="summary.json")), summary)
     info = {"variant": variant, "n_attempts_in_range": summary["n_attempts_in_range"],
             "brier": summary["heldout"]["brier"]["ray_tracer"]["estimate"],
             "rssi_mae_db": summary["heldout"]["rssi_mae_db"]["ray_tracer"]["estimate"]}

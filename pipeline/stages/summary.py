@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import scenes
+from pipeline import runfiles
 from pipeline.config import config_from_mapping, read_toml
 from pipeline.engine.runstore import inside, run_files
 from pipeline.evaluation.inventory import inventory_statistic, tour_tag_table
@@ -29,7 +30,7 @@ def run_summary(run_dir: str | Path) -> dict:
     run = Path(run_dir)
     if (run / "replicates" / "index.json").is_file():  # a replicated study: their mean
         reps = sorted((p for p in (run / "replicates").iterdir()
-                       if p.name.isdecimal() and (p / "metrics.json").is_file()),
+                       if p.name.isdecimal() and (p / runfiles.METRICS).is_file()),
                       key=lambda p: int(p.name))
         rows = pd.DataFrame([run_summary(p) for p in reps])
         out = {k: float(rows[k].mean()) for k in rows.columns
@@ -37,7 +38,7 @@ def run_summary(run_dir: str | Path) -> dict:
         out["n_replicates"] = len(reps)
         return out
     row: dict = {}
-    reads = pd.read_parquet(run / "reads.parquet", columns=["tag_id", "read", "in_range"])
+    reads = pd.read_parquet(run / runfiles.TRAIN_READS, columns=["tag_id", "read", "in_range"])
     scene_info = json.loads((run / "scene" / "scene.json").read_text())
     n_tags = scene_info.get("n_tags_train", scene_info["n_tags"])  # the training tour's layout
     in_range = reads["in_range"].to_numpy(bool)
@@ -46,7 +47,7 @@ def run_summary(run_dir: str | Path) -> dict:
     row["n_reads"] = int(read.sum())
     row["read_rate"] = float(read.sum() / max(in_range.sum(), 1))
     row["tag_coverage"] = float(reads.loc[read, "tag_id"].nunique() / max(n_tags, 1))
-    mpath = run / "metrics.json"
+    mpath = run / runfiles.METRICS
     if mpath.exists():
         metrics = json.loads(mpath.read_text())
         row.update(_metric_columns(metrics))
@@ -66,7 +67,7 @@ def tour_tags(run_dir: str | Path, budget=None):
 
 
     run = Path(run_dir)
-    with read_npz(inside(run, "tour/train_track.npz")) as z:
+    with read_npz(inside(run, runfiles.TRAIN_TRACK)) as z:
         if "pass_index" not in z.files:
             return None
         t_s, passes = z["t_s"], z["pass_index"]
@@ -74,10 +75,10 @@ def tour_tags(run_dir: str | Path, budget=None):
         path = inside(run, "config.toml")
         cfg = config_from_mapping(read_toml(path), source=str(path))
         budget = cfg.reader.link_budget(cfg.frequency_hz)
-    reads = pd.read_parquet(inside(run, "reads.parquet"),
+    reads = pd.read_parquet(inside(run, runfiles.TRAIN_READS),
                             columns=["time_s", "cycle", "antenna", "tag_id", "read", "in_range",
                                      "gain_db"])
-    tags = pd.read_parquet(inside(run, "scene/tags.parquet"), columns=["tag_id", "z_m"])
+    tags = pd.read_parquet(inside(run, runfiles.SCENE_TAGS), columns=["tag_id", "z_m"])
     return tour_tag_table(reads, t_s, passes, tags, budget)
 
 
@@ -152,7 +153,7 @@ def corridor_coverage(run_dir: str | Path) -> float | None:
 
 
     run = Path(run_dir)
-    mpath = run / "metrics.json"
+    mpath = run / runfiles.METRICS
     if mpath.exists():
         cov = json.loads(mpath.read_text()).get("coverage")
         if isinstance(cov, dict) and "corridor_fraction" in cov:
@@ -163,9 +164,9 @@ def corridor_coverage(run_dir: str | Path) -> float | None:
     cfg = config_from_mapping(tomllib.loads((run / "config.toml").read_text()),
                               source=str(run / "config.toml"))
     eval_reads = None
-    if (run / "eval_reads.parquet").is_file():  # the Gen2 truth needs the field poses' slots
+    if (run / runfiles.EVAL_READS).is_file():  # the Gen2 truth needs the field poses' slots
         import pandas as pd
 
-        eval_reads = pd.read_parquet(run / "eval_reads.parquet")
+        eval_reads = pd.read_parquet(run / runfiles.EVAL_READS)
     cov = field_coverage(cfg, scenes.load(cfg.scene), files, eval_reads)
     return None if cov is None else cov["corridor_fraction"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.acquisition import PoseTrack
 from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
@@ -151,9 +152,9 @@ def stage_tour(ctx) -> dict:
             **summaries[name],
         }
     for name, track in tracks.items():
-        save_npz(ctx.out(f"tour/{name}_track.npz"), **track)
-    save_npz(ctx.out("tour/map_error.npz"), **map_error.to_arrays())
-    atomic_write_json(ctx.out("tour/localisation.json"), summaries)
+        save_npz(ctx.out(runfiles.TRACK.format(tour=name)), **track)
+    save_npz(ctx.out(runfiles.MAP_ERROR), **map_error.to_arrays())
+    atomic_write_json(ctx.out(runfiles.LOCALISATION), summaries)
     info["map"] = {"n_walls": int(len(map_error.offsets_m)),
                    "offset_std_m": float(np.std(map_error.offsets_m)) if len(map_error.offsets_m)
                    else None,

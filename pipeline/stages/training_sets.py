@@ -3,6 +3,7 @@ MCL poses and on the true poses (``pipeline.acquisition``); writes ``training/``
 
 from __future__ import annotations
 
+from pipeline import runfiles
 from pipeline.acquisition import rssi_range_from_data, ssm_samples, tdm_samples
 from pipeline.engine.study import Stage
 from pipeline.runfiles import STAGE_OUTPUTS
@@ -29,8 +30,8 @@ def stage_training_sets(ctx) -> dict:
             raise ValueError(f"too few training samples for pose={pose!r}: SSM {len(ssm)}, TDM "
                              f"{len(tdm)} cells (need > n_clusters + 1 = {cfg.n_clusters + 1}); "
                              "lengthen the tour or lower training.min_attempts")
-        ssm.to_parquet(ctx.out(f"training/ssm_{pose}.parquet"))
-        tdm.to_parquet(ctx.out(f"training/tdm_{pose}.parquet"))
+        ssm.to_parquet(ctx.out(runfiles.TRAINING_SET.format(kind="ssm", pose=pose)))
+        tdm.to_parquet(ctx.out(runfiles.TRAINING_SET.format(kind="tdm", pose=pose)))
         info[pose] = {"ssm_samples": len(ssm), "tdm_cells": len(tdm)}
     return info
 

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.acquisition.singulation import miss_probability_at_poses, miss_probability_of_attempts
 from pipeline.engine.study import Stage
 from pipeline.evaluation.cells import CellGrid
@@ -36,10 +37,10 @@ def stage_truth(ctx) -> dict:
     # the training truth is what a floor may be fitted on; the held-out one is scored on
     truth = detection_truth(reads, budget, grid=grid,
                             miss_probability=attempt_miss_probability(cfg, reads, budget))
-    truth.save(ctx.out("truth/detection_grid.npz"))
+    truth.save(ctx.out(runfiles.DETECTION_GRID))
     eval_truth = detection_truth(eval_reads, budget, grid=grid,
                                  miss_probability=attempt_miss_probability(cfg, eval_reads, budget))
-    eval_truth.save(ctx.out("truth/detection_grid_eval.npz"))
+    eval_truth.save(ctx.out(runfiles.DETECTION_GRID_EVAL))
     info = {"cells_with_attempts": int((truth.n_attempts > 0).sum()),
             "eval_cells_with_attempts": int((eval_truth.n_attempts > 0).sum())}
     info.update(_free_space_view(ctx, eval_reads, budget))
@@ -58,10 +59,10 @@ def _check_trace_poses(ctx) -> None:
     """
     ev = ctx.config.evaluation
     poses = attempt_poses(ctx, "eval")
-    path = ctx.input("truth/site_truth.npz")
+    path = ctx.input(runfiles.SITE_TRUTH)
     checks = [(path, SiteTruth.load(path).antenna_poses, spread_evenly(poses, ev.n_site_poses))]
     for i, want in enumerate(spread_evenly(poses, ev.n_sample_poses)):
-        p = ctx.input(f"truth/free_space_points_{i:02d}.npz")
+        p = ctx.input(runfiles.FREE_SPACE_POINTS.format(i=i))
         with read_npz(p) as z:
             checks.append((p, z["pose"], want))
     for p, got, want in checks:
@@ -96,10 +97,10 @@ def _free_space_view(ctx, eval_reads, budget) -> dict:
     """The chapter's Fig. 6 truth from the traced free-space gains
     (truth/free_space_points_*.npz of the truth_traces stage): writes truth/rho_points_*.npz."""
     cfg = ctx.config
-    rssi_range = tuple(json.loads(ctx.input("models/sensor.json").read_text())["rssi_range_dbm"])
+    rssi_range = tuple(json.loads(ctx.input(runfiles.SENSOR_MODEL).read_text())["rssi_range_dbm"])
     d, a = free_space_grid(cfg)
     for i in range(cfg.evaluation.n_sample_poses):
-        path = ctx.input(f"truth/free_space_points_{i:02d}.npz")
+        path = ctx.input(runfiles.FREE_SPACE_POINTS.format(i=i))
         try:
             with read_npz(path) as z:
                 pose, pts, gain = z["pose"], z["points_m"], z["gain_db"]
@@ -114,7 +115,7 @@ def _free_space_view(ctx, eval_reads, budget) -> dict:
         rp = rho_points_truth(pose, pts, gain, budget, rssi_range,
                               miss_probability=q if np.ndim(q) == 0 else float(q[0]),
                               grid_shape=(len(d), len(a)))
-        rp.save(ctx.out(f"truth/rho_points_{i:02d}.npz"))
+        rp.save(ctx.out(runfiles.RHO_POINTS.format(i=i)))
     return {"n_sample_poses": int(cfg.evaluation.n_sample_poses)}
 
 

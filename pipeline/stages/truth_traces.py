@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 import propagation
+from pipeline import runfiles
 from pipeline.engine.study import Stage
 from pipeline.engine.tracetasks import trace_tasks
 from pipeline.evaluation.sites import SiteTruth, obstructed_pairs
@@ -95,7 +96,7 @@ def _trace_sites(ctx, attempt_pose_rows: np.ndarray) -> dict:
     SiteTruth(antenna_poses=poses, positions_m=sites.positions_m, normals=sites.normals,
               material=sites.material, gain_db=gain, traced=traced,
               obstructed=obstructed_pairs(sc, poses[:, :3], sites.positions_m)
-              ).save(ctx.out("truth/site_truth.npz"))
+              ).save(ctx.out(runfiles.SITE_TRUTH))
     return {"n_site_poses": int(len(poses)), "n_sites": int(len(sites)),
             "n_site_links": int(traced.sum()), "n_site_sources_traced": fresh}
 
@@ -125,7 +126,7 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
         gain[free] = np.asarray(links.gain_db, float)[0]
         n_free += int(free.sum())
         fresh += int(links.n_traced_sources)
-        atomic_save_npz(ctx.out(f"truth/free_space_points_{i:02d}.npz"), pose=pose, points_m=pts,
+        atomic_save_npz(ctx.out(runfiles.FREE_SPACE_POINTS.format(i=i)), pose=pose, points_m=pts,
                         gain_db=gain)
         if i < ev.n_field_poses:
             field = propagation.rssi_field(
@@ -134,7 +135,7 @@ def _trace_free_space_view(ctx, attempt_pose_rows: np.ndarray) -> dict:
                 max_depth=cfg.tracing.max_depth, reader_pattern=cfg.tracing.reader_pattern,
                 reader_polarization=cfg.tracing.reader_polarization,
                 include_walls=cfg.tracing.field_walls, plane_bounds_m=bounds, cache_dir=cache)
-            field.save(ctx.out(f"fields/field_{i:02d}.npz"))
+            field.save(ctx.out(runfiles.FIELD.format(i=i)))
         update(advance=1)
     return {"n_sample_poses": int(len(poses)), "n_points_traced": n_free,
             "n_view_sources_traced": fresh}

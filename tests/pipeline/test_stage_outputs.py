@@ -60,3 +60,39 @@ def test_pattern_of_a_family():
     assert pattern("tour/{tour}_track.npz") == "tour/*_track.npz"
     assert pattern("truth/rho_points_{i:02d}.npz") == "truth/rho_points_*.npz"
     assert pattern("metrics.json") == "metrics.json"
+
+
+def _string_literals(path):
+    """Non-docstring string constants of a module, f-string parts included, with lines."""
+    import ast
+
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    docs = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list):
+            for st in body:
+                if isinstance(st, ast.Expr) and isinstance(st.value, ast.Constant):
+                    docs.add(st.value)
+    return [(n.lineno, n.value) for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and n not in docs]
+
+
+def test_run_directory_files_are_named_once():
+    from pathlib import Path
+
+    import pipeline.runfiles as rf
+
+    root = Path(rf.__file__).resolve().parents[1]
+    names = [v for k, v in vars(rf).items() if k.isupper() and isinstance(v, str)]
+    exact = {n for n in names if "{" not in n}
+    prefixes = {n.split("{")[0] for n in names if "{" in n and "/" in n.split("{")[0]}
+    spelled = []
+    for path in sorted([*(root / "pipeline").rglob("*.py"), *(root / "scripts").glob("*.py")]):
+        if path.name == "runfiles.py":
+            continue
+        for line, s in _string_literals(path):
+            if s in exact or any(s.startswith(p) and s != p.rstrip("/") for p in prefixes):
+                spelled.append(f"{path.relative_to(root)}:{line}: {s!r}")
+    assert not spelled, ("run-directory files spelled outside pipeline/runfiles.py (use its "
+                         "names):\n" + "\n".join(spelled))

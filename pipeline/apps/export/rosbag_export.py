@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import runfiles
 from pipeline.apps.export.runtour import EPOCH_S, run_tour, write_layout
 from pipeline.outdirs import check_output_dir, mark_output_dir
 from pipeline.recording.rosbag import RFID_READ, TOPICS, rfid_typestore
@@ -196,7 +197,7 @@ def write_bag(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     out = check_output_dir(out_dir, "export", ["bag", "tags.csv", "mounts.toml"])
     tour = run_tour(run_dir)
     try:
-        with read_npz(inside(Path(run_dir), "scene/floorplan.npz")) as z:
+        with read_npz(inside(Path(run_dir), runfiles.FLOORPLAN)) as z:
             segments = np.asarray(z[MAP_HEIGHT_KEY], np.float64) if MAP_HEIGHT_KEY in z \
                 else np.zeros((0, 2, 2))
     except OSError as exc:

@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.config import load_config
 from pipeline.recording.csvformats import write_tags_csv
 from pipeline.runpaths import inside
@@ -71,11 +72,11 @@ def run_tour(run_dir: str | Path) -> RunTour:
     """
     run = Path(run_dir)
     try:
-        reads = pd.read_parquet(inside(run, "reads.parquet"),
+        reads = pd.read_parquet(inside(run, runfiles.TRAIN_READS),
                                 columns=["time_s", "antenna", "tag_id", "read", "rssi_dbm",
                                          "frequency_hz", "phase_rad", "doppler_hz", "seen_count"])
-        tags = pd.read_parquet(inside(run, "scene/tags.parquet"))
-        with read_npz(inside(run, "tour/train_track.npz")) as z:
+        tags = pd.read_parquet(inside(run, runfiles.SCENE_TAGS))
+        with read_npz(inside(run, runfiles.TRAIN_TRACK)) as z:
             t_s, est = np.asarray(z["t_s"], np.float64), np.asarray(z["est"], np.float64)
             odom = (np.asarray(z["odom"], np.float64) if "odom" in z
                     else np.full_like(est, np.nan))
@@ -84,7 +85,7 @@ def run_tour(run_dir: str | Path) -> RunTour:
         raise ValueError(f"{run}: cannot read the run's files ({exc})") from None
     got = reads[reads["read"].to_numpy(bool)]
     # a recorded study's tag ids are its EPCs already (pipeline.stages.recorded)
-    epc = (str if inside(run, "recording/import.json").is_file() else epc_of)
+    epc = (str if inside(run, runfiles.RECORDING_IMPORT).is_file() else epc_of)
     train = tags[tags["split"].astype(str) == "train"] if "split" in tags else tags
     return RunTour(got, train, t_s, est, odom, cfg, epc)
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline import runfiles
 from pipeline.apps.placement.candidates import MOUNT_FIELDS
 from pipeline.apps.placement.objectives import OBJECTIVES
 from pipeline.apps.placement.results import band_key, candidate_dir, height_bands
@@ -196,10 +197,10 @@ def _read_map(run: Path, path: Path, name: str) -> Path | None:
     import matplotlib.pyplot as plt
 
     try:
-        reads = pd.read_parquet(inside(run, "reads.parquet"), columns=["time_s", "tag_id", "read"])
-        tags = pd.read_parquet(inside(run, "scene/tags.parquet"),
+        reads = pd.read_parquet(inside(run, runfiles.TRAIN_READS), columns=["time_s", "tag_id", "read"])
+        tags = pd.read_parquet(inside(run, runfiles.SCENE_TAGS),
                                columns=["tag_id", "x_m", "y_m", "z_m"])
-        with read_npz(inside(run, "tour/train_track.npz")) as z:
+        with read_npz(inside(run, runfiles.TRAIN_TRACK)) as z:
             t_s, true = z["t_s"], z["true"]
     except (OSError, ValueError, KeyError):
         return None
@@ -247,12 +248,12 @@ def _never_read_map(run: Path, path: Path, name: str) -> Path | None:
     import matplotlib.pyplot as plt
 
     try:
-        reads = pd.read_parquet(inside(run, "reads.parquet"), columns=["tag_id", "read"])
-        tags = pd.read_parquet(inside(run, "scene/tags.parquet"),
+        reads = pd.read_parquet(inside(run, runfiles.TRAIN_READS), columns=["tag_id", "read"])
+        tags = pd.read_parquet(inside(run, runfiles.SCENE_TAGS),
                                columns=["tag_id", "x_m", "y_m", "z_m"])
-        with read_npz(inside(run, "tour/train_track.npz")) as z:
+        with read_npz(inside(run, runfiles.TRAIN_TRACK)) as z:
             true = z["true"]
-        with read_npz(inside(run, "scene/floorplan.npz")) as z:
+        with read_npz(inside(run, runfiles.FLOORPLAN)) as z:
             walls = [z[k] for k in z.files if k.startswith("segments_")][:1]
     except (OSError, ValueError, KeyError):
         return None

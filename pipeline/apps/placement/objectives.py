@@ -69,6 +69,7 @@ from pipeline.evaluation.intervals import (
 )
 from pipeline.evaluation.inventory import inventory_statistic
 from pipeline.evaluation.units import UnitTables
+from pipeline.runpaths import RECORD_DIR
 from pipeline.stages import stage_names
 from pipeline.stages.summary import tour_tags
 
@@ -214,7 +215,7 @@ def _stage_done(run: Path, stage: str) -> bool:
     """Whether the run's last study ran (or found cached) ``stage``: its manifest lists it.
     A record left by an earlier run of other stages does not count (a study run up to
     its reads after one that fitted models keeps the old evaluation's files)."""
-    if not regular_file(inside(run, f"stages/{stage}.json")):
+    if not regular_file(inside(run, f"{RECORD_DIR}/{stage}.json")):
         return False
     try:
         man = read_run_json(inside(run, "manifest.json"))
@@ -310,7 +311,7 @@ def traced_counts(run_dir: Path) -> dict:
     out = {"n_sources_traced": 0, "n_links": 0}
     for stage, keys in (("reads", ("train", "eval")), ("truth_traces", (None,))):
         try:
-            info = read_run_json(inside(Path(run_dir), f"stages/{stage}.json")).get("info") or {}
+            info = read_run_json(inside(Path(run_dir), f"{RECORD_DIR}/{stage}.json")).get("info") or {}
         except (OSError, ValueError, AttributeError):
             continue
         for k in keys:

@@ -18,6 +18,7 @@ import pandas as pd
 
 from pipeline.apps.placement.objectives import OBJECTIVES
 from pipeline.engine.runstore import inside, read_run_json, regular_file
+from pipeline.runpaths import RECORD_DIR
 from pipeline.stages import stage_names
 
 __all__ = ["PlacementResult", "band_key", "candidate_dir", "complete_dirs", "height_bands",
@@ -61,7 +62,7 @@ def usable_run(run: Path, required: str) -> bool:
         man = read_run_json(inside(run, "manifest.json"))
     except (OSError, ValueError):
         return False
-    if not isinstance(man, dict) or not regular_file(inside(run, f"stages/{required}.json")):
+    if not isinstance(man, dict) or not regular_file(inside(run, f"{RECORD_DIR}/{required}.json")):
         return False
     order = stage_names()
     if man.get("status") == "complete":
