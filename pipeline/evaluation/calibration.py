@@ -487,6 +487,11 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
         if key.startswith("theta["):
             j = int(key[6:-1])
             key, entry = materials.names[j], _material_entry(materials, j, entry)
+        elif key == "rssi_dof" and value <= DOF_RANGE[0] * (1 + 1e-6):
+            entry["note"] = ("on its lower bound (1, Cauchy): the RSSI's tails are heavier still; "
+                             "rssi_noise_db is the spread of the bulk of the reads")
+        elif key == "rssi_dof" and value >= DOF_RANGE[1] * (1 - 1e-6):
+            entry["note"] = "on its upper bound: the RSSI's spread is Gaussian as far as the reads tell"
         params[key] = entry
         if boot is None:
             why = (f"{n_tags} training tags: an interval needs at least {MIN_TAGS}"
