@@ -6,6 +6,14 @@ and run as a recorded study with the same config. Prints each recorded stage's w
 and the run's peak resident memory (the manifest's), and what the calibration found.
 
     python bench/recorded_warehouse.py [--out /tmp/recorded_warehouse]
+
+``--recalibrate`` reruns, in an earlier ``--out`` (its ``rec/``, ``cache/``, ``recorded/``),
+only the stages up to the calibration whose inputs changed (a new calibration: that
+stage alone; nothing cached is traced again), and ``--previous`` names an earlier
+``calibration.json`` to compare the held-out scores with.
+
+    python bench/recorded_warehouse.py --out /tmp/rwh53 --recalibrate \
+        --previous /tmp/rwh/recorded/calibration.json
 """
 
 from __future__ import annotations
@@ -25,26 +33,36 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("/tmp/recorded_warehouse"))
+    ap.add_argument("--recalibrate", action="store_true",
+                    help="rerun only up to the calibration in an earlier --out (no simulation)")
+    ap.add_argument("--previous", type=Path, help="an earlier calibration.json to compare with")
     args = ap.parse_args()
     root = Path(__file__).resolve().parents[1]
-    cfg = load_config(root / "configs" / "warehouse.toml")
+    # recalibrating: the earlier run's own config (its paths moved to --out below), so
+    # that only what changed since is run again
+    cfg = load_config(args.out / "recorded" / "config.toml" if args.recalibrate
+                      else root / "configs" / "warehouse.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(args.out / "cache"))
     t0 = time.perf_counter()
-    run_full_study(cfg, args.out / "sim", command_line=["bench"], upto="reads")
-    export_csv(args.out / "sim", args.out / "rec")
+    if not args.recalibrate:
+        run_full_study(cfg, args.out / "sim", command_line=["bench"], upto="reads")
+        export_csv(args.out / "sim", args.out / "rec")
     t_sim = time.perf_counter() - t0
     rec = cfg
     for key, name in (("recording.tags", "tags.csv"), ("recording.poses", "poses.csv"),
                       ("recording.reads", "reads.csv")):
         rec = replace_path(rec, key, str(args.out / "rec" / name))
     t0 = time.perf_counter()
-    run_full_study(rec, args.out / "recorded", command_line=["bench"])
+    res = run_full_study(rec, args.out / "recorded", command_line=["bench"],
+                         upto="calibration" if args.recalibrate else None)
     t_rec = time.perf_counter() - t0
     man = json.loads((args.out / "recorded" / "manifest.json").read_text())
-    print(f"warehouse (configs/warehouse.toml): simulated to its reads and exported in {t_sim:.0f} s; "
-          f"recorded study {t_rec:.0f} s, peak RSS {man.get('peak_rss_mib', float('nan')):.0f} MiB")
+    print("warehouse (configs/warehouse.toml): " + (
+        "recalibrated" if args.recalibrate else f"simulated to its reads and exported in {t_sim:.0f} s;")
+        + f" recorded study {t_rec:.0f} s, peak RSS {man.get('peak_rss_mib', float('nan')):.0f} MiB")
     for name, st in man["stages"].items():
-        print(f"  {name:14s} {st.get('elapsed_s', float('nan')):7.1f} s")
+        cached = " (cached)" if name in res.cached else ""
+        print(f"  {name:14s} {st.get('elapsed_s', float('nan')):7.1f} s{cached}")
     cal = json.loads((args.out / "recorded" / runfiles.CALIBRATION).read_text())
     imp = json.loads((args.out / "recorded" / runfiles.METRICS).read_text())["recording"]
     print(f"import: {imp.get('n_reads')} reads of {imp.get('n_tags', '?')} tags")
@@ -58,6 +76,22 @@ def main() -> None:
     h = cal["heldout"]["rssi_mae_db"]
     print(f"held-out RSSI MAE before {h['before']['estimate']:.2f} dB, after {h['after']['estimate']:.2f} dB "
           f"({h['difference']['verdict']}; {h['n_tags']} tags)")
+    runs = [("this run", cal)]
+    if args.previous is not None:
+        runs.append((f"previous ({args.previous})", json.loads(args.previous.read_text())))
+    print("held-out scores (before -> after calibration, the paired verdict):")
+    for name, c in runs:
+        print(f"  {name}:")
+        for key in ("rssi_mae_db", "rssi_bias_db", "rssi_rmse_db", "brier", "read_rate_mae"):
+            v = c["heldout"].get(key)
+            if isinstance(v, dict):
+                print(f"    {v.get('label', key):28s} {v['before']['estimate']:8.4g} -> "
+                      f"{v['after']['estimate']:8.4g}  ({v['difference']['verdict']})")
+        vs = c.get("constructions", {}).get("heldout_against_reader_only", {})
+        for key, v in vs.items():
+            print(f"    constructions vs reader alone, {key}: {v['with_constructions']['estimate']:.4g} vs "
+                  f"{v['reader_only']['estimate']:.4g} ({v['difference']['verdict']})")
+        print(f"    constructions in calibrated.toml: {c.get('constructions', {}).get('in_calibrated_toml')}")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ def __getattr__(name: str):
     if name == "run_full_study":
         from pipeline.apps.studyrun import (
             run_full_study,  # lazy: start-up time  # lazy: start-up time
-        )  # lazy: start-up time
+        )  # lazy: start-up time  # lazy: start-up time
 
         return run_full_study
     raise AttributeError(f"module 'pipeline' has no attribute {name!r}")

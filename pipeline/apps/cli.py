@@ -117,7 +117,7 @@ def run(
     _setup_logging(verbose)
     from pipeline.apps.studyrun import (
         run_full_study,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )
+    )  # lazy: start-up time
 
     scheduler = _scheduler(scheduler)
     try:
@@ -206,7 +206,7 @@ def _figure_output(format_: str | None, dpi: int | None):
     default where not given); ValueError naming a bad value."""
     from pipeline.figures import (
         FigureOutput,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )
+    )  # lazy: start-up time
 
     return FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
                         **({"dpi": dpi} if dpi is not None else {}))
@@ -255,10 +255,10 @@ def figures(
     from pipeline.figures import (  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
         FIGURES,
         draw_all,
-    )
+    )  # lazy: start-up time
     from pipeline.report.html import (
         write_report,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )
+    )  # lazy: start-up time
 
     if list_:
         for name, fn in FIGURES.items():
@@ -311,10 +311,10 @@ def compare(
     """Draw the headline numbers of several runs side by side, each with its 95 % interval."""
     from pipeline.figures import (
         figure_output,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )
+    )  # lazy: start-up time
     from pipeline.figures.headline import (
         compare_runs,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )
+    )  # lazy: start-up time
 
     for d in run_dirs:
         if not d.is_dir() or not is_run_dir(d):
@@ -336,7 +336,7 @@ def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     """Rewrite report.html from a run directory's files."""
     from pipeline.report.html import (
         write_report,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )
+    )  # lazy: start-up time
 
     store = _existing_run_dir(run_dir, "report")
     with _output_errors(str(run_dir)), store.lock("rfidstudy report"):
@@ -408,7 +408,7 @@ def sweep(
         check_sweep_dir,
         load_sweep,
         run_sweep,
-    )
+    )  # lazy: start-up time
 
     if workers is not None and workers < 1:
         fail(f"--workers {workers}: at least 1")
@@ -491,10 +491,10 @@ def placement(
         candidates_of,
         load_placement,
         run_placement,
-    )  # lazy: start-up time  # lazy: start-up time
+    )  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
     from pipeline.apps.placement.summary import (
         ranking_table,  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    )  # lazy: start-up time  # lazy: start-up time
 
     if workers is not None and workers < 1:
         fail(f"--workers {workers}: at least 1")
@@ -505,7 +505,7 @@ def placement(
         fail(str(exc))
     from pipeline.apps.placement.objectives import (
         needed_stage,  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    )  # lazy: start-up time  # lazy: start-up time
 
     n = len(candidates_of(spec))
     s = spec.settings
@@ -527,7 +527,7 @@ def placement(
         fail(str(exc))
     from pipeline.apps.placement.report import (
         answer_lines,  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    )  # lazy: start-up time  # lazy: start-up time
 
     table = ranking_table(res.summary, s)
     cols = ["rank", "candidate", "feasible", s.primary, f"{s.primary} minus best", "verdict"]

@@ -46,7 +46,7 @@ def scenes_show(
     if sc.route_m is None and scenes.sources.traits_of(sc).plans_route:  # a map: the route a study would plan
         from pipeline.studyscene import (
             map_route,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-        )
+        )  # lazy: start-up time
 
         try:
             sc = map_route(sc, Robot())
@@ -69,7 +69,7 @@ def scenes_show(
     if png is not None:
         from pipeline.stages import (
             draw_scene_top_view,  # lazy: start-up time  # lazy: start-up time
-        )  # lazy: start-up time
+        )  # lazy: start-up time  # lazy: start-up time
 
         try:
             typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")

@@ -16,13 +16,15 @@ directory
   reader in the calibrated building: each antenna's ``cable_loss_db`` less its gain
   offset, ``reader.tag_sensitivity_dbm`` plus the sensitivity offset,
   ``reader.rssi_noise_db`` the fitted spread less the quantisation's
-  (``rssi_resolution_db^2 / 12``), and a ``[[materials]]`` table per fitted construction's
+  (``rssi_resolution_db^2 / 12``; the Student-t's scale: the spread of the bulk of the
+  reads, its heavy tails, the poses' error, left out), and a ``[[materials]]`` table per fitted construction's
   material (its permittivity and conductivity), where the constructions beat the reader's
   parameters alone on the held-out tags and none is on the edge of its range
   (:func:`_overlay_refusal`; else the reader's parameters fitted alone, the building as
   traced; every number is in ``calibration.json`` either way). The RSSI offset, the detection spread and
-  the miss probability are reported only: the simulated reader has no key for them (its
-  truth is the received power, so an offset key would bias every model against it).
+  the miss probability, the t's degrees of freedom and the stray-read share are reported
+  only: the simulated reader has no key for them (its truth is the received power, so an
+  offset key would bias every model against it).
 """
 
 from __future__ import annotations
@@ -244,8 +246,8 @@ def stage_calibration(ctx) -> dict:
 def heldout_worse(report: dict) -> str | None:
     """A sentence when the calibrated reader predicts the held-out tags worse than the
     uncalibrated one (a verdict ``worse`` by its interval), else None: the fit then
-    absorbed what its model does not hold (the poses' error, links the tracer misses; its
-    Gaussian RSSI spread is not robust to them), and ``calibrated.toml`` says so."""
+    absorbed what its model does not hold (links the tracer misses, more pose error than
+    its heavy tails and stray reads take up), and ``calibrated.toml`` says so."""
     bad = [f"{v.get('label', k)} {v['before']['estimate']:.3g} -> {v['after']['estimate']:.3g}"
            for k, v in report.get("heldout", {}).items()
            if isinstance(v, dict) and v.get("difference", {}).get("verdict") == "worse"]
@@ -258,6 +260,6 @@ def heldout_worse(report: dict) -> str | None:
 
 STAGE = Stage("calibration", stage_calibration,
               ("seed", "reader", "robot", "recording.calibrate_constructions") + TRACING_KEYS,
-              ("scene", "sim_vs_real"), version=2,  # each version's change: CHANGELOG.md
+              ("scene", "sim_vs_real"), version=3,  # each version's change: CHANGELOG.md
               description="calibrate the reader and building to the recording",
               outputs=STAGE_OUTPUTS["calibration"])
