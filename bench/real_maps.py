@@ -29,6 +29,8 @@ from pathlib import Path
 
 import psutil
 
+from pipeline import runfiles
+
 ROOT = Path(__file__).resolve().parents[1]
 MAPS = ROOT / "data" / "real_maps"
 
@@ -67,7 +69,7 @@ def held_out_on_racks(run: Path, labels: Path) -> tuple[int, int]:
     import pandas as pd
     import shapely
 
-    tags = pd.read_parquet(run / "scene" / "tags.parquet")
+    tags = pd.read_parquet(run / runfiles.SCENE_TAGS)
     held = tags[tags["split"] == "eval"]
     boxes = tomllib.loads(labels.read_text())["racks"]
     if not boxes:

@@ -54,7 +54,7 @@ def sparse_poses() -> np.ndarray:
 def dense_links(run: Path):
     """Poses (n, 4), tag positions and normals of a run's evaluation path (as
     ``bench/study_trace.py`` takes them)."""
-    tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
+    tags = pd.read_parquet(run / runfiles.SCENE_TAGS).set_index("tag_id")
     r = pd.read_parquet(run / runfiles.EVAL_READS)
     ids = sorted(r["tag_id"].unique())
     cols = ["true_ant_x_m", "true_ant_y_m", "true_ant_z_m", "true_ant_yaw_rad"]

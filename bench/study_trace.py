@@ -99,7 +99,7 @@ def run_study(out: Path, cache: Path, overrides: dict, home: Path | None = None,
 def study_links(run: Path) -> list[tuple[str, np.ndarray, np.ndarray, int]]:
     """The link groups the study traced: (name, antenna positions (k, 3), receivers
     (r, 3), positions per solver call)."""
-    tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
+    tags = pd.read_parquet(run / runfiles.SCENE_TAGS).set_index("tag_id")
     groups = []
     for name, fname in (("train tour", runfiles.TRAIN_READS), ("eval tour", runfiles.EVAL_READS)):
         r = pd.read_parquet(run / fname)
@@ -107,7 +107,7 @@ def study_links(run: Path) -> list[tuple[str, np.ndarray, np.ndarray, int]]:
         pos = np.unique(r[["true_ant_x_m", "true_ant_y_m", "true_ant_z_m"]].to_numpy(float), axis=0)
         ids = sorted(r["tag_id"].unique())
         groups.append((name, pos, tags.loc[ids, ["x_m", "y_m", "z_m"]].to_numpy(float), 50))
-    st = np.load(run / "truth" / "site_truth.npz")
+    st = np.load(run / runfiles.SITE_TRUTH)
     for i, pose in enumerate(st["antenna_poses"]):
         cols = st["traced"][i]
         if cols.any():
@@ -231,7 +231,7 @@ def seed_noise(scene, run: Path, overrides: dict, config: Path | None) -> tuple[
 
     cfg = resolve_target(None if config is None else str(config),
                          [f"{k}={v}" for k, v in overrides.items()])
-    tags = pd.read_parquet(run / "scene" / "tags.parquet").set_index("tag_id")
+    tags = pd.read_parquet(run / runfiles.SCENE_TAGS).set_index("tag_id")
     r = pd.read_parquet(run / runfiles.EVAL_READS)
     ids = sorted(r["tag_id"].unique())
     tpos = tags.loc[ids, ["x_m", "y_m", "z_m"]].to_numpy(float)

@@ -139,7 +139,7 @@ def main() -> None:
     cfg = load_config(args.run / "config.toml")
     P.select_variant(prefer=preferred_backend(cfg.tracing))
     sc = scenes.load(cfg.scene)
-    tags = pd.read_parquet(args.run / "scene" / "tags.parquet")
+    tags = pd.read_parquet(args.run / runfiles.SCENE_TAGS)
     tpos = tags[["x_m", "y_m", "z_m"]].to_numpy(float)
     tnrm = tags[["nx", "ny", "nz"]].to_numpy(float)
     tour = tour_poses(args.run)

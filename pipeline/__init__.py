@@ -19,9 +19,7 @@ def __getattr__(name: str):
     # the stages are loaded on first use: importing the engine (or anything in pipeline)
     # does not import the stage package (pipeline.apps.studyrun imports it)
     if name == "run_full_study":
-        from pipeline.apps.studyrun import (
-            run_full_study,  # lazy: start-up time  # lazy: start-up time
-        )  # lazy: start-up time  # lazy: start-up time
+        from pipeline.apps.studyrun import run_full_study  # lazy: start-up time
 
         return run_full_study
     raise AttributeError(f"module 'pipeline' has no attribute {name!r}")

@@ -231,7 +231,7 @@ def render_single(run_dir: Path, origin: str) -> str:
     import tomllib
 
     metrics = json.loads((run_dir / runfiles.METRICS).read_text())
-    scores = json.loads((run_dir / "downstream" / "scores.json").read_text())
+    scores = json.loads((run_dir / runfiles.DOWNSTREAM_SCORES).read_text())
     cfg = run_dir / "config.toml"
     min_count = None
     if cfg.is_file():

@@ -115,9 +115,7 @@ def run(
     Every config key and its default: configs/reference.toml (or `rfidstudy config`).
     """
     _setup_logging(verbose)
-    from pipeline.apps.studyrun import (
-        run_full_study,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    from pipeline.apps.studyrun import run_full_study  # lazy: start-up time
 
     scheduler = _scheduler(scheduler)
     try:
@@ -204,9 +202,7 @@ def _csv_option(value: str | None) -> list[str] | None:
 def _figure_output(format_: str | None, dpi: int | None):
     """The :class:`~pipeline.figures.FigureOutput` of ``--format`` and ``--dpi`` (each
     default where not given); ValueError naming a bad value."""
-    from pipeline.figures import (
-        FigureOutput,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    from pipeline.figures import FigureOutput  # lazy: start-up time
 
     return FigureOutput(**({"formats": tuple(_csv_option(format_))} if format_ else {}),
                         **({"dpi": dpi} if dpi is not None else {}))
@@ -252,13 +248,8 @@ def figures(
     writes into RUN/paper_figures (or --out DIR); PDFs embed TrueType (Type 42) fonts.
     """
     _setup_logging(verbose)
-    from pipeline.figures import (  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-        FIGURES,
-        draw_all,
-    )  # lazy: start-up time
-    from pipeline.report.html import (
-        write_report,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    from pipeline.figures import FIGURES, draw_all  # lazy: start-up time
+    from pipeline.report.html import write_report  # lazy: start-up time
 
     if list_:
         for name, fn in FIGURES.items():
@@ -309,12 +300,8 @@ def compare(
     dpi: Annotated[int | None, typer.Option(help="Resolution of PNG [dpi] (default 120).")] = None,
 ):
     """Draw the headline numbers of several runs side by side, each with its 95 % interval."""
-    from pipeline.figures import (
-        figure_output,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
-    from pipeline.figures.headline import (
-        compare_runs,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    from pipeline.figures import figure_output  # lazy: start-up time
+    from pipeline.figures.headline import compare_runs  # lazy: start-up time
 
     for d in run_dirs:
         if not d.is_dir() or not is_run_dir(d):
@@ -334,9 +321,7 @@ def compare(
 @app.command()
 def report(run_dir: Annotated[Path, typer.Argument(help="A run directory.")]):
     """Rewrite report.html from a run directory's files."""
-    from pipeline.report.html import (
-        write_report,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time
+    from pipeline.report.html import write_report  # lazy: start-up time
 
     store = _existing_run_dir(run_dir, "report")
     with _output_errors(str(run_dir)), store.lock("rfidstudy report"):
@@ -404,11 +389,7 @@ def sweep(
     ranked answer with intervals: `rfidstudy placement`.
     """
     _setup_logging(verbose)
-    from pipeline.apps.sweep import (  # lazy: start-up time
-        check_sweep_dir,
-        load_sweep,
-        run_sweep,
-    )  # lazy: start-up time
+    from pipeline.apps.sweep import check_sweep_dir, load_sweep, run_sweep  # lazy: start-up time
 
     if workers is not None and workers < 1:
         fail(f"--workers {workers}: at least 1")
@@ -491,10 +472,8 @@ def placement(
         candidates_of,
         load_placement,
         run_placement,
-    )  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-    from pipeline.apps.placement.summary import (
-        ranking_table,  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time  # lazy: start-up time
+    )
+    from pipeline.apps.placement.summary import ranking_table  # lazy: start-up time
 
     if workers is not None and workers < 1:
         fail(f"--workers {workers}: at least 1")
@@ -503,9 +482,7 @@ def placement(
         spec = load_placement(placement_file)
     except ConfigError as exc:
         fail(str(exc))
-    from pipeline.apps.placement.objectives import (
-        needed_stage,  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time  # lazy: start-up time
+    from pipeline.apps.placement.objectives import needed_stage  # lazy: start-up time
 
     n = len(candidates_of(spec))
     s = spec.settings
@@ -525,16 +502,14 @@ def placement(
         res = run_placement(spec, out, workers=workers, scheduler=scheduler, progress=progress)
     except (ConfigError, RunDirError) as exc:
         fail(str(exc))
-    from pipeline.apps.placement.report import (
-        answer_lines,  # lazy: start-up time  # lazy: start-up time
-    )  # lazy: start-up time  # lazy: start-up time
+    from pipeline.apps.placement.report import answer_lines  # lazy: start-up time
 
     table = ranking_table(res.summary, s)
     cols = ["rank", "candidate", "feasible", s.primary, f"{s.primary} minus best", "verdict"]
     typer.echo(table[cols].head(10).to_string(index=False, max_colwidth=34))
     for line in answer_lines(res.summary, res.answer):
         typer.echo(line)
-    typer.echo(f"report: {res.out_dir / 'placement' / runfiles.REPORT}")
+    typer.echo(f"report: {res.out_dir / 'placement' / 'report.html'}")  # runfiles: placement's own
 
 
 @app.command()

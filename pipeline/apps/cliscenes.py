@@ -11,6 +11,7 @@ import typer
 import scenes
 from pipeline.apps.clicommon import WRITE_ERRNOS, fail, fail_os
 from pipeline.robot import Robot
+from pipeline.studyscene import map_route
 from scenes.mapsites import describe_map_scene
 
 __all__ = ["scenes_app"]
@@ -44,10 +45,6 @@ def scenes_show(
         fail(str(exc))
     route_note = ""
     if sc.route_m is None and scenes.sources.traits_of(sc).plans_route:  # a map: the route a study would plan
-        from pipeline.studyscene import (
-            map_route,  # lazy: start-up time  # lazy: start-up time  # lazy: start-up time
-        )  # lazy: start-up time
-
         try:
             sc = map_route(sc, Robot())
         except ValueError as exc:  # shown, not fatal: the map itself is fine to look at
@@ -67,9 +64,7 @@ def scenes_show(
         typer.echo(line)
     typer.echo(f"  content hash: {sc.content_hash()[:16]}")
     if png is not None:
-        from pipeline.stages import (
-            draw_scene_top_view,  # lazy: start-up time  # lazy: start-up time
-        )  # lazy: start-up time  # lazy: start-up time
+        from pipeline.stages import draw_scene_top_view  # lazy: start-up time
 
         try:
             typer.echo(f"  top view: {draw_scene_top_view(sc, png)}")

@@ -92,7 +92,7 @@ def fig_rho_vs_truth(run_dir, out_dir=None) -> list[Path]:
 
 
 def _fig7_table(run_dir: Path) -> pd.DataFrame:
-    p = run_dir / "truth" / "fig7_errors.parquet"
+    p = run_dir / runfiles.FIG7_ERRORS
     if p.is_file():
         return read_fig7_table(p)
     reads = pd.read_parquet(require(run_dir, runfiles.EVAL_READS))

@@ -125,7 +125,7 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory {run_dir} does not exist")
     out_dir = Path(out_dir) if out_dir is not None else run_dir / "figures"
-    if (run_dir / "recording" / "import.json").is_file():  # a recorded study's own figures
+    if (run_dir / runfiles.RECORDING_IMPORT).is_file():  # a recorded study's own figures
         return _draw_recorded(run_dir, out_dir, output or FigureOutput())
     names = list(FIGURES) if names is None else list(names)
     unknown = sorted(set(names) - set(FIGURES))

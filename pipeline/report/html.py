@@ -98,7 +98,7 @@ def _checked_config(cfg: dict, path: Path) -> dict:
 def _methods_html(run: Path, cfg: dict) -> list[str]:
     """Methods: materials (P.2040 fits extrapolated to the study frequency), radio geometry
     and the held-out design, from scene/scene.json and config.toml."""
-    info = _load_json(run / "scene" / "scene.json") or {}
+    info = _load_json(run / runfiles.SCENE_SUMMARY) or {}
     f_hz = float(cfg.get("frequency_hz", 865e6))  # checked by _checked_config
     out = ["<h2>Methods</h2>",
            "<p>Walls, floor and ceiling are traced as one radio surface per physical layer "
@@ -126,7 +126,7 @@ def _methods_html(run: Path, cfg: dict) -> list[str]:
 def figure_captions(run_dir: Path) -> dict[str, str]:
     """Captions by figure stem: ``figures/captions.json`` if present, else
     :data:`pipeline.figures.captions.CAPTIONS`."""
-    p = run_dir / "figures" / "captions.json"
+    p = run_dir / runfiles.FIGURE.format(name="captions.json")
     caps = _load_json(p) if p.exists() else None
     if isinstance(caps, dict):
         return {str(k): str(v) for k, v in caps.items()}

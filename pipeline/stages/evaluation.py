@@ -194,9 +194,6 @@ def _detection_models(sensors, names, eval_reads, eval_truth):
     (:func:`pipeline.sensormodels.registry.merge_identical_detection`, probed at the
     held-out links' MCL and true geometry and the truth grid's cell centres), and the
     merged ones -> their twin."""
-    import numpy as np
-
-
     dc, ac = eval_truth.grid.centre_mesh()
     d = np.concatenate([eval_reads["d_est_m"], eval_reads["d_true_m"], dc.ravel()])
     a = np.concatenate([eval_reads["alpha_est_rad"], eval_reads["alpha_true_rad"], ac.ravel()])

@@ -32,7 +32,7 @@ from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import build_robot, load_study_recording, recorded_scene
 
-__all__ = ["STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: stages.common's
+__all__ = ["STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: pipeline.studyscene's
 
 
 def _check_channels(rec, cfg) -> None:

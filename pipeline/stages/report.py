@@ -17,5 +17,5 @@ def stage_report(ctx) -> dict:
 
 
 STAGE = Stage("report", stage_report, (), ("figures", "evaluation"), version=2,  # each version's change: CHANGELOG.md
-              description=runfiles.REPORT,
+              description="report.html",  # runfiles: a label, not a path
               outputs=STAGE_OUTPUTS["report"])

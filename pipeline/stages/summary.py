@@ -28,7 +28,7 @@ def run_summary(run_dir: str | Path) -> dict:
     import pandas as pd
 
     run = Path(run_dir)
-    if (run / "replicates" / "index.json").is_file():  # a replicated study: their mean
+    if (run / runfiles.REPLICATES_INDEX).is_file():  # a replicated study: their mean
         reps = sorted((p for p in (run / "replicates").iterdir()
                        if p.name.isdecimal() and (p / runfiles.METRICS).is_file()),
                       key=lambda p: int(p.name))
@@ -39,7 +39,7 @@ def run_summary(run_dir: str | Path) -> dict:
         return out
     row: dict = {}
     reads = pd.read_parquet(run / runfiles.TRAIN_READS, columns=["tag_id", "read", "in_range"])
-    scene_info = json.loads((run / "scene" / "scene.json").read_text())
+    scene_info = json.loads((run / runfiles.SCENE_SUMMARY).read_text())
     n_tags = scene_info.get("n_tags_train", scene_info["n_tags"])  # the training tour's layout
     in_range = reads["in_range"].to_numpy(bool)
     read = reads["read"].to_numpy(bool)

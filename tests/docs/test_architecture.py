@@ -74,3 +74,12 @@ def test_the_layers_are_the_import_tests():
 def test_named_paths_finds_files_and_folders():
     found = named_paths("see `pipeline/engine/` and `scenes/sources.py`, not `pipeline/<x>.py` or `a b`")
     assert found == {"pipeline/engine/", "scenes/sources.py"}
+
+
+def test_every_stage_has_a_row_in_the_data_flow():
+    from pipeline.runfiles import STAGE_OUTPUTS
+
+    flow = _section(_text(), "Data flow of a study")
+    rows = {line.split("|")[1].strip() for line in flow.splitlines() if line.startswith("| ")}
+    missing = sorted(set(STAGE_OUTPUTS) - rows)
+    assert not missing, f"stages without a row in the data-flow tables: {missing}"

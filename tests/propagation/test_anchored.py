@@ -67,7 +67,7 @@ def test_local_mean_is_the_power_sum(floor_scene):
 
 
 def test_specular_model_paths_are_cached(floor_scene, tmp_path, monkeypatch):
-    import propagation.completion
+    import propagation.anchored
 
     d, anchors, src = _two_ray_setup()
     need = np.ones((1, len(d)), bool)
@@ -77,7 +77,8 @@ def test_specular_model_paths_are_cached(floor_scene, tmp_path, monkeypatch):
     def no_solver(*args, **kwargs):
         raise AssertionError("the cached specular model was recomputed")
 
-    monkeypatch.setattr(propagation.completion, "complete_specular", no_solver)
+    # the name anchored calls (imported there at module level)
+    monkeypatch.setattr(propagation.anchored, "complete_specular", no_solver)
     again = specular_model_paths(floor_scene, src, anchors, need, F, 1, cache_dir=tmp_path)
     np.testing.assert_array_equal(first[0].tau_s, again[0].tau_s)
     np.testing.assert_array_equal(first[0].transfer, again[0].transfer)

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import runfiles
 from pipeline.apps.placement.objectives import OBJECTIVES
 from pipeline.apps.placement.results import ranking_table
 from pipeline.engine.runstore import atomic_write_bytes
@@ -218,4 +217,4 @@ def write_report(spec, out: Path, df, answer: dict, figures: list) -> Path:
         n_candidates=answer.get("n_candidates"), replicates=answer.get("replicates"),
         table=Markup(table), figures=figs, objectives=list(OBJECTIVES.values()), units=units,
         upto=answer.get("studies_ran_upto", "evaluation"), dropped=answer.get("dropped") or [])
-    return atomic_write_bytes(out / "placement" / runfiles.REPORT, text.encode("utf-8"))
+    return atomic_write_bytes(out / "placement" / "report.html", text.encode("utf-8"))  # runfiles: placement's own

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import pipeline.robot as robot_pkg
+import pipeline.stages.tour as tour_stage
 import scenes
 from pipeline.config import config_from_mapping
 from pipeline.parallel import WORKERS_ENV, fork_workers
@@ -53,8 +54,9 @@ def test_one_map_for_both_tours(tmp_path, corridor_lab, monkeypatch):
         used.append(occupancy_map)
         return real_sim(*a, occupancy_map=occupancy_map, **k)
 
-    monkeypatch.setattr(robot_pkg, "draw_robot_map", draw)
-    monkeypatch.setattr(robot_pkg, "simulate_localisation", sim)
+    # the stage's own names (it imports them at module level)
+    monkeypatch.setattr(tour_stage, "draw_robot_map", draw)
+    monkeypatch.setattr(tour_stage, "simulate_localisation", sim)
     monkeypatch.setenv(WORKERS_ENV, "1")  # the spies see this process only: no fork
     info = stage_tour(_ctx(tmp_path, corridor_lab, map_error_m=0.05))
     assert len(drawn) == 1 and len(used) == 2
