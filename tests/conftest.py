@@ -3,11 +3,21 @@
 ``tiny_study``: one real tiny study per test session (``configs/tiny.toml``: corridor_lab,
 5 m of route, low ray counts, 3 epochs; real MCL, real Sionna traces, real Parquet, real
 ANFIS, real figures) with a propagation cache of its own. The study tests read its run
-directory; a test that changes a run works on a copy (:func:`copy_run`).
+directory; a test that changes a run works on a copy (:func:`copy_run`), and one that
+counts the cache's files on a copy of the cache (:func:`link_copy`): the run directory
+and the cache are shared by every test of the session.
+
+Under pytest-xdist the workers share it too: the first worker that asks builds it in the
+session's temporary folder (the parent of the workers' own), under a file lock; the
+others wait for it and read it (the study is minutes of CPU on a 2-core machine). Nothing
+writes into the run directory after it is built; the cache takes more traces (oracle,
+recorded studies), which several processes may do at once (propagation.pathcache).
 """
 
 from __future__ import annotations
 
+import os
+import pickle
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,19 +44,41 @@ class TinyStudy:
         return self.base / "run"
 
 
+def session_folder(tmp_path_factory) -> Path:
+    """The test session's temporary folder, shared by its xdist workers (the parent of
+    each worker's own basetemp), else the basetemp itself."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
 @pytest.fixture(scope="session")
 def tiny_study(tmp_path_factory) -> TinyStudy:
+    from filelock import FileLock
+
     from pipeline.apps.studyrun import run_full_study
     from pipeline.config import load_config, replace_path
 
-    base = tmp_path_factory.mktemp("tiny")
+    shared = session_folder(tmp_path_factory)
+    base = shared / "tiny"
     cfg = load_config(ROOT / "configs" / "tiny.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(base / "cache"))
-    res = run_full_study(cfg, base / "run", command_line=["pytest"])
-    return TinyStudy(cfg, base, res)
+    done = base / "result.pickle"  # written once the study is complete
+    with FileLock(str(shared / "tiny.lock")):
+        if not done.is_file():  # the first worker here: build it (or resume a failed build)
+            res = run_full_study(cfg, base / "run", command_line=["pytest"])
+            done.write_bytes(pickle.dumps(res))
+    return TinyStudy(cfg, base, pickle.loads(done.read_bytes()))
 
 
 def copy_run(study: TinyStudy, dest: Path, **kw) -> Path:
     """A copy of the tiny study's run directory at ``dest`` (``shutil.copytree`` keywords)."""
     shutil.copytree(study.run, dest, **kw)
+    return dest
+
+
+def link_copy(src: Path, dest: Path) -> Path:
+    """``src`` copied to ``dest`` as hard links (a propagation cache: its files are written
+    once under new names and never changed, so the copy costs no bytes and later writes
+    into either folder do not show in the other)."""
+    shutil.copytree(src, dest, copy_function=os.link)
     return dest

@@ -13,6 +13,7 @@ import pytest
 
 from pipeline.apps.replicates import replicate_configs, replicate_seed
 from pipeline.config import ConfigError, config_from_mapping, load_config, replace_path
+from tests.conftest import copy_run
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -43,14 +44,17 @@ def test_bad_replicate_counts_are_refused(value, match):
         config_from_mapping({"replicates": {"workers": -1}})
 
 
-def test_two_replicates_pooled_then_a_third_that_fails(tmp_path):
+def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path):
+    """Replicate 0 has the study's own seed: it is the single study of the same config, so
+    the session's tiny study (copied into ``replicates/0``, same cache) is replicate 0
+    finished; the replicated run resumes it (every stage cached) and runs replicate 1."""
     from pipeline.apps.studyrun import run_full_study
 
-    cfg = load_config(ROOT / "configs" / "tiny.toml")
-    cfg = replace_path(cfg, "tracing.cache_dir", str(tmp_path / "cache"))
-    cfg = replace_path(cfg, "replicates.n", 2)
+    cfg = replace_path(tiny_study.config, "replicates.n", 2)
     run = tmp_path / "run"
-    res = run_full_study(cfg, run, progress=False, command_line=["pytest"])
+    copy_run(tiny_study, run / "replicates" / "0")
+    # force_dir: the run directory holds replicates/0 and no manifest of its own yet
+    res = run_full_study(cfg, run, progress=False, command_line=["pytest"], force_dir=True)
     assert res.ran == ["replicates", "pooled", "report"]
     m = json.loads((run / "metrics.json").read_text())
     assert m["replicates"]["covers"] == "2 of 2 replicates" and not m["replicates"]["failed"]
@@ -62,6 +66,7 @@ def test_two_replicates_pooled_then_a_third_that_fails(tmp_path):
     assert not np.allclose(held[0][["x_m", "y_m", "z_m"]].to_numpy(),
                            held[1][["x_m", "y_m", "z_m"]].to_numpy())
     own = [json.loads((run / "replicates" / k / "metrics.json").read_text()) for k in ("0", "1")]
+    assert own[0] == json.loads((tiny_study.run / "metrics.json").read_text())  # resumed as is
     tag = m["intervals"]["tag_localisation.median_m"]
     assert tag["unit"] == "replicate x tag" and tag["n_units"] == 32
     # two replicates: the replicate is the top-level unit, and one difference between two

@@ -9,8 +9,8 @@ test_study_runner.py. The smoke study runs without the ray-traced oracle; one te
 runs it on a copy (its parts are unit-tested in tests/pipeline/localisation and
 tests/propagation/test_anchored.py).
 
-The study tests live in this one module: ``make test`` distributes tests by module over
-its xdist workers (``--dist loadscope``), so one worker runs the tiny study once.
+The tiny study is built once per session, whichever xdist worker asks first (the others
+wait for it and read it: tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from pipeline.config import load_config, replace_path
 from pipeline.engine.study import run_study
 from pipeline.stages import stage_names
 from pipeline.stages.summary import run_summary
-from tests.conftest import copy_run
+from tests.conftest import copy_run, link_copy
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -110,9 +110,10 @@ def test_truth_refuses_traces_of_another_path(tiny, tmp_path):
         _check_trace_poses(ctx)
 
 
-def test_second_run_skips_every_stage(tiny):
-    cfg, base, _ = tiny
-    res = run_full_study(cfg, base / "run", command_line=["pytest"])
+def test_second_run_skips_every_stage(tiny_study, tmp_path):
+    # on a copy: the session's run directory is read by other tests (and workers) meanwhile
+    run = copy_run(tiny_study, tmp_path / "run")
+    res = run_full_study(tiny_study.config, run, command_line=["pytest"])
     assert res.ran == [] and res.cached == stage_names()
 
 
@@ -120,10 +121,13 @@ def test_new_run_dir_traces_nothing(tiny, tmp_path):
     from pipeline.stages import STAGES
 
     cfg, base, _ = tiny
-    cache_before = sorted(p.relative_to(base) for p in (base / "cache").rglob("*"))
-    run_study(cfg, tmp_path / "run2", stages=STAGES[:3], manifest_extra=None)
+    # a copy of the session's cache, which other tests (and workers) add to meanwhile
+    cache = link_copy(base / "cache", tmp_path / "cache")
+    cache_before = sorted(p.relative_to(cache) for p in cache.rglob("*"))
+    run_study(replace_path(cfg, "tracing.cache_dir", str(cache)), tmp_path / "run2",
+              stages=STAGES[:3], manifest_extra=None)
     # the shared cache answers every link of the same tour: no new cache entry was made
-    assert sorted(p.relative_to(base) for p in (base / "cache").rglob("*")) == cache_before
+    assert sorted(p.relative_to(cache) for p in cache.rglob("*")) == cache_before
     a = pd.read_parquet(tmp_path / "run2" / "reads.parquet")
     b = pd.read_parquet(base / "run" / "reads.parquet")
     pd.testing.assert_frame_equal(a, b)  # bit-reproducible from the seed
@@ -282,11 +286,17 @@ def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tin
 
 def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path):
     """The oracle in the real study: the tiny study copied and run again with
-    ``downstream.oracle = true``; only the downstream stage and what follows re-run."""
+    ``downstream.oracle = true``; only the downstream stage and what follows re-run.
+    Its search narrowed to what the assertions need (a third less time): the coarse
+    pass only as far as the longest read, windows of 0.2 m (a broken search, e.g. the
+    coarse modes taken from the worst anchors, lands metres away: within 1 m of none)."""
     run = copy_run(tiny_study, tmp_path / "run")
     cfg = replace_path(tiny_study.config, "downstream.oracle", True)
+    cfg = replace_path(cfg, "downstream.oracle_reach_m", 1.0)  # at least the longest read
+    cfg = replace_path(cfg, "downstream.oracle_window_m", 0.2)
     res = run_full_study(cfg, run, command_line=["pytest"])
-    assert res.changed_keys == ["downstream.oracle"]
+    assert res.changed_keys == ["downstream.oracle", "downstream.oracle_reach_m",
+                                "downstream.oracle_window_m"]
     assert res.ran == ["downstream", "evaluation", "figures", "report"]
     m = json.loads((run / "metrics.json").read_text())
     n_eval = m["tag_localisation"]["anfis"]["n_tags"]

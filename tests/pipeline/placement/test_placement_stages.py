@@ -17,8 +17,10 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("placement_cache")  # traced once, shared by the tests
+def cache(tiny_study) -> Path:
+    # the session's tiny study's cache: its tour is the 0-degree candidate's (replicate 0
+    # has the base seed, the mounts are the base's), so no test here traces anything
+    return Path(tiny_study.config.tracing.cache_dir)
 
 
 def _spec(tmp_path: Path, cache: Path, head: str, study: str = ""):
