@@ -97,7 +97,6 @@ def tag_candidates(scene, cfg: StudyConfig):
     each centred on its face coincided where ``floor(W / 0.05)`` was odd). Another
     spacing may put a candidate on a held-out tag.
     """
-
     return tag_sites(scene, spacing_m=cfg.downstream.candidate_spacing_m, z_range_m=None,
                      between_m=EVAL_TAG_SPACING_M)
 
@@ -105,7 +104,6 @@ def tag_candidates(scene, cfg: StudyConfig):
 def study_building(cfg: StudyConfig):
     """``scenes.load(cfg.scene)`` with the study's ``[[materials]]`` laid over the scene's own
     material overrides (:func:`pipeline.sceneconfig.material_overrides`)."""
-
     sc = scenes.load(cfg.scene)
     if not cfg.materials:
         return sc
@@ -133,7 +131,6 @@ def study_scene(cfg: StudyConfig):
     split : numpy.ndarray, shape (n_tags,), str
         ``"train"`` or ``"eval"`` per tag, in ``scene.tags`` order.
     """
-
     sc = map_route(study_building(cfg), build_robot(cfg))
     ev = cfg.evaluation
     train = sc.tags
@@ -235,7 +232,6 @@ def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:
 
 def load_study_recording(cfg):
     """The study's ``[recording]`` read (:func:`pipeline.recording.load.load_recording`)."""
-
     return load_recording(cfg.recording, region=cfg.reader.region,
                           n_mounts=len(cfg.robot.antennas))
 
@@ -263,7 +259,6 @@ def recorded_scene(cfg, memo: dict | None = None):
     pipeline.recording.RecordingError
         A recording file cannot be read; fewer than two tags.
     """
-
     rec = load_study_recording(cfg)
     if memo is not None:  # the recording stage reads it from here, not the files again
         memo["recording"] = rec
@@ -304,7 +299,6 @@ def study_route(scene, cfg: StudyConfig) -> np.ndarray | None:
 
 def build_robot(cfg: StudyConfig):
     """``pipeline.robot.Robot`` with the config's antenna mounts (degrees -> radians)."""
-
     mounts = [
         AntennaMount(a.name, x_m=a.x_m, y_m=a.y_m, z_m=a.z_m, yaw_rad=float(np.deg2rad(a.yaw_deg)),
                      tilt_rad=float(np.deg2rad(a.tilt_deg)), cable_loss_db=float(a.cable_loss_db))
@@ -320,7 +314,6 @@ def link_budget(cfg: StudyConfig):
 
 def trace_options(cfg: StudyConfig):
     """The ``propagation.TraceOptions`` of the [tracing] section (for ``trace_links``)."""
-
     t = cfg.tracing
     return TraceOptions(
         method=t.method,
@@ -361,7 +354,6 @@ def preferred_backend(tracing: TracingConfig) -> str:
 def select_backend(cfg: StudyConfig) -> str:
     """Select the Dr.Jit variant (``propagation.select_variant``, as
     :func:`preferred_backend` says) before any tracing."""
-
     variant = propagation.select_variant(prefer=preferred_backend(cfg.tracing))
     propagation.set_deterministic(cfg.tracing.deterministic)
     return variant

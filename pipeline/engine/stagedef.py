@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.config import StudyConfig, config_to_dict, is_config_key
-from pipeline.engine.runstore import RunStore, json_hash
+from pipeline.engine.runstore import RunStore, json_hash, regular_file
 
 __all__ = [
     "Stage",
@@ -201,7 +201,7 @@ def undeclared_outputs(st: Stage, staged: Path) -> list[str]:
     if st.outputs is None:
         return []
     bad = []
-    for f in sorted(p for p in Path(staged).rglob("*") if p.is_file()):
+    for f in sorted(p for p in Path(staged).rglob("*") if regular_file(p)):  # what commit moves
         rel = f.relative_to(staged).as_posix()
         depth = rel.count("/")
         if not any(g.count("/") == depth and fnmatch.fnmatchcase(rel, g) for g in st.outputs):
