@@ -1,4 +1,8 @@
-"""A two-point sweep of real tiny studies on a real Dask LocalCluster (2 worker processes)."""
+"""A two-point sweep of real tiny studies on a real Dask LocalCluster (2 worker processes).
+
+The points are the session's tiny study at two transmit powers: the tx power enters the
+reads after tracing, so both read every trace from the tiny study's cache; the downstream
+benchmark, which nothing here reads, is off."""
 
 from __future__ import annotations
 
@@ -12,24 +16,23 @@ from pipeline.apps.sweep import load_sweep, run_sweep
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _sweep_file(tmp_path: Path) -> Path:
+def _sweep_file(tmp_path: Path, cache: str) -> Path:
     p = tmp_path / "sweep.toml"
     p.write_text(
         f'base = "{(ROOT / "configs" / "tiny.toml").as_posix()}"\n'
         "[parameters]\n"
         "tx_power_dbm = [24.0, 27.15]\n"
-        "[study.tour]\n"
-        "max_length_m = 3.0\n"
-        "n_eval_poses = 10\n"
+        "[study.downstream]\n"
+        "enabled = false\n"
         "[study.tracing]\n"
-        f'cache_dir = "{(tmp_path / "cache").as_posix()}"\n'
+        f'cache_dir = "{Path(cache).as_posix()}"\n'
     )
     return p
 
 
-def test_sweep_on_local_dask_cluster(tmp_path):
+def test_sweep_on_local_dask_cluster(tiny_study, tmp_path):
     distributed = pytest.importorskip("distributed")
-    plan = load_sweep(_sweep_file(tmp_path))
+    plan = load_sweep(_sweep_file(tmp_path, tiny_study.config.tracing.cache_dir))
     assert len(plan.configs) == 2
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
@@ -51,7 +54,7 @@ def test_sweep_on_local_dask_cluster(tmp_path):
 
 
 @pytest.mark.slow
-def test_sweep_on_local_processes(tmp_path):
-    plan = load_sweep(_sweep_file(tmp_path))
+def test_sweep_on_local_processes(tiny_study, tmp_path):
+    plan = load_sweep(_sweep_file(tmp_path, tiny_study.config.tracing.cache_dir))
     res = run_sweep(plan, tmp_path / "out", workers=2)
     assert list(res.summary["status"]) == ["complete", "complete"]

@@ -177,12 +177,14 @@ def run_dir(tmp_path_factory):
     return run
 
 
-def test_draw_all_writes_every_figure(run_dir, tmp_path, request):
+def test_draw_all_writes_every_figure_and_side_by_side_the_same_bytes(run_dir, tmp_path,
+                                                                      monkeypatch):
     # --basetemp keeps them for a look; otherwise tmp_path. (How fast is bench's business:
     # a wall-clock bound here would assert a fact of the machine, not of the code.)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")  # as the figures stage runs
     out = tmp_path / "figs"
-    paths = draw_all(run_dir, out_dir=out)
-    names = {p.stem for p in paths}
+    two = draw_all(run_dir, out_dir=out, workers=2)  # side by side, forked
+    names = {p.stem for p in two}
     assert names == set(FIGURES)
     for name in FIGURES:
         png, pdf = out / f"{name}.png", out / f"{name}.pdf"
@@ -190,6 +192,11 @@ def test_draw_all_writes_every_figure(run_dir, tmp_path, request):
         assert png.stat().st_size > 5000, name
         assert pdf.read_bytes()[:5] == b"%PDF-", name
     assert not list(out.glob(".*tmp*"))  # no temporary files left
+    # drawn one after the other in this process: the same bytes
+    one = draw_all(run_dir, out_dir=tmp_path / "one", workers=1)
+    assert [p.name for p in one] == [p.name for p in two]
+    for a, b in zip(one, two, strict=True):
+        assert a.read_bytes() == b.read_bytes(), a.name
 
 
 def test_draw_all_skips_figures_with_missing_inputs(run_dir, tmp_path, caplog):
@@ -222,19 +229,11 @@ def test_draw_all_errors(tmp_path):
         draw_all(tmp_path, names=["fig99"])
 
 
-def test_figures_drawn_side_by_side_are_the_same_bytes(run_dir, tmp_path, monkeypatch):
-    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")  # as the figures stage runs
-    one = draw_all(run_dir, out_dir=tmp_path / "one", workers=1)
-    two = draw_all(run_dir, out_dir=tmp_path / "two", workers=2)
-    assert [p.name for p in one] == [p.name for p in two]
-    for a, b in zip(one, two, strict=True):
-        assert a.read_bytes() == b.read_bytes(), a.name
-
-
 def test_a_failing_figure_fails_draw_all_from_a_worker(run_dir, tmp_path, monkeypatch):
     def broken(run_dir, out_dir=None):
         raise RuntimeError("broken figure")
 
     monkeypatch.setitem(FIGURES, "baselines", broken)
-    with pytest.raises(RuntimeError, match="broken figure"):
-        draw_all(run_dir, out_dir=tmp_path / "x", workers=2)
+    with pytest.raises(RuntimeError, match="broken figure"):  # two figures: two workers
+        draw_all(run_dir, out_dir=tmp_path / "x", names=["scene_top_view", "baselines"],
+                 workers=2)

@@ -12,6 +12,7 @@ import pytest
 
 from pipeline.apps.placement import load_placement, run_placement
 from pipeline.apps.placement.runner import PlacementStopped
+from pipeline.parallel import WORKERS_ENV
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -71,8 +72,16 @@ def test_inventory_objectives_run_no_model_and_answer_in_engineering_units(tmp_p
     assert "tags never read in the tour" in report
 
 
-def test_a_model_only_the_pareto_needs_is_dropped_not_fatal(tmp_path, cache):
+def _one_stage_at_a_time(monkeypatch):
+    """The candidates' studies run their stages one after the other: the truth's traces
+    (cached) in the study's own process, not in a fresh interpreter started per study;
+    nothing here looks at where a stage ran (tests/pipeline/test_study_side.py does)."""
+    monkeypatch.setenv(WORKERS_ENV, "1")
+
+
+def test_a_model_only_the_pareto_needs_is_dropped_not_fatal(tmp_path, cache, monkeypatch):
     # 100 rules on a 5 m tour: fewer samples than rules, every candidate fails
+    _one_stage_at_a_time(monkeypatch)
     spec = _spec(tmp_path, cache, 'primary = "read_rate"\npareto = ["read_rate", "rssi_rmse_db"]',
                  "[study.training]\nn_clusters = 100\n")
     out = tmp_path / "out"
@@ -90,7 +99,8 @@ def test_a_model_only_the_pareto_needs_is_dropped_not_fatal(tmp_path, cache):
     assert "Not computed" in (out / "placement" / "report.html").read_text()
 
 
-def test_two_candidates_failing_alike_stop_the_placement(tmp_path, cache):
+def test_two_candidates_failing_alike_stop_the_placement(tmp_path, cache, monkeypatch):
+    _one_stage_at_a_time(monkeypatch)
     spec = _spec(tmp_path, cache, 'primary = "rssi_rmse_db"\npareto = ["read_rate", "rssi_rmse_db"]',
                  "[study.training]\nn_clusters = 100\n")
     out = tmp_path / "out"
