@@ -107,12 +107,13 @@ def twin(out: Path, *, mcl: bool, length_m: float) -> dict:
         print(f"{name}: held-out RSSI MAE before {h['before']['estimate']:.2f} dB, after "
               f"{h['after']['estimate']:.2f} dB ({h['difference']['verdict']}; {h['n_tags']} tags); "
               f"simulate {res[name]['simulate_s']:.0f} s, recorded study {res[name]['recorded_s']:.0f} s")
-        vs = cal.get("constructions", {}).get("heldout_against_reader_only", {}).get("rssi_mae_db")
-        if vs:
-            print(f"  constructions fitted against the reader alone: RSSI MAE "
-                  f"{vs['with_constructions']['estimate']:.2f} vs {vs['reader_only']['estimate']:.2f} dB "
-                  f"({vs['difference']['verdict']}); in calibrated.toml: "
-                  f"{cal['constructions'].get('in_calibrated_toml') is True}")
+        for where in ("crossvalidated", "heldout"):  # the choice (training tags), its check
+            vs = cal.get("constructions", {}).get(f"{where}_against_reader_only", {}).get("rssi_mae_db")
+            if vs:
+                print(f"  constructions fitted against the reader alone ({where}): RSSI MAE "
+                      f"{vs['with_constructions']['estimate']:.2f} vs {vs['reader_only']['estimate']:.2f} dB "
+                      f"({vs['difference']['verdict']}); in calibrated.toml: "
+                      f"{cal['constructions'].get('in_calibrated_toml') is True}")
     (out / "twin.json").write_text(json.dumps(res, indent=1, default=str))
     return res
 

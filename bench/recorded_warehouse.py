@@ -87,10 +87,13 @@ def main() -> None:
             if isinstance(v, dict):
                 print(f"    {v.get('label', key):28s} {v['before']['estimate']:8.4g} -> "
                       f"{v['after']['estimate']:8.4g}  ({v['difference']['verdict']})")
-        vs = c.get("constructions", {}).get("heldout_against_reader_only", {})
-        for key, v in vs.items():
-            print(f"    constructions vs reader alone, {key}: {v['with_constructions']['estimate']:.4g} vs "
-                  f"{v['reader_only']['estimate']:.4g} ({v['difference']['verdict']})")
+        for where in ("crossvalidated", "heldout"):  # the choice, then its check
+            vs = c.get("constructions", {}).get(f"{where}_against_reader_only", {})
+            for key, v in vs.items():
+                if isinstance(v, dict):
+                    print(f"    constructions vs reader alone, {where}, {key}: "
+                          f"{v['with_constructions']['estimate']:.4g} vs "
+                          f"{v['reader_only']['estimate']:.4g} ({v['difference']['verdict']})")
         print(f"    constructions in calibrated.toml: {c.get('constructions', {}).get('in_calibrated_toml')}")
 
 

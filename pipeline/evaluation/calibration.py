@@ -96,7 +96,7 @@ from pipeline.evaluation.simreal import sim_vs_real
 from pipeline.parallel import map_forked
 
 __all__ = ["N_BOOT", "CalibrationFit", "MaterialModel", "MaterialTerms", "calibrate",
-           "fit_calibration", "predict"]
+           "fit_calibration", "linearise", "predict"]
 
 #: Bootstrap resamples of the training tags behind each interval (5 per tail at 95 %).
 N_BOOT = 200
@@ -161,13 +161,20 @@ class MaterialTerms:
         return MaterialTerms(self.at, self.base_db[mask], self.jac_db[mask], self.lower, self.upper)
 
 
-def _linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray) -> MaterialTerms:
+def linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray, *,
+              whole_range: bool = False) -> MaterialTerms:
+    """``model``'s gain change of attempts ``rows`` linearised at ``at`` (forward differences
+    of :data:`MATERIAL_STEP`), fitted within :data:`MATERIAL_TRUST` of ``at`` or, with
+    ``whole_range``, within each parameter's whole range (the refits of the bootstrap and
+    of the cross-validation)."""
     base = np.asarray(model.delta_db(at), np.float64)[rows]
     jac = np.empty((len(base), len(at)))
     for j in range(len(at)):
         step = np.zeros(len(at))
         step[j] = MATERIAL_STEP if at[j] + MATERIAL_STEP <= model.upper[j] else -MATERIAL_STEP
         jac[:, j] = (np.asarray(model.delta_db(at + step), np.float64)[rows] - base) / step[j]
+    if whole_range:
+        return MaterialTerms(at.copy(), base, jac, model.lower, model.upper)
     lo = np.maximum(model.lower, at - MATERIAL_TRUST)
     hi = np.minimum(model.upper, at + MATERIAL_TRUST)
     return MaterialTerms(at.copy(), base, jac, lo, hi)
@@ -367,7 +374,7 @@ def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.
     best = exact(at)
     steps, converged, ended, terms = [at.tolist()], False, "iterations", None
     for _ in range(MATERIAL_ITERATIONS):
-        terms = _linearise(model, at, rows)
+        terms = linearise(model, at, rows)
         proposal = fit_calibration(train, budget, n_antennas, miss_probability=q, terms=terms,
                                    start=best._x, strict=False)  # noqa: SLF001 - our own vectors
         step = proposal.material_log_ratios - at
@@ -385,7 +392,7 @@ def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.
         at, best, terms = at + step, trial, None
         steps.append(at.tolist())
     if terms is None or not np.array_equal(terms.at, at):
-        terms = _linearise(model, at, rows)
+        terms = linearise(model, at, rows)
     best = exact(at, strict=True)  # the reported reader: its own checks apply
     if not np.isfinite(best._nll):  # noqa: SLF001
         raise ValueError("calibration: the likelihood is not finite at the fitted construction "

@@ -232,10 +232,17 @@ def write_recorded_report(run_dir, metrics: dict, out) -> Path:
                          f"<td>{esc(v.get('unit', ''))}</td><td>{traced}</td>"
                          f"<td>{esc(v.get('note', ''))}</td></tr>")
         parts.append("</table>")
-        vs = cal.get("constructions", {}).get("heldout_against_reader_only", {})
-        if vs:
-            parts.append("<p class='muted'>The same held-out tags with the constructions fitted "
-                         "and with the reader's parameters alone:</p><table><tr><th>held-out</th>"
+        cons = cal.get("constructions", {})
+        for title, head, vs in (
+                ("Out of fold on the training tags (folds of whole tags; what chose the overlay):",
+                 "training, out of fold", cons.get("crossvalidated_against_reader_only", {})),
+                ("The same held-out tags with the constructions fitted and with the reader's "
+                 "parameters alone (a check of that choice):", "held-out",
+                 cons.get("heldout_against_reader_only", {}))):
+            vs = {k: v for k, v in vs.items() if isinstance(v, dict)}
+            if not vs:
+                continue
+            parts.append(f"<p class='muted'>{esc(title)}</p><table><tr><th>{esc(head)}</th>"
                          "<th>reader only</th><th>with constructions</th><th>difference</th></tr>")
             for key, val in vs.items():
                 diff = val.get("difference", {})
