@@ -419,9 +419,11 @@ def _segment_distance_field(
         return out
     xs = origin[0] + (np.arange(nx) + 0.5) * res
     ys = origin[1] + (np.arange(ny) + 0.5) * res
-    a = segments[:, 0]
-    e = segments[:, 1] - segments[:, 0]
-    ee = np.maximum(np.sum(e * e, axis=1), 1e-300)
+    # x and y kept apart: a sum over a last axis of length 2 is a slow reduction, and
+    # ``px * ex + py * ey`` is the same two products added in the same order (same bits)
+    ax, ay = segments[:, 0, 0], segments[:, 0, 1]
+    ex, ey = segments[:, 1, 0] - ax, segments[:, 1, 1] - ay
+    ee = np.maximum(ex * ex + ey * ey, 1e-300)
     seg_lo, seg_hi = segments.min(1), segments.max(1)
     for r0 in range(0, ny, tile):
         for c0 in range(0, nx, tile):
@@ -432,15 +434,17 @@ def _segment_distance_field(
             if not len(near):
                 continue
             gx, gy = np.meshgrid(tx, ty)
-            c = np.stack([gx.ravel(), gy.ravel()], 1)
-            ac, ec, eec = a[near], e[near], ee[near]
-            d2 = np.full(len(c), cap_m**2)
-            step = max(1, 4_000_000 // len(ac))
-            for i in range(0, len(c), step):
-                cc = c[i : i + step, None, :] - ac[None]
-                t = np.clip(np.sum(cc * ec[None], axis=2) / eec[None], 0.0, 1.0)
-                diff = cc - t[..., None] * ec[None]
-                d2[i : i + step] = np.minimum(d2[i : i + step], np.min(np.sum(diff**2, axis=2), 1))
+            cx, cy = gx.ravel(), gy.ravel()
+            axn, ayn, exn, eyn, een = ax[near], ay[near], ex[near], ey[near], ee[near]
+            d2 = np.full(len(cx), cap_m**2)
+            step = max(1, 4_000_000 // len(near))
+            for i in range(0, len(cx), step):
+                px = cx[i : i + step, None] - axn[None]
+                py = cy[i : i + step, None] - ayn[None]
+                t = np.clip((px * exn[None] + py * eyn[None]) / een[None], 0.0, 1.0)
+                dx = px - t * exn[None]
+                dy = py - t * eyn[None]
+                d2[i : i + step] = np.minimum(d2[i : i + step], np.min(dx * dx + dy * dy, 1))
             out[r0 : r0 + tile, c0 : c0 + tile] = np.sqrt(d2).reshape(len(ty), len(tx))
     return out
 

@@ -102,9 +102,12 @@ def test_anchor_groups_cells_never_mix_orientations():
     assert len(empty[0]) == 0 and len(empty[1]) == 0
 
 
-def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene):
+def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene, tmp_path):
     """A tag on the corridor wall, read along a straight pass with reads drawn from the
-    oracle's own likelihood: the coarse-to-fine search lands within a window of it."""
+    oracle's own likelihood: the coarse-to-fine search lands within a window of it.
+
+    Both searches share a path cache: the blind one reads the paths the first traced (the
+    truth's own paths, traced only for ``truth_preferred``, are never asked for by it)."""
     from pipeline.localisation import Observations, OracleLikelihood
     from pipeline.localisation.global_oracle import OracleSearch, global_oracle
     from propagation import LinkBudget, TraceOptions, trace_links
@@ -124,7 +127,7 @@ def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene):
     obs = Observations(("t",), np.arange(len(x), dtype=float), yaw < 0, poses, read, rssi,
                        np.ones_like(read))
     res = global_oracle(obs, poses, sites, corridor_scene, oracle, search=OracleSearch(),
-                        frequency_hz=F, trace=trace,
+                        frequency_hz=F, trace=trace, cache_dir=tmp_path,
                         pattern_kw={"reader_pattern": "tr38901", "reader_polarization": "V",
                                     "tag_pattern": "hw_dipole"},
                         truth_m=true.positions_m, truth_normals=true.normals)
@@ -136,12 +139,12 @@ def test_global_oracle_finds_a_wall_tag_without_seeing_it(corridor_scene):
     assert not res.truth_preferred[0]  # the estimate scores at least as well as the truth
     # the search never looks at the truth: without it (or with a wrong one) the same answer
     blind = global_oracle(obs, poses, sites, corridor_scene, oracle, search=OracleSearch(),
-                          frequency_hz=F, trace=trace,
+                          frequency_hz=F, trace=trace, cache_dir=tmp_path,
                           pattern_kw={"reader_pattern": "tr38901", "reader_polarization": "V",
                                       "tag_pattern": "hw_dipole"})
     assert blind.truth_preferred is None
     np.testing.assert_array_equal(blind.posteriors.map_m, res.posteriors.map_m)
-    # the same paths (traced again: no cache here), summed in another order with float32
+    # the same paths (from the cache), summed in another order with float32
     # cos/sin (window_gains_db: ~1e-6 dB per gain): 4e-6 in the log posterior measured
     np.testing.assert_allclose(blind.posteriors.log_posterior, res.posteriors.log_posterior,
                                atol=1e-4)
@@ -244,7 +247,10 @@ def test_specular_model_in_bounded_calls_is_the_same(corridor_scene, monkeypatch
     need = np.array([[1, 1, 0], [1, 1, 1], [0, 1, 1], [1, 0, 1]], bool)
     whole = specular_model_paths(corridor_scene, src, tags, need, F, 2)
     monkeypatch.setattr(anchored, "_MODEL_LINKS_PER_CALL", 5)  # two positions per call
-    monkeypatch.setattr(completion, "_CANDIDATES_PER_CALL", 5)
+    # each position group's candidates come in two blocks (57 + 319 and 45 + 254): calls of
+    # 64 hold the first block over into the second, split it, and leave a rest (12 solver
+    # calls; 5 per call made 136 and cost 19 s)
+    monkeypatch.setattr(completion, "_CANDIDATES_PER_CALL", 64)
     monkeypatch.setattr(completion, "_LOS_PAIRS_PER_CALL", 4)
     split = specular_model_paths(corridor_scene, src, tags, need, F, 2)
     assert sum(len(sp.tau_s) for sp in whole) > 4 * need.sum()  # reflections, not only LOS

@@ -314,10 +314,12 @@ def test_shared_tour_is_closer_to_a_dense_trace_and_caches(tmp_path):
     # position it must come clearly closer to a dense reference (30x the rays) than
     # direct tracing does (measured: p90 |error| 2.8 vs 5.0 dB against a 1e5-ray
     # reference). With completion the large planes' chains are complete either way and
-    # the two are alike (docs/physics.md).
+    # the two are alike (docs/physics.md). On 3 m of the pass (30 positions; 6 m before):
+    # p90 ratio 0.53 and 1.77x the paths, as on the whole 6 m (0.53, 1.79) and on its
+    # other half (0.48, 1.83).
     scene = make_corridor()
     tags = scene.tags.positions_m
-    x = np.arange(2.0, 8.0, 0.1)
+    x = np.arange(2.0, 5.0, 0.1)
     poses = np.column_stack([x, 1.2 + 0.05 * np.sin(3 * x), np.full_like(x, 0.7), np.zeros_like(x)])
     kw = dict(tag_normals=scene.tags.normals)
     direct_opts = TraceOptions(method="direct", max_depth=3, seed=1, samples_per_src=1000)

@@ -52,6 +52,22 @@ def warehouse():
     return scenes.load(WAREHOUSE)
 
 
+@pytest.fixture(scope="module")
+def warehouse_extraction():
+    """The warehouse map, its cleaned cells and their report, and its obstacles as
+    ``extract_obstacles(rm)`` gives them (default rules: the cells are ``map_cells(rm)``'s)."""
+    rm = read_map(WAREHOUSE)
+    cells, report = map_cells(rm)
+    return rm, cells, report, extract_obstacles(rm, cells=cells)
+
+
+@pytest.fixture(scope="module")
+def warehouse_routed(warehouse):
+    """``map_route(warehouse, Robot())``: the route test's scene and study_scene's (the
+    warehouse's study config has no [[materials]] and the default robot)."""
+    return map_route(warehouse, Robot())
+
+
 def test_every_real_map_has_its_licence_and_source():
     folders = sorted(p for p in REAL.iterdir() if p.is_dir())
     assert len(folders) >= 3
@@ -61,7 +77,7 @@ def test_every_real_map_has_its_licence_and_source():
 
 
 @pytest.mark.parametrize("folder", ["nav2_warehouse", "neobotix_lab", "willow_office"])
-def test_racks_match_the_hand_labels(folder):
+def test_racks_match_the_hand_labels(folder, request):
     """Precision and recall of rack cells against the hand-labelled rectangles.
 
     Measured: the warehouse 0.997 / 0.959 (recall is lost at the notches the racks'
@@ -69,9 +85,13 @@ def test_racks_match_the_hand_labels(folder):
     the office have no rack and none is found. Bounds: 0.95 and 0.90, a few cells of
     margin under the measurement, far above what the map as given reached (no rack).
     """
-    rm = read_map(next((REAL / folder).glob("*.yaml")))
+    if folder == "nav2_warehouse":  # extracted once for this module
+        rm, _, _, obstacles = request.getfixturevalue("warehouse_extraction")
+    else:
+        rm = read_map(next((REAL / folder).glob("*.yaml")))
+        obstacles = extract_obstacles(rm)
     labels = _label_mask(rm, REAL / folder)
-    found = _rack_mask(rm, extract_obstacles(rm))
+    found = _rack_mask(rm, obstacles)
     if labels.any():
         tp = (labels & found).sum()
         assert tp / found.sum() >= 0.95 and tp / labels.sum() >= 0.90
@@ -79,18 +99,17 @@ def test_racks_match_the_hand_labels(folder):
         assert found.sum() * rm.resolution_m ** 2 < 0.5  # no rack invented (under 0.5 m^2)
 
 
-def test_rack_outlines_with_unknown_inside_become_solid():
+def test_rack_outlines_with_unknown_inside_become_solid(warehouse_extraction):
     """Without the cleaning the warehouse's racks are thin partitions (the README's promise
     failed); with it, every labelled rack is one rack obstacle."""
     from scenes.mapextract import ExtractionRules
 
-    rm = read_map(WAREHOUSE)
+    rm, cells, report, obstacles = warehouse_extraction
     raw = extract_obstacles(rm, rules=ExtractionRules(gap_close_m=0.0, fill_max_width_m=0.0,
                                                       fill_free_max_width_m=0.0))
     assert sum(o.kind == "rack" for o in raw) <= 1
-    cells, report = map_cells(rm)
     assert len(report.filled) >= 7 and report.gap_cells > 0
-    racks = [o for o in extract_obstacles(rm, cells=cells) if o.kind == "rack"]
+    racks = [o for o in obstacles if o.kind == "rack"]
     boxes = tomllib.loads((REAL / "nav2_warehouse" / "labels.toml").read_text())["racks"]
     for x0, y0, x1, y1 in boxes:  # one rack per labelled box, its rectangle within 0.1 m
         hit = [o for o in racks if o.polygon.contains(shapely.Point((x0 + x1) / 2, (y0 + y1) / 2))]
@@ -99,9 +118,9 @@ def test_rack_outlines_with_unknown_inside_become_solid():
         assert np.allclose(bx, [x0, y0, x1, y1], atol=0.1), (bx, (x0, y0, x1, y1))
 
 
-def test_warehouse_tags_sit_on_rack_faces_looking_onto_free_space(warehouse):
+def test_warehouse_tags_sit_on_rack_faces_looking_onto_free_space(warehouse, warehouse_extraction):
     rm = warehouse.rosmap
-    cells, _ = map_cells(rm)
+    _, cells, _, _ = warehouse_extraction  # map_cells of the same map file
     racks = shapely.union_all([shapely.box(*b) for b in
                                tomllib.loads((REAL / "nav2_warehouse" / "labels.toml").read_text())["racks"]])
     xy = warehouse.tags.positions_m[:, :2]
@@ -113,9 +132,9 @@ def test_warehouse_tags_sit_on_rack_faces_looking_onto_free_space(warehouse):
     assert np.all(cells[row, col] == FREE)
 
 
-def test_warehouse_route_serves_its_tags_through_the_noise(warehouse):
+def test_warehouse_route_serves_its_tags_through_the_noise(warehouse, warehouse_routed):
     robot = Robot()
-    sc = map_route(warehouse, robot)
+    sc = warehouse_routed
     skipped = sc.metadata["route"]["skipped"]
     # the north rack's west corner, 0.5 m from a wall unit: one tag per level, named
     assert sum(len(s["tags"]) for s in skipped) <= 0.01 * len(warehouse.tags)
@@ -150,13 +169,24 @@ def test_office_reads_without_walls_it_does_not_have():
     assert sc.metadata["map"]["noise_dropped"] > 0
 
 
-def test_held_out_tags_of_a_map_with_racks_are_shelf_tags():
+def test_held_out_tags_of_a_map_with_racks_are_shelf_tags(warehouse, warehouse_routed, monkeypatch):
     """The issue's user found 1 of 16 held-out tags on a shelf face (5 on walls, 6 on small
-    structures): on a map with racks they are drawn on the racks' front beams."""
+    structures): on a map with racks they are drawn on the racks' front beams.
+
+    The building and its route are the module's (loaded and planned once): study_scene
+    asks for exactly them (no [[materials]], the default robot), checked here."""
+    import pipeline.studyscene as studyscene
     from pipeline.apps.cli import resolve_target
     from pipeline.studyscene import study_scene
 
+    def routed(scene, robot):
+        assert scene is warehouse and robot == Robot()
+        return warehouse_routed
+
     cfg = resolve_target(str(WAREHOUSE))
+    assert not cfg.materials and Path(cfg.scene).resolve() == WAREHOUSE
+    monkeypatch.setattr(studyscene, "study_building", lambda c: warehouse)
+    monkeypatch.setattr(studyscene, "map_route", routed)
     sc, split = study_scene(cfg)
     held = sc.tags.subset(split == "eval")
     assert len(held) == cfg.evaluation.n_eval_tags
