@@ -33,9 +33,12 @@ The model of an attempt of antenna a with traced gain g: ``g' = g + delta_a + dg
 reader's miss probability (fitted: the simulated reader's own estimate missed 13 % of the
 closing attempts of a simulated Gen2 log, which a threshold shift would otherwise
 absorb) and s the stray-read share. A read's RSSI is ``P_rx(g') + r + sigma_r T_nu``, T_nu
-Student's t with nu degrees of freedom (``scipy.stats.t.logpdf``). The likelihood of every
-attempt (read or not) and every read's RSSI is maximised with ``scipy.optimize.minimize``
-(L-BFGS-B; a handful of parameters, so numerical gradients).
+Student's t with nu degrees of freedom (``scipy.stats.t.logpdf``'s density). The likelihood
+of every attempt (read or not) and every read's RSSI is maximised with
+``scipy.optimize.minimize`` (L-BFGS-B, with the likelihood's analytic gradient: one pass
+over the attempts per step where finite differences took one per parameter; the link
+budget's powers are affine in the gain, so the margins at the traced gains are computed
+once per fit and each parameter only shifts them).
 
 **Robust to the poses' error** (q and s each a share of the attempts the probit need not
 explain, nu how heavy the RSSI's tails are). A recorded pose that is off puts some
@@ -75,8 +78,9 @@ at least 1; conductivity x10 or /10) is reported as not identified, not refused:
 recordings see a wall's conductivity (it matters through the wall, little off it).
 
 Intervals: every parameter's 95 % percentile interval from refits on the training tags
-resampled with replacement (the tag the unit, :data:`N_BOOT` resamples, each from the
-point estimate; none below :data:`MIN_TAGS` tags). A percentile interval, not BCa: each
+resampled with replacement (the tag the unit, :data:`N_BOOT` resamples by default, the
+study's ``recording.calibration_resamples``, each from the point estimate; none below
+:data:`MIN_TAGS` tags). A percentile interval, not BCa: each
 resample is a whole maximum-likelihood fit, so the jackknife's n more fits are not spent. The held-out comparison, before (the uncalibrated hard threshold of
 :mod:`.simreal`) and after, is :func:`.simreal.sim_vs_real`'s on the same tags.
 """
@@ -88,17 +92,23 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 from scipy.optimize import minimize
-from scipy.special import expit, log_ndtr, ndtr
 
+from pipeline.evaluation.calibration_model import (
+    Attempts,
+    CalibrationFit,
+    MaterialTerms,
+    nll,
+    predict,
+)
 from pipeline.evaluation.simreal import sim_vs_real
-from pipeline.parallel import map_forked
+from pipeline.parallel import map_forked, one_blas_thread
 
 __all__ = ["N_BOOT", "CalibrationFit", "MaterialModel", "MaterialTerms", "calibrate",
            "fit_calibration", "linearise", "predict"]
 
-#: Bootstrap resamples of the training tags behind each interval (5 per tail at 95 %).
+#: Bootstrap resamples of the training tags behind each interval (5 per tail at 95 %; the
+#: default of ``recording.calibration_resamples``).
 N_BOOT = 200
 #: Fewest training tags an interval is drawn from.
 MIN_TAGS = 5
@@ -143,22 +153,22 @@ class MaterialModel:
     info: dict
 
 
-@dataclass(frozen=True)
-class MaterialTerms:
-    """:class:`MaterialModel`'s gain change linearised at ``at``: ``base_db + jac_db (theta - at)``
-    ((n,), (n, k) dB per unit log ratio; ``at`` (k,); ``lower``/``upper`` the fit's range)."""
+def _remembering(model: MaterialModel) -> MaterialModel:
+    """``model`` whose ``delta_db`` keeps its last ``k + 2`` results (k parameters): the
+    Gauss-Newton iteration asks again for the gains at the theta it accepted (the next
+    linearisation's base, the reported fit, the held-out tags'), each a re-field of every
+    recorded link."""
+    kept: dict = {}
 
-    at: np.ndarray
-    base_db: np.ndarray
-    jac_db: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
+    def delta_db(theta):
+        key = np.asarray(theta, np.float64).tobytes()
+        if key not in kept:
+            if len(kept) >= len(model.names) + 2:
+                kept.pop(next(iter(kept)))
+            kept[key] = np.asarray(model.delta_db(theta), np.float64)
+        return kept[key]
 
-    def delta_db(self, theta) -> np.ndarray:
-        return self.base_db + self.jac_db @ (np.asarray(theta, np.float64) - self.at)
-
-    def rows(self, mask) -> MaterialTerms:
-        return MaterialTerms(self.at, self.base_db[mask], self.jac_db[mask], self.lower, self.upper)
+    return dataclasses.replace(model, delta_db=delta_db)
 
 
 def linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray, *,
@@ -178,89 +188,6 @@ def linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray, *,
     lo = np.maximum(model.lower, at - MATERIAL_TRUST)
     hi = np.minimum(model.upper, at + MATERIAL_TRUST)
     return MaterialTerms(at.copy(), base, jac, lo, hi)
-
-
-@dataclass(frozen=True)
-class CalibrationFit:
-    """Fitted reader parameters (module doc), SI-like units in dB."""
-
-    antenna_offsets_db: np.ndarray
-    tag_sensitivity_offset_db: float
-    rssi_offset_db: float
-    rssi_noise_db: float
-    detection_spread_db: float
-    miss_probability: float = 0.0
-    #: The RSSI's Student-t degrees of freedom (inf: Gaussian, the unrobust likelihood).
-    rssi_dof: float = float("inf")
-    #: Share of attempts read whatever their traced margin.
-    stray_read_probability: float = 0.0
-    #: Construction parameters, log ratio to the traced value (:class:`MaterialModel`).
-    material_log_ratios: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    #: With construction parameters: the reader's parameters fitted alone (no construction
-    #: changed), for a calibrated study that leaves the building as traced.
-    reader_only: CalibrationFit | None = None
-
-    @classmethod
-    def from_vector(cls, x: np.ndarray, n_antennas: int, robust: bool = True) -> CalibrationFit:
-        """From the fit's vector: the k = n_antennas - 1 offsets, delta_s, r, log sigma_r,
-        log sigma_t, logit q, log nu, logit s, then theta (nu and s ignored unless robust)."""
-        k = n_antennas - 1
-        return cls(np.r_[0.0, x[:k]], float(x[k]), float(x[k + 1]), float(np.exp(x[k + 2])),
-                   float(np.exp(x[k + 3])), float(expit(x[k + 4])),
-                   float(np.exp(x[k + 5])) if robust else float("inf"),
-                   float(expit(x[k + 6])) if robust else 0.0,
-                   np.asarray(x[k + 7:], np.float64))
-
-    def as_dict(self) -> dict:
-        return {f"antenna_offset_db[{i}]": float(v) for i, v in enumerate(self.antenna_offsets_db)} | {
-            "tag_sensitivity_offset_db": self.tag_sensitivity_offset_db,
-            "rssi_offset_db": self.rssi_offset_db, "rssi_noise_db": self.rssi_noise_db,
-            "detection_spread_db": self.detection_spread_db,
-            "miss_probability": self.miss_probability} | ({} if np.isinf(self.rssi_dof) else {
-                "rssi_dof": self.rssi_dof, "stray_read_probability": self.stray_read_probability}) | {
-            f"theta[{j}]": float(v) for j, v in enumerate(self.material_log_ratios)}
-
-
-def _margin(gain, antenna, offsets, dsens, budget):
-    g = gain + offsets[antenna]
-    tag = np.asarray(budget.tag_power_dbm(g), np.float64) - (budget.tag_sensitivity_dbm + dsens)
-    rx = np.asarray(budget.reader_rssi_dbm(g), np.float64)
-    return np.minimum(tag, rx - budget.reader_sensitivity_dbm), rx
-
-
-def predict(fit: CalibrationFit, gain_db, antenna, budget, terms: MaterialTerms | None = None):
-    """Read probability and expected RSSI [dBm] of attempts under ``fit`` (module doc);
-    ``terms`` the construction parameters' gain change for these rows."""
-    g = np.asarray(gain_db, np.float64)
-    if terms is not None:
-        g = g + terms.delta_db(fit.material_log_ratios)
-    m, rx = _margin(g, np.asarray(antenna, np.int64),
-                    fit.antenna_offsets_db, fit.tag_sensitivity_offset_db, budget)
-    s = fit.stray_read_probability
-    p = (1.0 - fit.miss_probability) * (s + (1.0 - s) * ndtr(m / fit.detection_spread_db))
-    return p, rx + fit.rssi_offset_db
-
-
-def _nll(x, gain, antenna, read, rssi, weight, budget, n_ant, terms, robust):
-    f = CalibrationFit.from_vector(x, n_ant, robust)
-    if terms is not None:
-        gain = gain + terms.delta_db(f.material_log_ratios)
-    q, s = f.miss_probability, f.stray_read_probability
-    m, rx = _margin(gain, antenna, f.antenna_offsets_db, f.tag_sensitivity_offset_db, budget)
-    z = m / f.detection_spread_db
-    log1q, log1s = np.log1p(-q), np.log1p(-s)
-    # log((1 - q)(s + (1 - s) Phi(z))) and log(1 - that) = log(q + (1 - q)(1 - s) Phi(-z)),
-    # each stable in both tails (log 0 = -inf where s = 0: logaddexp gives the other term)
-    with np.errstate(divide="ignore"):
-        log_s = np.log(s)
-    ll_read = log1q + np.logaddexp(log_s, log1s + log_ndtr(z))
-    ll_miss = np.logaddexp(np.log(q), log1q + log1s + log_ndtr(-z))
-    ll = np.where(read, ll_read, ll_miss)
-    ok = read & np.isfinite(rssi)
-    e = rssi[ok] - rx[ok] - f.rssi_offset_db
-    ll_rssi = (stats.t.logpdf(e, f.rssi_dof, scale=f.rssi_noise_db) if robust
-               else stats.norm.logpdf(e, scale=f.rssi_noise_db))
-    return -(weight @ ll + weight[ok] @ ll_rssi) / max(float(weight.sum()), 1.0)
 
 
 def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.05,
@@ -303,8 +230,10 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
               + [(np.log(1e-4 / (1 - 1e-4)), np.log(0.9 / 0.1))] + robust_bounds
               + ([] if terms is None else list(zip(terms.lower, terms.upper, strict=True))))
     x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
-    res = minimize(_nll, x0, args=(gain, antenna, read, rssi, w, budget, n_antennas, terms, robust),
-                   method="L-BFGS-B", bounds=bounds)
+    data = Attempts.of(gain, antenna, read, rssi, w, budget)
+    with one_blas_thread():  # ten parameters: BLAS threads only wait on each other
+        res = minimize(nll, x0, args=(data, budget.reader_sensitivity_dbm, n_antennas, terms, robust),
+                       jac=True, method="L-BFGS-B", bounds=bounds)
     fit = CalibrationFit.from_vector(res.x, n_antennas, robust)
     if strict:
         if not res.success or not np.isfinite(res.fun):
@@ -475,6 +404,7 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     if materials is None or not len(materials.names):
         fit = fit_calibration(train, budget, n_antennas, miss_probability=max(q, 0.05))
     else:
+        materials = _remembering(materials)
         fit, terms, how = _fit_materials(train, budget, n_antennas, max(q, 0.05), materials,
                                          np.flatnonzero(is_train))
         base = np.asarray(materials.delta_db(fit.material_log_ratios), np.float64)[is_held]

@@ -13,11 +13,14 @@ from pathlib import Path
 
 from pipeline.configschema import ConfigError, option, section
 
-__all__ = ["FORMATS", "RecordingConfig"]
+__all__ = ["CALIBRATION_FIELDS", "FORMATS", "RecordingConfig"]
 
 #: Formats of a reads file (``"auto"``: a ROS 2 bag by its folder or suffix
 #: (:func:`pipeline.recording.load.is_rosbag`), a CSV by its header).
 FORMATS = ("auto", "sllurp", "impinj", "rosbag")
+#: Fields only the calibration stage reads: the recording's import does not depend on them
+#: (a changed one re-runs the calibration and what follows, not the import and the traces).
+CALIBRATION_FIELDS = ("calibrate_constructions", "calibration_resamples")
 
 
 @section
@@ -65,6 +68,10 @@ class RecordingConfig:
         2, "Constructions (radio materials) whose permittivity and conductivity the "
         "calibration fits: the N that carry most of the traced path power, metal left out "
         "(0: the reader's parameters only).", max=8)
+    calibration_resamples: int = option(
+        200, "Bootstrap resamples of the training tags behind each calibrated value's 95 % "
+        "interval, each a whole refit: the calibration's time grows with them (0: no "
+        "intervals).", max=100_000)
 
     def __post_init__(self):
         if self.format not in FORMATS:
@@ -78,6 +85,9 @@ class RecordingConfig:
         if isinstance(self.calibrate_constructions, bool) or self.calibrate_constructions < 0:
             raise ConfigError(f"recording.calibrate_constructions must be 0 or more, got "
                               f"{self.calibrate_constructions!r}")
+        if isinstance(self.calibration_resamples, bool) or self.calibration_resamples < 0:
+            raise ConfigError(f"recording.calibration_resamples must be 0 or more, got "
+                              f"{self.calibration_resamples!r}")
         if not 0.0 < self.heldout_fraction < 1.0:
             raise ConfigError(f"recording.heldout_fraction must be in (0, 1), got "
                               f"{self.heldout_fraction!r}")

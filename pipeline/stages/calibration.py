@@ -217,7 +217,8 @@ def stage_calibration(ctx) -> dict:
     budget = link_budget(cfg)
     fit, report = calibrate(att, budget, len(cfg.robot.antennas),
                             miss_probability=att["miss_probability"].to_numpy(np.float64),
-                            seed=cfg.seed, materials=model)
+                            seed=cfg.seed, n_boot=cfg.recording.calibration_resamples,
+                            materials=model)
     if model is None and info is not None:
         report["constructions"] = {**info, "note": f"no construction other than a conductor "
                                    f"carries {MIN_POWER_SHARE:.0%} of the traced path power"}
@@ -266,7 +267,8 @@ def heldout_worse(report: dict) -> str | None:
 
 
 STAGE = Stage("calibration", stage_calibration,
-              ("seed", "reader", "robot", "recording.calibrate_constructions") + TRACING_KEYS,
+              ("seed", "reader", "robot", "recording.calibrate_constructions",
+               "recording.calibration_resamples") + TRACING_KEYS,
               ("scene", "sim_vs_real"), version=4,  # each version's change: CHANGELOG.md
               description="calibrate the reader and building to the recording",
               outputs=STAGE_OUTPUTS["calibration"])

@@ -19,6 +19,8 @@ attempts, ``eval_reads.parquet`` the held-out ones'.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from pipeline import runfiles
@@ -27,12 +29,13 @@ from pipeline.engine.runstore import atomic_write_json, save_npz
 from pipeline.engine.study import Stage
 from pipeline.recording import RecordingError
 from pipeline.recording.attempts import recorded_read_table
+from pipeline.recording.config import CALIBRATION_FIELDS, RecordingConfig
 from pipeline.recording.lag import pose_lag_profile
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
 from pipeline.studyscene import build_robot, load_study_recording, recorded_scene
 
-__all__ = ["STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: pipeline.studyscene's
+__all__ = ["RECORDING_KEYS", "STAGE", "recorded_scene", "stage_recording"]  # recorded_scene: pipeline.studyscene's
 
 
 def _check_channels(rec, cfg) -> None:
@@ -99,6 +102,11 @@ def stage_recording(ctx) -> dict:
                                  "n_reads_outside_poses", "n_attempts", "n_off_schedule")}
 
 
-STAGE = Stage("recording", stage_recording, ("seed", "recording", "robot", "reader", "frequency_hz"),
+#: The ``[recording]`` keys the import reads: all but the calibration's (a calibration run
+#: again with other constructions or resamples keeps the import, traces and models).
+RECORDING_KEYS = tuple(f"recording.{f.name}" for f in dataclasses.fields(RecordingConfig)
+                       if f.name not in CALIBRATION_FIELDS)
+
+STAGE = Stage("recording", stage_recording, ("seed", *RECORDING_KEYS, "robot", "reader", "frequency_hz"),
               ("scene",), description="read the recording", always=True,
               outputs=STAGE_OUTPUTS["recording"])

@@ -52,13 +52,18 @@ def _attempts(run):
     return rec
 
 
+#: The calibration's tag-bootstrap refits in these runs (200 by default): no test here asserts
+#: more of an interval than that the value lies in it (test_calibration.py asserts coverage)
+RESAMPLES = "recording.calibration_resamples=20"
+
+
 @pytest.fixture(scope="module")
 def recorded_run(tiny_study, recording, tmp_path_factory):
     out = tmp_path_factory.mktemp("recrun") / "run"
-    # the reader's parameters calibrated alone (8 s, not 80): the constructions' fit is
-    # test_calibrate_writes_the_calibration_and_a_calibrated_study's
+    # the reader's parameters calibrated alone: the constructions' fit is
+    # test_calibrate_writes_the_calibration_and_a_calibrated_study's (on a copy of this run)
     res = _run(tiny_study, out, "--recording", str(recording),
-               "--set", "recording.calibrate_constructions=0")
+               "--set", "recording.calibrate_constructions=0", "--set", RESAMPLES)
     assert res.exit_code == 0, res.output
     return out
 
@@ -326,17 +331,27 @@ def test_figures_and_export_of_a_recorded_run(recorded_run, recording, tmp_path)
     assert imp["phase_rad"].isna().all()  # sllurp's log had no phase: empty, not invented
 
 
-def test_calibrate_writes_the_calibration_and_a_calibrated_study(tiny_study, recording, tmp_path):
+def test_calibrate_writes_the_calibration_and_a_calibrated_study(tiny_study, recording, recorded_run,
+                                                               tmp_path):
+    import shutil
+
     from pipeline.config import load_config
 
     out = tmp_path / "cal"
+    # into a copy of recorded_run's directory: the calibration's keys are its stage's alone,
+    # so the calibration (now with the constructions) and what follows it run again, not
+    # the import, the traces and the models
+    shutil.copytree(recorded_run, out)
     cache = tiny_study.config.tracing.cache_dir
     res = CliRunner().invoke(app, ["calibrate", "configs/tiny.toml", "--recording", str(recording),
                                    "--out", str(out), "--no-progress",
                                    "--set", f"tracing.cache_dir={json.dumps(cache)}",
-                                   # the held-out tags' localisation: nothing here reads it
-                                   "--set", "downstream.enabled=false"])
+                                   "--set", RESAMPLES])
     assert res.exit_code == 0, res.output
+    for stage in ("training_sets", "models", "sim_vs_real"):  # their records as they were
+        before, after = (json.loads((run / "stages" / f"{stage}.json").read_text())
+                         for run in (recorded_run, out))
+        assert after == before, stage
     cal = json.loads((out / "calibration.json").read_text())
     study = load_config(out / "calibrated.toml")  # a valid study, without the recording
     assert not study.recording.enabled

@@ -300,10 +300,11 @@ def _run(tiny_study, out, *args):
 def test_recorded_study_on_the_bag_export(tiny_study, exports, tmp_path):
     out = tmp_path / "run"
     # the bag is read by the recording stage; what follows it is the CSV's recorded study
-    # (test_recorded_study.py): here without the construction fit and the held-out tags'
-    # localisation (100 s of the 120 this took)
+    # (test_recorded_study.py): here without the construction fit, the calibration's
+    # intervals and the held-out tags' localisation (100 s of the 120 this took)
     res = _run(tiny_study, out, "--recording", str(exports / "mcap"),
-               "--set", "recording.calibrate_constructions=0", "--set", "downstream.enabled=false")
+               "--set", "recording.calibrate_constructions=0", "--set", "downstream.enabled=false",
+               "--set", "recording.calibration_resamples=0")
     assert res.exit_code == 0, res.output
     met = json.loads((out / "metrics.json").read_text())
     assert met["source"] == "recording"
