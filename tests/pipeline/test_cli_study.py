@@ -231,15 +231,21 @@ def test_scenes_show_empty_or_garbage_ply(tmp_path, content):
 
 def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study, tmp_path):
     # the real command in its own process, as a user runs it (cached traces: no tracing;
-    # the downstream benchmark off: its ~25 s of CPU add no line this test reads)
+    # the downstream benchmark off: its ~25 s of CPU add no line this test reads), but
+    # for the figures stage drawing two figures, not twelve (~20 s of CPU that log
+    # nothing; every figure is drawn by the tiny study's own figures stage): the top
+    # view, and the downstream figure, skipped with an INFO line the console must not show
     import os
     import subprocess
     import sys
 
     out = tmp_path / "run"
     env = dict(os.environ, COLUMNS="80")
+    main = ("import pipeline.figures.drawall as d; "
+            "d.FIGURES = {k: d.FIGURES[k] for k in ('scene_top_view', 'downstream')}; "
+            "from pipeline.apps.cli import app; app(prog_name='rfidstudy')")
     proc = subprocess.run(
-        [sys.executable, "-m", "pipeline", "run", "configs/tiny.toml", "--out", str(out),
+        [sys.executable, "-c", main, "run", "configs/tiny.toml", "--out", str(out),
          "--set", f"tracing.cache_dir='{tiny_study.base / 'cache'}'",
          "--set", "downstream.enabled=false"],
         cwd=Path(__file__).resolve().parents[2], env=env, capture_output=True, text=True,
@@ -255,6 +261,7 @@ def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study, tmp_
     log_lines = (out / "run.log").read_text().splitlines()
     # every line of both processes, whole: the runner's stage lines and the report's
     assert any("INFO" in ln and "stage report: running" in ln for ln in log_lines)
+    assert any("INFO" in ln and "figure downstream skipped" in ln for ln in log_lines)
     assert all(ln[:4].isdigit() for ln in log_lines), log_lines[:5]
     # the side process's own line (truth_traces beside tour and reads on 2 CPUs)
     side = [ln for ln in log_lines if "MainProcess" not in ln]

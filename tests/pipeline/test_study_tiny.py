@@ -39,6 +39,16 @@ def tiny(tiny_study):
     return tiny_study.config, tiny_study.base, tiny_study.result
 
 
+def draw_only(monkeypatch, *names: str) -> None:
+    """The figures stage (and ``rfidstudy figures``) draws only ``names``: every figure
+    of the tiny study is drawn by its own figures stage, every figure of a fake run by
+    tests/pipeline/figures; a test of what re-runs needs the stage, not its twelve
+    figures (about 20 s of CPU)."""
+    import pipeline.figures.drawall as drawall
+
+    monkeypatch.setattr(drawall, "FIGURES", {k: drawall.FIGURES[k] for k in names})
+
+
 def test_first_run_produces_the_run_directory(tiny):
     cfg, base, res = tiny
     run = base / "run"
@@ -133,8 +143,9 @@ def test_new_run_dir_traces_nothing(tiny, tmp_path):
     pd.testing.assert_frame_equal(a, b)  # bit-reproducible from the seed
 
 
-def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path):
+def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path, monkeypatch):
     cfg, base, _ = tiny
+    draw_only(monkeypatch, "ssm_surface")  # the figures stage runs: a figure of the models
     run = tmp_path / "run"
     shutil.copytree(base / "run", run)
     before = (run / "reads.parquet").stat().st_mtime_ns
@@ -155,8 +166,9 @@ def test_run_summary_row(tiny):
     assert row["ssm_rmse_db"] > 0
 
 
-def test_cli_figures_on_a_run_dir(tiny, tmp_path):
-    """Redraw figures + report from a finished run directory (the tiny study's)."""
+def test_cli_figures_on_a_run_dir(tiny, tmp_path, monkeypatch):
+    """Redraw figures + report from a finished run directory (the tiny study's): two of
+    the figures, side by side as draw_all forks (:func:`draw_only`)."""
     _, base, _ = tiny
     run = tmp_path / "run"
     shutil.copytree(base / "run", run, ignore=shutil.ignore_patterns("figures", "report.html"))
@@ -164,9 +176,13 @@ def test_cli_figures_on_a_run_dir(tiny, tmp_path):
 
     from pipeline.apps.cli import app
 
+    drawn = ("scene_top_view", "mcl_error")
+    draw_only(monkeypatch, *drawn)
+
     res = CliRunner().invoke(app, ["figures", str(run)])
     assert res.exit_code == 0, res.output
-    assert (run / "figures" / "scene_top_view.png").is_file()
+    for k in drawn:
+        assert (run / "figures" / f"{k}.png").is_file(), k
     assert "data:image/png;base64," in (run / "report.html").read_text()
 
 
@@ -284,13 +300,14 @@ def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tin
         "better", "worse", "not distinguishable at 95 %"}
 
 
-def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path):
+def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path, monkeypatch):
     """The oracle in the real study: the tiny study copied and run again with
     ``downstream.oracle = true``; only the downstream stage and what follows re-run.
     Its search narrowed to what the assertions need (a third less time): the coarse
     pass only as far as the longest read, windows of 0.2 m (a broken search, e.g. the
     coarse modes taken from the worst anchors, lands metres away: within 1 m of none)."""
     run = copy_run(tiny_study, tmp_path / "run")
+    draw_only(monkeypatch, "downstream")  # the figure of the localisation scores
     cfg = replace_path(tiny_study.config, "downstream.oracle", True)
     cfg = replace_path(cfg, "downstream.oracle_reach_m", 1.0)  # at least the longest read
     cfg = replace_path(cfg, "downstream.oracle_window_m", 0.2)
