@@ -428,6 +428,14 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
                              "rssi_noise_db is the spread of the bulk of the reads")
         elif key == "rssi_dof" and value >= DOF_RANGE[1] * (1 - 1e-6):
             entry["note"] = "on its upper bound: the RSSI's spread is Gaussian as far as the reads tell"
+        if entry["low"] is not None and not entry["low"] <= entry["value"] <= entry["high"]:
+            # the refits start from the point estimate and end at their own optimum; a value
+            # outside all but 5 % of them is one the fit stopped short of (constructions:
+            # the Gauss-Newton's iterations ran out) or a bootstrap distribution skewed by a
+            # range's edge
+            entry["note"] = "; ".join(filter(None, [entry.get("note"), (
+                "outside its own interval: the fit stopped before its optimum (see "
+                "constructions.converged) or the resampled fits pile up on a range's edge")]))
         params[key] = entry
         if boot is None:
             why = (f"{n_tags} training tags: an interval needs at least {MIN_TAGS}"
