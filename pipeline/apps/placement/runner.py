@@ -215,7 +215,7 @@ class _Runner:
         if not todo:
             return
         self.expected = max(self.expected, len(self.done) + len(todo))
-        for wave in position_waves(todo):
+        for wave in self._waves(todo):
             self._run_batch(wave)
 
     def confirm(self, cands: list[Candidate]) -> None:
@@ -223,8 +223,18 @@ class _Runner:
         that took no part in selecting them (:attr:`confirmed` books them)."""
         n = self.spec.settings.replicates
         todo = [c for c in cands if c.name not in self.confirmed]
-        for wave in position_waves(todo):
+        for wave in self._waves(todo):
             self._run_batch(wave, range(n, 2 * n), self.confirmed)
+
+    def _waves(self, todo: list[Candidate]) -> list[list[Candidate]]:
+        """The batches ``todo`` runs in: :func:`position_waves`, or with one local worker
+        (studies one after the other, in the order given) the waves in order as one batch:
+        the siblings still find their positions traced, and one worker process started
+        for all of them, not one per wave (each start imports the tracer)."""
+        waves = position_waves(todo)
+        if self.workers == 1 and not (self.scheduler or self.client):
+            return [[c for w in waves for c in w]]
+        return waves
 
     def _run_batch(self, todo: list[Candidate], ks=None, book: dict | None = None) -> None:
         if self.stop:

@@ -18,6 +18,7 @@ import pytest
 
 from pipeline.apps.placement import load_placement, run_placement
 from pipeline.config import ConfigError, load_config
+from pipeline.parallel import WORKERS_ENV
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -43,14 +44,18 @@ def _spec(tmp_path: Path, tilts: list[float]):
     return load_placement(p)
 
 
-def test_placement_study(tmp_path):
+def test_placement_study(tmp_path, monkeypatch):
+    # one worker, each study's stages one after the other: no fresh interpreter per wave
+    # of candidates, nor per study for the truth's traces; nothing here looks at where a
+    # study or a stage ran (tests/pipeline/test_study_side.py does)
+    monkeypatch.setenv(WORKERS_ENV, "1")
     out = tmp_path / "out"
-    first = run_placement(_spec(tmp_path, [0.0]), out, workers=2)
+    first = run_placement(_spec(tmp_path, [0.0]), out, workers=1)
     cold = first.summary.set_index("candidate").loc["tilt0"]
     assert cold["n_sources_traced"] > 0  # a cold cache: the tours' antenna positions traced
 
     events = []
-    res = run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=2, progress=events.append)
+    res = run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=1, progress=events.append)
     s = res.summary.set_index("candidate")
     # an orientation-only candidate traces no new antenna position (the path cache is
     # keyed by position; tilt turns the antenna about its phase centre)
@@ -108,7 +113,7 @@ def test_placement_study(tmp_path):
     before = records()
     assert len(before) > 20
     events.clear()
-    run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=2, progress=events.append)
+    run_placement(_spec(tmp_path, [0.0, 25.0]), out, workers=1, progress=events.append)
     assert records() == before
     assert [e.n_stages_run for e in events] == [0, 0, 0, 0]  # two candidates, two confirmed
     assert not np.isfinite(s.loc["tilt0", "tag_localisation_median_m"])  # downstream off: none
