@@ -40,3 +40,7 @@ def test_calibration_finds_what_was_planted(tmp_path):
     assert after["difference"]["verdict"] == "better"
     # after calibration the residual is the control's (the reader's noise), within 0.2 dB
     assert abs(after["after"]["estimate"] - control["after"]["estimate"]) < 0.2
+    # the planted wall earns its place out of fold on the training tags and goes into
+    # calibrated.toml; the control's fitted walls explain nothing and stay out
+    assert planted["constructions"]["in_calibrated_toml"] is True, planted["constructions"]
+    assert res["control"]["calibration"]["constructions"]["in_calibrated_toml"] is not True
