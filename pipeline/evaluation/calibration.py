@@ -104,7 +104,7 @@ from pipeline.evaluation.calibration_model import (
 from pipeline.evaluation.simreal import sim_vs_real
 from pipeline.parallel import map_forked, one_blas_thread
 
-__all__ = ["N_BOOT", "CalibrationFit", "MaterialModel", "MaterialTerms", "calibrate",
+__all__ = ["MIN_TAGS", "N_BOOT", "CalibrationFit", "MaterialModel", "MaterialTerms", "calibrate",
            "fit_calibration", "linearise", "predict"]
 
 #: Bootstrap resamples of the training tags behind each interval (5 per tail at 95 %; the
@@ -253,6 +253,7 @@ def fit_calibration(att: pd.DataFrame, budget, n_antennas: int, *, miss_probabil
                              "the poses' frame, recording.antenna_ports)")
     object.__setattr__(fit, "_x", res.x)
     object.__setattr__(fit, "_nll", float(res.fun))
+    object.__setattr__(fit, "_converged", bool(res.success) and bool(np.isfinite(res.fun)))
     return fit
 
 
@@ -435,7 +436,8 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
             # range's edge
             entry["note"] = "; ".join(filter(None, [entry.get("note"), (
                 "outside its own interval: the fit stopped before its optimum (see "
-                "constructions.converged) or the resampled fits pile up on a range's edge")]))
+                "constructions.converged), the resampled fits pile up on a range's edge, or "
+                "(constructions) the refits' linearised gains part from the exact ones")]))
         params[key] = entry
         if boot is None:
             why = (f"{n_tags} training tags: an interval needs at least {MIN_TAGS}"

@@ -39,7 +39,7 @@ from pipeline import runfiles
 from pipeline.config import config_to_toml
 from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
-from pipeline.evaluation.calibration import MaterialModel, calibrate
+from pipeline.evaluation.calibration import MIN_TAGS, MaterialModel, calibrate
 from pipeline.evaluation.calibration_cv import crossvalidate_constructions
 from pipeline.recording.config import RecordingConfig
 from pipeline.runfiles import STAGE_OUTPUTS
@@ -190,15 +190,30 @@ def _overlay_refusal(report: dict) -> str | None:
 
     They are where they beat the reader's parameters alone out of fold on the training tags
     (:func:`~pipeline.evaluation.calibration_cv.crossvalidate_constructions`: one of RSSI
-    MAE and Brier score better by its interval, neither worse) and none sits on the edge of
-    its range. The choice sees no held-out tag, so the held-out comparison
+    MAE and Brier score better by its interval, neither worse, every fold's refits
+    converged), none sits on the edge of its range, and the fit laid over is the one the
+    folds tested: converged, each value inside its own interval. The choice sees no held-out tag, so the held-out comparison
     (``heldout_against_reader_only``) is an honest check of it, not part of it."""
     cons = report.get("constructions", {})
-    cv = cons.get("crossvalidated_against_reader_only", {})
-    verdicts = [v.get("difference", {}).get("verdict") for v in cv.values() if isinstance(v, dict)]
+    cv = cons.get("crossvalidated_against_reader_only")
     edge = [k for k in cons.get("parameters", []) if "past" in report["parameters"][k].get("note", "")]
     if edge:
         return f"{', '.join(edge)} on the edge of its range: a misfit, not a wall"
+    if cons.get("converged") is False:
+        # the folds refit to the linearised optimum; the point estimate stopped short of it,
+        # so what they endorse is not the value that would be laid over
+        return f"the constructions' fit did not converge ({cons.get('ended')})"
+    outside = [k for k in cons.get("parameters", [])
+               if "outside its own interval" in report["parameters"][k].get("note", "")]
+    if outside:
+        return f"{', '.join(outside)} outside its own interval: not the fit its resamples found"
+    if cv is None:
+        return (f"{report.get('n_train_tags')} training tags: cross-validating the choice needs "
+                f"at least {MIN_TAGS}")
+    if not cv.get("all_folds_converged", False):
+        return "a cross-validation fold's refit did not converge"
+    verdicts = [v.get("difference", {}).get("verdict") for v in cv.values()
+                if isinstance(v, dict) and "difference" in v]
     if not ("better" in verdicts and "worse" not in verdicts):
         return ("out of fold on the training tags they did not beat the reader's parameters "
                 "alone (one verdict better, none worse, is asked for); the recorded poses' "
@@ -225,10 +240,10 @@ def stage_calibration(ctx) -> dict:
     report["antennas"] = [a.name for a in cfg.robot.antennas]
     overlay, reader_fit = {}, fit
     if model is not None:
-        report["constructions"]["crossvalidated_against_reader_only"] = crossvalidate_constructions(
-            att, budget, len(cfg.robot.antennas), fit, model,
-            miss_probability=float(np.mean(att["miss_probability"])),
-            rng=np.random.default_rng([int(cfg.seed), 55]), seed=cfg.seed)
+        if report["n_train_tags"] >= MIN_TAGS:
+            report["constructions"]["crossvalidated_against_reader_only"] = crossvalidate_constructions(
+                att, budget, len(cfg.robot.antennas), fit, model,
+                rng=np.random.default_rng([int(cfg.seed), 55]), seed=cfg.seed)
         why = _overlay_refusal(report)
         if why is None:
             overlay = _fitted_constructions(report)
