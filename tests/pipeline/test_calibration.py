@@ -12,7 +12,12 @@ import pytest
 from scipy.special import ndtr
 
 from pipeline.config import StudyConfig, config_from_mapping, config_to_toml
-from pipeline.evaluation.calibration import CalibrationFit, calibrate, fit_calibration
+from pipeline.evaluation.calibration import (
+    CalibrationFit,
+    MaterialModel,
+    calibrate,
+    fit_calibration,
+)
 from propagation.linkbudget import LinkBudget
 
 BUDGET = LinkBudget()
@@ -39,6 +44,34 @@ def _attempts(rng, *, offsets=(0.0, -3.0), dsens=-2.0, roff=1.5, sigma_r=1.0, si
                          "split": np.where(tag % 2 == 0, "train", "eval"),
                          "p_sim": np.where(BUDGET.detected(gain), 0.95, 0.0),
                          "rssi_sim_dbm": np.where(BUDGET.detected(gain), BUDGET.reader_rssi_dbm(gain), np.nan)})
+
+
+EPS_TRACED = 5.24  # P.2040 concrete, the traced wall
+
+
+def wall_study(eps_true: float, seed: int = 5):
+    """Attempts whose gain is a direct path plus a wall reflection (normal-incidence Fresnel
+    amplitude of the wall's permittivity, random relative amplitude and phase), the reads
+    drawn with the wall at ``eps_true``; the model's wall is traced at EPS_TRACED."""
+    rng = np.random.default_rng(seed)
+    att = _attempts(rng, offsets=(0.0, 0.0), dsens=0.0, roff=0.0, q=0.0)
+    n = len(att)
+    amp, phi = rng.uniform(0.5, 1.5, n), rng.uniform(0, 2 * np.pi, n)
+
+    def gain_db(eps):
+        r = (np.sqrt(eps) - 1) / (np.sqrt(eps) + 1)
+        return 20 * np.log10(np.abs(1 + amp * r * np.exp(1j * phi)))
+
+    g = att["gain_db"].to_numpy() + gain_db(eps_true) - gain_db(EPS_TRACED)
+    m = np.minimum(BUDGET.tag_power_dbm(g) - BUDGET.tag_sensitivity_dbm,
+                   BUDGET.reader_rssi_dbm(g) - BUDGET.reader_sensitivity_dbm)
+    read = rng.random(n) < ndtr(m / 1.5)
+    att["read"] = read
+    att["rssi_dbm"] = np.where(read, BUDGET.reader_rssi_dbm(g) + rng.standard_normal(n), np.nan)
+    model = MaterialModel(("wall.relative_permittivity",), np.array([EPS_TRACED]),
+                          np.array([np.log(1 / EPS_TRACED)]), np.array([np.log(4.0)]),
+                          lambda theta: gain_db(EPS_TRACED * np.exp(theta[0])) - gain_db(EPS_TRACED), {})
+    return att, model
 
 
 def test_fit_recovers_its_own_model_inside_the_intervals():
@@ -214,32 +247,12 @@ def test_a_planted_wall_permittivity_is_recovered_through_the_nonlinear_gains():
     at eps 8, the model traced at P.2040 concrete's 5.24. The gain change is nonlinear in
     the permittivity (interference), and the planted log ratio 0.42 is beyond one
     Gauss-Newton step (MATERIAL_TRUST, x1.5): found only by re-linearising."""
-    from pipeline.evaluation.calibration import MATERIAL_TRUST, MaterialModel
+    from pipeline.evaluation.calibration import MATERIAL_TRUST
 
-    rng = np.random.default_rng(5)
-    att = _attempts(rng, offsets=(0.0, 0.0), dsens=0.0, roff=0.0, q=0.0)
-    n = len(att)
-    amp, phi = rng.uniform(0.5, 1.5, n), rng.uniform(0, 2 * np.pi, n)
-    eps0, eps_true = 5.24, 8.0
-
-    def gain_db(eps):
-        r = (np.sqrt(eps) - 1) / (np.sqrt(eps) + 1)
-        return 20 * np.log10(np.abs(1 + amp * r * np.exp(1j * phi)))
-
-    def delta_db(theta):
-        return gain_db(eps0 * np.exp(theta[0])) - gain_db(eps0)
-
-    assert np.log(eps_true / eps0) > MATERIAL_TRUST
-    # redraw the reads with the planted wall: the traced gain stays the model's
-    planted = _attempts(np.random.default_rng(5), offsets=(0.0, 0.0), dsens=0.0, roff=0.0, q=0.0)
-    g = planted["gain_db"].to_numpy() + gain_db(eps_true) - gain_db(eps0)
-    m = np.minimum(BUDGET.tag_power_dbm(g) - BUDGET.tag_sensitivity_dbm,
-                   BUDGET.reader_rssi_dbm(g) - BUDGET.reader_sensitivity_dbm)
-    read = rng.random(n) < ndtr(m / 1.5)
-    att["read"] = read
-    att["rssi_dbm"] = np.where(read, BUDGET.reader_rssi_dbm(g) + rng.standard_normal(n), np.nan)
-    model = MaterialModel(("wall.relative_permittivity",), np.array([eps0]),
-                          np.array([np.log(1 / eps0)]), np.array([np.log(4.0)]), delta_db, {})
+    eps_true = 8.0
+    assert np.log(eps_true / EPS_TRACED) > MATERIAL_TRUST
+    att, model = wall_study(eps_true)
+    eps0 = EPS_TRACED
     fit, rep = calibrate(att, BUDGET, 2, seed=3, n_boot=40, materials=model)
     p = rep["parameters"]["wall.relative_permittivity"]
     assert p["traced"] == eps0 and p["unit"] == ""

@@ -6,39 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.special import ndtr
 
-from pipeline.evaluation.calibration import MaterialModel, calibrate
+from pipeline.evaluation.calibration import calibrate
 from pipeline.evaluation.calibration_cv import CV_QUANTITIES, crossvalidate_constructions
 from pipeline.stages.calibration import _overlay_refusal
-from tests.pipeline.test_calibration import BUDGET, _attempts
-
-EPS_TRACED = 5.24  # P.2040 concrete, the traced wall
-
-
-def _wall_study(eps_true: float, seed: int = 5):
-    """Attempts whose gain is a direct path plus a wall reflection (normal-incidence Fresnel
-    amplitude of the wall's permittivity, random relative amplitude and phase), the reads
-    drawn with the wall at ``eps_true``; the model's wall is traced at EPS_TRACED."""
-    rng = np.random.default_rng(seed)
-    att = _attempts(rng, offsets=(0.0, 0.0), dsens=0.0, roff=0.0, q=0.0)
-    n = len(att)
-    amp, phi = rng.uniform(0.5, 1.5, n), rng.uniform(0, 2 * np.pi, n)
-
-    def gain_db(eps):
-        r = (np.sqrt(eps) - 1) / (np.sqrt(eps) + 1)
-        return 20 * np.log10(np.abs(1 + amp * r * np.exp(1j * phi)))
-
-    g = att["gain_db"].to_numpy() + gain_db(eps_true) - gain_db(EPS_TRACED)
-    m = np.minimum(BUDGET.tag_power_dbm(g) - BUDGET.tag_sensitivity_dbm,
-                   BUDGET.reader_rssi_dbm(g) - BUDGET.reader_sensitivity_dbm)
-    read = rng.random(n) < ndtr(m / 1.5)
-    att["read"] = read
-    att["rssi_dbm"] = np.where(read, BUDGET.reader_rssi_dbm(g) + rng.standard_normal(n), np.nan)
-    model = MaterialModel(("wall.relative_permittivity",), np.array([EPS_TRACED]),
-                          np.array([np.log(1 / EPS_TRACED)]), np.array([np.log(4.0)]),
-                          lambda theta: gain_db(EPS_TRACED * np.exp(theta[0])) - gain_db(EPS_TRACED), {})
-    return att, model
+from tests.pipeline.test_calibration import BUDGET, EPS_TRACED, wall_study
 
 
 def _choose(att, model):
@@ -52,7 +24,7 @@ def _choose(att, model):
 
 @pytest.fixture(scope="module")
 def planted():
-    att, model = _wall_study(8.0)
+    att, model = wall_study(8.0)
     return (att, model, *_choose(att, model))
 
 
@@ -71,7 +43,7 @@ def test_a_planted_wall_wins_out_of_fold_and_is_laid_over(planted):
 def test_an_unplanted_wall_is_not_laid_over():
     """Reads drawn with the wall as traced: the fitted permittivity has nothing to explain,
     so out of fold it cannot beat the reader's parameters alone."""
-    _, rep, cv = _choose(*_wall_study(EPS_TRACED))
+    _, rep, cv = _choose(*wall_study(EPS_TRACED))
     assert cv["rssi_mae_db"]["difference"]["verdict"] != "better", cv["rssi_mae_db"]
     assert "out of fold" in _overlay_refusal(rep)
 
@@ -109,7 +81,7 @@ def test_a_construction_fit_stopped_short_says_its_value_is_outside_its_interval
     Run to convergence, no value is outside its interval."""
     import pipeline.evaluation.calibration as cal
 
-    att, model = _wall_study(8.0)
+    att, model = wall_study(8.0)
     _, done = calibrate(att, BUDGET, 2, seed=3, n_boot=20, materials=model)
     assert done["constructions"]["converged"] is True
     assert not [k for k, v in done["parameters"].items() if "outside" in v.get("note", "")]
