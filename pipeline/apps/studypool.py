@@ -25,7 +25,7 @@ from pipeline.config import StudyConfig
 from pipeline.configschema import from_dict
 from pipeline.engine.preflight import check_address_space
 from pipeline.parallel import WORKERS_ENV, die_with_parent, usable_cpus
-from pipeline.stages import run_study_stages
+from pipeline.stages import run_study_stages, stages_upto
 from pipeline.stages.summary import run_summary
 
 if TYPE_CHECKING:
@@ -51,6 +51,8 @@ def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | No
         The command named in the point's manifest.
     upto : str, optional
         The last stage to run (:func:`pipeline.stages.stages_upto`; None: all of them).
+        A study that ran its ``evaluation`` stage is summarised; one stopped before it
+        returns its status row alone.
     runner : callable, optional
         ``runner(config, run_dir, **kwargs)`` runs the study: a module-level function (it
         travels to the worker by name). None: :func:`pipeline.stages.run_study_stages`,
@@ -77,8 +79,8 @@ def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | No
                 "kind": getattr(exc, "kind", None) or type(exc).__name__}
     row = {"status": "complete", "error": "", "elapsed_s": res.elapsed_s,
            "stages_ran": len(res.ran)}
-    if upto is not None:  # a partial study: the summary reads what it has
-        return row
+    if upto is not None and "evaluation" not in {s.name for s in stages_upto(upto, cfg)}:
+        return row  # stopped before its metrics: the caller reads what it has
     try:
         row.update(run_summary(run_dir))
     except Exception as exc:  # a summary that cannot be read fails its point, not the sweep

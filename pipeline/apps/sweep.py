@@ -10,6 +10,11 @@ A sweep TOML names a base study config and the values of a few parameters::
     [study]                       # optional overrides of the base config (study TOML keys)
     seed = 7
 
+``upto = "evaluation"`` (optional) stops every point after that stage: the summary reads
+the points' reads and ``metrics.json`` (written by ``evaluation``), not their figures or
+reports, which are most of a small study's time after its traces. Not with replicated
+points (a replicated study runs every stage).
+
 Parameters (:data:`PARAMETERS`) are antenna mounting height, yaw, tilt and count,
 reader power, tag sensitivity, scene, seed and replicates; any dotted study key (``training.epochs``)
 is accepted too. Every point becomes a :class:`~pipeline.config.StudyConfig` run into
@@ -79,7 +84,7 @@ PARAMETERS = {
     "replicates": "replicates.n: replicates of each point, pooled with intervals (rfidstudy run -r)",
 }
 
-_SWEEP_KEYS = ("base", "mode", "parameters", "study")
+_SWEEP_KEYS = ("base", "mode", "parameters", "study", "upto")
 
 
 def apply_parameter(cfg: StudyConfig, name: str, value) -> StudyConfig:
@@ -160,6 +165,8 @@ class SweepPlan:
         Run directory name of each point.
     source : str
         Sweep file (for messages).
+    upto : str or None
+        The last stage each point runs (:func:`pipeline.stages.stages_upto`); None: all.
     """
 
     base: StudyConfig
@@ -168,6 +175,7 @@ class SweepPlan:
     configs: list[StudyConfig] = field(default_factory=list)
     names: list[str] = field(default_factory=list)
     source: str = "<sweep>"
+    upto: str | None = None
 
 
 def _slug(point: dict) -> str:
@@ -252,7 +260,35 @@ def load_sweep(path: str | Path) -> SweepPlan:
     params = data.get("parameters", {})
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: parameters must be a table")
-    return expand_sweep(base, params, mode=data.get("mode", "grid"), source=str(path))
+    plan = expand_sweep(base, params, mode=data.get("mode", "grid"), source=str(path))
+    plan.upto = _check_upto(data.get("upto"), plan, str(path))
+    return plan
+
+
+def _check_upto(upto, plan: SweepPlan, source: str) -> str | None:
+    """The sweep's ``upto``: None, or a stage of the study that every point can stop
+    after (a replicated point runs every stage).
+
+    Raises
+    ------
+    ConfigError
+        Not a stage name (the stages listed), or a point with ``replicates.n > 1``.
+    """
+    if upto is None:
+        return None
+    from pipeline.stages import stage_names  # the stage package: loaded when asked for
+
+    names = stage_names()
+    if not isinstance(upto, str) or upto not in names:
+        raise ConfigError(f"{source}: upto = {upto!r} is not a stage; stages are "
+                          f"{', '.join(names)}")
+    for i, cfg in enumerate(plan.configs):
+        if cfg.replicates.n > 1:
+            raise ConfigError(f"{source}: upto = {upto!r} with point {i} "
+                              f"({plan.points[i]}) a replicated study (replicates.n = "
+                              f"{cfg.replicates.n}), which runs every stage: drop upto or "
+                              "the replicates")
+    return upto
 
 
 @dataclass
@@ -331,12 +367,12 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     # the marker first: an interrupted sweep's directory is recognised as ours on rerun
     atomic_write_json(out / "sweep.json", {"tool": "rfidstudy", "kind": "sweep",
                                            "source": plan.source, "parameters": plan.parameters,
-                                           "runs": plan.names})
+                                           "runs": plan.names, "upto": plan.upto})
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]
     # a point may be a replicated study: run_full_study runs its replicates
     rows = run_studies(args, scheduler=scheduler, workers=workers, client=client,
-                       on_done=on_done, runner=run_full_study)
+                       on_done=on_done, runner=run_full_study, upto=plan.upto)
     table = []
     for name, point, row in zip(plan.names, plan.points, rows, strict=True):
         r = {"run": name}

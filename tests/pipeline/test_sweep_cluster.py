@@ -2,7 +2,9 @@
 
 The points are the session's tiny study at two transmit powers: the tx power enters the
 reads after tracing, so both read every trace from the tiny study's cache; the downstream
-benchmark, which nothing here reads, is off."""
+benchmark, which nothing here reads, is off, and the points stop after ``evaluation``
+(``upto``): the summary reads their metrics, not their figures (drawn by the tiny study's
+own figures stage)."""
 
 from __future__ import annotations
 
@@ -16,11 +18,12 @@ from pipeline.apps.sweep import load_sweep, run_sweep
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _sweep_file(tmp_path: Path, cache: str) -> Path:
+def _sweep_file(tmp_path: Path, cache: str, upto: str = "") -> Path:
     p = tmp_path / "sweep.toml"
     p.write_text(
         f'base = "{(ROOT / "configs" / "tiny.toml").as_posix()}"\n'
-        "[parameters]\n"
+        + (f'upto = "{upto}"\n' if upto else "")
+        + "[parameters]\n"
         "tx_power_dbm = [24.0, 27.15]\n"
         "[study.downstream]\n"
         "enabled = false\n"
@@ -32,7 +35,7 @@ def _sweep_file(tmp_path: Path, cache: str) -> Path:
 
 def test_sweep_on_local_dask_cluster(tiny_study, tmp_path):
     distributed = pytest.importorskip("distributed")
-    plan = load_sweep(_sweep_file(tmp_path, tiny_study.config.tracing.cache_dir))
+    plan = load_sweep(_sweep_file(tmp_path, tiny_study.config.tracing.cache_dir, "evaluation"))
     assert len(plan.configs) == 2
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
@@ -50,7 +53,10 @@ def test_sweep_on_local_dask_cluster(tiny_study, tmp_path):
     assert (tmp_path / "out" / "summary.csv").is_file()
     assert (tmp_path / "out" / "sweep_tx_power_dbm.png").read_bytes()[:4] == b"\x89PNG"
     for name in plan.names:
-        assert (tmp_path / "out" / "runs" / name / "metrics.json").is_file()
+        run = tmp_path / "out" / "runs" / name
+        assert (run / "metrics.json").is_file()
+        # stopped after evaluation: no figures, no report
+        assert not (run / "figures").exists() and not (run / "report.html").exists()
 
 
 @pytest.mark.slow

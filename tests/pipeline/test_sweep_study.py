@@ -42,6 +42,20 @@ def test_unknown_sweep_key(tmp_path):
         load_sweep(p)
 
 
+def test_upto_is_a_stage_and_not_for_replicated_points(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('upto = "evaluation"\n[parameters]\ntx_power_dbm = [20.0, 24.0]\n')
+    assert load_sweep(p).upto == "evaluation"
+    p.write_text('upto = "evaluaton"\n[parameters]\ntx_power_dbm = [20.0]\n')
+    with pytest.raises(ConfigError, match="'evaluaton' is not a stage; stages are scene, tour"):
+        load_sweep(p)
+    p.write_text('upto = "evaluation"\n[parameters]\nreplicates = [1, 3]\n')
+    with pytest.raises(ConfigError, match=r"point 1 .*replicates.n = 3"):
+        load_sweep(p)
+    p.write_text('[parameters]\ntx_power_dbm = [20.0]\n')
+    assert load_sweep(p).upto is None
+
+
 def test_yaw_keeps_each_side_sign():
     cfg = apply_parameter(StudyConfig(), "antenna_yaw_deg", 60.0)
     assert [a.yaw_deg for a in cfg.robot.antennas] == [60.0, -60.0]
