@@ -50,7 +50,9 @@ def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path):
     finished; the replicated run resumes it (every stage cached) and runs replicate 1."""
     from pipeline.apps.studyrun import run_full_study
 
-    cfg = replace_path(tiny_study.config, "replicates.n", 2)
+    # one worker: the replicates one after the other in this process (spawned workers:
+    # tests/reliability/test_orphans.py)
+    cfg = replace_path(replace_path(tiny_study.config, "replicates.n", 2), "replicates.workers", 1)
     run = tmp_path / "run"
     copy_run(tiny_study, run / "replicates" / "0")
     # force_dir: the run directory holds replicates/0 and no manifest of its own yet
