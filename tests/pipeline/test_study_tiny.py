@@ -303,17 +303,22 @@ def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tin
 def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path, monkeypatch):
     """The oracle in the real study: the tiny study copied and run again with
     ``downstream.oracle = true``; only the downstream stage and what follows re-run.
-    Its search narrowed to what the assertions need (a third less time): the coarse
-    pass only as far as the longest read, windows of 0.2 m (a broken search, e.g. the
-    coarse modes taken from the worst anchors, lands metres away: within 1 m of none)."""
+    Its search narrowed to what the assertions need: the coarse pass only as far as the
+    longest read, windows of 0.2 m, candidates 0.1 m apart (a broken search, e.g. the
+    coarse modes taken from the worst anchors, lands metres away: within 1 m of none);
+    one robot run per model (the runs' pooling: the tiny study's three), and no figure
+    (the downstream figure with an oracle: tests/pipeline/figures/test_figures.py)."""
     run = copy_run(tiny_study, tmp_path / "run")
-    draw_only(monkeypatch, "downstream")  # the figure of the localisation scores
+    draw_only(monkeypatch)
     cfg = replace_path(tiny_study.config, "downstream.oracle", True)
     cfg = replace_path(cfg, "downstream.oracle_reach_m", 1.0)  # at least the longest read
     cfg = replace_path(cfg, "downstream.oracle_window_m", 0.2)
+    cfg = replace_path(cfg, "downstream.candidate_spacing_m", 0.1)
+    cfg = replace_path(cfg, "downstream.robot_runs", 1)
     res = run_full_study(cfg, run, command_line=["pytest"])
-    assert res.changed_keys == ["downstream.oracle", "downstream.oracle_reach_m",
-                                "downstream.oracle_window_m"]
+    assert res.changed_keys == ["downstream.candidate_spacing_m", "downstream.oracle",
+                                "downstream.oracle_reach_m", "downstream.oracle_window_m",
+                                "downstream.robot_runs"]
     assert res.ran == ["downstream", "evaluation", "figures", "report"]
     m = json.loads((run / "metrics.json").read_text())
     n_eval = m["tag_localisation"]["anfis"]["n_tags"]
