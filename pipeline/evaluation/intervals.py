@@ -97,6 +97,9 @@ MAX_LEVEL = 0.999
 
 #: Resamples evaluated at once (bounds the memory of a statistic over many observations).
 _BATCH = 250
+#: Two-stage multiplicities drawn at once, in entries (resamples x units: 32 MB as
+#: float64): the draw's Python loop runs per call, the statistic still per :data:`_BATCH`.
+_DRAW_ENTRIES = 4_000_000
 
 #: A weighted statistic: unit multiplicities, shape (..., n_units) -> value, shape (...).
 WeightedStatistic = Callable[[np.ndarray], np.ndarray]
@@ -303,8 +306,14 @@ def _two_stage_interval(statistic, n: int, clusters, rng, unit: str, n_resamples
     # (the tails would rest on a handful of distinct replicate draws)
     level = min(expanded_level(n_r), MAX_LEVEL)
     n_res = max(int(n_resamples), int(np.ceil(50.0 / (1.0 - level))))
-    dist = np.concatenate([np.asarray(statistic(two_stage_multiplicity(clusters, rng, b)), float)
-                           for b in _batches(n_res, _BATCH)])
+    # drawn in large chunks (its loop over replicates and draw counts is per call: 100
+    # calls of 250 for 25,000 resamples took most of a replicated study's pooling),
+    # evaluated per _BATCH
+    draw = max(_BATCH, _DRAW_ENTRIES // max(n, 1))
+    dist = np.concatenate([np.asarray(statistic(w[i:i + _BATCH]), float)
+                           for b in _batches(n_res, draw)
+                           for w in (two_stage_multiplicity(clusters, rng, b),)
+                           for i in range(0, b, _BATCH)])
     if np.all(dist == est):
         return Interval(est, est, est, n, unit, "degenerate")
     dist = dist[np.isfinite(dist)]
