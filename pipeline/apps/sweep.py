@@ -57,6 +57,7 @@ from pipeline.config import (
 from pipeline.configschema import from_dict
 from pipeline.engine.runstore import atomic_write_bytes, atomic_write_json
 from pipeline.outdirs import check_marker_file, own_marker
+from pipeline.stages import stage_names
 from pipeline.studyscene import resolve_cache_dir
 
 __all__ = [
@@ -276,8 +277,6 @@ def _check_upto(upto, plan: SweepPlan, source: str) -> str | None:
     """
     if upto is None:
         return None
-    from pipeline.stages import stage_names  # the stage package: loaded when asked for
-
     names = stage_names()
     if not isinstance(upto, str) or upto not in names:
         raise ConfigError(f"{source}: upto = {upto!r} is not a stage; stages are "
