@@ -84,40 +84,12 @@ def link_copy(src: Path, dest: Path) -> Path:
     return dest
 
 
-#: Modules that do not use the tiny study and take the longest (measured with
-#: ``--durations``; the order only changes the suite's wall time, never a result).
-HEAVY_WITHOUT_TINY = (
-    "tests/pipeline/evaluation/test_two_stage.py",
-    "tests/pipeline/test_study_side.py",
-    "tests/pipeline/test_trace_tasks.py",
-    "tests/scenes/test_real_maps.py",
-    "tests/propagation/test_tracing.py",
-    "tests/propagation/test_sparse_noise.py",
-    "tests/propagation/test_shared.py",
-    "tests/reliability/test_run_dir_reads.py",
-    "tests/reliability/test_address_space.py",
-    "tests/pipeline/robot/test_robot_mcl.py",
-    "tests/propagation/test_direct_reference.py",
-)
+def draw_only(monkeypatch, *names: str) -> None:
+    """The figures stage (and ``rfidstudy figures``) draws only ``names``: every figure
+    of the tiny study is drawn by its own figures stage, every figure of a fake run by
+    tests/pipeline/figures; a test of what re-runs needs the stage, not its twelve
+    figures (about 20 s of CPU)."""
+    import pipeline.figures.drawall as drawall
 
+    monkeypatch.setattr(drawall, "FIGURES", {k: drawall.FIGURES[k] for k in names})
 
-def pytest_collection_modifyitems(session, config, items):
-    """The modules in the order two xdist workers finish soonest in (``--dist loadscope
-    --no-loadscope-reorder`` hands them out in this order): the tiny study's own module
-    first (one worker builds the study), the longest modules that do not need it beside
-    it (the other worker would otherwise wait for the build), then the modules that read
-    the study (most of them whole studies: long ones early, not last on one worker), then
-    the rest. Within a module the order is the file's."""
-    def module(item) -> str:
-        return item.nodeid.split("::", 1)[0]
-
-    reads_tiny = {module(it) for it in items if "tiny_study" in getattr(it, "fixturenames", ())}
-
-    def rank(path: str) -> int:
-        if path == "tests/pipeline/test_study_tiny.py":
-            return 0
-        if path in HEAVY_WITHOUT_TINY:
-            return 1
-        return 2 if path in reads_tiny else 3
-
-    items.sort(key=lambda it: rank(module(it)))  # stable: the file's order within a module

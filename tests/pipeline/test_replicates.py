@@ -13,7 +13,7 @@ import pytest
 
 from pipeline.apps.replicates import replicate_configs, replicate_seed
 from pipeline.config import ConfigError, config_from_mapping, load_config, replace_path
-from tests.conftest import copy_run
+from tests.conftest import copy_run, draw_only
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -44,7 +44,7 @@ def test_bad_replicate_counts_are_refused(value, match):
         config_from_mapping({"replicates": {"workers": -1}})
 
 
-def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path):
+def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path, monkeypatch):
     """Replicate 0 has the study's own seed: it is the single study of the same config, so
     the session's tiny study (copied into ``replicates/0``, same cache) is replicate 0
     finished; the replicated run resumes it (every stage cached) and runs replicate 1."""
@@ -53,6 +53,9 @@ def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path):
     # one worker: the replicates one after the other in this process (spawned workers:
     # tests/reliability/test_orphans.py)
     cfg = replace_path(replace_path(tiny_study.config, "replicates.n", 2), "replicates.workers", 1)
+    # replicate 1's figures stage draws one figure (in this process: the monkeypatch holds);
+    # the pooled report reads the replicates' numbers, not their figures
+    draw_only(monkeypatch, "scene_top_view")
     run = tmp_path / "run"
     copy_run(tiny_study, run / "replicates" / "0")
     # force_dir: the run directory holds replicates/0 and no manifest of its own yet

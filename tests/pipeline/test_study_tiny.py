@@ -28,7 +28,7 @@ from pipeline.config import load_config, replace_path
 from pipeline.engine.study import run_study
 from pipeline.stages import stage_names
 from pipeline.stages.summary import run_summary
-from tests.conftest import copy_run, link_copy
+from tests.conftest import copy_run, draw_only, link_copy
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -37,16 +37,6 @@ ROOT = Path(__file__).resolve().parents[2]
 def tiny(tiny_study):
     """(config, base, result) of the session's tiny study (tests/conftest.py)."""
     return tiny_study.config, tiny_study.base, tiny_study.result
-
-
-def draw_only(monkeypatch, *names: str) -> None:
-    """The figures stage (and ``rfidstudy figures``) draws only ``names``: every figure
-    of the tiny study is drawn by its own figures stage, every figure of a fake run by
-    tests/pipeline/figures; a test of what re-runs needs the stage, not its twelve
-    figures (about 20 s of CPU)."""
-    import pipeline.figures.drawall as drawall
-
-    monkeypatch.setattr(drawall, "FIGURES", {k: drawall.FIGURES[k] for k in names})
 
 
 def test_first_run_produces_the_run_directory(tiny):
