@@ -339,8 +339,8 @@ class ReplicatesConfig:
         "the study run n times, replicate 0 with `seed`, the others with seeds spawned from it).",
         max=1_000)
     workers: int = option(
-        0, "Replicates side by side in local worker processes (0: min(n, 2)); ignored with a "
-        "scheduler.", max=256)
+        0, "Replicates side by side in local worker processes (0: min(n, 2); 1: one after the "
+        "other in the study's own process); ignored with a scheduler.", max=256)
     scheduler: str = option(
         "", "Dask scheduler address (tcp://host:8786) the replicates run on, as sweeps do "
         "('' = local worker processes).")

@@ -92,4 +92,3 @@ def draw_only(monkeypatch, *names: str) -> None:
     import pipeline.figures.drawall as drawall
 
     monkeypatch.setattr(drawall, "FIGURES", {k: drawall.FIGURES[k] for k in names})
-

@@ -367,7 +367,8 @@ def sweep(
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (tcp://host:8786); default: local worker processes.")] = None,
     workers: Annotated[int | None, typer.Option(
-        help="Local worker processes (default: min(points, 2)).")] = None,
+        help="Local worker processes (default: min(points, 2); 1: the points one after the "
+             "other in this process).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also print INFO and DEBUG log lines (stages, traces, materials).")] = False,
 ):
     """Run a what-if grid (antenna height/yaw/tilt/count, power, tag sensitivity, scene).
@@ -381,6 +382,9 @@ def sweep(
       tx_power_dbm = [24.0, 27.15]
       \\[study]               # overrides of base for every point
       seed = 11
+    \b
+    Optional: upto = "evaluation" stops every point after that stage
+    (no figures or report per point; the summary reads its metrics).
     \b
     Parameters: antenna_height_m, antenna_yaw_deg, antenna_tilt_deg,
     antenna_count, tx_power_dbm, tag_sensitivity_dbm, scene, seed,

@@ -12,7 +12,8 @@ directory of its own, resumable and cached stage by stage), and the run director
   seed does not depend on N, so adding replicates keeps the ones already run;
 - the replicates share the scene and the propagation cache (every trace one of them
   made that another needs is read, not traced again);
-- they run in local worker processes or on the Dask scheduler the sweeps use
+- they run in local worker processes (with one worker, one after the other in this
+  process) or on the Dask scheduler the sweeps use
   (:func:`pipeline.apps.studypool.run_studies`);
 - the pooled intervals resample (replicate, tag) and (replicate, filter run) units
   (:mod:`pipeline.evaluation.headline`); each replicate's own headline numbers are kept

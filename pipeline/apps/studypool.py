@@ -2,8 +2,8 @@
 
 :func:`run_studies` runs :func:`run_point` on each ``(config dict, run directory)``: in
 local spawned worker processes (``concurrent.futures``; the CPUs shared between them,
-:func:`_cap_nested_workers`) or, with a ``client`` or ``scheduler`` address, on a Dask
-distributed cluster. Its callers sit above it: a sweep's points (:mod:`pipeline.apps.sweep`),
+:func:`_cap_nested_workers`), in this process one after the other with one local worker,
+or, with a ``client`` or ``scheduler`` address, on a Dask distributed cluster. Its callers sit above it: a sweep's points (:mod:`pipeline.apps.sweep`),
 a replicated study's replicates (:mod:`pipeline.apps.replicates`) and a placement's candidate
 studies (:mod:`pipeline.apps.placement.runner`). Each study is one study
 (:func:`pipeline.stages.run_study_stages`) unless the caller passes the ``runner`` that
@@ -25,7 +25,7 @@ from pipeline.config import StudyConfig
 from pipeline.configschema import from_dict
 from pipeline.engine.preflight import check_address_space
 from pipeline.parallel import WORKERS_ENV, die_with_parent, usable_cpus
-from pipeline.stages import run_study_stages, stages_upto
+from pipeline.stages import run_study_stages
 from pipeline.stages.summary import run_summary
 
 if TYPE_CHECKING:
@@ -37,9 +37,10 @@ log = logging.getLogger(__name__)
 
 
 def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | None = None,
-              runner: Callable[..., StudyResult] | None = None) -> dict:
+              runner: Callable[..., StudyResult] | None = None,
+              summarise: bool = True) -> dict:
     """Run one study (a sweep point, a replicate, a placement candidate's replicate; in a
-    worker process) and return its summary row.
+    worker process, or in this one) and return its row.
 
     Parameters
     ----------
@@ -51,20 +52,22 @@ def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | No
         The command named in the point's manifest.
     upto : str, optional
         The last stage to run (:func:`pipeline.stages.stages_upto`; None: all of them).
-        A study that ran its ``evaluation`` stage is summarised; one stopped before it
-        returns its status row alone.
     runner : callable, optional
         ``runner(config, run_dir, **kwargs)`` runs the study: a module-level function (it
         travels to the worker by name). None: :func:`pipeline.stages.run_study_stages`,
         one study; a sweep passes :func:`pipeline.apps.studyrun.run_full_study`, which runs a
         replicated point's replicates.
+    summarise : bool
+        Add the summary numbers of :func:`pipeline.stages.summary.run_summary` (a sweep's
+        table; read from ``metrics.json``, so only for a study that ran the stage writing
+        it: the caller checks ``upto``, :func:`pipeline.apps.sweep.load_sweep`).
 
     Returns
     -------
     dict
-        ``status`` ("complete" or "failed"), ``error``, ``elapsed_s`` and the summary
-        numbers of :func:`pipeline.stages.summary.run_summary`; a failed point's ``stage`` and
-        ``kind`` (the exception's type) where a stage failed.
+        ``status`` ("complete" or "failed"), ``error``, ``elapsed_s``, ``stages_ran`` and
+        the summary numbers; a failed point's ``stage`` and ``kind`` (the exception's
+        type; stage "summary" where only its summary failed).
     """
     # the stage package: loaded in the worker, not by every importer of the pool
 
@@ -79,27 +82,32 @@ def run_point(config: dict, run_dir: str, command: str = "sweep", upto: str | No
                 "kind": getattr(exc, "kind", None) or type(exc).__name__}
     row = {"status": "complete", "error": "", "elapsed_s": res.elapsed_s,
            "stages_ran": len(res.ran)}
-    if upto is not None and "evaluation" not in {s.name for s in stages_upto(upto, cfg)}:
-        return row  # stopped before its metrics: the caller reads what it has
+    if not summarise:
+        return row
     try:
         row.update(run_summary(run_dir))
     except Exception as exc:  # a summary that cannot be read fails its point, not the sweep
         log.error("sweep point %s: its summary failed: %s", run_dir, exc)
-        row.update(status="failed", error=f"summary: {exc}")
+        row.update(status="failed", error=f"summary: {exc}", stage="summary",
+                   kind=type(exc).__name__)
     return row
 
 
 def run_studies(args: list, *, scheduler: str | None = None, workers: int | None = None,
                 client=None, on_done: Callable[[int, dict], bool | None] | None = None,
                 command: str = "sweep", upto: str | None = None,
-                runner: Callable[..., StudyResult] | None = None) -> list[dict | None]:
+                runner: Callable[..., StudyResult] | None = None,
+                summarise: bool = True) -> list[dict | None]:
     """Run studies side by side: :func:`run_point` (with ``runner``) on each ``(config
     dict, run dir)`` of ``args``, in local spawned worker processes (``workers``, default
     min(len, 2); the CPUs shared between them) or on a Dask cluster (``client`` or
-    ``scheduler``). One local worker runs the studies one after the other in this
-    process: a spawned interpreter would only add its imports (about 5 s of CPU each
-    time, measured in the closing note of issue 55) and the studies would still run one
-    at a time.
+    ``scheduler``). One local worker (``workers=1``, or one study to run) runs the
+    studies one after the other in this process: a spawned interpreter would only add
+    its imports (about 5 s of CPU each time, measured in the closing note of issue 55)
+    and the studies would still run one at a time. The price is the worker's isolation:
+    a study that crashes the interpreter (a segfault, an out-of-memory kill) takes the
+    caller with it, as a single ``rfidstudy run`` would. ``summarise``: see
+    :func:`run_point`.
 
     Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
     called after each; when it returns True the local studies not yet started are
@@ -108,16 +116,16 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     address-space limit: a tracer budget it cannot hold is a ConfigError before any
     starts (:func:`pipeline.engine.preflight.check_address_space`)."""
     if client is not None or scheduler:
-        return _run_dask(args, scheduler, client, on_done, command, upto, runner)
+        return _run_dask(args, scheduler, client, on_done, command, upto, runner, summarise)
 
     # the workers inherit ulimit -v: a budget over it would segfault each one, silently
     budgets = [a[0].get("tracing", {}).get("memory_budget_mb", 0.0) for a in args]
     check_address_space(max(budgets, default=0.0))
     rows: list = [None] * len(args)
     n_workers = workers or min(len(args), 2)
-    if n_workers == 1:
+    if n_workers <= 1:
         for i, a in enumerate(args):
-            rows[i] = run_point(*a, command, upto, runner)
+            rows[i] = run_point(*a, command, upto, runner, summarise)
             if on_done and on_done(i, rows[i]):
                 break  # the rest never run: their rows stay None
         return rows
@@ -127,7 +135,8 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
                                 initializer=_cap_nested_workers,
                                 initargs=(nested,)) as ex:
-        futs = {ex.submit(run_point, *a, command, upto, runner): i for i, a in enumerate(args)}
+        futs = {ex.submit(run_point, *a, command, upto, runner, summarise): i
+                for i, a in enumerate(args)}
         for fut in cf.as_completed(futs):
             if fut.cancelled():
                 continue
@@ -150,14 +159,15 @@ def _cap_nested_workers(cap: int) -> None:
         os.environ[WORKERS_ENV] = str(cap)
 
 
-def _run_dask(args, scheduler, client, on_done, command="sweep", upto=None, runner=None):
+def _run_dask(args, scheduler, client, on_done, command="sweep", upto=None, runner=None,
+              summarise=True):
     from distributed import Client, as_completed
 
     own = client is None
     if own:
         client = Client(scheduler)
     try:
-        futs = [client.submit(run_point, *a, command, upto, runner, pure=False,
+        futs = [client.submit(run_point, *a, command, upto, runner, summarise, pure=False,
                               key=f"rfidstudy-point-{i}-{Path(a[1]).name}")
                 for i, a in enumerate(args)]
         index = {f.key: i for i, f in enumerate(futs)}

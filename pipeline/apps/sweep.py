@@ -22,7 +22,8 @@ is accepted too. Every point becomes a :class:`~pipeline.config.StudyConfig` run
 only change antenna orientation, power or sensitivity trace nothing new where the
 propagation package caches per antenna position.
 
-Runs go to local worker processes (``concurrent.futures``, spawn context) or, with
+Runs go to local worker processes (``concurrent.futures``, spawn context; with one
+worker, one after the other in this process) or, with
 ``scheduler``, to a Dask distributed cluster (``distributed.Client(address)``), by
 :func:`pipeline.apps.studypool.run_studies`; each point is run by
 :func:`pipeline.apps.studyrun.run_full_study` (a replicated point: its replicates). The
@@ -266,22 +267,34 @@ def load_sweep(path: str | Path) -> SweepPlan:
     return plan
 
 
+#: The stage writing a study's ``metrics.json``, without and with a ``[recording]``.
+METRICS_STAGE = {False: "evaluation", True: "recorded_eval"}
+
+
 def _check_upto(upto, plan: SweepPlan, source: str) -> str | None:
-    """The sweep's ``upto``: None, or a stage of the study that every point can stop
-    after (a replicated point runs every stage).
+    """The sweep's ``upto``: None, or a stage of every point's study at or after the one
+    that writes ``metrics.json`` (the summary reads it; an earlier stop would leave the
+    table empty, or read a metrics file of an earlier, longer run); no replicated point
+    (it runs every stage).
 
     Raises
     ------
     ConfigError
-        Not a stage name (the stages listed), or a point with ``replicates.n > 1``.
+        Not a stage of a point's study (its stages listed), a stage before its metrics,
+        or a point with ``replicates.n > 1``.
     """
     if upto is None:
         return None
-    names = stage_names()
-    if not isinstance(upto, str) or upto not in names:
-        raise ConfigError(f"{source}: upto = {upto!r} is not a stage; stages are "
-                          f"{', '.join(names)}")
     for i, cfg in enumerate(plan.configs):
+        names = stage_names(cfg)
+        if not isinstance(upto, str) or upto not in names:
+            raise ConfigError(f"{source}: upto = {upto!r} is not a stage of point {i}'s "
+                              f"study; its stages are {', '.join(names)}")
+        metrics = METRICS_STAGE[cfg.recording.enabled]
+        if names.index(upto) < names.index(metrics):
+            raise ConfigError(f"{source}: upto = {upto!r} stops before {metrics!r}, which "
+                              "writes the metrics the sweep's summary reads; use "
+                              f"{metrics!r} or a later stage")
         if cfg.replicates.n > 1:
             raise ConfigError(f"{source}: upto = {upto!r} with point {i} "
                               f"({plan.points[i]}) a replicated study (replicates.n = "
@@ -364,14 +377,12 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     out = check_sweep_dir(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     # the marker first: an interrupted sweep's directory is recognised as ours on rerun
-    atomic_write_json(out / "sweep.json", {"tool": "rfidstudy", "kind": "sweep",
-                                           "source": plan.source, "parameters": plan.parameters,
-                                           "runs": plan.names, "upto": plan.upto})
+    atomic_write_json(out / "sweep.json", _marker(plan))
     configs = [_shared_cache(c, out) for c in plan.configs]
     args = [(config_to_dict(c), str(out / "runs" / n)) for c, n in zip(configs, plan.names, strict=True)]
     # a point may be a replicated study: run_full_study runs its replicates
     rows = run_studies(args, scheduler=scheduler, workers=workers, client=client,
-                       on_done=on_done, runner=run_full_study, upto=plan.upto)
+                       on_done=on_done, runner=run_full_study, upto=plan.upto)  # summarised
     table = []
     for name, point, row in zip(plan.names, plan.points, rows, strict=True):
         r = {"run": name}
@@ -381,6 +392,12 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, scheduler: str | None = N
     df = pd.DataFrame(table)
     files = _write_summary(df, out, plan)
     return SweepResult(out_dir=out, summary=df, files=files)
+
+
+def _marker(plan: SweepPlan) -> dict:
+    """``sweep.json``: whose directory this is and what the sweep ran."""
+    return {"tool": "rfidstudy", "kind": "sweep", "source": plan.source,
+            "parameters": plan.parameters, "runs": plan.names, "upto": plan.upto}
 
 
 def _shared_cache(cfg: StudyConfig, out: Path) -> StudyConfig:
@@ -396,10 +413,7 @@ def _write_summary(df, out: Path, plan: SweepPlan) -> list[Path]:
     df.to_parquet(buf, index=False)
     files.append(atomic_write_bytes(out / "summary.parquet", buf.getvalue()))
     files.append(atomic_write_bytes(out / "summary.csv", df.to_csv(index=False).encode()))
-    files.append(atomic_write_json(out / "sweep.json", {
-        "tool": "rfidstudy", "kind": "sweep",
-        "source": plan.source, "parameters": plan.parameters, "runs": plan.names,
-    }))
+    files.append(atomic_write_json(out / "sweep.json", _marker(plan)))
     files.extend(_plots(df, out, list(plan.parameters)))
     return files
 

@@ -158,16 +158,24 @@ def _open_log(path: Path, mode: str):
     return os.fdopen(fd, "w", encoding="utf-8", buffering=1)
 
 
+#: Each thread's innermost open run log (:func:`log_to_file` blocks nest).
+_INNERMOST: dict[int, logging.Handler] = {}
+
+
 class _ThisThread(logging.Filter):
     """Passes the records of the thread that opened the log (and of processes forked from
-    it): two runs in one process (threads of a Dask worker) keep their lines apart."""
+    it) while the log is that thread's innermost: two runs in one process (threads of a
+    Dask worker) keep their lines apart, and a study run inside another's stage (a
+    replicate or placement candidate on one local worker) writes its own run.log, not
+    its caller's too, as it would in a worker process."""
 
-    def __init__(self):
+    def __init__(self, handler: logging.Handler):
         super().__init__()
         self.ident = threading.get_ident()
+        self.handler = handler
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return record.thread == self.ident
+        return record.thread == self.ident and _INNERMOST.get(self.ident) is self.handler
 
 
 @contextlib.contextmanager
@@ -186,7 +194,10 @@ def log_to_file(path: Path, mode: str = "a"):
     handler = _RunLogHandler(stream)
     handler.setLevel(logging.INFO)
     handler.setFormatter(logging.Formatter(_LOG_FORMAT))
-    handler.addFilter(_ThisThread())
+    handler.addFilter(_ThisThread(handler))
+    ident = threading.get_ident()
+    outer = _INNERMOST.get(ident)
+    _INNERMOST[ident] = handler
     root = logging.getLogger()
     fallback = None
     if not root.handlers:  # the file handler would otherwise silence the last resort
@@ -204,6 +215,10 @@ def log_to_file(path: Path, mode: str = "a"):
     try:
         yield handler
     finally:
+        if outer is None:
+            _INNERMOST.pop(ident, None)
+        else:
+            _INNERMOST[ident] = outer
         for lg in loggers:
             lg.removeHandler(handler)
         for h, once in consoles:

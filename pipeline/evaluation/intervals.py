@@ -98,7 +98,8 @@ MAX_LEVEL = 0.999
 #: Resamples evaluated at once (bounds the memory of a statistic over many observations).
 _BATCH = 250
 #: Two-stage multiplicities drawn at once, in entries (resamples x units: 32 MB as
-#: float64): the draw's Python loop runs per call, the statistic still per :data:`_BATCH`.
+#: float64, about 130 MB at the draw's peak with its index arrays): the draw's Python
+#: loop runs per call, the statistic still per :data:`_BATCH`.
 _DRAW_ENTRIES = 4_000_000
 
 #: A weighted statistic: unit multiplicities, shape (..., n_units) -> value, shape (...).

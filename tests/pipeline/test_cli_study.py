@@ -299,3 +299,27 @@ def test_a_repeated_warning_reaches_the_console_once_and_run_log_every_time(tmp_
     assert "an info line" not in shown
     logged = (tmp_path / "run.log").read_text()
     assert logged.count("extrapolated") == 3 and "an info line" in logged
+
+
+def test_a_run_log_opened_inside_another_takes_its_own_lines_only(tmp_path):
+    # a replicate or placement candidate run in its caller's process (one local worker)
+    # writes its own run.log; the caller's holds its own lines, before and after
+    import logging
+
+    from pipeline.engine.runlog import log_to_file
+
+    project = logging.getLogger("pipeline")
+    level = project.level
+    project.setLevel(logging.INFO)
+    log = logging.getLogger("pipeline.test_nested")
+    try:
+        with log_to_file(tmp_path / "outer.log", mode="w"):
+            log.info("outer before")
+            with log_to_file(tmp_path / "inner.log", mode="w"):
+                log.info("inner line")
+            log.info("outer after")
+    finally:
+        project.setLevel(level)
+    outer = (tmp_path / "outer.log").read_text()
+    assert "outer before" in outer and "outer after" in outer and "inner line" not in outer
+    assert "inner line" in (tmp_path / "inner.log").read_text()

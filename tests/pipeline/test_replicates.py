@@ -50,8 +50,8 @@ def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path, mon
     finished; the replicated run resumes it (every stage cached) and runs replicate 1."""
     from pipeline.apps.studyrun import run_full_study
 
-    # one worker: the replicates one after the other in this process (spawned workers:
-    # tests/reliability/test_orphans.py)
+    # one worker: the replicates one after the other in this process (the pool's spawned
+    # workers: tests/pipeline/test_studypool.py)
     cfg = replace_path(replace_path(tiny_study.config, "replicates.n", 2), "replicates.workers", 1)
     # replicate 1's figures stage draws one figure (in this process: the monkeypatch holds);
     # the pooled report reads the replicates' numbers, not their figures

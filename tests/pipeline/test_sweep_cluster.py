@@ -8,6 +8,7 @@ own figures stage)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -48,6 +49,7 @@ def test_sweep_on_local_dask_cluster(tiny_study, tmp_path):
     assert df["tag_coverage"].iloc[1] >= df["tag_coverage"].iloc[0]
     for col in ("read_rate", "tag_coverage", "surface_coverage", "completeness", "ssm_rmse_db"):
         assert df[col].notna().all(), col
+    assert json.loads((tmp_path / "out" / "sweep.json").read_text())["upto"] == "evaluation"
     back = pd.read_parquet(tmp_path / "out" / "summary.parquet")
     assert list(back["run"]) == plan.names
     assert (tmp_path / "out" / "summary.csv").is_file()

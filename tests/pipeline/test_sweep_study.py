@@ -47,7 +47,11 @@ def test_upto_is_a_stage_and_not_for_replicated_points(tmp_path):
     p.write_text('upto = "evaluation"\n[parameters]\ntx_power_dbm = [20.0, 24.0]\n')
     assert load_sweep(p).upto == "evaluation"
     p.write_text('upto = "evaluaton"\n[parameters]\ntx_power_dbm = [20.0]\n')
-    with pytest.raises(ConfigError, match="'evaluaton' is not a stage; stages are scene, tour"):
+    with pytest.raises(ConfigError, match="'evaluaton' is not a stage of point 0's study; "
+                                          "its stages are scene, tour"):
+        load_sweep(p)
+    p.write_text('upto = "reads"\n[parameters]\ntx_power_dbm = [20.0]\n')
+    with pytest.raises(ConfigError, match="stops before 'evaluation', which writes the metrics"):
         load_sweep(p)
     p.write_text('upto = "evaluation"\n[parameters]\nreplicates = [1, 3]\n')
     with pytest.raises(ConfigError, match=r"point 1 .*replicates.n = 3"):

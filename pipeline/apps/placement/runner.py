@@ -228,9 +228,8 @@ class _Runner:
 
     def _waves(self, todo: list[Candidate]) -> list[list[Candidate]]:
         """The batches ``todo`` runs in: :func:`position_waves`, or with one local worker
-        (studies one after the other, in the order given) the waves in order as one batch:
-        the siblings still find their positions traced, and one worker process started
-        for all of them, not one per wave (each start imports the tracer)."""
+        (studies one after the other, in the order given, in this process) the waves in
+        order as one batch: the siblings still find their positions traced."""
         waves = position_waves(todo)
         if self.workers == 1 and not (self.scheduler or self.client):
             return [[c for w in waves for c in w]]
@@ -282,7 +281,8 @@ class _Runner:
             return stop
 
         rows = run_studies(args, scheduler=self.scheduler, workers=self.workers or None,
-                           client=self.client, on_done=on_done, command="placement", upto=self.upto)
+                           client=self.client, on_done=on_done, command="placement", upto=self.upto,
+                           summarise=False)  # the objectives read the run directories
         # a worker of an earlier, killed run still writing a replicate: nothing is ranked
         check_no_writer([a[1] for a in args], "ranking the candidates", rows)
         self.wall_s += time.monotonic() - t0

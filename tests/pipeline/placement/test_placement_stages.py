@@ -141,7 +141,7 @@ def test_two_candidates_failing_alike_stop_the_placement(tmp_path, cache, invent
 def test_one_worker_runs_the_position_waves_in_order_as_one_batch(tmp_path):
     """One local worker runs the studies one after the other: the position waves go to it
     as one batch, the first wave first (its siblings find the positions traced), so one
-    worker process serves them all; more workers keep the waves apart."""
+    worker serves them all, in its caller's process; more workers keep the waves apart."""
     from pipeline.apps.placement.candidates import candidates_of
     from pipeline.apps.placement.runner import _Runner, position_waves
 
