@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 from pipeline.config import StudyConfig
 from pipeline.configschema import from_dict
 from pipeline.engine.preflight import check_address_space
+from pipeline.engine.runlog import PROJECT_LOGGERS
 from pipeline.parallel import WORKERS_ENV, die_with_parent, usable_cpus
 from pipeline.stages import run_study_stages
 from pipeline.stages.summary import run_summary
@@ -134,7 +135,7 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     nested = max(1, usable_cpus() // max(1, min(n_workers, len(args))))
     with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
                                 initializer=_cap_nested_workers,
-                                initargs=(nested,)) as ex:
+                                initargs=(nested, _project_log_levels())) as ex:
         futs = {ex.submit(run_point, *a, command, upto, runner, summarise): i
                 for i, a in enumerate(args)}
         for fut in cf.as_completed(futs):
@@ -148,10 +149,22 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     return rows
 
 
-def _cap_nested_workers(cap: int) -> None:
+def _project_log_levels() -> dict[str, int]:
+    """The levels set on the project's loggers here (the command line sets INFO, DEBUG
+    with ``-v``), for a spawned worker to set alike."""
+    return {name: logging.getLogger(name).level for name in PROJECT_LOGGERS
+            if logging.getLogger(name).level != logging.NOTSET}
+
+
+def _cap_nested_workers(cap: int, log_levels: dict[str, int] | None = None) -> None:
     """In a sweep's worker process: a study's own forked tasks use at most ``cap`` CPUs,
-    and the worker ends with the sweep, placement or replicated run that started it
+    the project's loggers pass what the caller's pass (``log_levels``; a spawned
+    interpreter starts at WARNING, so its studies' ``run.log`` would miss their INFO
+    lines, which a study run in the caller's process has), and the worker ends with the
+    sweep, placement or replicated run that started it
     (:func:`pipeline.parallel.die_with_parent`)."""
+    for name, level in (log_levels or {}).items():
+        logging.getLogger(name).setLevel(level)
     die_with_parent()
     current = os.environ.get(WORKERS_ENV, "").strip()
     # a user's smaller cap stands; anything else (unset, larger, not a count) is replaced

@@ -6,6 +6,7 @@ it in tests/pipeline/test_replicates.py, placement/ and test_sweep_cluster.py)."
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 from types import SimpleNamespace
@@ -22,8 +23,9 @@ def fake_study(config, run_dir, **kwargs):
     if run.name == "bad":
         raise ValueError("planted failure")
     run.mkdir(parents=True, exist_ok=True)
-    (run / "ran.json").write_text(json.dumps({"pid": os.getpid(), "upto": kwargs.get("upto"),
-                                              "workers": os.environ.get(WORKERS_ENV)}))
+    (run / "ran.json").write_text(json.dumps({
+        "pid": os.getpid(), "upto": kwargs.get("upto"), "workers": os.environ.get(WORKERS_ENV),
+        "log_level": logging.getLogger("pipeline").getEffectiveLevel()}))
     return SimpleNamespace(elapsed_s=0.0, ran=["scene"])
 
 
@@ -52,10 +54,18 @@ def test_one_worker_runs_here_in_order_and_stops_when_asked(tmp_path):
 
 def test_two_workers_run_in_spawned_processes_sharing_the_cpus(tmp_path, monkeypatch):
     monkeypatch.delenv(WORKERS_ENV, raising=False)
-    rows = run_studies(_args(tmp_path, ["a", "b"]), workers=2, runner=fake_study, upto="scene",
-                       summarise=False)
+    project = logging.getLogger("pipeline")
+    level = project.level
+    project.setLevel(logging.INFO)  # as the command line sets it
+    try:
+        rows = run_studies(_args(tmp_path, ["a", "b"]), workers=2, runner=fake_study,
+                           upto="scene", summarise=False)
+    finally:
+        project.setLevel(level)
     assert [r["status"] for r in rows] == ["complete", "complete"]
     ran = [json.loads((tmp_path / n / "ran.json").read_text()) for n in "ab"]
     assert all(r["pid"] != os.getpid() and r["upto"] == "scene" for r in ran)
     # two studies side by side: each worker's own forks capped at its share of the CPUs
     assert all(r["workers"] == str(max(1, usable_cpus() // 2)) for r in ran)
+    # and their studies' run.log holds the INFO lines, as a study run here does
+    assert [r["log_level"] for r in ran] == [logging.INFO, logging.INFO]
