@@ -307,9 +307,8 @@ def _two_stage_interval(statistic, n: int, clusters, rng, unit: str, n_resamples
     # (the tails would rest on a handful of distinct replicate draws)
     level = min(expanded_level(n_r), MAX_LEVEL)
     n_res = max(int(n_resamples), int(np.ceil(50.0 / (1.0 - level))))
-    # drawn in large chunks (its loop over replicates and draw counts is per call: 100
-    # calls of 250 for 25,000 resamples took most of a replicated study's pooling),
-    # evaluated per _BATCH
+    # drawn in large chunks (the draw loops over replicates and draw counts per call: 100
+    # calls of 250 for the 25,000 resamples of a 5-replicate interval), evaluated per _BATCH
     draw = max(_BATCH, _DRAW_ENTRIES // max(n, 1))
     dist = np.concatenate([np.asarray(statistic(w[i:i + _BATCH]), float)
                            for b in _batches(n_res, draw)
