@@ -107,7 +107,8 @@ def run_studies(args: list, *, scheduler: str | None = None, workers: int | None
     its imports (about 5 s of CPU each time, measured in the closing note of issue 55)
     and the studies would still run one at a time. The price is the worker's isolation:
     a study that crashes the interpreter (a segfault, an out-of-memory kill) takes the
-    caller with it, as a single ``rfidstudy run`` would. ``summarise``: see
+    caller with it, as a single ``rfidstudy run`` would, and the peak memory its records
+    give is this process's peak so far, not the study's own. ``summarise``: see
     :func:`run_point`.
 
     Returns :func:`run_point`'s rows in the order of ``args``. ``on_done(i, row)`` is
