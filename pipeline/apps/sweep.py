@@ -44,6 +44,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline import runfiles
 from pipeline.apps.studypool import run_studies
 from pipeline.apps.studyrun import run_full_study
 from pipeline.config import (
@@ -58,7 +59,7 @@ from pipeline.config import (
 from pipeline.configschema import from_dict
 from pipeline.engine.runstore import atomic_write_bytes, atomic_write_json
 from pipeline.outdirs import check_marker_file, own_marker
-from pipeline.stages import stage_names
+from pipeline.stages import study_stages
 from pipeline.studyscene import resolve_cache_dir
 
 __all__ = [
@@ -267,10 +268,6 @@ def load_sweep(path: str | Path) -> SweepPlan:
     return plan
 
 
-#: The stage writing a study's ``metrics.json``, without and with a ``[recording]``.
-METRICS_STAGE = {False: "evaluation", True: "recorded_eval"}
-
-
 def _check_upto(upto, plan: SweepPlan, source: str) -> str | None:
     """The sweep's ``upto``: None, or a stage of every point's study at or after the one
     that writes ``metrics.json`` (the summary reads it; an earlier stop would leave the
@@ -286,11 +283,13 @@ def _check_upto(upto, plan: SweepPlan, source: str) -> str | None:
     if upto is None:
         return None
     for i, cfg in enumerate(plan.configs):
-        names = stage_names(cfg)
+        stages = study_stages(cfg)
+        names = [s.name for s in stages]
         if not isinstance(upto, str) or upto not in names:
             raise ConfigError(f"{source}: upto = {upto!r} is not a stage of point {i}'s "
                               f"study; its stages are {', '.join(names)}")
-        metrics = METRICS_STAGE[cfg.recording.enabled]
+        # the stage declaring metrics.json among its outputs
+        metrics = next(s.name for s in stages if runfiles.METRICS in s.outputs)
         if names.index(upto) < names.index(metrics):
             raise ConfigError(f"{source}: upto = {upto!r} stops before {metrics!r}, which "
                               "writes the metrics the sweep's summary reads; use "

@@ -171,20 +171,17 @@ def _remembering(model: MaterialModel) -> MaterialModel:
     return dataclasses.replace(model, delta_db=delta_db)
 
 
-def linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray, *,
-              whole_range: bool = False) -> MaterialTerms:
+def linearise(model: MaterialModel, at: np.ndarray, rows: np.ndarray) -> MaterialTerms:
     """``model``'s gain change of attempts ``rows`` linearised at ``at`` (forward differences
-    of :data:`MATERIAL_STEP`), fitted within :data:`MATERIAL_TRUST` of ``at`` or, with
-    ``whole_range``, within each parameter's whole range (the refits of the bootstrap and
-    of the cross-validation)."""
+    of :data:`MATERIAL_STEP`), fitted within :data:`MATERIAL_TRUST` of ``at`` (the bootstrap's
+    and the cross-validation's refits take the same terms over each parameter's whole
+    range: :func:`_fit_materials`)."""
     base = np.asarray(model.delta_db(at), np.float64)[rows]
     jac = np.empty((len(base), len(at)))
     for j in range(len(at)):
         step = np.zeros(len(at))
         step[j] = MATERIAL_STEP if at[j] + MATERIAL_STEP <= model.upper[j] else -MATERIAL_STEP
         jac[:, j] = (np.asarray(model.delta_db(at + step), np.float64)[rows] - base) / step[j]
-    if whole_range:
-        return MaterialTerms(at.copy(), base, jac, model.lower, model.upper)
     lo = np.maximum(model.lower, at - MATERIAL_TRUST)
     hi = np.minimum(model.upper, at + MATERIAL_TRUST)
     return MaterialTerms(at.copy(), base, jac, lo, hi)
@@ -333,7 +330,7 @@ def _fit_materials(train, budget, n_antennas, q, model: MaterialModel, rows: np.
     return fit, whole, {"steps": steps, "converged": converged, "ended": ended}
 
 
-def _renamed(cmp: dict, ours: str, theirs: str) -> dict:
+def renamed(cmp: dict, ours: str, theirs: str) -> dict:
     """:func:`.simreal.sim_vs_real`'s sections with its two predictions renamed."""
     for sec in cmp.values():
         if isinstance(sec, dict) and "ray_tracer" in sec:
@@ -448,7 +445,7 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
     rx_before = np.asarray(budget.reader_rssi_dbm(held["gain_db"].to_numpy(np.float64)), np.float64)
     cmp_att = held.assign(p_base=held["p_sim"], rssi_base_dbm=rx_before,
                           p_sim=p_after, rssi_sim_dbm=rssi_after)
-    heldout = _renamed(sim_vs_real(cmp_att, seed=seed), "after", "before")
+    heldout = renamed(sim_vs_real(cmp_att, seed=seed), "after", "before")
     extra = {}
     if terms is not None:
         # the same held-out tags under the reader's parameters alone: did the constructions help?
@@ -456,8 +453,11 @@ def calibrate(att: pd.DataFrame, budget, n_antennas: int, *, miss_probability=0.
         x = fit._x  # noqa: SLF001 - our own vector, not a field
         fit = dataclasses.replace(fit, reader_only=alone)
         object.__setattr__(fit, "_x", x)
+        # the training attempts' gains linearised at the fit over the whole range: what
+        # the bootstrap refits and the cross-validation's (calibration_cv) use
+        object.__setattr__(fit, "_terms", terms)
         p_alone, rssi_alone = predict(alone, held["gain_db"], held["antenna"], budget)
-        against = _renamed(sim_vs_real(cmp_att.assign(p_base=p_alone, rssi_base_dbm=rssi_alone),
+        against = renamed(sim_vs_real(cmp_att.assign(p_base=p_alone, rssi_base_dbm=rssi_alone),
                                        seed=seed), "with_constructions", "reader_only")
         extra = {"constructions": {
             **materials.info, "parameters": list(materials.names),

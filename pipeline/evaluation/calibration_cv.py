@@ -18,8 +18,7 @@ tag are not independent: a fold holds whole tags):
    (``with_constructions - reader_only``: negative is better for the constructions).
 
 The construction fit's refits use the gains linearised at the point estimate over each
-parameter's whole range (:func:`~pipeline.evaluation.calibration.linearise`), as its
-bootstrap does: the linearisation is a model of the traced paths, not of the reads, but
+parameter's whole range (calibrate()'s, on the fit), as its bootstrap does: the linearisation is a model of the traced paths, not of the reads, but
 it is taken at the theta all training tags chose, so a fold's tags had a say in where the
 gains are linearised (a slight optimism, shared by the bootstrap's intervals).
 The paired interval resamples the tags' out-of-fold errors as independent; tags of one
@@ -43,10 +42,9 @@ import pandas as pd
 from pipeline.evaluation.calibration import (
     CalibrationFit,
     MaterialModel,
-    _renamed,
     fit_calibration,
-    linearise,
     predict,
+    renamed,
 )
 from pipeline.evaluation.simreal import sim_vs_real
 from pipeline.parallel import map_forked
@@ -72,9 +70,10 @@ def crossvalidate_constructions(att: pd.DataFrame, budget, n_antennas: int, fit:
         ``split`` column picks the training tags; attempts without a traced gain are left
         out, as there).
     fit : CalibrationFit
-        ``calibrate``'s fit with constructions; its ``reader_only`` the reader's alone.
+        ``calibrate``'s fit with constructions; its ``reader_only`` the reader's alone, and
+        the training attempts' gains linearised at it, which the refits use.
     model : MaterialModel
-        The constructions of ``fit`` (its ``delta_db`` one value per row of ``att``).
+        The constructions of ``fit``.
     rng : numpy.random.Generator
         Deals the tags into folds.
     seed : int
@@ -95,9 +94,6 @@ def crossvalidate_constructions(att: pd.DataFrame, budget, n_antennas: int, fit:
     if fit.reader_only is None:
         raise ValueError("crossvalidate_constructions: the fit has no reader-only fit beside it "
                          "(calibrate() with a MaterialModel gives both)")
-    if len(np.asarray(model.delta_db(fit.material_log_ratios))) != len(att):
-        raise ValueError("crossvalidate_constructions: the MaterialModel gives a gain change per "
-                         "row of another frame than att (calibrate()'s att, untraced rows included)")
     traced = np.isfinite(att["gain_db"].to_numpy(np.float64))
     is_train = traced & (att["split"].to_numpy() == "train")
     train = att[is_train].reset_index(drop=True)
@@ -109,7 +105,11 @@ def crossvalidate_constructions(att: pd.DataFrame, budget, n_antennas: int, fit:
                          "cross-validation needs at least 2")
     fold_of_unit = rng.permutation(np.arange(len(units)) % k)
     fold = fold_of_unit[np.searchsorted(units, tags)]
-    terms = linearise(model, fit.material_log_ratios, np.flatnonzero(is_train), whole_range=True)
+    terms = fit._terms  # noqa: SLF001 - calibrate()'s linearisation, over the whole range
+    if len(terms.base_db) != len(train) or len(terms.at) != len(model.names):
+        raise ValueError("crossvalidate_constructions: the fit's linearised gains are of other "
+                         "attempts than att's training ones, or of other constructions than "
+                         "model's (calibrate()'s att, untraced rows included)")
     start_cons, start_reader = fit._x, fit.reader_only._x  # noqa: SLF001 - our own vectors
 
     def one_fold(f):
@@ -132,7 +132,7 @@ def crossvalidate_constructions(att: pd.DataFrame, budget, n_antennas: int, fit:
             cols[c][rows] = v
         per_fold.append({"n_tags": int(np.unique(tags[rows]).size), "converged": ok,
                          "log_ratios": theta})
-    cmp = _renamed(sim_vs_real(train.assign(**cols), seed=seed), "with_constructions", "reader_only")
+    cmp = renamed(sim_vs_real(train.assign(**cols), seed=seed), "with_constructions", "reader_only")
     out: dict = {"folds": k, "n_tags": len(units), "unit": "tag", "per_fold": per_fold,
                  "all_folds_converged": all(f["converged"] for f in per_fold),
                  "log_ratios_all_tags": fit.material_log_ratios.tolist()}
