@@ -41,7 +41,7 @@ from pipeline.engine.runstore import atomic_write_json
 from pipeline.engine.study import Stage
 from pipeline.evaluation.calibration import MIN_TAGS, MaterialModel, calibrate
 from pipeline.evaluation.calibration_cv import crossvalidate_constructions
-from pipeline.recording.config import RecordingConfig
+from pipeline.recording.config import CALIBRATION_FIELDS, RecordingConfig
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.sceneconfig import MaterialConfig
 from pipeline.stages.common import TRACING_KEYS, load_scene
@@ -282,8 +282,8 @@ def heldout_worse(report: dict) -> str | None:
 
 
 STAGE = Stage("calibration", stage_calibration,
-              ("seed", "reader", "robot", "recording.calibrate_constructions",
-               "recording.calibration_resamples") + TRACING_KEYS,
+              ("seed", "reader", "robot", *(f"recording.{f}" for f in CALIBRATION_FIELDS))
+              + TRACING_KEYS,
               ("scene", "sim_vs_real"), version=4,  # each version's change: CHANGELOG.md
               description="calibrate the reader and building to the recording",
               outputs=STAGE_OUTPUTS["calibration"])
