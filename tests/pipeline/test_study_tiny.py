@@ -133,20 +133,6 @@ def test_new_run_dir_traces_nothing(tiny, tmp_path):
     pd.testing.assert_frame_equal(a, b)  # bit-reproducible from the seed
 
 
-def test_changed_epochs_rerun_models_and_downstream_only(tiny, tmp_path, monkeypatch):
-    cfg, base, _ = tiny
-    draw_only(monkeypatch, "ssm_surface")  # the figures stage runs: a figure of the models
-    run = tmp_path / "run"
-    shutil.copytree(base / "run", run)
-    before = (run / "reads.parquet").stat().st_mtime_ns
-    res = run_full_study(replace_path(cfg, "training.epochs", 4), run, command_line=["pytest"])
-    assert res.cached == ["scene", "tour", "reads", "truth_traces", "training_sets"]
-    assert res.ran == ["models", "truth", "downstream", "evaluation", "figures", "report"]
-    assert (run / "reads.parquet").stat().st_mtime_ns == before
-    hist = json.loads((run / "models" / "training_history.json").read_text())
-    assert len(hist["ssm"]["train_rmse"]) == 4
-
-
 def test_run_summary_row(tiny):
     _, base, _ = tiny
     row = run_summary(base / "run")
@@ -290,17 +276,24 @@ def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tin
         "better", "worse", "not distinguishable at 95 %"}
 
 
-def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path, monkeypatch):
-    """The oracle in the real study: the tiny study copied and run again with
-    ``downstream.oracle = true``; only the downstream stage and what follows re-run.
-    Its search narrowed to what the assertions need: the coarse pass only as far as the
-    longest read, windows of 0.2 m, candidates 0.1 m apart (a broken search, e.g. the
-    coarse modes taken from the worst anchors, lands metres away: within 1 m of none);
-    one robot run per model (the runs' pooling: the tiny study's three), and no figure
-    (the downstream figure with an oracle: tests/pipeline/figures/test_figures.py)."""
+def test_changed_epochs_and_the_oracle_rerun_models_and_downstream_only(tiny_study, tmp_path,
+                                                                         monkeypatch):
+    """Two changes in one re-run of a copy of the tiny study (each re-run costs a
+    downstream stage, the suite's time): the ANFIS epochs (re-run the models and what
+    follows, never the reads) and ``downstream.oracle = true`` (the ray-traced oracle in
+    the real study).
+
+    The oracle's search narrowed to what the assertions need: the coarse pass only as far
+    as the longest read, windows of 0.2 m, candidates 0.1 m apart (a broken search, e.g.
+    the coarse modes taken from the worst anchors, lands metres away: within 1 m of none;
+    that planted bug also fails tests/propagation/test_anchored.py); one robot run per
+    model (the runs' pooling: the tiny study's three). One figure, of the models (the
+    downstream figure with an oracle: tests/pipeline/figures/test_figures.py)."""
     run = copy_run(tiny_study, tmp_path / "run")
-    draw_only(monkeypatch)
-    cfg = replace_path(tiny_study.config, "downstream.oracle", True)
+    before = (run / "reads.parquet").stat().st_mtime_ns
+    draw_only(monkeypatch, "ssm_surface")
+    cfg = replace_path(tiny_study.config, "training.epochs", 4)
+    cfg = replace_path(cfg, "downstream.oracle", True)
     cfg = replace_path(cfg, "downstream.oracle_reach_m", 1.0)  # at least the longest read
     cfg = replace_path(cfg, "downstream.oracle_window_m", 0.2)
     cfg = replace_path(cfg, "downstream.candidate_spacing_m", 0.1)
@@ -308,8 +301,14 @@ def test_oracle_localises_every_heldout_tag_and_the_robot(tiny_study, tmp_path, 
     res = run_full_study(cfg, run, command_line=["pytest"])
     assert res.changed_keys == ["downstream.candidate_spacing_m", "downstream.oracle",
                                 "downstream.oracle_reach_m", "downstream.oracle_window_m",
-                                "downstream.robot_runs"]
-    assert res.ran == ["downstream", "evaluation", "figures", "report"]
+                                "downstream.robot_runs", "training.epochs"]
+    assert res.cached == ["scene", "tour", "reads", "truth_traces", "training_sets"]
+    assert res.ran == ["models", "truth", "downstream", "evaluation", "figures", "report"]
+    assert (run / "reads.parquet").stat().st_mtime_ns == before
+    hist = json.loads((run / "models" / "training_history.json").read_text())
+    assert len(hist["ssm"]["train_rmse"]) == 4
+    assert (run / "figures" / "ssm_surface.png").is_file()
+
     m = json.loads((run / "metrics.json").read_text())
     n_eval = m["tag_localisation"]["anfis"]["n_tags"]
     tag = m["tag_localisation"]["oracle"]
