@@ -47,6 +47,8 @@ __all__ = [
     "ConfigError",
     "DownstreamConfig",
     "EvaluationConfig",
+    "FIGURE_FORMATS",
+    "FiguresConfig",
     "LocalisationConfig",
     "MaterialConfig",
     "ReaderConfig",
@@ -356,6 +358,40 @@ class ReplicatesConfig:
             raise ConfigError(f"replicates.workers must be >= 0 (0 = min(n, 2)), got {self.workers}")
 
 
+#: File formats a figure can be written in (pipeline.figures.common.FORMATS; not imported
+#: from there: the config loads no plotting library).
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+@section
+class FiguresConfig:
+    """The files the figures stage writes (pipeline.figures): every figure in each format.
+
+    The report embeds the PNGs; PDF (TrueType fonts) and SVG are for papers. Each format
+    is written from the same laid-out figure, and a PDF costs about as much as its PNG:
+    a smoke study that nobody will print can write PNG alone. ``rfidstudy figures RUN
+    --format pdf --dpi 300`` redraws a finished run's figures in any format."""
+
+    formats: tuple[str, ...] = option(
+        ("png", "pdf"), "File formats of every figure, from png, pdf and svg; png first "
+        "(the report embeds it).")
+    dpi: int = option(120, "Resolution of the PNG files [dots per inch], 50 to 1200.", max=1200)
+
+    def __post_init__(self):
+        fmts = self.formats
+        if isinstance(fmts, str) or not all(isinstance(f, str) for f in fmts):
+            raise ConfigError(f"figures.formats must be a list of names from "
+                              f"{list(FIGURE_FORMATS)}, got {fmts!r}")
+        if (not fmts or fmts[0] != "png" or len(set(fmts)) != len(fmts)
+                or not set(fmts) <= set(FIGURE_FORMATS)):
+            raise ConfigError(f"figures.formats must be distinct names from "
+                              f"{list(FIGURE_FORMATS)}, png first (the report embeds it), "
+                              f"got {list(fmts)}")
+        # below 50 dpi text is unreadable; above 1200 a figure is hundreds of MB
+        if isinstance(self.dpi, bool) or not isinstance(self.dpi, int) or self.dpi < 50:
+            raise ConfigError(f"figures.dpi must be an integer in [50, 1200], got {self.dpi!r}")
+
+
 @section
 class StudyConfig:
     """A whole study: scene, robot, tour, reader, tracing, training and evaluation."""
@@ -374,6 +410,8 @@ class StudyConfig:
                                           factory=DownstreamConfig)
     replicates: ReplicatesConfig = option(doc="Independent replicates of the study.",
                                           factory=ReplicatesConfig)
+    figures: FiguresConfig = option(doc="The figures' files: formats and resolution.",
+                                    factory=FiguresConfig)
     recording: RecordingConfig = option(doc="A real reader's log the study runs on instead of "
                                         "simulating (docs/recordings.md).", factory=RecordingConfig)
     materials: tuple[MaterialConfig, ...] = option(

@@ -1,5 +1,6 @@
 """Stage ``figures``: every figure from the run directory's files alone
-(``pipeline.figures``); writes ``figures/*.png`` and ``*.pdf``."""
+(``pipeline.figures``); writes ``figures/<name>.<format>`` for each of the study's
+``figures.formats`` (PNG and PDF by default)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,15 @@ from pipeline.runfiles import STAGE_OUTPUTS
 __all__ = ["STAGE", "draw_figures", "draw_scene_top_view", "stage_figures"]
 
 
-def draw_figures(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
+def draw_figures(run_dir: str | Path, out_dir: str | Path,
+                 output: FigureOutput | None = None) -> list[Path]:
     """Every figure of a run, from the run directory's files alone (pipeline.figures.draw_all).
+
+    Parameters
+    ----------
+    run_dir, out_dir : path
+    output : FigureOutput, optional
+        Formats and resolution (default PNG at 120 dpi and PDF).
 
     Returns
     -------
@@ -23,7 +31,7 @@ def draw_figures(run_dir: str | Path, out_dir: str | Path) -> list[Path]:
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    res = draw_all(Path(run_dir), out_dir=out)
+    res = draw_all(Path(run_dir), out_dir=out, output=output)
     if isinstance(res, dict):
         res = [p for v in res.values() for p in (v if isinstance(v, (list, tuple)) else [v])]
     return [Path(p) for p in (res or [])]
@@ -40,12 +48,14 @@ def draw_scene_top_view(scene, png: str | Path) -> Path:
 
 
 def stage_figures(ctx) -> dict:
-    """Draw every figure into the stage's staging area."""
-    paths = draw_figures(ctx.store.root, ctx.staging_dir / "figures")
+    """Draw every figure into the stage's staging area, in the study's formats."""
+    fig = ctx.config.figures
+    paths = draw_figures(ctx.store.root, ctx.staging_dir / "figures",
+                         FigureOutput(formats=tuple(fig.formats), dpi=int(fig.dpi)))
     return {"n_files": len(paths)}
 
 
-STAGE = Stage("figures", stage_figures, (), ("scene", "tour", "reads", "truth_traces", "models", "truth",
+STAGE = Stage("figures", stage_figures, ("figures",), ("scene", "tour", "reads", "truth_traces", "models", "truth",
                                                         "evaluation"),
               version=2,  # each version's change: CHANGELOG.md
               description="figures",

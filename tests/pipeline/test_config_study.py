@@ -225,3 +225,17 @@ def test_keys_of_older_configs_get_a_migration_hint():
         config_from_mapping({"tracing": {"lattice_spacing_m": 0.0}})
     with pytest.raises(ConfigError, match='tracing.method = "direct"'):
         config_from_mapping({"tracing": {"share_radius_m": 0.0}})
+
+
+@pytest.mark.parametrize("formats, why", [(["pdf"], "png first"), (["png", "png"], "distinct"),
+                                          (["png", "jpg"], "distinct names from"),
+                                          ([], "png first")])
+def test_figure_formats_are_named_formats_png_first(formats, why):
+    from pipeline.config import config_from_mapping
+
+    assert config_from_mapping({"figures": {"formats": ["png", "svg"]}}).figures.formats == (
+        "png", "svg")
+    with pytest.raises(ConfigError, match=why):
+        config_from_mapping({"figures": {"formats": formats}})
+    with pytest.raises(ConfigError, match=r"figures.dpi must be an integer in \[50, 1200\]"):
+        config_from_mapping({"figures": {"dpi": 20}})

@@ -49,6 +49,12 @@ def test_first_run_produces_the_run_directory(tiny):
                 "truth/detection_grid.npz", "truth/fig7_errors.parquet", "fields/field_00.npz",
                 "report.html"):
         assert (run / rel).is_file(), rel
+    # every figure in the study's formats alone (configs/tiny.toml: PNG, no PDF)
+    from pipeline.figures import FIGURES
+
+    assert cfg.figures.formats == ("png",)
+    assert sorted(p.name for p in (run / "figures").iterdir()) == sorted(
+        f"{name}.png" for name in FIGURES)
     cov = json.loads((run / "metrics.json").read_text())["coverage"]
     assert 0 <= cov["corridor_fraction"] <= 1 and cov["fields"][0]["n_cells"] > 0
     # truth_traces took its antenna poses from the tour's track: those of the read log
