@@ -276,7 +276,8 @@ class _ByModel:
     def __init__(self, df: pd.DataFrame, tables: UnitTables):
         self.models = list(dict.fromkeys(df["model"]))
         self.rows = {m: sub for m, sub in df.groupby("model", sort=False, observed=True)}
-        self.units = {m: np.unique(sub["unit"].to_numpy()) for m, sub in self.rows.items()}
+        self.unit_of_row = {m: sub["unit"].to_numpy() for m, sub in self.rows.items()}
+        self.units = {m: np.unique(u) for m, u in self.unit_of_row.items()}
         cells = tables.detection_cells
         self.cells = (None if cells is None
                       else {m: sub for m, sub in cells.groupby("model", sort=False, observed=True)})
@@ -300,15 +301,20 @@ def _tables_of(tables: UnitTables):
 
 
 def _stats_on(spec: MetricSpec, by: _ByModel, models, units: np.ndarray, min_attempts: int) -> dict:
-    """The weighted statistics of ``models`` over exactly ``units`` (rows of other units
-    are left out), index i of a weight vector being ``units[i]`` for every model."""
-    index = pd.Series(np.arange(len(units)), index=units)
+    """The weighted statistics of ``models`` over exactly ``units`` (sorted; rows of other
+    units are left out), index i of a weight vector being ``units[i]`` for every model."""
     out = {}
     for model in models:
-        sub = by.rows[model]
-        rows = sub.loc[sub["unit"].isin(units).to_numpy()]
-        out[model] = _statistic(spec, rows, index.loc[rows["unit"]].to_numpy(), len(units),
-                                by.cells_of(model), int(min_attempts))
+        # ``units`` is sorted (np.unique, np.intersect1d): a row's code is its unit's place
+        u = by.unit_of_row[model]
+        code = np.searchsorted(units, u)
+        keep = code < len(units)
+        keep[keep] = units[code[keep]] == u[keep]
+        rows = by.rows[model]
+        if not keep.all():
+            rows, code = rows.iloc[np.flatnonzero(keep)], code[keep]
+        out[model] = _statistic(spec, rows, code, len(units), by.cells_of(model),
+                                int(min_attempts))
     return out
 
 
