@@ -375,7 +375,7 @@ class FiguresConfig:
     formats: tuple[str, ...] = option(
         ("png", "pdf"), "File formats of every figure, from png, pdf and svg; png first "
         "(the report embeds it).")
-    dpi: int = option(120, "Resolution of the PNG files [dots per inch], 50 to 1200.", max=1200)
+    dpi: int = option(120, "Resolution of the PNG files [dots per inch], at least 50.", max=1200)
 
     def __post_init__(self):
         fmts = self.formats

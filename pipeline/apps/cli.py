@@ -248,7 +248,7 @@ def figures(
     writes into RUN/paper_figures (or --out DIR); PDFs embed TrueType (Type 42) fonts.
     """
     _setup_logging(verbose)
-    from pipeline.figures import FIGURES, draw_all  # lazy: start-up time
+    from pipeline.figures import FIGURES, draw_all, run_figure_output  # lazy: start-up time
     from pipeline.report.html import write_report  # lazy: start-up time
 
     if list_:
@@ -258,7 +258,8 @@ def figures(
         return
     custom = format_ is not None or dpi is not None or only is not None
     try:
-        output = _figure_output(format_, dpi)
+        # without options: as the study's figures stage drew them (its [figures])
+        output = _figure_output(format_, dpi) if custom else run_figure_output(run_dir)
     except ValueError as exc:
         fail(str(exc))
     names = _csv_option(only)

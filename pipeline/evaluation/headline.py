@@ -274,6 +274,9 @@ class _ByModel:
     was about half of a study's evaluation stage (pandas, measured on the tiny study)."""
 
     def __init__(self, df: pd.DataFrame, tables: UnitTables):
+        for col in ("model", "unit"):
+            if df[col].isna().any():  # a row nobody can score: a bug upstream, not a unit
+                raise ValueError(f"a unit table has rows without a {col}")
         self.models = list(dict.fromkeys(df["model"]))
         self.rows = {m: sub for m, sub in df.groupby("model", sort=False, observed=True)}
         self.unit_of_row = {m: sub["unit"].to_numpy() for m, sub in self.rows.items()}

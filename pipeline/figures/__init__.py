@@ -14,7 +14,7 @@ for both its files (:func:`pipeline.figures.common.save_figure`).
 from pipeline.figures.common import DPI, STYLE, FigureOutput, MissingInput, figure_output
 from pipeline.figures.comparison import fig_fig7_error, fig_rho_vs_truth
 from pipeline.figures.downstream import fig_downstream
-from pipeline.figures.drawall import FIGURES, draw_all
+from pipeline.figures.drawall import FIGURES, draw_all, run_figure_output
 from pipeline.figures.headline import fig_baselines
 from pipeline.figures.scene import fig_fields, fig_mcl_error, fig_scene_top_view, scene_top_view
 from pipeline.figures.sites import fig_site_errors
@@ -43,6 +43,7 @@ __all__ = [
     "fig_rho_vs_truth",
     "fig_scene_top_view",
     "fig_site_errors",
+    "run_figure_output",
     "fig_ssm_surface",
     "fig_tdm_surface",
     "scene_top_view",

@@ -24,7 +24,7 @@ from pipeline.report.recorded import draw_sim_vs_real
 from pipeline.report.smokescale import smoke_banner
 from pipeline.runpaths import not_regular
 
-__all__ = ["FIGURES", "draw_all"]
+__all__ = ["FIGURES", "draw_all", "run_figure_output"]
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,35 @@ def _run_banner(run_dir: Path) -> str:
         return smoke_banner(tomllib.loads(read_run_text(path)))
     except (ValueError, tomllib.TOMLDecodeError):
         return ""
+
+
+def run_figure_output(run_dir) -> FigureOutput:
+    """The formats and resolution a run's figures stage draws in: the ``[figures]`` of
+    its config.toml (:class:`pipeline.config.FiguresConfig`), or PNG and PDF at 120 dpi
+    where it has none (a run of a version before that section, or no config.toml).
+
+    Raises
+    ------
+    ValueError
+        config.toml is not TOML, or its ``[figures]`` names no valid output (the file
+        named): a redraw into the study's own ``figures/`` must not write other files
+        than the stage's.
+    """
+    import tomllib
+
+    path = Path(run_dir) / "config.toml"
+    if not regular_file(path):  # absent, or a link or a FIFO (the report names it)
+        return FigureOutput()
+    try:
+        sec = tomllib.loads(read_run_text(path)).get("figures", {})
+        kw = {}
+        if "formats" in sec:
+            kw["formats"] = tuple(sec["formats"])
+        if "dpi" in sec:
+            kw["dpi"] = sec["dpi"]
+        return FigureOutput(**kw)
+    except (tomllib.TOMLDecodeError, TypeError, ValueError, AttributeError) as exc:
+        raise ValueError(f"{path}: [figures] gives no figure output: {exc}") from exc
 
 
 def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:
@@ -112,7 +141,8 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
         do not depend on where it is drawn). Default: one per CPU, or 1 (draw in this
         process) where forking is not safe.
     output : FigureOutput, optional
-        Formats and resolution (default PNG at 120 dpi and PDF, for the report).
+        Formats and resolution; default the run's own (:func:`run_figure_output`: its
+        config's ``[figures]``, else PNG at 120 dpi and PDF).
 
     Returns
     -------
@@ -125,8 +155,10 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory {run_dir} does not exist")
     out_dir = Path(out_dir) if out_dir is not None else run_dir / "figures"
+    if output is None:
+        output = run_figure_output(run_dir)
     if (run_dir / runfiles.RECORDING_IMPORT).is_file():  # a recorded study's own figures
-        return _draw_recorded(run_dir, out_dir, output or FigureOutput())
+        return _draw_recorded(run_dir, out_dir, output)
     names = list(FIGURES) if names is None else list(names)
     unknown = sorted(set(names) - set(FIGURES))
     if unknown:
@@ -135,7 +167,7 @@ def draw_all(run_dir, out_dir=None, names=None, workers: int | None = None,
     if banner:
         import dataclasses
 
-        output = dataclasses.replace(output or FigureOutput(), banner=banner)
+        output = dataclasses.replace(output, banner=banner)
     with figure_output(output):
         results = map_forked(lambda i: _draw_one(names[i], run_dir, out_dir), len(names),
                              workers)

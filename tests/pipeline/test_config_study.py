@@ -239,3 +239,14 @@ def test_figure_formats_are_named_formats_png_first(formats, why):
         config_from_mapping({"figures": {"formats": formats}})
     with pytest.raises(ConfigError, match=r"figures.dpi must be an integer in \[50, 1200\]"):
         config_from_mapping({"figures": {"dpi": 20}})
+
+
+def test_figure_formats_of_the_config_are_the_figures_formats():
+    # the config names them without importing the plotting library: kept alike here
+    from pipeline.config import FIGURE_FORMATS
+    from pipeline.figures import FigureOutput
+    from pipeline.figures.common import FORMATS
+
+    assert FIGURE_FORMATS == FORMATS
+    assert FigureOutput().formats == StudyConfig().figures.formats
+    assert FigureOutput().dpi == StudyConfig().figures.dpi

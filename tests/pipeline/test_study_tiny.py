@@ -166,6 +166,8 @@ def test_cli_figures_on_a_run_dir(tiny, tmp_path, monkeypatch):
     for k in drawn:
         assert (run / "figures" / f"{k}.png").is_file(), k
     assert "data:image/png;base64," in (run / "report.html").read_text()
+    # as the study's figures stage drew them: its [figures] formats (tiny: PNG alone)
+    assert not list((run / "figures").glob("*.pdf"))
 
 
 def test_heldout_layout_never_mixes_with_training(tiny):
@@ -280,6 +282,24 @@ def test_intervals_are_the_headline_numbers_recomputed_from_the_saved_tables(tin
     assert cmp_["reference"] == "anfis" and "anfis" not in cmp_["metrics"]["heldout.rssi_mae_db"]
     assert {c["verdict"] for c in cmp_["metrics"]["heldout.rssi_mae_db"].values()} <= {
         "better", "worse", "not distinguishable at 95 %"}
+
+
+def test_a_downstream_change_reruns_downstream_and_what_reads_it_only():
+    """What the re-run below cannot show (its epochs change re-runs the models too): a
+    change of ``[downstream]`` alone (the oracle on) re-runs the downstream stage and the
+    stages that read its outputs, never the models or the truth. A stage re-runs when one
+    of its config keys changed or an upstream stage re-ran (pipeline.engine.study)."""
+    from pipeline.stages import STAGES
+
+    def reads_downstream(key: str) -> bool:
+        return key == "downstream" or key.startswith("downstream.")
+
+    rerun = set()
+    for st in STAGES:  # in order: every upstream stage comes first
+        if any(map(reads_downstream, st.config_keys)) or rerun & set(st.upstream):
+            rerun.add(st.name)
+    assert [s.name for s in STAGES if s.name in rerun] == [
+        "downstream", "evaluation", "figures", "report"]
 
 
 def test_changed_epochs_and_the_oracle_rerun_models_and_downstream_only(tiny_study, tmp_path,

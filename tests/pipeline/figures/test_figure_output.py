@@ -6,6 +6,7 @@ On the session's tiny study (real models, metrics with intervals, downstream fil
 from __future__ import annotations
 
 import re
+import shutil
 
 import numpy as np
 import pandas as pd
@@ -74,11 +75,29 @@ def test_figures_cli_refuses_bad_options(tiny_study, tmp_path):
         assert res.exit_code == 2 and words in res.output, (args, res.output)
 
 
-def test_draw_all_default_output_is_png_and_pdf_at_120_dpi(tiny_study, tmp_path):
-    paths = draw_all(tiny_study.run, out_dir=tmp_path, names=["baselines"], workers=1)
+def test_draw_all_default_output_is_the_runs_own_else_png_and_pdf_at_120_dpi(tiny_study,
+                                                                             tmp_path):
+    import tomllib
+
+    import tomli_w
+
+    # the run's [figures] (configs/tiny.toml: PNG alone), as its figures stage drew them
+    paths = draw_all(tiny_study.run, out_dir=tmp_path / "own", names=["baselines"], workers=1)
+    assert [p.name for p in paths] == ["baselines.png"]
+    # a run of a version before [figures]: PNG and PDF at 120 dpi
+    run = copy_run(tiny_study, tmp_path / "old", ignore=shutil.ignore_patterns("figures"))
+    cfg = tomllib.loads((run / "config.toml").read_text())
+    del cfg["figures"]
+    (run / "config.toml").write_text(tomli_w.dumps(cfg))
+    paths = draw_all(run, out_dir=tmp_path / "old_figs", names=["baselines"], workers=1)
     assert [p.name for p in paths] == ["baselines.png", "baselines.pdf"]
     with Image.open(paths[0]) as im:
         assert abs(im.info["dpi"][0] - 120) < 1
+    # a [figures] that names no output stops the redraw, naming the file
+    cfg["figures"] = {"formats": ["png", "png"]}
+    (run / "config.toml").write_text(tomli_w.dumps(cfg))
+    with pytest.raises(ValueError, match=r"config.toml: \[figures\]"):
+        draw_all(run, out_dir=tmp_path / "bad", names=["baselines"], workers=1)
     with pytest.raises(ValueError, match="formats"):
         FigureOutput(formats=("png", "png"))
 
