@@ -11,7 +11,7 @@ Stages, one module each (inputs in brackets; each also depends on its upstream s
     truth         detection truth grids, Fig. 6 truth from the traced points  [evaluation]
     downstream    held-out tags and the robot, localised with each model       [downstream]
     evaluation    metrics.json                                                 [evaluation]
-    figures       every figure (pipeline.figures.draw_all), in its formats        [figures]
+    figures       every figure (pipeline.figures.draw_all), in its formats     [figures]
     report        report.html
 
 Each module defines its ``STAGE`` (name, config keys, upstream stages, version) beside
