@@ -85,14 +85,18 @@ def run_figure_output(run_dir) -> FigureOutput:
     if not regular_file(path):  # absent, or a link or a FIFO (the report names it)
         return FigureOutput()
     try:
-        sec = tomllib.loads(read_run_text(path)).get("figures", {})
+        data = tomllib.loads(read_run_text(path))
+    except tomllib.TOMLDecodeError as exc:  # worded as the report words it
+        raise ValueError(f"{path}: not a valid TOML file: {exc}") from None
+    try:
+        sec = data.get("figures", {})
         kw = {}
         if "formats" in sec:
             kw["formats"] = tuple(sec["formats"])
         if "dpi" in sec:
             kw["dpi"] = sec["dpi"]
         return FigureOutput(**kw)
-    except (tomllib.TOMLDecodeError, TypeError, ValueError, AttributeError) as exc:
+    except (TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: [figures] gives no figure output: {exc}") from exc
 
 
