@@ -59,6 +59,7 @@ __all__ = [
     "TourConfig",
     "TracingConfig",
     "TrainingConfig",
+    "check_figure_output",
     "config_from_mapping",
     "config_to_dict",
     "config_to_toml",
@@ -358,9 +359,27 @@ class ReplicatesConfig:
             raise ConfigError(f"replicates.workers must be >= 0 (0 = min(n, 2)), got {self.workers}")
 
 
-#: File formats a figure can be written in (pipeline.figures.common.FORMATS; not imported
-#: from there: the config loads no plotting library).
+#: File formats a figure can be written in (here, not in pipeline.figures: the config
+#: loads no plotting library).
 FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+def check_figure_output(formats, dpi, where: str) -> tuple[str, ...]:
+    """The checks of a figure output, shared by the study's ``[figures]`` and
+    :class:`pipeline.figures.FigureOutput`: distinct names from :data:`FIGURE_FORMATS`
+    and a resolution in [50, 1200] dpi. Returns the formats as a tuple; ValueError
+    naming ``where`` (``"figures."``, ``"figure "``) and the value."""
+    if isinstance(formats, str) or not all(isinstance(f, str) for f in formats):
+        raise ValueError(f"{where}formats must be a list of names from "
+                         f"{list(FIGURE_FORMATS)}, got {formats!r}")
+    fmts = tuple(formats)
+    if not fmts or len(set(fmts)) != len(fmts) or not set(fmts) <= set(FIGURE_FORMATS):
+        raise ValueError(f"{where}formats must be distinct names from {list(FIGURE_FORMATS)}, "
+                         f"got {list(fmts)}")
+    # below 50 dpi text is unreadable; above 1200 a figure is hundreds of MB
+    if isinstance(dpi, bool) or not isinstance(dpi, int) or not 50 <= dpi <= 1200:
+        raise ValueError(f"{where}dpi must be an integer in [50, 1200], got {dpi!r}")
+    return fmts
 
 
 @section
@@ -378,18 +397,13 @@ class FiguresConfig:
     dpi: int = option(120, "Resolution of the PNG files [dots per inch], at least 50.", max=1200)
 
     def __post_init__(self):
-        fmts = self.formats
-        if isinstance(fmts, str) or not all(isinstance(f, str) for f in fmts):
-            raise ConfigError(f"figures.formats must be a list of names from "
-                              f"{list(FIGURE_FORMATS)}, got {fmts!r}")
-        if (not fmts or fmts[0] != "png" or len(set(fmts)) != len(fmts)
-                or not set(fmts) <= set(FIGURE_FORMATS)):
-            raise ConfigError(f"figures.formats must be distinct names from "
-                              f"{list(FIGURE_FORMATS)}, png first (the report embeds it), "
-                              f"got {list(fmts)}")
-        # below 50 dpi text is unreadable; above 1200 a figure is hundreds of MB
-        if isinstance(self.dpi, bool) or not isinstance(self.dpi, int) or self.dpi < 50:
-            raise ConfigError(f"figures.dpi must be an integer in [50, 1200], got {self.dpi!r}")
+        if not self.formats or self.formats[0] != "png":
+            raise ConfigError(f"figures.formats must name png first (the report embeds it), "
+                              f"got {list(self.formats)}")
+        try:
+            check_figure_output(self.formats, self.dpi, "figures.")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
 
 
 @section

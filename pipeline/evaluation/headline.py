@@ -277,8 +277,10 @@ class _ByModel:
         for col in ("model", "unit"):
             if df[col].isna().any():  # a row nobody can score: a bug upstream, not a unit
                 raise ValueError(f"a unit table has rows without a {col}")
-        self.models = list(dict.fromkeys(df["model"]))
+        # in the table's order of first appearance (groupby keeps it with sort=False)
         self.rows = {m: sub for m, sub in df.groupby("model", sort=False, observed=True)}
+        self.models = list(self.rows)
+        self.n_units = int(df["unit"].nunique())
         self.unit_of_row = {m: sub["unit"].to_numpy() for m, sub in self.rows.items()}
         self.units = {m: np.unique(u) for m, u in self.unit_of_row.items()}
         cells = tables.detection_cells
@@ -294,13 +296,16 @@ class _ByModel:
 
 def _tables_of(tables: UnitTables):
     """Per metric with a table: (spec, its rows split by model) with ``unit`` and
-    ``model`` as str."""
+    ``model`` as str; each table split once, however many metrics read it."""
+    split: dict[str, _ByModel] = {}
     for spec in METRICS:
         df = getattr(tables, spec.table)
         if df is None or df.empty:
             continue
-        df = df.assign(unit=df["unit"].astype(str), model=df["model"].astype(str))
-        yield spec, _ByModel(df, tables)
+        if spec.table not in split:
+            df = df.assign(unit=df["unit"].astype(str), model=df["model"].astype(str))
+            split[spec.table] = _ByModel(df, tables)
+        yield spec, split[spec.table]
 
 
 def _stats_on(spec: MetricSpec, by: _ByModel, models, units: np.ndarray, min_attempts: int) -> dict:
@@ -368,8 +373,7 @@ def headline_intervals(tables: UnitTables, *, seed: int, min_attempts: int,
     for spec, by in _tables_of(tables):
         unit = f"replicate x {spec.unit}" if replicated else spec.unit
         own = _own_statistics(spec, by, min_attempts)
-        n_units = len(np.unique(np.concatenate(list(by.units.values()))))
-        sec = {"label": spec.label, "unit": unit, "n_units": n_units}
+        sec = {"label": spec.label, "unit": unit, "n_units": by.n_units}
         if spec.no_interval:
             sec["models"] = {m: Interval(float(f(np.ones(n))), None, None, n, unit, "none",
                                          note=spec.no_interval).to_dict()

@@ -309,11 +309,11 @@ def _two_stage_interval(statistic, n: int, clusters, rng, unit: str, n_resamples
     n_res = max(int(n_resamples), int(np.ceil(50.0 / (1.0 - level))))
     # drawn in large chunks (the draw loops over replicates and draw counts per call: 100
     # calls of 250 for the 25,000 resamples of a 5-replicate interval), evaluated per _BATCH
-    draw = max(_BATCH, _DRAW_ENTRIES // max(n, 1))
-    dist = np.concatenate([np.asarray(statistic(w[i:i + _BATCH]), float)
-                           for b in _batches(n_res, draw)
-                           for w in (two_stage_multiplicity(clusters, rng, b),)
-                           for i in range(0, b, _BATCH)])
+    parts = []
+    for b in _batches(n_res, max(_BATCH, _DRAW_ENTRIES // max(n, 1))):
+        w = two_stage_multiplicity(clusters, rng, b)
+        parts += [np.asarray(statistic(w[i:i + _BATCH]), float) for i in range(0, b, _BATCH)]
+    dist = np.concatenate(parts)
     if np.all(dist == est):
         return Interval(est, est, est, n, unit, "degenerate")
     dist = dist[np.isfinite(dist)]

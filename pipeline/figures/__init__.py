@@ -43,8 +43,8 @@ __all__ = [
     "fig_rho_vs_truth",
     "fig_scene_top_view",
     "fig_site_errors",
-    "run_figure_output",
     "fig_ssm_surface",
     "fig_tdm_surface",
+    "run_figure_output",
     "scene_top_view",
 ]

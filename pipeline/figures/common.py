@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 
 from fuzzymodel import SensorModel
 from pipeline import runfiles
+from pipeline.config import FIGURE_FORMATS, check_figure_output
 from pipeline.engine.runstore import (
     UnsafePathError,
     inside,
@@ -52,7 +53,7 @@ __all__ = [
 DPI = 120
 
 #: File formats a figure can be written in.
-FORMATS = ("png", "pdf", "svg")
+FORMATS = FIGURE_FORMATS
 
 #: The one style of every figure (matplotlib rc keys). TrueType (Type 42) fonts in PDF and
 #: PS: Type 3 fonts, matplotlib's default, are rejected by many journals' checkers; SVG
@@ -90,16 +91,7 @@ class FigureOutput:
     """A line written across the top of every figure (a smoke-scale run's warning), or ""."""
 
     def __post_init__(self):
-        fmts = tuple(self.formats)
-        object.__setattr__(self, "formats", fmts)
-        bad = [f for f in fmts if f not in FORMATS]
-        if not fmts or bad or len(set(fmts)) != len(fmts):
-            raise ValueError(f"figure formats must be distinct, from {list(FORMATS)}; got "
-                             f"{list(fmts)}")
-        # below 50 dpi text is unreadable; above 1200 a figure is hundreds of MB
-        if isinstance(self.dpi, bool) or not isinstance(self.dpi, int) \
-                or not 50 <= self.dpi <= 1200:
-            raise ValueError(f"figure dpi must be an integer in [50, 1200], got {self.dpi!r}")
+        object.__setattr__(self, "formats", check_figure_output(self.formats, self.dpi, "figure "))
 
 
 # the default FigureOutput is frozen: immutable, safe as a ContextVar default

@@ -51,7 +51,7 @@ def stage_figures(ctx) -> dict:
     """Draw every figure into the stage's staging area, in the study's formats."""
     fig = ctx.config.figures
     paths = draw_figures(ctx.store.root, ctx.staging_dir / "figures",
-                         FigureOutput(formats=tuple(fig.formats), dpi=int(fig.dpi)))
+                         FigureOutput(formats=fig.formats, dpi=fig.dpi))
     return {"n_files": len(paths)}
 
 
