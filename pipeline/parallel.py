@@ -178,12 +178,19 @@ def _child_init(blas_threads: int) -> None:
         sys.stdout = sys.__stdout__
     if sys.__stderr__ is not None:
         sys.stderr = sys.__stderr__
+    # the console handlers are replaced by one on the restored stderr, at the lowest of
+    # their levels (WARNING where there were none, as Python's last resort): the parent's
+    # console shows no INFO without -v, nor may the children's (file handlers stay: a
+    # task's lines still reach run.log, on the project's loggers, and a user's log file)
     root = logging.getLogger()
-    level = root.level
-    for h in list(root.handlers):
+    consoles = [h for h in root.handlers if not isinstance(h, logging.FileHandler)]
+    levels = [h.level for h in consoles]
+    for h in consoles:
         root.removeHandler(h)
-    root.addHandler(logging.StreamHandler(sys.stderr))
-    root.setLevel(level)
+    console = logging.StreamHandler(sys.stderr)
+    console.setLevel(min(levels) if levels else logging.WARNING)
+    console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root.addHandler(console)
 
 
 class _TaskError(Exception):

@@ -229,45 +229,64 @@ def test_scenes_show_empty_or_garbage_ply(tmp_path, content):
     assert str(ply) in line
 
 
-def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study, tmp_path):
-    # the real command in its own process, as a user runs it (cached traces: no tracing;
-    # the downstream benchmark off: its ~25 s of CPU add no line this test reads), but
-    # for the figures stage drawing two figures, not twelve (~20 s of CPU that log
-    # nothing; every figure is drawn by the tiny study's own figures stage): the top
-    # view, and the downstream figure, skipped with an INFO line the console must not show
-    import os
-    import subprocess
-    import sys
-
-    out = tmp_path / "run"
-    env = dict(os.environ, COLUMNS="80")
-    main = ("import pipeline.figures.drawall as d; "
-            "d.FIGURES = {k: d.FIGURES[k] for k in ('scene_top_view', 'downstream')}; "
-            "from pipeline.apps.cli import app; app(prog_name='rfidstudy')")
-    proc = subprocess.run(
-        [sys.executable, "-c", main, "run", "configs/tiny.toml", "--out", str(out),
-         "--set", f"tracing.cache_dir='{tiny_study.base / 'cache'}'",
-         "--set", "downstream.enabled=false"],
-        cwd=Path(__file__).resolve().parents[2], env=env, capture_output=True, text=True,
-        timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    console = (proc.stdout + proc.stderr).splitlines()
+def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study):
+    # the session's tiny study is the real command in its own process, as a user runs it
+    # (tests/conftest.py): its console and its run.log
+    console = tiny_study.console
     assert not [ln for ln in console if "INFO" in ln], console  # INFO only with -v
     warnings = [ln for ln in console if "WARNING" in ln]
     assert len(warnings) == len(set(warnings)), warnings  # each warning once
     # 80 columns, but for lines that print a path (the test's own tmp path is long)
-    rows = [ln for ln in console if str(tmp_path) not in ln]
+    rows = [ln for ln in console if str(tiny_study.base) not in ln]
     assert max(len(ln) for ln in rows) <= 80, max(rows, key=len)
-    log_lines = (out / "run.log").read_text().splitlines()
+    log_lines = (tiny_study.run / "run.log").read_text().splitlines()
     # every line of both processes, whole: the runner's stage lines and the report's
     assert any("INFO" in ln and "stage report: running" in ln for ln in log_lines)
-    assert any("INFO" in ln and "figure downstream skipped" in ln for ln in log_lines)
+    assert any("INFO" in ln and "report written to" in ln for ln in log_lines)
     assert all(ln[:4].isdigit() for ln in log_lines), log_lines[:5]
-    # the side process's own line (truth_traces beside tour and reads on 2 CPUs)
+    # the side process's own lines (truth_traces beside tour and reads on 2 CPUs)
     side = [ln for ln in log_lines if "MainProcess" not in ln]
     assert any("truth_traces: started in process" in ln for ln in side), log_lines
-    manifest = json.loads((out / "manifest.json").read_text())
+    assert any("INFO" in ln and "traced" in ln for ln in side), side
+    manifest = json.loads((tiny_study.run / "manifest.json").read_text())
     assert "run.log" in manifest["files"]
+
+
+def test_forked_tasks_log_into_the_run_log_not_onto_the_console(tmp_path, capfd):
+    # a stage's forked tasks (pipeline.parallel.map_forked: the figures, the downstream
+    # filters) inherit the run log's handler: their INFO lines reach run.log, whole and
+    # once, and the console (a WARNING handler, as without -v) shows none of them
+    import logging
+    import os
+
+    from pipeline.engine.runlog import log_to_file
+    from pipeline.parallel import map_forked
+
+    handler = logging.StreamHandler()  # stderr, as the command line's console handler
+    handler.setLevel(logging.WARNING)
+    root = logging.getLogger()
+    others = root.handlers[:]  # pytest's own, at every level: the command line has none
+    root.handlers[:] = [handler]
+    project = logging.getLogger("pipeline")
+    level = project.level
+    project.setLevel(logging.INFO)  # as the command line sets it
+
+    def task(i):
+        logging.getLogger("pipeline.figures.drawall").info("figure %d drawn in %d", i,
+                                                           os.getpid())
+        return os.getpid()
+
+    try:
+        with log_to_file(tmp_path / "run.log", mode="w"):
+            pids = map_forked(task, 4, 2)
+    finally:
+        root.handlers[:] = others
+        project.setLevel(level)
+    assert len(set(pids) - {os.getpid()}) >= 1  # forked, not run here
+    logged = (tmp_path / "run.log").read_text().splitlines()
+    for i, pid in enumerate(pids):
+        assert sum(f"figure {i} drawn in {pid}" in ln and "INFO" in ln for ln in logged) == 1
+    assert "drawn in" not in capfd.readouterr().err
 
 
 def test_a_repeated_warning_reaches_the_console_once_and_run_log_every_time(tmp_path):

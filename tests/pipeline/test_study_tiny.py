@@ -35,14 +35,16 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture
 def tiny(tiny_study):
-    """(config, base, result) of the session's tiny study (tests/conftest.py)."""
-    return tiny_study.config, tiny_study.base, tiny_study.result
+    """(config, base, console lines) of the session's tiny study (tests/conftest.py)."""
+    return tiny_study.config, tiny_study.base, tiny_study.console
 
 
 def test_first_run_produces_the_run_directory(tiny):
-    cfg, base, res = tiny
+    cfg, base, console = tiny
     run = base / "run"
-    assert res.ran == stage_names()
+    # the command's summary: every stage ran, in the study's order, none from a record
+    said = " ".join(ln.strip() for ln in console)
+    assert f"stages run: {', '.join(stage_names())}; cached: none" in said, console
     for rel in ("config.toml", "manifest.json", "reads.parquet", "poses.parquet",
                 "eval_reads.parquet", "eval_poses.parquet", "models/ssm.json", "models/tdm.json",
                 "models/sensor_truepose.json", "models/baselines.json", "metrics.json",
@@ -204,7 +206,7 @@ def test_metrics_have_the_heldout_sections(tiny):
     assert m["error_budget"]["total"]["rmse_db"] == models["anfis"]["rssi_dbm"]["rmse"]
     assert m["tag_sites"]["anfis"]["all"]["n_pairs"] > 0
     # the downstream benchmark: every model localises every held-out tag (the oracle is
-    # off in the smoke study: test_study_oracle.py)
+    # off in the smoke study: test_changed_epochs_and_the_oracle_rerun_models_and_downstream_only)
     keys = {"median_m", "p90_m", "rmse_m", "within_0_5m", "within_1m", "n_tags"}
     assert "oracle" not in m["tag_localisation"]
     for name in ("anfis", "log_distance", "grid_count", "joho2009"):
@@ -310,7 +312,7 @@ def test_changed_epochs_and_the_oracle_rerun_models_and_downstream_only(tiny_stu
     the real study).
 
     The oracle's search narrowed to what the assertions need: the coarse pass only as far
-    as the longest read, windows of 0.2 m, candidates 0.1 m apart (a broken search, e.g.
+    as the longest read, windows of 0.2 m (candidates 0.1 m apart: configs/tiny.toml; a broken search, e.g.
     the coarse modes taken from the worst anchors, lands metres away: within 1 m of none;
     that planted bug also fails tests/propagation/test_anchored.py); one robot run per
     model (the runs' pooling: the tiny study's three). One figure, of the models (the
@@ -322,10 +324,9 @@ def test_changed_epochs_and_the_oracle_rerun_models_and_downstream_only(tiny_stu
     cfg = replace_path(cfg, "downstream.oracle", True)
     cfg = replace_path(cfg, "downstream.oracle_reach_m", 1.0)  # at least the longest read
     cfg = replace_path(cfg, "downstream.oracle_window_m", 0.2)
-    cfg = replace_path(cfg, "downstream.candidate_spacing_m", 0.1)
     cfg = replace_path(cfg, "downstream.robot_runs", 1)
     res = run_full_study(cfg, run, command_line=["pytest"])
-    assert res.changed_keys == ["downstream.candidate_spacing_m", "downstream.oracle",
+    assert res.changed_keys == ["downstream.oracle",
                                 "downstream.oracle_reach_m", "downstream.oracle_window_m",
                                 "downstream.robot_runs", "training.epochs"]
     assert res.cached == ["scene", "tour", "reads", "truth_traces", "training_sets"]

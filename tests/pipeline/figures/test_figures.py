@@ -192,11 +192,16 @@ def test_draw_all_writes_every_figure_and_side_by_side_the_same_bytes(run_dir, t
         assert png.stat().st_size > 5000, name
         assert pdf.read_bytes()[:5] == b"%PDF-", name
     assert not list(out.glob(".*tmp*"))  # no temporary files left
-    # drawn one after the other in this process: the same bytes
-    one = draw_all(run_dir, out_dir=tmp_path / "one", workers=1)
-    assert [p.name for p in one] == [p.name for p in two]
-    for a, b in zip(one, two, strict=True):
-        assert a.read_bytes() == b.read_bytes(), a.name
+    # drawn one after the other in this process: the same bytes (the PNGs: a figure drawn
+    # differently in a forked process shows in its pixels; the PDFs' bytes would repeat
+    # the comparison at the cost of twelve more files)
+    from pipeline.figures.common import FigureOutput
+
+    one = draw_all(run_dir, out_dir=tmp_path / "one", workers=1,
+                   output=FigureOutput(formats=("png",)))
+    assert [p.name for p in one] == [p.name for p in two if p.suffix == ".png"]
+    for a in one:
+        assert a.read_bytes() == (out / a.name).read_bytes(), a.name
 
 
 def test_draw_all_skips_figures_with_missing_inputs(run_dir, tmp_path, caplog):
