@@ -78,13 +78,62 @@ def tiny_study(tmp_path_factory) -> TinyStudy:
                 [sys.executable, "-c", CLI_MAIN, "run", "configs/tiny.toml",
                  "--out", str(base / "run"),
                  "--set", f"tracing.cache_dir='{base / 'cache'}'"],
-                cwd=ROOT, env=dict(os.environ, COLUMNS="80"), capture_output=True, text=True,
-                timeout=900)
+                cwd=ROOT, env={**{k: v for k, v in os.environ.items() if k not in _SHARE_SET},
+                               "COLUMNS": "80"},
+                capture_output=True, text=True, timeout=900)
             if proc.returncode != 0:
                 pytest.fail(f"the tiny study failed (exit {proc.returncode}):\n"
                             f"{proc.stderr[-3000:]}")
             done.write_text(proc.stdout + proc.stderr)
     return TinyStudy(cfg, base)
+
+
+#: What each xdist worker's share of the CPUs is set with (:func:`pytest_configure`).
+SHARE_ENV = ("RFIDSTUDY_WORKERS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_SHARE_SET: list[str] = []  # those of them set here (not by the user)
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, each worker process runs with its share of the CPUs, as a sweep's
+    worker does (:func:`pipeline.apps.studypool`): ``RFIDSTUDY_WORKERS`` and the BLAS
+    threads at :func:`pipeline.parallel.blas_threads_per_process` of the workers (one
+    each with ``-n 2`` on 2 CPUs). The workers already keep every CPU busy; a study's
+    forked tasks, a stage in a spawned interpreter beside the others, or OpenBLAS threads
+    spinning beside another worker's only add their start-up (about 5 s of CPU per
+    spawned interpreter). A test of those paths is marked ``parallel``
+    (:func:`_parallel_tests_get_the_cpus`); the session's tiny study runs as a user runs
+    it, with every CPU (:func:`tiny_study`)."""
+    config.addinivalue_line("markers", "parallel: runs processes or threads side by side "
+                            "(the xdist worker's share of the CPUs is lifted)")
+    n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
+    if n < 2:
+        return
+    from pipeline.parallel import blas_threads_per_process, limit_blas_threads
+
+    share = blas_threads_per_process(n)
+    for name in SHARE_ENV:  # this process's children (stage processes, CLI runs, Dask)
+        if name not in os.environ:  # a user's own setting stands
+            os.environ[name] = str(share)
+            _SHARE_SET.append(name)
+    limit_blas_threads(share)  # this process's own pools
+
+
+@pytest.fixture(autouse=True)
+def _parallel_tests_get_the_cpus(request, monkeypatch):
+    """A test marked ``parallel`` runs with every CPU: the share set by
+    :func:`pytest_configure` is lifted for it (and for the processes it starts)."""
+    if request.node.get_closest_marker("parallel") is None or not _SHARE_SET:
+        yield
+        return
+    from pipeline.parallel import limit_blas_threads, usable_cpus
+
+    for name in _SHARE_SET:
+        monkeypatch.delenv(name, raising=False)
+    limits = limit_blas_threads(usable_cpus())
+    try:
+        yield
+    finally:
+        limits.restore_original_limits()
 
 
 def copy_run(study: TinyStudy, dest: Path, **kw) -> Path:

@@ -252,6 +252,7 @@ def test_console_of_a_study_is_quiet_and_run_log_has_everything(tiny_study):
     assert "run.log" in manifest["files"]
 
 
+@pytest.mark.parallel
 def test_forked_tasks_log_into_the_run_log_not_onto_the_console(tmp_path, capfd):
     # a stage's forked tasks (pipeline.parallel.map_forked: the figures, the downstream
     # filters) inherit the run log's handler: their INFO lines reach run.log, whole and

@@ -9,6 +9,8 @@ import pytest
 
 from pipeline.parallel import WORKERS_ENV, fork_workers, map_forked
 
+pytestmark = pytest.mark.parallel
+
 
 @pytest.fixture(autouse=True)
 def _forking_allowed(monkeypatch):

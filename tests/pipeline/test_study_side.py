@@ -15,10 +15,11 @@ import time
 import pytest
 
 from pipeline.config import StudyConfig, replace_path
-from pipeline.engine.stageproc import side_by_side_allowed
 from pipeline.engine.study import Stage, StageError, StudyInterrupted, run_study
+from pipeline.parallel import usable_cpus
 
-pytestmark = pytest.mark.skipif(not side_by_side_allowed(), reason="one CPU: stages run in order")
+pytestmark = [pytest.mark.skipif(usable_cpus() < 2, reason="one CPU: stages run in order"),
+              pytest.mark.parallel]
 
 
 def _a(ctx):

@@ -11,9 +11,13 @@ import os
 from pathlib import Path
 from types import SimpleNamespace
 
+import pytest
+
 from pipeline.apps.studypool import run_studies
 from pipeline.config import StudyConfig, config_to_dict
 from pipeline.parallel import WORKERS_ENV, usable_cpus
+
+pytestmark = pytest.mark.parallel
 
 
 def fake_study(config, run_dir, **kwargs):

@@ -82,6 +82,8 @@ def test_a_planted_file_is_one_line_never_waited_on_never_followed(run, tmp_path
         pytest.skip("no /dev/zero")
     if kind != "fifo":  # `figures` draws here, in order; a FIFO is read by forked workers too
         monkeypatch.setenv("RFIDSTUDY_WORKERS", "1")
+    else:  # forked, whatever share of the CPUs this test process was given
+        monkeypatch.delenv("RFIDSTUDY_WORKERS", raising=False)
     outside = tmp_path / f"outside{Path(name).suffix}"
     outside.write_text(json.dumps({"scene": SECRET, "evaluation": {"x": SECRET}}) if name.endswith(".json")
                        else f'scene = "{SECRET}"\n')
@@ -130,6 +132,8 @@ def test_a_bad_frequency_in_the_runs_config_is_one_line_naming_key_and_file(run,
 
     if value != "nan":
         monkeypatch.setenv("RFIDSTUDY_WORKERS", "1")
+    else:  # forked, whatever share of the CPUs this test process was given
+        monkeypatch.delenv("RFIDSTUDY_WORKERS", raising=False)
 
     text = config_to_toml(StudyConfig())
     assert "\nfrequency_hz = " in text

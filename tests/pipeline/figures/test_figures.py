@@ -177,6 +177,7 @@ def run_dir(tmp_path_factory):
     return run
 
 
+@pytest.mark.parallel
 def test_draw_all_writes_every_figure_and_side_by_side_the_same_bytes(run_dir, tmp_path,
                                                                       monkeypatch):
     # --basetemp keeps them for a look; otherwise tmp_path. (How fast is bench's business:
@@ -234,6 +235,7 @@ def test_draw_all_errors(tmp_path):
         draw_all(tmp_path, names=["fig99"])
 
 
+@pytest.mark.parallel
 def test_a_failing_figure_fails_draw_all_from_a_worker(run_dir, tmp_path, monkeypatch):
     def broken(run_dir, out_dir=None):
         raise RuntimeError("broken figure")

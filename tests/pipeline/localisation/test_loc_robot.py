@@ -201,6 +201,7 @@ def test_median_over_filter_runs():
     assert m["median_m_runs"] == [0.2, 0.9, 0.4]
 
 
+@pytest.mark.parallel
 def test_filter_runs_side_by_side_score_as_one_after_the_other(sensor):
     """robot_localisation in forked workers: the same scores and traces as in one process
     (each run has its own stream); fails if runs were matched to the wrong model or

@@ -90,6 +90,7 @@ def test_lost_track_fails_the_stage_naming_the_keys(tmp_path, corridor_lab):
     assert not (tmp_path / "tour").exists()  # nothing written before the check
 
 
+@pytest.mark.parallel
 def test_tours_side_by_side_write_what_one_after_the_other_writes(tmp_path, corridor_lab,
                                                                    monkeypatch):
     monkeypatch.delenv(WORKERS_ENV, raising=False)
