@@ -30,10 +30,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-#: The command line's entry point, as the ``rfidstudy`` script runs it.
-CLI_MAIN = "from pipeline.apps.cli import app; app(prog_name='rfidstudy')"
-
-
 @dataclass(frozen=True)
 class TinyStudy:
     """The session's tiny study: its config, the run directory, the command's console."""
@@ -61,8 +57,91 @@ def session_folder(tmp_path_factory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
+#: How the session's tiny study is built (:func:`build_tiny`): the command line's entry
+#: point, as the ``rfidstudy`` script runs it, with the config and the cache of the study.
+CLI_MAIN = "from pipeline.apps.cli import app; app(prog_name='rfidstudy')"
+#: Building the tiny study in a process of its own (:func:`pytest_collection_finish`).
+BUILD_MAIN = ("import sys; from pathlib import Path; from tests.conftest import build_tiny; "
+              "build_tiny(Path(sys.argv[1]))")
+#: Wall seconds the tiny study takes beside the suite's first tests (2 CPUs; measured
+#: 35-50 s): its users are scheduled after that much other work (:func:`_schedule`).
+BUILD_S = 45.0
+
+
+def build_tiny(base: Path) -> None:
+    """Run the tiny study into ``base/run`` with ``rfidstudy run``, in a process of its own,
+    with every CPU; write ``base/console.txt`` (stdout, then stderr) when it succeeds,
+    ``base/failed.txt`` (the exit code and the end of stderr) when it does not."""
+    env = {k: v for k, v in os.environ.items() if k not in _SHARE_SET}
+    env["COLUMNS"] = "80"
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", CLI_MAIN, "run", "configs/tiny.toml", "--out", str(base / "run"),
+             "--set", f"tracing.cache_dir='{base / 'cache'}'"],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    except subprocess.TimeoutExpired as exc:
+        (base / "failed.txt").write_text(f"timed out after {exc.timeout} s")
+        return
+    if proc.returncode != 0:
+        (base / "failed.txt").write_text(f"exit {proc.returncode}:\n{proc.stderr[-3000:]}")
+    else:
+        (base / "console.txt").write_text(proc.stdout + proc.stderr)
+
+
+_BUILD: subprocess.Popen | None = None  # the tiny study's build, where this process started it
+
+
+def _uses_tiny(item) -> bool:
+    return "tiny_study" in getattr(item, "fixturenames", ())
+
+
+def pytest_collection_finish(session):
+    """Start building the tiny study in the background as soon as the session is known to
+    need it (under xdist: by the first worker here), so that it runs beside the first
+    tests rather than holding up the first that needs it."""
+    global _BUILD
+    if (session.config.option.collectonly or not os.environ.get("PYTEST_XDIST_WORKER")
+            or not any(_uses_tiny(it) for it in session.items)):
+        return  # nothing will run, or one process: built when first needed (tiny_study)
+    from filelock import FileLock
+
+    shared = session_folder(session.config._tmp_path_factory)
+    base = shared / "tiny"
+    with FileLock(str(shared / "tiny.lock")):
+        if (base / "started").exists():
+            return
+        base.mkdir(parents=True, exist_ok=True)
+        _BUILD = subprocess.Popen([sys.executable, "-c", BUILD_MAIN, str(base)], cwd=ROOT,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        (base / "started").write_text(str(_BUILD.pid))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The background build ends with the session that started it: waited for (another
+    worker may be reading it), killed where the session was interrupted."""
+    if _BUILD is None or _BUILD.poll() is not None:
+        return
+    if exitstatus == pytest.ExitCode.INTERRUPTED:
+        _BUILD.kill()
+    _BUILD.wait()
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:  # a zombie is dead, only not yet reaped
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+
+
 @pytest.fixture(scope="session")
 def tiny_study(tmp_path_factory) -> TinyStudy:
+    import time
+
     from filelock import FileLock
 
     from pipeline.config import load_config, replace_path
@@ -71,21 +150,51 @@ def tiny_study(tmp_path_factory) -> TinyStudy:
     base = shared / "tiny"
     cfg = load_config(ROOT / "configs" / "tiny.toml")
     cfg = replace_path(cfg, "tracing.cache_dir", str(base / "cache"))
-    done = base / "console.txt"  # written once the study is complete
+    done, failed, started = base / "console.txt", base / "failed.txt", base / "started"
     with FileLock(str(shared / "tiny.lock")):
-        if not done.is_file():  # the first worker here: build it (or resume a failed build)
-            proc = subprocess.run(
-                [sys.executable, "-c", CLI_MAIN, "run", "configs/tiny.toml",
-                 "--out", str(base / "run"),
-                 "--set", f"tracing.cache_dir='{base / 'cache'}'"],
-                cwd=ROOT, env={**{k: v for k, v in os.environ.items() if k not in _SHARE_SET},
-                               "COLUMNS": "80"},
-                capture_output=True, text=True, timeout=900)
-            if proc.returncode != 0:
-                pytest.fail(f"the tiny study failed (exit {proc.returncode}):\n"
-                            f"{proc.stderr[-3000:]}")
-            done.write_text(proc.stdout + proc.stderr)
+        if not (done.is_file() or failed.is_file()):
+            if started.is_file():  # built in the background: wait for it
+                pid = int(started.read_text())
+                while not (done.is_file() or failed.is_file()) and _running(pid):
+                    time.sleep(0.2)
+            if not (done.is_file() or failed.is_file()):  # not started, or it died
+                base.mkdir(parents=True, exist_ok=True)
+                build_tiny(base)
+    if failed.is_file():
+        pytest.fail(f"the tiny study failed: {failed.read_text()}")
     return TinyStudy(cfg, base)
+
+
+def _schedule(items, seconds: dict[str, float]) -> list:
+    """The items module by module, longest module first (``seconds``: measured, from
+    tests/module_seconds.json; a module missing from it goes last), but the modules that
+    need the tiny study only once :data:`BUILD_S` of other work (on each of two workers) is
+    handed out before them: xdist's workers take the next module as they run out
+    (``--dist loadscope --no-loadscope-reorder``), so the long ones run beside each other
+    and the short ones fill the end."""
+    modules: dict[str, list] = {}
+    for it in items:
+        modules.setdefault(it.nodeid.split("::", 1)[0], []).append(it)
+
+    def longest_first(names):
+        return sorted(names, key=lambda m: -seconds.get(m, 0.0))  # stable: ties in order
+
+    tiny = {m for m, its in modules.items() if any(map(_uses_tiny, its))}
+    others = longest_first([m for m in modules if m not in tiny])
+    order, ahead = [], 0.0
+    while others and ahead < 2 * BUILD_S:
+        ahead += seconds.get(others[0], 0.0)
+        order.append(others.pop(0))
+    order += longest_first(others + sorted(tiny, key=list(modules).index))
+    return [it for m in order for it in modules[m]]
+
+
+def pytest_collection_modifyitems(config, items):
+    import json
+
+    path = ROOT / "tests" / "module_seconds.json"
+    seconds = json.loads(path.read_text()) if path.is_file() else {}
+    items[:] = _schedule(items, seconds)
 
 
 #: What each xdist worker's share of the CPUs is set with (:func:`pytest_configure`).
