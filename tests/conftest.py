@@ -112,6 +112,7 @@ def pytest_collection_finish(session):
             return
         base.mkdir(parents=True, exist_ok=True)
         _BUILD = subprocess.Popen([sys.executable, "-c", BUILD_MAIN, str(base)], cwd=ROOT,
+                                  env={k: v for k, v in os.environ.items() if k not in _SHARE_SET},
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         (base / "started").write_text(str(_BUILD.pid))
 
@@ -204,9 +205,9 @@ _SHARE_SET: list[str] = []  # those of them set here (not by the user)
 
 def pytest_configure(config):
     """Under pytest-xdist, each worker process runs with its share of the CPUs, as a sweep's
-    worker does (:func:`pipeline.apps.studypool`): ``RFIDSTUDY_WORKERS`` and the BLAS
-    threads at :func:`pipeline.parallel.blas_threads_per_process` of the workers (one
-    each with ``-n 2`` on 2 CPUs). The workers already keep every CPU busy; a study's
+    worker does (:func:`pipeline.apps.studypool`): ``RFIDSTUDY_WORKERS``, the BLAS threads
+    and Dr.Jit's LLVM threads at :func:`pipeline.parallel.blas_threads_per_process` of the
+    workers (one each with ``-n 2`` on 2 CPUs). The workers already keep every CPU busy; a study's
     forked tasks, a stage in a spawned interpreter beside the others, or OpenBLAS threads
     spinning beside another worker's only add their start-up (about 5 s of CPU per
     spawned interpreter). A test of those paths is marked ``parallel``
@@ -225,6 +226,11 @@ def pytest_configure(config):
             os.environ[name] = str(share)
             _SHARE_SET.append(name)
     limit_blas_threads(share)  # this process's own pools
+    # Dr.Jit's LLVM threads: two per process beside busy ones took 33 s of CPU for 28 s of
+    # tracing (tests/propagation/test_tracing.py and test_anchored.py beside 3 busy loops)
+    import drjit as dr
+
+    dr.set_thread_count(share)
 
 
 @pytest.fixture(autouse=True)
@@ -234,15 +240,20 @@ def _parallel_tests_get_the_cpus(request, monkeypatch):
     if request.node.get_closest_marker("parallel") is None or not _SHARE_SET:
         yield
         return
+    import drjit as dr
+
     from pipeline.parallel import limit_blas_threads, usable_cpus
 
     for name in _SHARE_SET:
         monkeypatch.delenv(name, raising=False)
     limits = limit_blas_threads(usable_cpus())
+    threads = dr.thread_count()
+    dr.set_thread_count(usable_cpus())
     try:
         yield
     finally:
         limits.restore_original_limits()
+        dr.set_thread_count(threads)
 
 
 def copy_run(study: TinyStudy, dest: Path, **kw) -> Path:

@@ -342,6 +342,7 @@ def test_refraction_switch_drops_paths_through_walls(corridor_scene):
     assert on.los[0, 1] and off.los[0, 1]
 
 
+@pytest.mark.parallel  # Dr.Jit's threads, else one already
 def test_deterministic_mode_makes_cold_traces_identical(tmp_path):
     """Sionna's multi-threaded LLVM path solver finds slightly different path sets run to
     run (measured: 514 of 1440 corridor_lab gains moved, up to 3 dB); one thread fixes it."""
