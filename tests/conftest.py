@@ -63,9 +63,6 @@ CLI_MAIN = "from pipeline.apps.cli import app; app(prog_name='rfidstudy')"
 #: Building the tiny study in a process of its own (:func:`pytest_collection_finish`).
 BUILD_MAIN = ("import sys; from pathlib import Path; from tests.conftest import build_tiny; "
               "build_tiny(Path(sys.argv[1]))")
-#: Wall seconds the tiny study takes beside the suite's first tests (2 CPUs; measured
-#: 35-50 s): its users are scheduled after that much other work (:func:`_schedule`).
-BUILD_S = 45.0
 
 
 def build_tiny(base: Path) -> None:
@@ -164,38 +161,6 @@ def tiny_study(tmp_path_factory) -> TinyStudy:
     if failed.is_file():
         pytest.fail(f"the tiny study failed: {failed.read_text()}")
     return TinyStudy(cfg, base)
-
-
-def _schedule(items, seconds: dict[str, float]) -> list:
-    """The items module by module, longest module first (``seconds``: measured, from
-    tests/module_seconds.json; a module missing from it goes last), but the modules that
-    need the tiny study only once :data:`BUILD_S` of other work (on each of two workers) is
-    handed out before them: xdist's workers take the next module as they run out
-    (``--dist loadscope --no-loadscope-reorder``), so the long ones run beside each other
-    and the short ones fill the end."""
-    modules: dict[str, list] = {}
-    for it in items:
-        modules.setdefault(it.nodeid.split("::", 1)[0], []).append(it)
-
-    def longest_first(names):
-        return sorted(names, key=lambda m: -seconds.get(m, 0.0))  # stable: ties in order
-
-    tiny = {m for m, its in modules.items() if any(map(_uses_tiny, its))}
-    others = longest_first([m for m in modules if m not in tiny])
-    order, ahead = [], 0.0
-    while others and ahead < 2 * BUILD_S:
-        ahead += seconds.get(others[0], 0.0)
-        order.append(others.pop(0))
-    order += longest_first(others + sorted(tiny, key=list(modules).index))
-    return [it for m in order for it in modules[m]]
-
-
-def pytest_collection_modifyitems(config, items):
-    import json
-
-    path = ROOT / "tests" / "module_seconds.json"
-    seconds = json.loads(path.read_text()) if path.is_file() else {}
-    items[:] = _schedule(items, seconds)
 
 
 #: What each xdist worker's share of the CPUs is set with (:func:`pytest_configure`).
