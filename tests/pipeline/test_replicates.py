@@ -114,3 +114,36 @@ def test_two_replicates_pooled_then_a_third_that_fails(tiny_study, tmp_path, mon
         man = json.loads((run / "replicates" / k / "manifest.json").read_text())
         assert man["status"] == "complete"
     assert (run / "replicates" / "2").read_text() == "not a run directory"
+
+
+def test_every_complete_replicate_is_pooled(tiny_study, tmp_path, monkeypatch):
+    """The pooled stage on two replicates that differ: the session's tiny study, and a copy
+    of it whose held-out tags' localisation errors are doubled. The replicates' studies are
+    finished; a stand-in for the runner reports them complete (real replicates run in
+    :func:`test_two_replicates_pooled_then_a_third_that_fails`). Pooling only replicate 0,
+    or one replicate twice, gives its own numbers: this test fails on either."""
+    import pipeline.apps.replicates as replicates
+    from pipeline.apps.studyrun import run_full_study
+
+    run = tmp_path / "run"
+    for k in ("0", "1"):
+        copy_run(tiny_study, run / "replicates" / k)
+    errors = run / "replicates" / "1" / "downstream" / "tag_errors.parquet"
+    doubled = pd.read_parquet(errors)
+    doubled["error_m"] *= 2.0
+    doubled.to_parquet(errors)
+    ran = []
+    monkeypatch.setattr(replicates, "run_studies", lambda args, **kw: ran.extend(args) or [
+        {"status": "complete", "error": None} for _ in args])
+    cfg = replace_path(tiny_study.config, "replicates.n", 2)
+    res = run_full_study(cfg, run, progress=False, command_line=["pytest"], force_dir=True)
+    assert res.ran == ["replicates", "pooled", "report"]
+    assert [d for _, d in ran] == [str(run / "replicates" / k) for k in ("0", "1")]
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["replicates"]["covers"] == "2 of 2 replicates"
+    per = m["per_replicate"]["metrics"]["tag_localisation.median_m"]["anfis"]
+    assert per[1] == pytest.approx(2.0 * per[0]) and per[0] > 0
+    tag = m["intervals"]["tag_localisation.median_m"]
+    assert tag["unit"] == "replicate x tag" and tag["n_units"] == 32
+    pooled = tag["models"]["anfis"]["estimate"]
+    assert per[0] < pooled < per[1]  # the median of both replicates' 32 errors
