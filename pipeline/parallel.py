@@ -178,12 +178,13 @@ def _child_init(blas_threads: int) -> None:
         sys.stdout = sys.__stdout__
     if sys.__stderr__ is not None:
         sys.stderr = sys.__stderr__
-    # the console handlers are replaced by one on the restored stderr, at the lowest of
-    # their levels (WARNING where there were none, as Python's last resort): the parent's
-    # console shows no INFO without -v, nor may the children's (file handlers stay: a
-    # task's lines still reach run.log, on the project's loggers, and a user's log file)
+    # the handlers that print to the terminal are replaced by one on the restored stderr,
+    # at the lowest of their levels (WARNING where there were none, as Python's last
+    # resort): the parent's console shows no INFO without -v, nor may the children's
+    # (other handlers stay: a task's lines still reach run.log, on the project's loggers,
+    # and a user's log file)
     root = logging.getLogger()
-    consoles = [h for h in root.handlers if not isinstance(h, logging.FileHandler)]
+    consoles = [h for h in root.handlers if _prints_to_terminal(h)]
     levels = [h.level for h in consoles]
     for h in consoles:
         root.removeHandler(h)
@@ -191,6 +192,17 @@ def _child_init(blas_threads: int) -> None:
     console.setLevel(min(levels) if levels else logging.WARNING)
     console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
     root.addHandler(console)
+
+
+def _prints_to_terminal(handler: logging.Handler) -> bool:
+    """Whether a logging handler writes to this process's stdout or stderr (a
+    ``StreamHandler`` on them, or a Rich handler whose console does)."""
+    stream = getattr(handler, "stream", None)
+    if stream is None and hasattr(handler, "console"):  # rich.logging.RichHandler
+        stream = getattr(handler.console, "file", None)
+    if stream is None:
+        return False
+    return any(stream is s for s in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__))
 
 
 class _TaskError(Exception):

@@ -9,11 +9,16 @@ test that changes a run works on a copy (:func:`copy_run`), and one that counts 
 cache's files on a copy of the cache (:func:`link_copy`): the run directory and the cache
 are shared by every test of the session.
 
-Under pytest-xdist the workers share it too: the first worker that asks builds it in the
-session's temporary folder (the parent of the workers' own), under a file lock; the
-others wait for it and read it (the study is minutes of CPU on a 2-core machine). Nothing
-writes into the run directory after it is built; the cache takes more traces (oracle,
-recorded studies), which several processes may do at once (propagation.pathcache).
+Under pytest-xdist the workers share it too: the first worker to finish collecting starts
+building it in the background, in the session's temporary folder (the parent of the
+workers' own), under a file lock, so that it runs beside the first tests; a test that needs
+it waits for it (about a minute of CPU on a 2-core machine). Without xdist the first test
+that needs it builds it. Nothing writes into the run directory after it is built; the
+cache takes more traces (oracle, recorded studies), which several processes may do at once
+(propagation.pathcache).
+
+Each xdist worker runs with its share of the CPUs (:func:`pytest_configure`); a test of
+processes or threads side by side is marked ``parallel`` and gets them all.
 """
 
 from __future__ import annotations
@@ -76,13 +81,20 @@ def build_tiny(base: Path) -> None:
             [sys.executable, "-c", CLI_MAIN, "run", "configs/tiny.toml", "--out", str(base / "run"),
              "--set", f"tracing.cache_dir='{base / 'cache'}'"],
             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
-    except subprocess.TimeoutExpired as exc:
-        (base / "failed.txt").write_text(f"timed out after {exc.timeout} s")
+    except subprocess.TimeoutExpired as exc:  # a cold Dr.Jit kernel cache: about 2 minutes
+        _write_whole(base / "failed.txt", f"timed out after {exc.timeout} s")
         return
     if proc.returncode != 0:
-        (base / "failed.txt").write_text(f"exit {proc.returncode}:\n{proc.stderr[-3000:]}")
+        _write_whole(base / "failed.txt", f"exit {proc.returncode}:\n{proc.stderr[-3000:]}")
     else:
-        (base / "console.txt").write_text(proc.stdout + proc.stderr)
+        _write_whole(base / "console.txt", proc.stdout + proc.stderr)
+
+
+def _write_whole(path: Path, text: str) -> None:
+    """``path`` appears with all of ``text`` or not at all (another worker polls for it)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 _BUILD: subprocess.Popen | None = None  # the tiny study's build, where this process started it
@@ -108,19 +120,31 @@ def pytest_collection_finish(session):
         if (base / "started").exists():
             return
         base.mkdir(parents=True, exist_ok=True)
-        _BUILD = subprocess.Popen([sys.executable, "-c", BUILD_MAIN, str(base)], cwd=ROOT,
-                                  env={k: v for k, v in os.environ.items() if k not in _SHARE_SET},
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        (base / "started").write_text(str(_BUILD.pid))
+        # a session of its own: the study's processes are killed as one group
+        with open(base / "build.err", "w") as err:
+            _BUILD = subprocess.Popen(
+                [sys.executable, "-c", BUILD_MAIN, str(base)], cwd=ROOT,
+                env={k: v for k, v in os.environ.items() if k not in _SHARE_SET},
+                stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+        _write_whole(base / "started", str(_BUILD.pid))
 
 
 def pytest_sessionfinish(session, exitstatus):
-    """The background build ends with the session that started it: waited for (another
-    worker may be reading it), killed where the session was interrupted."""
+    """The background build ends with the session that started it: waited for where the
+    session ran its course (another worker may be waiting for it), its whole process group
+    killed where it stopped early (Ctrl-C, ``-x``, a collection error; a worker still
+    waiting then sees it gone and builds the study itself)."""
+    import signal
+
     if _BUILD is None or _BUILD.poll() is not None:
         return
-    if exitstatus == pytest.ExitCode.INTERRUPTED:
-        _BUILD.kill()
+    stopped = session.shouldstop or session.shouldfail or exitstatus not in (
+        pytest.ExitCode.OK, pytest.ExitCode.TESTS_FAILED)
+    if stopped:
+        try:
+            os.killpg(_BUILD.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
     _BUILD.wait()
 
 
@@ -159,13 +183,16 @@ def tiny_study(tmp_path_factory) -> TinyStudy:
                 base.mkdir(parents=True, exist_ok=True)
                 build_tiny(base)
     if failed.is_file():
-        pytest.fail(f"the tiny study failed: {failed.read_text()}")
+        err = base / "build.err"  # the background builder's own errors, if any
+        extra = f"\n{err.read_text()[-2000:]}" if err.is_file() and err.stat().st_size else ""
+        pytest.fail(f"the tiny study failed: {failed.read_text()}{extra}")
     return TinyStudy(cfg, base)
 
 
 #: What each xdist worker's share of the CPUs is set with (:func:`pytest_configure`).
 SHARE_ENV = ("RFIDSTUDY_WORKERS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _SHARE_SET: list[str] = []  # those of them set here (not by the user)
+_SHARE_APPLIED: list[int] = []  # the share, where this process runs with one
 
 
 def pytest_configure(config):
@@ -190,9 +217,18 @@ def pytest_configure(config):
         if name not in os.environ:  # a user's own setting stands
             os.environ[name] = str(share)
             _SHARE_SET.append(name)
+    _SHARE_APPLIED.append(share)
     limit_blas_threads(share)  # this process's own pools
     # Dr.Jit's LLVM threads: two per process beside busy ones took 33 s of CPU for 28 s of
     # tracing (tests/propagation/test_tracing.py and test_anchored.py beside 3 busy loops)
+    if "drjit" not in sys.modules and "DRJIT_LIBLLVM_PATH" not in os.environ:
+        # Dr.Jit picks its libLLVM when imported: the one propagation.select_variant would
+        from propagation.backend import BackendError, find_libllvm
+
+        try:
+            os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()
+        except BackendError:
+            pass  # select_variant says so where a test traces
     import drjit as dr
 
     dr.set_thread_count(share)
@@ -202,23 +238,31 @@ def pytest_configure(config):
 def _parallel_tests_get_the_cpus(request, monkeypatch):
     """A test marked ``parallel`` runs with every CPU: the share set by
     :func:`pytest_configure` is lifted for it (and for the processes it starts)."""
-    if request.node.get_closest_marker("parallel") is None or not _SHARE_SET:
+    if request.node.get_closest_marker("parallel") is None or not _SHARE_APPLIED:
         yield
         return
     import drjit as dr
 
-    from pipeline.parallel import limit_blas_threads, usable_cpus
+    from pipeline.parallel import WORKERS_ENV, limit_blas_threads, usable_cpus
+    from propagation import backend
 
-    for name in _SHARE_SET:
+    for name in {*_SHARE_SET, WORKERS_ENV}:  # a cap of the user's too: these test the paths
         monkeypatch.delenv(name, raising=False)
     limits = limit_blas_threads(usable_cpus())
     threads = dr.thread_count()
+    # set_deterministic(False) restores the thread count of its first call in the process:
+    # one made here must not hand later tests every CPU
+    state = dict(backend._state)
     dr.set_thread_count(usable_cpus())
     try:
         yield
     finally:
         limits.restore_original_limits()
         dr.set_thread_count(threads)
+        if "default_threads" in state:
+            backend._state["default_threads"] = state["default_threads"]
+        else:
+            backend._state.pop("default_threads", None)
 
 
 def copy_run(study: TinyStudy, dest: Path, **kw) -> Path:

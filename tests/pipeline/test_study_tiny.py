@@ -152,7 +152,8 @@ def test_run_summary_row(tiny):
 
 def test_cli_figures_on_a_run_dir(tiny, tmp_path, monkeypatch):
     """Redraw figures + report from a finished run directory (the tiny study's): two of
-    the figures, side by side as draw_all forks (:func:`draw_only`)."""
+    the figures (:func:`draw_only`; drawn side by side in forked processes:
+    tests/pipeline/figures/test_figures.py)."""
     _, base, _ = tiny
     run = tmp_path / "run"
     shutil.copytree(base / "run", run, ignore=shutil.ignore_patterns("figures", "report.html"))

@@ -193,9 +193,8 @@ def test_draw_all_writes_every_figure_and_side_by_side_the_same_bytes(run_dir, t
         assert png.stat().st_size > 5000, name
         assert pdf.read_bytes()[:5] == b"%PDF-", name
     assert not list(out.glob(".*tmp*"))  # no temporary files left
-    # drawn one after the other in this process: the same bytes (the PNGs: a figure drawn
-    # differently in a forked process shows in its pixels; the PDFs' bytes would repeat
-    # the comparison at the cost of twelve more files)
+    # drawn one after the other in this process: the same bytes (every PNG: a figure drawn
+    # differently in a forked process shows in its pixels; one PDF: its dates and fonts)
     from pipeline.figures.common import FigureOutput
 
     one = draw_all(run_dir, out_dir=tmp_path / "one", workers=1,
@@ -203,6 +202,9 @@ def test_draw_all_writes_every_figure_and_side_by_side_the_same_bytes(run_dir, t
     assert [p.name for p in one] == [p.name for p in two if p.suffix == ".png"]
     for a in one:
         assert a.read_bytes() == (out / a.name).read_bytes(), a.name
+    pdf = draw_all(run_dir, out_dir=tmp_path / "pdf", names=["ssm_surface"], workers=1,
+                   output=FigureOutput(formats=("pdf",)))
+    assert [p.read_bytes() for p in pdf] == [(out / "ssm_surface.pdf").read_bytes()]
 
 
 def test_draw_all_skips_figures_with_missing_inputs(run_dir, tmp_path, caplog):
