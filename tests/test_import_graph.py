@@ -180,7 +180,7 @@ def test_no_import_cycles_but_the_known():
 # The layers of `pipeline/` (docs/architecture.md): the study library and the shared
 # foundation below, the application (engine, stages, outputs, apps) above. Every pipeline
 # module belongs to exactly one; a new top-level module or folder must be placed here.
-FOUNDATION = ("pipeline.config", "pipeline.configschema", "pipeline.sceneconfig", "pipeline.runfiles",
+FOUNDATION = ("pipeline.config", "pipeline.configschema", "pipeline.sceneconfig", "pipeline.figureconfig", "pipeline.runfiles",
               "pipeline.parallel", "pipeline.runpaths", "pipeline.outdirs")
 LIBRARY = ("pipeline.robot", "pipeline.acquisition", "pipeline.localisation", "pipeline.studyscene",
            "pipeline.sensormodels", "pipeline.evaluation", "pipeline.recording")

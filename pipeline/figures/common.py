@@ -23,7 +23,6 @@ from matplotlib.figure import Figure
 
 from fuzzymodel import SensorModel
 from pipeline import runfiles
-from pipeline.config import FIGURE_FORMATS, check_figure_output
 from pipeline.engine.runstore import (
     UnsafePathError,
     inside,
@@ -32,6 +31,7 @@ from pipeline.engine.runstore import (
     regular_file,
 )
 from pipeline.evaluation.baselines import BaselineSensorModel
+from pipeline.figureconfig import FIGURE_FORMATS, check_figure_output
 from scenes.fileio import atomic_output
 
 __all__ = [
