@@ -6,7 +6,9 @@ import logging
 from pathlib import Path
 
 from pipeline import runfiles
+from pipeline.configschema import ConfigError, from_dict
 from pipeline.engine.runstore import inside, read_run_text, regular_file
+from pipeline.figureconfig import FiguresConfig
 from pipeline.figures.common import FigureOutput, MissingInput, figure_output
 from pipeline.figures.comparison import fig_fig7_error, fig_rho_vs_truth
 from pipeline.figures.downstream import fig_downstream
@@ -88,16 +90,13 @@ def run_figure_output(run_dir) -> FigureOutput:
         data = tomllib.loads(read_run_text(path))
     except tomllib.TOMLDecodeError as exc:  # worded as the report words it
         raise ValueError(f"{path}: not a valid TOML file: {exc}") from None
-    try:
-        sec = data.get("figures", {})
-        kw = {}
-        if "formats" in sec:
-            kw["formats"] = tuple(sec["formats"])
-        if "dpi" in sec:
-            kw["dpi"] = sec["dpi"]
-        return FigureOutput(**kw)
-    except (TypeError, ValueError, AttributeError) as exc:
-        raise ValueError(f"{path}: [figures] gives no figure output: {exc}") from exc
+    try:  # read as the study reads it (keys, types, ranges, PNG first)
+        fig = from_dict(FiguresConfig, data.get("figures", {}), source=str(path),
+                        prefix="figures")
+    except ConfigError as exc:
+        detail = str(exc).removeprefix(f"{path}: ")
+        raise ValueError(f"{path}: [figures] gives no figure output: {detail}") from exc
+    return FigureOutput(formats=fig.formats, dpi=fig.dpi)
 
 
 def _draw_recorded(run_dir: Path, out_dir: Path, output) -> list[Path]:

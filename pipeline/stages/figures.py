@@ -22,7 +22,7 @@ def draw_figures(run_dir: str | Path, out_dir: str | Path,
     ----------
     run_dir, out_dir : path
     output : FigureOutput, optional
-        Formats and resolution (default PNG at 120 dpi and PDF).
+        Formats and resolution (default: the run's own, :func:`pipeline.figures.run_figure_output`).
 
     Returns
     -------
@@ -31,10 +31,7 @@ def draw_figures(run_dir: str | Path, out_dir: str | Path,
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    res = draw_all(Path(run_dir), out_dir=out, output=output)
-    if isinstance(res, dict):
-        res = [p for v in res.values() for p in (v if isinstance(v, (list, tuple)) else [v])]
-    return [Path(p) for p in (res or [])]
+    return draw_all(Path(run_dir), out_dir=out, output=output)
 
 
 def draw_scene_top_view(scene, png: str | Path) -> Path:
