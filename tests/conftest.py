@@ -92,9 +92,10 @@ def build_tiny(base: Path) -> None:
 
 def _write_whole(path: Path, text: str) -> None:
     """``path`` appears with all of ``text`` or not at all (another worker polls for it)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    from scenes.fileio import atomic_output
+
+    with atomic_output(path) as tmp:
+        tmp.write_text(text)
 
 
 _BUILD: subprocess.Popen | None = None  # the tiny study's build, where this process started it
