@@ -1,6 +1,6 @@
 """The README's test command, ``make test``, from clean clones of two or more commits.
 
-    python bench/suite_time.py [--commits 7d9aa90 HEAD] [--cold-kernels] [--keep DIR]
+    python bench/suite_time.py [--commits 7d9aa90 HEAD] [--kernels warm|cold|both] [--keep DIR]
 
 Each commit is cloned from this repository into a folder of its own and ``make test``
 runs there as a new user would run it: its own ``.venv`` set up by ``scripts/setup.sh``
@@ -10,11 +10,12 @@ run (machines of one kind differ by up to 2.5x; seconds across machines are not
 comparable). The first commit is the reference of the ratios; the default is the
 commit at which the suite's time was reported as 380 s (issue 55).
 
-``--cold-kernels`` gives each run an empty Dr.Jit kernel cache, as a fresh machine
-(a CI runner) has: ``HOME`` is a new folder (Dr.Jit keeps its LLVM kernels in
-``~/.drjit``), with ``PIP_CACHE_DIR`` and ``PIP_CONFIG_FILE`` pointing at this user's so
-that pip installs what it would have. Without it the runs share this user's kernel
-cache as it is (warm after the first run of any commit).
+``--kernels cold`` gives each run an empty Dr.Jit kernel cache, as a fresh machine (a CI
+runner) has: ``HOME`` is a new folder (Dr.Jit keeps its LLVM kernels in ``~/.drjit``),
+with ``PIP_CACHE_DIR`` and ``PIP_CONFIG_FILE`` pointing at this user's so that pip
+installs what it would have. ``warm`` (the default) shares this user's kernel cache as it
+is (warm after the first run of any commit); ``both`` runs every commit warm, then every
+commit cold.
 
 Prints per commit: the wall time of ``make test`` (set-up included), pytest's own time,
 the count of tests passed, failed and skipped, and both times as ratios to the first
@@ -79,21 +80,23 @@ def _env(home: Path | None) -> dict:
 
 
 def run_commit(commit: str, work: Path, cold_kernels: bool) -> SuiteRun:
-    """Clone this repository at ``commit`` into ``work`` and time ``make test`` there."""
+    """Clone this repository at ``commit`` into a new folder of ``work`` and time
+    ``make test`` there."""
     sha = subprocess.run(["git", "rev-parse", "--short", commit], cwd=ROOT, check=True,
                          capture_output=True, text=True).stdout.strip()
-    clone = work / sha
+    tag = f"{sha}-{'cold' if cold_kernels else 'warm'}"
+    clone = work / tag
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
     subprocess.run(["git", "checkout", "-q", sha], cwd=clone, check=True)
     home = None
     if cold_kernels:
-        home = work / f"home-{sha}"
+        home = work / f"home-{tag}"
         home.mkdir()
     t0 = time.perf_counter()
     proc = subprocess.run(["make", "test"], cwd=clone, env=_env(home), capture_output=True,
                           text=True)
     wall = time.perf_counter() - t0
-    (work / f"{sha}.log").write_text(proc.stdout + proc.stderr)
+    (work / f"{tag}.log").write_text(proc.stdout + proc.stderr)
     seconds, counts = _summary(proc.stdout)
     return SuiteRun(f"{commit} ({sha})", wall, seconds, counts, proc.returncode)
 
@@ -102,8 +105,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--commits", nargs="+", default=[REFERENCE, "HEAD"],
                     help="commits to time, the first the reference of the ratios")
-    ap.add_argument("--cold-kernels", action="store_true",
-                    help="each run with an empty Dr.Jit kernel cache (a fresh machine)")
+    ap.add_argument("--kernels", choices=("warm", "cold", "both"), default="warm",
+                    help="Dr.Jit's kernel cache: this user's (warm), an empty one per run as on "
+                    "a fresh machine (cold), or each commit both ways")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the clones and their logs in this new folder")
     a = ap.parse_args()
@@ -112,19 +116,22 @@ def main() -> None:
         work = a.keep
     else:
         work = Path(tempfile.mkdtemp(prefix="suite_time-"))
+    modes = {"warm": [False], "cold": [True], "both": [False, True]}[a.kernels]
     try:
-        runs = [run_commit(c, work, a.cold_kernels) for c in a.commits]
+        tables = [(cold, [run_commit(c, work, cold) for c in a.commits]) for cold in modes]
     finally:
         if a.keep is None:
             shutil.rmtree(work, ignore_errors=True)
-    cache = "an empty Dr.Jit kernel cache each" if a.cold_kernels else "this user's Dr.Jit kernel cache"
-    print(f"make test from a clean clone, {cache}; ratios to {runs[0].commit}")
-    print(f"{'commit':>22} {'make test':>10} {'pytest':>8} {'ratio':>6} {'pytest ratio':>13}  tests")
-    for r in runs:
-        counts = ", ".join(f"{n} {k}" for k, n in r.counts.items()) or "no summary"
-        status = "" if r.returncode == 0 else f"  (exit {r.returncode})"
-        print(f"{r.commit:>22} {r.wall_s:>9.1f}s {r.pytest_s:>7.1f}s {r.wall_s / runs[0].wall_s:>6.2f} "
-              f"{r.pytest_s / runs[0].pytest_s:>13.2f}  {counts}{status}")
+    for cold, runs in tables:
+        cache = "an empty Dr.Jit kernel cache each" if cold else "this user's Dr.Jit kernel cache"
+        print(f"make test from a clean clone, {cache}; ratios to {runs[0].commit}")
+        print(f"{'commit':>22} {'make test':>10} {'pytest':>8} {'ratio':>6} {'pytest ratio':>13}  tests")
+        for r in runs:
+            counts = ", ".join(f"{n} {k}" for k, n in r.counts.items()) or "no summary"
+            status = "" if r.returncode == 0 else f"  (exit {r.returncode})"
+            print(f"{r.commit:>22} {r.wall_s:>9.1f}s {r.pytest_s:>7.1f}s {r.wall_s / runs[0].wall_s:>6.2f} "
+                  f"{r.pytest_s / runs[0].pytest_s:>13.2f}  {counts}{status}")
+        print()
 
 
 if __name__ == "__main__":
