@@ -51,7 +51,7 @@ from scenes.tagsites import draw_tags, tag_sites
 __all__ = ["EVAL_TAG_SPACING_M", "NARROW_ROUTE_MARGIN_M", "antenna_tilts", "build_robot",
            "link_budget", "load_study_recording", "map_route", "preferred_backend",
            "recorded_scene", "resolve_cache_dir", "select_backend", "stage_rng", "study_building",
-           "study_route", "study_scene", "tag_candidates", "trace_options"]
+           "study_route", "study_scene", "tag_candidates", "trace_options", "warn_skipped_faces"]
 
 
 def stage_rng(cfg: StudyConfig, stage: str) -> np.random.Generator:
@@ -174,9 +174,10 @@ def map_route(scene, robot):
     :func:`pipeline.robot.plan_coverage_route` past its tags, within the map's
     ``route_standoff_m`` (``[map]``, default 1 m); every other scene is returned as is.
     Tags on faces the route cannot serve (:attr:`pipeline.robot.CoverageRoute.skipped`)
-    are removed from the scene, each face logged at WARNING with its reason and listed in
-    ``scene.metadata["route"]["skipped"]``: a tag the robot never passes would only be
-    a tag never read.
+    are removed from the scene, each face logged at INFO with its reason (the run log) and
+    listed in ``scene.metadata["route"]["skipped"]``: a tag the robot never passes would
+    only be a tag never read. The console's one line about them is the scene stage's
+    (:func:`warn_skipped_faces`): every process that loads the scene plans its route.
     """
     if scene.route_m is not None or not traits_of(scene).plans_route:
         return scene
@@ -212,12 +213,26 @@ def map_route(scene, robot):
     if plan.skipped:
         log = logging.getLogger("pipeline.stages")
         gone = plan.skipped_tag_index
-        log.warning("%s: the planned route skips %d of %d tag faces (%d of %d tags removed from the "
-                    "scene)", scene.name, len(plan.skipped), len(plan.faces), len(gone), len(tags))
+        log.info("%s: the planned route skips %d of %d tag faces (%d of %d tags removed from the "
+                 "scene)", scene.name, len(plan.skipped), len(plan.faces), len(gone), len(tags))
         for s in plan.skipped:
-            log.warning("  skipped %s", s.describe())
+            log.info("  skipped %s", s.describe())
         tags = tags.subset(~np.isin(np.arange(len(tags)), gone))
     return dataclasses.replace(scene, route_m=plan.route_m, tags=tags, metadata=meta)
+
+
+def warn_skipped_faces(scene) -> None:
+    """One WARNING line when the planned route skips tag faces, with where each face and
+    its reason are (the run log, from :func:`map_route`, and ``rfidstudy scenes show``).
+
+    The scene stage calls it once per study; a real map's clutter skips tens of faces,
+    one console line each before."""
+    skipped = scene.metadata.get("route", {}).get("skipped", [])
+    if skipped:
+        logging.getLogger("pipeline.stages").warning(
+            "%s: the planned route skips %d tag faces (%d tags removed from the scene); each "
+            "face and why: run.log, or `rfidstudy scenes show`", scene.name, len(skipped),
+            sum(len(s["tags"]) for s in skipped))
 
 
 def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:

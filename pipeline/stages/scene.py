@@ -14,7 +14,7 @@ from pipeline.engine.study import Stage
 from pipeline.evaluation.tables import write_tags
 from pipeline.runfiles import STAGE_OUTPUTS
 from pipeline.stages.common import load_scene
-from pipeline.studyscene import study_route
+from pipeline.studyscene import study_route, warn_skipped_faces
 from scenes.geometry import floor_plan_segments
 
 __all__ = ["STAGE", "stage_scene"]
@@ -23,6 +23,7 @@ __all__ = ["STAGE", "stage_scene"]
 def stage_scene(ctx) -> dict:
     """Load the scene; write ``scene/scene.json``, ``scene/tags.parquet``, floor plan."""
     sc = load_scene(ctx)
+    warn_skipped_faces(sc)
     cfg = ctx.config
     lo, hi = sc.bounds_m
     route = study_route(sc, cfg)

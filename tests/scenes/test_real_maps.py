@@ -7,6 +7,7 @@ cell by cell; tags must sit on rack faces; the planned route must serve the tags
 
 from __future__ import annotations
 
+import logging
 import tomllib
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import shapely
 import scenes
 from pipeline.robot import Robot, collision_map
 from pipeline.robot.coverage import _segment_distance, route_clearance_m
-from pipeline.studyscene import map_route
+from pipeline.studyscene import map_route, warn_skipped_faces
 from scenes.mapextract import extract_obstacles, map_cells
 from scenes.rosmap import FREE, read_map
 
@@ -147,18 +148,30 @@ def test_warehouse_route_serves_its_tags_through_the_noise(warehouse, warehouse_
     assert route_clearance_m(cmap, route).min() >= robot.radius_m - cmap.resolution_m
 
 
-def test_lab_partitions_are_filled_and_its_walls_carry_tags():
+def test_lab_partitions_are_filled_and_its_walls_carry_tags(caplog):
     """The Neobotix lab: the U- and L-shaped structures drawn as double outlines (0.35 m
     apart) are solid thick walls, not pairs of partitions; no rack, so the walls are tagged
-    and a route planned past them."""
+    and a route planned past them. The faces its clutter leaves unserved are one console
+    line (the scene stage's), each face in the run log: a WARNING per face printed 34."""
     rm = read_map(LAB)
     cells, report = map_cells(rm)
     assert len(report.filled) >= 3 and sum(f.area_m2 for f in report.filled) > 2.5
     thick = [o for o in extract_obstacles(rm, cells=cells) if o.rule == "thick wall"]
     assert len(thick) >= 3 and all(0.25 <= o.thickness_m <= 0.6 for o in thick)
-    sc = map_route(scenes.load(LAB), Robot())
+    with caplog.at_level(logging.INFO, logger="pipeline.stages"):
+        sc = map_route(scenes.load(LAB), Robot())
     assert len(sc.tags) > 15 and all(t.startswith("W") for t in sc.tags.ids)
     assert sc.route_m is not None and len(sc.radio_surfaces) < 500
+    skipped = sc.metadata["route"]["skipped"]
+    assert len(skipped) >= 2  # the lab's clutter: several faces, so one line says something
+    route_lines = [r for r in caplog.records if r.name == "pipeline.stages"]
+    faces = [r for r in route_lines if r.getMessage().startswith("  skipped ")]
+    assert len(faces) == len(skipped) and all(r.levelno == logging.INFO for r in route_lines)
+    caplog.clear()
+    warn_skipped_faces(sc)
+    (line,) = caplog.records
+    assert line.levelno == logging.WARNING
+    assert f"skips {len(skipped)} tag faces ({sum(len(s['tags']) for s in skipped)} tags" in line.getMessage()
 
 
 def test_office_reads_without_walls_it_does_not_have():
