@@ -10,16 +10,19 @@ run (machines of one kind differ by up to 2.5x; seconds across machines are not
 comparable). The first commit is the reference of the ratios; the default is the
 commit at which the suite's time was reported as 380 s (issue 55).
 
-``--kernels cold`` gives each run an empty Dr.Jit kernel cache, as a fresh machine (a CI
-runner) has: ``HOME`` is a new folder (Dr.Jit keeps its LLVM kernels in ``~/.drjit``),
-with ``PIP_CACHE_DIR`` and ``PIP_CONFIG_FILE`` pointing at this user's so that pip
-installs what it would have. ``warm`` (the default) shares this user's kernel cache as it
-is (warm after the first run of any commit); ``both`` runs every commit warm, then every
-commit cold.
+``--kernels cold`` gives each run the empty per-user caches of a fresh machine (a CI
+runner): ``HOME`` is a new folder, so Dr.Jit's LLVM kernels (``~/.drjit``) and
+matplotlib's font list are built anew, with ``PIP_CACHE_DIR`` and ``PIP_CONFIG_FILE``
+pointing at this user's so that pip installs what it would have (a legacy
+``~/.pip/pip.conf`` is not carried over). ``warm`` (the default) shares this user's caches
+as they are: a commit's first run compiles the kernels no earlier run did, so run it twice
+for warm numbers. ``both`` runs every commit warm, then every commit cold.
 
 Prints per commit: the wall time of ``make test`` (set-up included), pytest's own time,
 the count of tests passed, failed and skipped, and both times as ratios to the first
-commit's. A commit whose suite fails is reported with its exit status, not left out.
+commit's. A commit whose suite fails is reported with its exit status, not left out, and
+the clones and logs are then kept (their folder is printed). Every commit is looked up
+before the first run.
 """
 
 from __future__ import annotations
@@ -116,12 +119,25 @@ def main() -> None:
         work = a.keep
     else:
         work = Path(tempfile.mkdtemp(prefix="suite_time-"))
+    shas = []
+    for c in a.commits:  # a wrong name stops here, not after the first commits' runs
+        found = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{c}^{{commit}}"],
+                               cwd=ROOT, capture_output=True, text=True)
+        if found.returncode != 0:
+            raise SystemExit(f"suite_time: no commit {c!r} in {ROOT}")
+        shas.append(found.stdout.strip())
+    if len(set(shas)) != len(shas):
+        raise SystemExit("suite_time: a commit is named twice (each has one clone)")
     modes = {"warm": [False], "cold": [True], "both": [False, True]}[a.kernels]
+    tables = []
     try:
         tables = [(cold, [run_commit(c, work, cold) for c in a.commits]) for cold in modes]
     finally:
-        if a.keep is None:
+        failed = any(r.returncode != 0 for _, runs in tables for r in runs)
+        if a.keep is None and not failed:
             shutil.rmtree(work, ignore_errors=True)
+        elif failed:
+            print(f"a suite failed: its clone and log (<commit>-<warm|cold>.log) are in {work}")
     for cold, runs in tables:
         cache = "an empty Dr.Jit kernel cache each" if cold else "this user's Dr.Jit kernel cache"
         print(f"make test from a clean clone, {cache}; ratios to {runs[0].commit}")

@@ -223,16 +223,17 @@ def map_route(scene, robot):
 
 def warn_skipped_faces(scene) -> None:
     """One WARNING line when the planned route skips tag faces, with where each face and
-    its reason are (the run log, from :func:`map_route`, and ``rfidstudy scenes show``).
+    its reason are (the run's ``scene/scene.json``, ``route_skipped``, written by the
+    scene stage; ``rfidstudy scenes show``; the run log at INFO, from :func:`map_route`).
 
-    The scene stage calls it once per study; a real map's clutter skips tens of faces,
-    one console line each before."""
+    The scene stage calls it once per study: the Neobotix lab map's clutter skips 14
+    faces, which printed a WARNING line each in every process that loaded the scene."""
     skipped = scene.metadata.get("route", {}).get("skipped", [])
     if skipped:
         logging.getLogger("pipeline.stages").warning(
             "%s: the planned route skips %d tag faces (%d tags removed from the scene); each "
-            "face and why: run.log, or `rfidstudy scenes show`", scene.name, len(skipped),
-            sum(len(s["tags"]) for s in skipped))
+            "face and why: scene/scene.json (route_skipped), or `rfidstudy scenes show`",
+            scene.name, len(skipped), sum(len(s["tags"]) for s in skipped))
 
 
 def _route_distance_m(xy: np.ndarray, route: np.ndarray) -> np.ndarray:

@@ -21,7 +21,11 @@ __all__ = ["STAGE", "stage_scene"]
 
 
 def stage_scene(ctx) -> dict:
-    """Load the scene; write ``scene/scene.json``, ``scene/tags.parquet``, floor plan."""
+    """Load the scene; write ``scene/scene.json``, ``scene/tags.parquet``, floor plan.
+
+    A scene whose route was planned (a map) lists the tag faces the route skips in
+    ``scene.json``'s ``route_skipped`` (their tags, positions and reasons), and says how
+    many on the console once (:func:`pipeline.studyscene.warn_skipped_faces`)."""
     sc = load_scene(ctx)
     warn_skipped_faces(sc)
     cfg = ctx.config
@@ -38,6 +42,8 @@ def stage_scene(ctx) -> dict:
         "n_tags_eval": int(np.sum(ctx.memo["tag_split"] == "eval")),
         "route_m": None if route is None else np.round(route, 6).tolist(),
     }
+    if "route" in sc.metadata:  # a planned route (a map scene): the tag faces it skips, and why
+        summary["route_skipped"] = sc.metadata["route"]["skipped"]
     atomic_write_json(ctx.out(runfiles.SCENE_SUMMARY), summary)
     write_tags(ctx.out(runfiles.SCENE_TAGS), sc.tags.ids, sc.tags.positions_m, sc.tags.normals,
                split=ctx.memo["tag_split"])

@@ -152,7 +152,8 @@ def test_lab_partitions_are_filled_and_its_walls_carry_tags(caplog):
     """The Neobotix lab: the U- and L-shaped structures drawn as double outlines (0.35 m
     apart) are solid thick walls, not pairs of partitions; no rack, so the walls are tagged
     and a route planned past them. The faces its clutter leaves unserved are one console
-    line (the scene stage's), each face in the run log: a WARNING per face printed 34."""
+    line (the scene stage's: test_the_scene_stage_lists_the_skipped_faces_and_warns_once),
+    each face at INFO: a WARNING per face printed 15 lines per process."""
     rm = read_map(LAB)
     cells, report = map_cells(rm)
     assert len(report.filled) >= 3 and sum(f.area_m2 for f in report.filled) > 2.5
@@ -224,3 +225,23 @@ def test_the_default_study_completes_on_a_real_robot_map(tmp_path):
     assert (tmp_path / "run" / "report.html").is_file() and res is not None
     html = (tmp_path / "run" / "report.html").read_text()
     assert "Smoke-scale settings" in html
+
+
+def test_the_scene_stage_lists_the_skipped_faces_and_warns_once(tmp_path, caplog):
+    """A study on the lab map: ``scene/scene.json`` lists every face the route skips, with
+    its tags and reason, and the console gets one line about them (the stage's WARNING)."""
+    import json
+
+    from pipeline.apps.cli import resolve_target
+    from pipeline.engine.study import run_study
+    from pipeline.stages import STAGES
+
+    cfg = resolve_target(str(LAB), [f"tracing.cache_dir='{tmp_path / 'cache'}'"])
+    with caplog.at_level(logging.INFO, logger="pipeline.stages"):
+        run_study(cfg, tmp_path / "run", [s for s in STAGES if s.name == "scene"],
+                  command_line=["pytest"])
+    listed = json.loads((tmp_path / "run" / "scene" / "scene.json").read_text())["route_skipped"]
+    faces = [r for r in caplog.records if r.getMessage().startswith("  skipped ")]
+    assert len(listed) == len(faces) >= 2 and all(f["reason"] and f["tags"] for f in listed)
+    warned = [r for r in caplog.records if r.levelno >= logging.WARNING and r.name == "pipeline.stages"]
+    assert len(warned) == 1 and f"skips {len(listed)} tag faces" in warned[0].getMessage()
