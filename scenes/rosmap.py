@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "MAP_KEYS",
+    "check_map",
     "OBSTACLE",
     "FREE",
     "UNKNOWN",
@@ -315,13 +316,24 @@ def _saved_trinary_unknown_read_free(x: np.ndarray, free_t: float) -> bool:
     return counts[values == _SAVED_UNKNOWN].sum() > 0.01 * x.size
 
 
-def read_map(path: str | Path) -> RosMap:
+def check_map(path: str | Path) -> RosMap:
+    """:func:`read_map` without its warnings: the pre-check of a map scene before a run
+    (:attr:`scenes.sources.SceneSource.precheck`; the build that follows reads the map
+    again and warns once)."""
+    return read_map(path, warn=False)
+
+
+def read_map(path: str | Path, *, warn: bool = True) -> RosMap:
     """Read a map_server YAML and its image.
 
     Parameters
     ----------
     path : str or Path
         The YAML file; ``image`` is relative to its folder (or absolute).
+    warn : bool
+        Log at WARNING where the map is read otherwise than its YAML says (a map_saver
+        trinary image's unknown pixels). False for the pre-check before a run
+        (:func:`check_map`), whose build reads the map again and says it then.
 
     Returns
     -------
@@ -415,9 +427,10 @@ def read_map(path: str | Path) -> RosMap:
         # ROS 2's free_thresh default 0.25 reads 205 (p = 0.196) as free, so the unmapped
         # outside becomes floor (slam_toolbox #587; navigation2 #5278 fixes the thresholds
         # map_saver writes). The saved pixels mean unknown: they are read as such.
-        log.warning("%s: a map_saver trinary image (pixels 0/205/254) with free_thresh %s: "
-                    "pixel 205 is map_saver's unknown and is read as unknown, not free "
-                    "(navigation2 PR 5278; slam_toolbox issue 587)", where, free_t)
+        say = log.warning if warn else log.debug
+        say("%s: a map_saver trinary image (pixels 0/205/254) with free_thresh %s: pixel 205 "
+            "is map_saver's unknown and is read as unknown, not free (navigation2 PR 5278; "
+            "slam_toolbox issue 587)", where, free_t)
         free_cell &= np.round(x) != _SAVED_UNKNOWN
     if mode == "raw":
         raw = np.round(x).astype(int)

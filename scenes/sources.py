@@ -38,7 +38,7 @@ from scenes.generator import build_corridor
 from scenes.importers import MESH_SUFFIXES, import_mesh, load_mitsuba_xml
 from scenes.mapscene import build_map_scene, load_map
 from scenes.mapspec import MapSpec, parse_map_table, parse_tags_table
-from scenes.rosmap import read_map
+from scenes.rosmap import check_map
 from scenes.spec import (
     CorridorSpec,
     MeshSpec,
@@ -290,7 +290,7 @@ register_source(SceneSource("mesh", MeshSpec, _build_mesh, suffixes=MESH_SUFFIXE
 register_source(SceneSource("mitsuba", MitsubaSpec, _build_mitsuba, suffixes=(".xml",),
                             load_file=load_mitsuba_xml))
 register_source(SceneSource(
-    "map", MapSpec, _build_map, suffixes=(".yaml", ".yml"), load_file=load_map, precheck=read_map,
+    "map", MapSpec, _build_map, suffixes=(".yaml", ".yml"), load_file=load_map, precheck=check_map,
     parse=parse_map_table,
     extra_tables=(ExtraTable("tags", "tag_layout", parse_tags_table, "tag layouts on shelves"),),
     bundled_suffix=".yaml", run_profile="map_scale",

@@ -245,3 +245,15 @@ def test_the_scene_stage_lists_the_skipped_faces_and_warns_once(tmp_path, caplog
     assert len(listed) == len(faces) >= 2 and all(f["reason"] and f["tags"] for f in listed)
     warned = [r for r in caplog.records if r.levelno >= logging.WARNING and r.name == "pipeline.stages"]
     assert len(warned) == 1 and f"skips {len(listed)} tag faces" in warned[0].getMessage()
+
+
+def test_a_checked_then_built_map_warns_once(caplog):
+    """A run checks its map before writing anything (``check_source``) and then builds it:
+    the map_saver trinary warning is the build's alone (it printed twice)."""
+    from scenes.catalog import check_source
+
+    with caplog.at_level(logging.DEBUG, logger="scenes.rosmap"):
+        check_source(LAB)
+        scenes.load(LAB)
+    trinary = [r for r in caplog.records if "map_saver trinary" in r.getMessage()]
+    assert [r.levelno for r in trinary] == [logging.DEBUG, logging.WARNING]
