@@ -82,11 +82,11 @@ def _env(home: Path | None) -> dict:
     return env
 
 
-def run_commit(commit: str, work: Path, cold_kernels: bool) -> SuiteRun:
-    """Clone this repository at ``commit`` into a new folder of ``work`` and time
+def run_commit(commit: str, sha: str, work: Path, cold_kernels: bool) -> SuiteRun:
+    """Clone this repository at ``sha`` (what ``commit`` named when the bench started: a
+    commit made meanwhile does not change it) into a new folder of ``work`` and time
     ``make test`` there."""
-    sha = subprocess.run(["git", "rev-parse", "--short", commit], cwd=ROOT, check=True,
-                         capture_output=True, text=True).stdout.strip()
+    sha = sha[:7]
     tag = f"{sha}-{'cold' if cold_kernels else 'warm'}"
     clone = work / tag
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
@@ -114,11 +114,6 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the clones and their logs in this new folder")
     a = ap.parse_args()
-    if a.keep is not None:
-        a.keep.mkdir(parents=True)  # a new folder: nothing of the user's is overwritten
-        work = a.keep
-    else:
-        work = Path(tempfile.mkdtemp(prefix="suite_time-"))
     shas = []
     for c in a.commits:  # a wrong name stops here, not after the first commits' runs
         found = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{c}^{{commit}}"],
@@ -128,10 +123,16 @@ def main() -> None:
         shas.append(found.stdout.strip())
     if len(set(shas)) != len(shas):
         raise SystemExit("suite_time: a commit is named twice (each has one clone)")
+    if a.keep is not None:
+        a.keep.mkdir(parents=True)  # a new folder: nothing of the user's is overwritten
+        work = a.keep
+    else:
+        work = Path(tempfile.mkdtemp(prefix="suite_time-"))
     modes = {"warm": [False], "cold": [True], "both": [False, True]}[a.kernels]
     tables = []
     try:
-        tables = [(cold, [run_commit(c, work, cold) for c in a.commits]) for cold in modes]
+        tables = [(cold, [run_commit(c, sha, work, cold) for c, sha in zip(a.commits, shas, strict=True)])
+                  for cold in modes]
     finally:
         failed = any(r.returncode != 0 for _, runs in tables for r in runs)
         if a.keep is None and not failed:
